@@ -1,0 +1,163 @@
+"""The ``membrax`` command.
+
+Contract: ``main(argv)`` parses ``argv`` (default ``sys.argv[1:]``), runs one sub-command, prints its
+report on standard output and returns a process exit code (0 on success).
+
+Sub-commands:
+  theory   the closed-form reference table (Rowe, Bolton, Molenkamp & Luger, ASTM shell correction)
+  demo     the main job on a small default; until the simulator exists it prints the theory table
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from membrax import __version__, theory
+
+# The paper's Table 1 grid and fixed parameters (the paper, §5.1; reference §12).
+PAPER_CELL_PRESSURES_KPA = (10.0, 40.0, 100.0)
+PAPER_MEMBRANE_THICKNESSES_MM = (2.5, 10.0 / 3.0, 5.0)
+PAPER_PARTICLE_DIAMETER_MM = 25.0
+PAPER_MEMBRANE_MODULUS_KPA = 1400.0
+PAPER_INTERPARTICLE_FRICTION_DEG = 25.0
+PAPER_SPECIMEN_DIAMETER_MM = 250.0
+# The paper's laboratory ballast (its Fig. 1 and Eq. 1).
+BALLAST_CRITICAL_FRICTION_DEG = 36.0
+BALLAST_VOID_RATIO_MIN = 0.71
+BALLAST_VOID_RATIO_MAX = 1.00
+BALLAST_VOID_RATIO = 0.78
+
+
+def _rule(title: str) -> str:
+    return f"\n{title}\n{'-' * len(title)}"
+
+
+def theory_report() -> str:
+    """The closed-form reference table as text (what ``membrax theory`` prints)."""
+    lines = [f"membrax {__version__}: closed-form theory (membrax.theory)"]
+
+    lines.append(
+        _rule(f"Rowe (1962), FCC, cube axis vertical, phi_mu = {PAPER_INTERPARTICLE_FRICTION_DEG:g} deg")
+    )
+    lines.append(f"{'convention':<34}{'tan(alpha)':>11}{'R':>9}{'phi_peak (deg)':>16}")
+    for label, packing in (
+        ("exact: tan(alpha) = 2, beta = 45", theory.FCC),
+        ("paper: alpha = 63.5, beta = 45", theory.FCC_PAPER),
+    ):
+        friction = np.deg2rad(PAPER_INTERPARTICLE_FRICTION_DEG)
+        ratio = float(theory.rowe_stress_ratio(friction, packing))
+        phi = float(theory.rowe_peak_friction_angle_deg(PAPER_INTERPARTICLE_FRICTION_DEG, packing))
+        lines.append(f"{label:<34}{packing.tan_alpha:>11.4f}{ratio:>9.4f}{phi:>16.2f}")
+
+    density = float(
+        theory.relative_density(BALLAST_VOID_RATIO, BALLAST_VOID_RATIO_MIN, BALLAST_VOID_RATIO_MAX)
+    )
+    lines.append(
+        _rule(
+            f"Bolton (1986) and the paper's Eq. 1: phi_crit = {BALLAST_CRITICAL_FRICTION_DEG:g} deg, "
+            f"e_min = {BALLAST_VOID_RATIO_MIN:g}, e_max = {BALLAST_VOID_RATIO_MAX:g}, "
+            f"e = {BALLAST_VOID_RATIO:g} "
+            f"(I_D = {density:.4f})"
+        )
+    )
+    lines.append(
+        f"{'p (kPa)':>8}{'I_R':>9}{'Bolton':>9}{'clipped I_R<=4':>16}{'Eq. 1':>9}{'I_R=5I_D-1':>15}   (deg)"
+    )
+    for pressure in PAPER_CELL_PRESSURES_KPA:
+        index = float(theory.relative_dilatancy_index(density, pressure))
+        bolton = float(
+            theory.bolton_peak_friction_angle_deg(BALLAST_CRITICAL_FRICTION_DEG, density, pressure)
+        )
+        clipped = float(
+            theory.bolton_peak_friction_angle_deg(BALLAST_CRITICAL_FRICTION_DEG, density, pressure, clip=True)
+        )
+        floored = float(
+            theory.bolton_peak_friction_angle_deg(
+                BALLAST_CRITICAL_FRICTION_DEG, density, pressure, low_pressure_rule=True
+            )
+        )
+        eq1 = float(
+            theory.paper_eq1_peak_friction_angle_deg(BALLAST_CRITICAL_FRICTION_DEG, density, pressure)
+        )
+        lines.append(f"{pressure:>8g}{index:>9.4f}{bolton:>9.2f}{clipped:>16.2f}{eq1:>9.2f}{floored:>15.2f}")
+    lines.append("Eq. 1 is Bolton's form + 2 deg (it subtracts 1 where Bolton subtracts 3), with no I_R cap.")
+    lines.append("I_R=5I_D-1: the post-publication advice for p' < 150 kPa (low_pressure_rule=True).")
+
+    lines.append(
+        _rule(
+            f"Molenkamp & Luger indentation ratio alpha/D, C = 0.275, D = {PAPER_PARTICLE_DIAMETER_MM:g} mm, "
+            f"E_m = {PAPER_MEMBRANE_MODULUS_KPA:g} kPa, FCC e = {theory.FCC_VOID_RATIO:.4f}"
+        )
+    )
+    header = "".join(f"{f't_m = {t:.2f} mm':>16}" for t in PAPER_MEMBRANE_THICKNESSES_MM)
+    lines.append(f"{'p (kPa)':>8}{header}")
+    any_invalid = False
+    for pressure in PAPER_CELL_PRESSURES_KPA:
+        cells = []
+        for thickness in PAPER_MEMBRANE_THICKNESSES_MM:
+            args = (
+                theory.FCC_VOID_RATIO,
+                PAPER_PARTICLE_DIAMETER_MM,
+                thickness,
+                pressure,
+                PAPER_MEMBRANE_MODULUS_KPA,
+            )
+            ratio = float(theory.molenkamp_luger_indentation_ratio(*args))
+            valid = bool(theory.molenkamp_luger_validity(*args).valid)
+            any_invalid |= not valid
+            cells.append(f"{ratio:>15.4f}{'' if valid else '*'}")
+        lines.append(f"{pressure:>8g}" + "".join(f"{c:>16}" for c in cells))
+    if any_invalid:
+        lines.append("* outside the stated validity (t_m/D < 0.2 and alpha/D > 0.2).")
+
+    strain = 0.05
+    lines.append(
+        _rule(
+            f"ASTM D4767/D7181 shell correction 4 E_m t_m eps_a / D at eps_a = {strain:.0%}, "
+            f"D = {PAPER_SPECIMEN_DIAMETER_MM:g} mm, E_m = {PAPER_MEMBRANE_MODULUS_KPA:g} kPa"
+        )
+    )
+    lines.append(f"{'t_m (mm)':>9}{'delta sigma_1 (kPa)':>21}")
+    for thickness in PAPER_MEMBRANE_THICKNESSES_MM:
+        correction = theory.astm_shell_correction(
+            PAPER_MEMBRANE_MODULUS_KPA, thickness / 1000.0, PAPER_SPECIMEN_DIAMETER_MM / 1000.0, strain
+        )
+        lines.append(f"{thickness:>9.2f}{float(correction.axial_stress):>21.4f}")
+    return "\n".join(lines)
+
+
+def _theory(_: argparse.Namespace) -> int:
+    print(theory_report())
+    return 0
+
+
+def _demo(_: argparse.Namespace) -> int:
+    print("membrax demo: the triaxial simulator is not built yet; showing the closed-form theory it is")
+    print("checked against (see `membrax theory`).\n")
+    print(theory_report())
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``membrax`` command."""
+    parser = argparse.ArgumentParser(
+        prog="membrax", description="Differentiable triaxial-test simulator for membrane corrections."
+    )
+    parser.add_argument("--version", action="version", version=f"membrax {__version__}")
+    commands = parser.add_subparsers(dest="command", required=True)
+    commands.add_parser("theory", help="print the closed-form reference table").set_defaults(func=_theory)
+    commands.add_parser("demo", help="run the main job on a small default").set_defaults(func=_demo)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``membrax`` console script."""
+    args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    return args.func(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,19 @@
+"""Shared test utilities: central finite differences for gradient checks."""
+
+import numpy as np
+
+
+def central_difference(function, args, index, relative_step=1e-6):
+    """d function / d args[index] by central differences, with a step relative to the argument."""
+    args = [float(a) for a in args]
+    step = relative_step * max(abs(args[index]), 1e-3)
+    plus = list(args)
+    minus = list(args)
+    plus[index] += step
+    minus[index] -= step
+    return (float(function(*plus)) - float(function(*minus))) / (2.0 * step)
+
+
+def assert_close(actual, expected, rtol=1e-4, atol=0.0, what=""):
+    """np.testing.assert_allclose with a message."""
+    np.testing.assert_allclose(np.asarray(actual, dtype=float), expected, rtol=rtol, atol=atol, err_msg=what)
