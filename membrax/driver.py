@@ -1,0 +1,141 @@
+"""The chunk driver: a Python loop over jitted ``lax.scan`` chunks.
+
+Contract. :class:`ChunkRunner` advances a state by whole chunks of steps. Each chunk is one compiled call
+that takes ``chunk_steps`` steps and records ``record_fn(state, params)`` every ``record_every`` steps.
+Between chunks, on the host, it:
+
+- checks the error bits of the state (:mod:`membrax.integrate`);
+- on a neighbour-list overflow, reallocates a larger list from the *chunk's starting state*, carries the
+  contact history over by partner id, and reruns the chunk — contacts are never silently dropped;
+- on any other error raises :class:`SimulationError` naming the step and a hint, with the state and the
+  records of the completed chunks attached so nothing computed so far is lost;
+- calls ``on_chunk(state, records)`` (progress bars, checkpoints) and stops early when ``stop_fn`` says so.
+
+This loop is the one place where lists are reallocated, errors checked and progress reported.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import numpy as np
+
+from membrax.integrate import ERROR_NEIGHBOR_OVERFLOW, DEMState, describe_errors
+from membrax.neighbors import PairNeighborFn, remap_pair_history
+
+__all__ = ["ChunkRunner", "SimulationError", "concatenate_records"]
+
+
+class SimulationError(RuntimeError):
+    """A run stopped on an error bit; ``state`` and ``records`` hold what was computed before it."""
+
+    def __init__(self, message, state=None, records=None):
+        super().__init__(message)
+        self.state = state
+        self.records = records
+
+
+def concatenate_records(chunks):
+    """Join a list of record pytrees (leading axis: time) into one pytree of numpy arrays."""
+    if not chunks:
+        return None
+    return jax.tree_util.tree_map(lambda *xs: np.concatenate([np.asarray(x) for x in xs], axis=0), *chunks)
+
+
+class ChunkRunner:
+    """Runs a step function in jitted chunks with error checks and neighbour-list reallocation.
+
+    Args:
+      step_fn: ``step_fn(state, params) -> state``.
+      neighbor_frame: the neighbour-list factory used to reallocate.
+      record_fn: ``record_fn(state, params) -> pytree`` recorded every ``record_every`` steps.
+      num_particles: N (for the history remap).
+      capacity_growth: the factor by which the pair capacity grows on each reallocation.
+    """
+
+    def __init__(
+        self,
+        step_fn: Callable,
+        neighbor_frame: PairNeighborFn,
+        record_fn: Callable,
+        num_particles: int,
+        capacity_growth: float = 1.5,
+    ):
+        self.step_fn = step_fn
+        self.neighbor_frame = neighbor_frame
+        self.record_fn = record_fn
+        self.num_particles = num_particles
+        self.capacity_growth = capacity_growth
+        self.reallocations = 0
+        self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
+
+    def _chunk_impl(self, state, params, num_records: int, record_every: int):
+        def inner(_, s):
+            return self.step_fn(s, params)
+
+        def outer(s, _):
+            s = jax.lax.fori_loop(0, record_every, inner, s)
+            return s, self.record_fn(s, params)
+
+        return jax.lax.scan(outer, state, None, length=num_records)
+
+    def reallocate(self, state: DEMState) -> DEMState:
+        """A copy of ``state`` with a larger neighbour list and its contact history carried over."""
+        old = state.neighbors
+        extra = int(np.ceil((self.capacity_growth - 1.0) * old.idx.shape[1]))
+        new = self.neighbor_frame.allocate(state.position, extra_capacity=extra)
+        spring = remap_pair_history(old.idx, new.idx, state.pair_spring, self.num_particles)
+        self.reallocations += 1
+        return state.set(neighbors=new, pair_spring=spring)
+
+    def run(
+        self,
+        state: DEMState,
+        params,
+        num_steps: int,
+        chunk_steps: int = 1000,
+        record_every: int = 25,
+        stop_fn: Callable | None = None,
+        on_chunk: Callable | None = None,
+    ):
+        """Advance ``state`` by up to ``num_steps`` steps (rounded up to whole records).
+
+        Args:
+          state: the starting state.
+          params: traced step parameters.
+          num_steps: steps to take (stops earlier if ``stop_fn`` returns True after a chunk).
+          chunk_steps: steps per compiled chunk (rounded to a multiple of ``record_every``).
+          record_every: steps between records.
+          stop_fn: ``stop_fn(state, records_of_chunk) -> bool``, checked after each chunk.
+          on_chunk: ``on_chunk(state, records_of_chunk)``, called after each accepted chunk.
+
+        Returns:
+          (final state, records: pytree of numpy arrays with a leading time axis, or None).
+        """
+        records_per_chunk = max(1, chunk_steps // record_every)
+        total_records = int(np.ceil(num_steps / record_every))
+        chunks = []
+        done = 0
+        while done < total_records:
+            count = min(records_per_chunk, total_records - done)
+            new_state, records = self._chunk(state, params, num_records=count, record_every=record_every)
+            error = int(new_state.error)
+            if error & ERROR_NEIGHBOR_OVERFLOW:
+                state = self.reallocate(state)
+                continue
+            if error:
+                raise SimulationError(
+                    f"simulation stopped in the chunk ending at step {int(new_state.step)}: "
+                    + "; ".join(describe_errors(error)),
+                    state=state,
+                    records=concatenate_records(chunks),
+                )
+            state = new_state
+            chunks.append(jax.device_get(records))
+            done += count
+            if on_chunk is not None:
+                on_chunk(state, chunks[-1])
+            if stop_fn is not None and stop_fn(state, chunks[-1]):
+                break
+        return state, concatenate_records(chunks)

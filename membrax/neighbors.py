@@ -1,0 +1,142 @@
+"""Neighbour (candidate-contact) lists with contact history that survives rebuilds.
+
+Contract. :func:`pair_neighbor_fn` wraps ``jax_md.partition.neighbor_list`` in free space with the
+``OrderedSparse`` format: ``nbrs.idx`` is (2, capacity) with each candidate pair (i < j) once, padded
+with ``num_particles``. ``nbrs.update(position)`` runs inside ``jit`` and rebuilds the list when a particle
+has moved more than half the skin since the last build; if the list then holds more pairs than its
+static capacity, ``nbrs.did_buffer_overflow`` (a uint8, not a bool) is set and the pairs are incomplete.
+The chunk driver (:mod:`membrax.driver`) checks it between jitted chunks, reallocates a larger list on
+the host, and reruns the chunk, so contacts are never silently dropped.
+
+Contact history (the tangential springs) is stored per pair slot. :func:`remap_pair_history` moves it from
+an old list to a new one by matching the partner ids (key i·N + j), so a rebuild or a reallocation keeps
+every spring of a pair that is still a candidate; pairs that left the list lose theirs (they are more than
+the cutoff apart, so their contact had opened and the spring was zero anyway).
+
+Why jax-md's cell list: it is maintained, handles the free-space box, and its rebuild is triggered by
+displacement, not by step count, so a slowly shearing FCC specimen rebuilds rarely (measured in
+``benchmarks/bench_dem.py``). Its cell hashing needs every position inside [0, box): callers pass
+positions shifted by ``origin`` (see :class:`PairNeighborFn`), and :func:`outside_box` reports a particle
+that left the box (an error bit in the state) instead of letting the list silently miss it. jax-md mixes
+dtypes and ranks internally, so its calls run under local standard promotion: membrax works when a user
+(or the test suite) sets ``jax_numpy_dtype_promotion="strict"`` and ``jax_numpy_rank_promotion="raise"``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax_md import partition, space
+
+__all__ = ["PairNeighborFn", "outside_box", "pair_neighbor_fn", "remap_pair_history"]
+
+# Keys i·N + j must fit in int32 when x64 is off.
+_MAX_PARTICLES = 46_340
+
+
+class PairNeighborFn(NamedTuple):
+    """A neighbour-list factory and the frame it works in.
+
+    Attributes:
+      neighbor_fn: the jax-md ``NeighborListFns`` (``allocate`` on the host, ``update`` under jit).
+      origin: (3,) shift added to positions so the whole specimen sits inside [0, box).
+      box: (3,) box size, m.
+      cutoff: contact distance used for candidates (largest diameter), m.
+      skin: extra distance; the list is rebuilt when a particle moved more than skin/2, m.
+    """
+
+    neighbor_fn: partition.NeighborListFns
+    origin: np.ndarray
+    box: np.ndarray
+    cutoff: float
+    skin: float
+
+    def allocate(self, position, extra_capacity: int = 0):
+        """Build a new list on the host (not jittable: its capacity is data dependent)."""
+        with _jax_md_promotion():
+            return self.neighbor_fn.allocate(position + self.origin[None, :], extra_capacity=extra_capacity)
+
+    def update(self, position, neighbors):
+        """Update under jit; rebuilds if needed and sets the overflow bit when capacity is short."""
+        with _jax_md_promotion():
+            return neighbors.update(position + jnp.asarray(self.origin, dtype=position.dtype)[None, :])
+
+
+@contextlib.contextmanager
+def _jax_md_promotion():
+    """jax-md's cell list mixes dtypes and ranks; let it, locally, even when a user runs strict promotion."""
+    with jax.numpy_dtype_promotion("standard"), jax.numpy_rank_promotion("allow"):
+        yield
+
+
+def pair_neighbor_fn(
+    lower_corner,
+    upper_corner,
+    cutoff: float,
+    skin: float,
+    margin: float,
+    capacity_multiplier: float = 1.25,
+) -> PairNeighborFn:
+    """Neighbour-list factory for spheres inside the axis-aligned region [lower, upper] plus a margin.
+
+    Args:
+      lower_corner: (3,) lowest coordinates any particle may reach (before the margin), m.
+      upper_corner: (3,) highest coordinates, m.
+      cutoff: contact distance (the largest particle diameter), m.
+      skin: neighbour skin, m; a pair is a candidate when closer than cutoff + skin.
+      margin: extra room on every side of the region (bulging, platen travel), m.
+      capacity_multiplier: spare capacity over the pairs found at allocation.
+    """
+    lower = np.asarray(lower_corner, dtype=float) - margin
+    upper = np.asarray(upper_corner, dtype=float) + margin
+    box = upper - lower
+    displacement, _ = space.free()
+    neighbor_fn = partition.neighbor_list(
+        displacement,
+        box=jnp.asarray(box),
+        r_cutoff=cutoff,
+        dr_threshold=skin,
+        capacity_multiplier=capacity_multiplier,
+        format=partition.OrderedSparse,
+    )
+    return PairNeighborFn(neighbor_fn=neighbor_fn, origin=-lower, box=box, cutoff=cutoff, skin=skin)
+
+
+def outside_box(position, neighbor_frame: PairNeighborFn):
+    """True if any particle left the neighbour-list box (the cell list would then miss its contacts)."""
+    shifted = position + jnp.asarray(neighbor_frame.origin, dtype=position.dtype)[None, :]
+    box = jnp.asarray(neighbor_frame.box, dtype=position.dtype)[None, :]
+    return jnp.any(shifted < 0.0) | jnp.any(shifted >= box)
+
+
+def remap_pair_history(old_idx, new_idx, old_history, num_particles: int):
+    """Carry per-pair history from one pair list to another by partner ids.
+
+    Args:
+      old_idx: (2, C_old) int pairs (i < j), padded with ``num_particles``.
+      new_idx: (2, C_new) int pairs, same convention.
+      old_history: (C_old, ...) values per old slot (e.g. tangential springs).
+      num_particles: N (the padding value).
+
+    Returns:
+      (C_new, ...) history: the old value where the same (i, j) pair existed, zero elsewhere.
+    """
+    if num_particles > _MAX_PARTICLES:
+        raise ValueError(
+            f"num_particles = {num_particles} exceeds {_MAX_PARTICLES}: pair keys overflow int32."
+        )
+    n = num_particles
+    # Padding pairs get a key above every real one and never match.
+    old_key = jnp.where(old_idx[0] < n, old_idx[0] * n + old_idx[1], n * n + 1)
+    new_key = jnp.where(new_idx[0] < n, new_idx[0] * n + new_idx[1], n * n + 2)
+    order = jnp.argsort(old_key)
+    sorted_key = old_key[order]
+    slot = jnp.clip(jnp.searchsorted(sorted_key, new_key), 0, old_key.shape[0] - 1)
+    found = sorted_key[slot] == new_key
+    gathered = old_history[order[slot]]
+    found = found.reshape(found.shape + (1,) * (old_history.ndim - 1))
+    return jnp.where(found, gathered, jnp.zeros_like(gathered))

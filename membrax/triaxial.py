@@ -1,0 +1,280 @@
+"""The triaxial test protocol on a DEM specimen (rigid-wall reference test).
+
+Contract. :func:`rigid_wall_test` builds a cell around a specimen — platens plus one servo wall per face of
+the specimen's outline, as in YADE's ``TriaxialStressController`` — and returns a :class:`RigidWallTest`
+whose methods run the two stages with the chunk driver and return the state and the records
+(:class:`membrax.measure.Measurements`, numpy arrays with a leading time axis):
+
+1. :meth:`RigidWallTest.consolidate`: every wall servo-controlled to the cell pressure σc until the
+   unbalanced-force ratio falls below ``tolerance`` and every wall stress is within ``stress_tolerance``
+   of σc;
+2. :meth:`RigidWallTest.shear`: the top platen moves down at constant velocity (drained, strain
+   controlled), lateral walls held at σc by their servos, to a target axial strain. The strain rate comes
+   from an inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004, with the axial strain rate for the shear rate
+   and the cell pressure for the confining stress). Records every ``record_every_fine`` steps below
+   ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 % strain), coarser after.
+
+The membrane test of the paper replaces the lateral walls by a membrane (later module); this rigid test is
+the reference every membrane result is compared with.
+"""
+
+from __future__ import annotations
+
+import dataclasses as pydataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from membrax import batch
+from membrax import measure as measure_lib
+from membrax.contact import ContactParams
+from membrax.driver import ChunkRunner, concatenate_records
+from membrax.integrate import (
+    DEFAULT_SAFETY,
+    DampingParams,
+    DEMParams,
+    DEMState,
+    critical_time_step,
+    dem,
+    make_particles,
+)
+from membrax.neighbors import pair_neighbor_fn
+from membrax.packing import GRANITE_DENSITY, Specimen
+from membrax.validation import check_range
+from membrax.walls import TOP, triaxial_walls
+
+__all__ = ["RigidWallTest", "peak", "rigid_wall_test", "strain_rate_from_inertial_number"]
+
+
+def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
+    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I (GDR MiDi 2004), 1/s."""
+    return inertial_number / (particle_diameter * math.sqrt(density / confining_stress))
+
+
+@pydataclasses.dataclass
+class RigidWallTest:
+    """A specimen in a rigid-wall cell, ready to run (built by :func:`rigid_wall_test`)."""
+
+    specimen: Specimen
+    particles: object
+    params: DEMParams
+    dt: float
+    critical_dt: float
+    cell_pressure: np.ndarray
+    density: float
+    initial_state: DEMState
+    runner: ChunkRunner
+    initial_height: np.ndarray
+    initial_volume: np.ndarray
+
+    @property
+    def num_members(self) -> int:
+        """B, the number of batch members (folded)."""
+        return self.particles.num_members
+
+    def _set_walls(self, state: DEMState, servo, velocity, target) -> DEMState:
+        """Set every wall's mode, velocity and target; 1-D arrays are per member."""
+        walls = state.walls
+
+        def per_member(value):
+            value = np.asarray(value)
+            return value[:, None] if value.ndim == 1 else value
+
+        servo, velocity, target = per_member(servo), per_member(velocity), per_member(target)
+        return state.set(
+            walls=walls.set(
+                servo=jnp.broadcast_to(jnp.asarray(servo), walls.servo.shape),
+                velocity=jnp.broadcast_to(jnp.asarray(velocity, walls.velocity.dtype), walls.velocity.shape),
+                target_stress=jnp.broadcast_to(
+                    jnp.asarray(target, walls.target_stress.dtype), walls.target_stress.shape
+                ),
+            )
+        )
+
+    def consolidate(
+        self,
+        state: DEMState | None = None,
+        tolerance: float | None = None,
+        stress_tolerance: float = 0.01,
+        max_steps: int = 200_000,
+        chunk_steps: int = 2000,
+        record_every: int = 100,
+        on_chunk=None,
+    ):
+        """Stage 1: isotropic consolidation to the cell pressure (module docstring).
+
+        Args:
+          state: starting state (default: the as-built specimen).
+          tolerance: unbalanced-force ratio to reach. Default 1e-3 in float64 and 5e-3 in float32, whose
+            round-off floor is ~2e-3 (a 25 mm branch vector resolves 2e-9 m, 0.1 % of a contact overlap at
+            40 kPa, and a sphere sums 12 such contact forces).
+          stress_tolerance: relative tolerance on every wall stress.
+          max_steps: give up after this many steps (the records show how far it got).
+          chunk_steps: steps per compiled chunk.
+          record_every: steps between records.
+          on_chunk: progress callback ``on_chunk(state, records)``.
+
+        Returns:
+          (state, records); ``records.step`` counts from the start of the stage.
+        """
+        state = self.initial_state if state is None else state
+        if tolerance is None:
+            tolerance = 1e-3 if state.position.dtype == jnp.float64 else 5e-3
+        state = self._set_walls(state, True, 0.0, self.cell_pressure)
+
+        def stop(_, records):
+            last_ufr = records.unbalanced_force_ratio[-1]
+            wall = np.asarray(records.wall_axial_stress[-1]), np.asarray(records.wall_radial_stress[-1])
+            close = all(np.all(np.abs(w / self.cell_pressure - 1.0) < stress_tolerance) for w in wall)
+            # Every member must be in equilibrium (members that are already there just wait).
+            return bool(np.all(last_ufr < tolerance) and close)
+
+        return self.runner.run(
+            state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
+        )
+
+    def shear(
+        self,
+        state: DEMState,
+        target_axial_strain: float = 0.10,
+        inertial_number: float = 1e-3,
+        record_every_fine: int = 25,
+        fine_until_strain: float = 0.01,
+        record_every_coarse: int = 250,
+        chunk_steps: int = 5000,
+        on_chunk=None,
+    ):
+        """Stage 2: strain-controlled drained shearing (module docstring).
+
+        In a batch, every member shears at the same strain rate, the one that gives ``inertial_number`` at
+        the lowest cell pressure (members at higher pressure shear at a smaller inertial number).
+
+        Returns:
+          (state, records) with the records of both recording rates joined.
+        """
+        check_range(
+            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
+        )
+        check_range("inertial_number", inertial_number, lower=0.0, lower_open=True)
+        rate = strain_rate_from_inertial_number(
+            inertial_number, self.specimen.particle_diameter, self.density, float(np.min(self.cell_pressure))
+        )
+        heights = np.asarray(state.walls.position[:, TOP] + state.walls.position[:, 0])
+        velocity = np.zeros(state.walls.velocity.shape)
+        velocity[:, TOP] = -rate * heights
+        servo = np.ones(state.walls.servo.shape, dtype=bool)
+        servo[:, :2] = False
+        state = self._set_walls(state, servo, velocity, self.cell_pressure)
+        # Strain counts from the start of the test; the stage adds target_axial_strain of the current height.
+        steps_per_strain = 1.0 / (rate * self.dt)
+        records = []
+        fine_strain = min(fine_until_strain, target_axial_strain)
+        fine_steps = math.ceil(fine_strain * steps_per_strain)
+        state, fine = self.runner.run(
+            state, self.params, fine_steps, chunk_steps, record_every_fine, on_chunk=on_chunk
+        )
+        records.append(fine)
+        remaining = math.ceil((target_axial_strain - fine_strain) * steps_per_strain)
+        if remaining > 0:
+            state, coarse = self.runner.run(
+                state, self.params, remaining, chunk_steps, record_every_coarse, on_chunk=on_chunk
+            )
+            records.append(coarse)
+        return state, concatenate_records([r for r in records if r is not None])
+
+
+def rigid_wall_test(
+    specimen: Specimen,
+    cell_pressure,
+    contact_params: ContactParams | None = None,
+    damping: DampingParams | None = None,
+    density: float = GRANITE_DENSITY,
+    dt_safety: float = DEFAULT_SAFETY,
+    skin_fraction: float = 0.2,
+    servo_gain: float = 0.1,
+    max_wall_speed: float | None = None,
+) -> RigidWallTest:
+    """Build a rigid-wall triaxial test (module docstring) on a specimen, or on a folded batch of copies.
+
+    Args:
+      specimen: from :func:`membrax.packing.fcc_specimen`.
+      cell_pressure: σc, Pa, > 0: a scalar, or one value per batch member (B,), which folds B copies of
+        the specimen into one system (:mod:`membrax.batch`).
+      contact_params: contact law (default: the paper's, :meth:`ContactParams.paper`); fields may be
+        arrays over members.
+      damping: default Cundall local 0.3 (the paper's); fields may be arrays over members.
+      density: particle density, kg/m³ (granite by default; the paper gives none).
+      dt_safety: Δt = dt_safety × Δt_crit.
+      skin_fraction: neighbour skin as a fraction of the particle diameter.
+      servo_gain: the servo's α.
+      max_wall_speed: servo speed limit, m/s (default: 1 % of a diameter per 1000 steps).
+    """
+    check_range("cell_pressure", cell_pressure, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
+    check_range("density", density, lower=0.0, lower_open=True)
+    check_range("dt_safety", dt_safety, lower=0.0, upper=1.0, lower_open=True)
+    contact_params = ContactParams.paper() if contact_params is None else contact_params
+    damping = DampingParams.local(0.3) if damping is None else damping
+    params = DEMParams(contact=contact_params, damping=damping)
+    cell_pressure = np.atleast_1d(np.asarray(cell_pressure, dtype=float))
+    num_members = cell_pressure.shape[0]
+    diameter = specimen.particle_diameter
+    spacing = specimen.width_across_flats + 3.0 * diameter
+    position, member = batch.fold(specimen.position, num_members, spacing)
+    particles = make_particles(jnp.tile(specimen.radius, num_members), density, member, num_members)
+    normals, distances = specimen.outline_faces()
+    walls = triaxial_walls(
+        np.asarray(normals),
+        np.asarray(distances),
+        specimen.height,
+        num_members=num_members,
+        servo_gain=servo_gain,
+    )
+    # Member b's planes pass through its shifted specimen: h_b = h + offset_b·e.
+    shift = batch.member_offsets(num_members, spacing) @ np.asarray(walls.normal, dtype=float).T
+    walls = walls.set(position=walls.position + jnp.asarray(shift, walls.position.dtype))
+    lower = np.min(np.asarray(position), axis=0) - diameter
+    upper = np.max(np.asarray(position), axis=0) + diameter
+    frame = pair_neighbor_fn(
+        lower, upper, cutoff=diameter, skin=skin_fraction * diameter, margin=0.5 * diameter
+    )
+    neighbors = frame.allocate(position)
+    probe_init, _ = dem(particles, frame, 1.0)
+    probe = probe_init(position, walls, neighbors)
+    critical = critical_time_step(probe, particles, params)
+    dt = dt_safety * critical
+    if max_wall_speed is None:
+        max_wall_speed = 0.01 * diameter / (1000 * dt)
+    walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
+    wall_friction = bool(np.any(np.asarray(contact_params.wall_friction_coefficient) != 0.0))
+    init_fn, step_fn = dem(particles, frame, dt, wall_friction=wall_friction)
+    state = init_fn(position, walls, neighbors)
+    initial_height = np.full(num_members, specimen.height)
+    initial_volume = np.full(num_members, specimen.cross_section_area * specimen.height)
+    h0 = jnp.asarray(initial_height, position.dtype)
+    v0 = jnp.asarray(initial_volume, position.dtype)
+
+    def record(s, p):
+        return measure_lib.measure(s, particles, p, dt, h0, v0, wall_friction=wall_friction)
+
+    runner = ChunkRunner(step_fn, frame, record, particles.num_particles)
+    return RigidWallTest(
+        specimen=specimen,
+        particles=particles,
+        params=params,
+        dt=dt,
+        critical_dt=critical,
+        cell_pressure=cell_pressure,
+        density=density,
+        initial_state=state,
+        runner=runner,
+        initial_height=initial_height,
+        initial_volume=initial_volume,
+    )
+
+
+def peak(records, key: str = "love_weber_friction_angle", member: int = 0):
+    """(peak value, axial strain at the peak) of a recorded quantity for one batch member."""
+    values = np.asarray(getattr(records, key))[:, member]
+    index = int(np.nanargmax(values))
+    return float(values[index]), float(np.asarray(records.axial_strain)[index, member])

@@ -1,0 +1,220 @@
+"""Rigid planes: platens and lateral servo walls of a triaxial cell.
+
+Contract. A :class:`WallState` holds W planes shared by every member of a batch of B specimens. Plane k is
+{x : x·e_k = h_k}, with a fixed unit normal e_k pointing *away* from the specimen and a position h_k per
+member; it moves along e_k at velocity dh_k/dt. The layout is fixed: wall 0 is the bottom platen
+(e = −z), wall 1 the top platen (e = +z), walls 2… are lateral faces (horizontal normals, counter-clockwise),
+none for a membrane test. Each wall is either position-controlled (constant velocity) or stress-controlled
+by a servo, chosen per wall and member by the traced mask ``servo``, so switching a stage never recompiles.
+
+Servo (the PFC/YADE ``TriaxialStressController`` scheme): the wall velocity is proportional to the force
+error, scaled so that one step closes a fraction α of it,
+
+    v = clip( α (F − σ_target A) / (k_n max(n_c, 1) Δt), −v_max, v_max ),
+
+F the normal force of the particles on the wall (compression positive), A the wall area, n_c the number of
+particles touching it. A positive v moves the wall outward (unloading).
+
+Areas: the lateral planes bound a polygon (the specimen's cross-section, area A_xy); platens have area A_xy
+and lateral face k has area (length of polygon edge k) × (platen separation). Without lateral walls the
+platen area must be given (the membrane test updates it from the membrane).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jax_md import dataclasses
+
+from membrax.validation import check_range
+
+__all__ = [
+    "BOTTOM",
+    "TOP",
+    "WallState",
+    "advance_walls",
+    "compensated_add",
+    "cross_section",
+    "platen_separation",
+    "servo_velocity",
+    "triaxial_walls",
+    "wall_areas",
+    "wall_stress",
+]
+
+BOTTOM = 0
+TOP = 1
+
+
+@dataclasses.dataclass
+class WallState:
+    """Planes of a triaxial cell for B batch members (see the module docstring).
+
+    Attributes:
+      normal: (W, 3) outward unit normals, shared by all members.
+      position: (B, W) plane positions h, m.
+      position_compensation: (B, W) low-order part of h (compensated summation; h + this is exact to
+        ~float64 resolution even in float32, see :func:`membrax.integrate.compensated_add`).
+      velocity: (B, W) dh/dt, m/s.
+      servo: (B, W) bool, stress-controlled walls.
+      target_stress: (B, W) servo target, Pa (compression positive).
+      max_speed: (B, W) servo speed limit, m/s.
+      servo_gain: scalar α, the fraction of the force error closed per step.
+      force: (B, W) normal force of the particles on each wall at the last step, N.
+      contacts: (B, W) number of particles touching each wall at the last step.
+    """
+
+    normal: jnp.ndarray
+    position: jnp.ndarray
+    position_compensation: jnp.ndarray
+    velocity: jnp.ndarray
+    servo: jnp.ndarray
+    target_stress: jnp.ndarray
+    max_speed: jnp.ndarray
+    servo_gain: jnp.ndarray
+    force: jnp.ndarray
+    contacts: jnp.ndarray
+
+    @property
+    def num_walls(self) -> int:
+        """W."""
+        return self.normal.shape[0]
+
+    @property
+    def num_lateral(self) -> int:
+        """Number of lateral walls (W − 2)."""
+        return self.normal.shape[0] - 2
+
+
+def triaxial_walls(
+    lateral_normals,
+    lateral_positions,
+    height: float,
+    num_members: int = 1,
+    target_stress: float = 0.0,
+    max_speed: float = 1.0,
+    servo_gain: float = 0.1,
+    dtype=None,
+) -> WallState:
+    """Platens at z = 0 and z = ``height`` and lateral planes at the given positions, all at rest.
+
+    Args:
+      lateral_normals: (F, 2) outward horizontal unit normals, counter-clockwise; (0, 2) for none.
+      lateral_positions: (F,) distances of the planes from the axis, m.
+      height: platen separation, m, > 0.
+      num_members: B, the batch size.
+      target_stress: initial servo target for every wall, Pa.
+      max_speed: servo speed limit, m/s, > 0.
+      servo_gain: α in (0, 1].
+      dtype: float dtype of the arrays (default: JAX's default float).
+    """
+    check_range("height", height, lower=0.0, lower_open=True)
+    check_range("max_speed", max_speed, lower=0.0, lower_open=True)
+    check_range("servo_gain", servo_gain, lower=0.0, upper=1.0, lower_open=True)
+    dtype = dtype or jnp.result_type(float)
+    lateral_normals = np.asarray(lateral_normals, dtype=float).reshape(-1, 2)
+    lateral_positions = np.asarray(lateral_positions, dtype=float).reshape(-1)
+    normal = np.zeros((2 + lateral_normals.shape[0], 3))
+    normal[BOTTOM] = (0.0, 0.0, -1.0)
+    normal[TOP] = (0.0, 0.0, 1.0)
+    normal[2:, :2] = lateral_normals
+    position = np.concatenate([[0.0, height], lateral_positions])
+    shape = (num_members, normal.shape[0])
+    return WallState(
+        normal=jnp.asarray(normal, dtype=dtype),
+        position=jnp.asarray(np.broadcast_to(position, shape), dtype=dtype),
+        position_compensation=jnp.zeros(shape, dtype=dtype),
+        velocity=jnp.zeros(shape, dtype=dtype),
+        servo=jnp.zeros(shape, dtype=bool),
+        target_stress=jnp.full(shape, target_stress, dtype=dtype),
+        max_speed=jnp.full(shape, max_speed, dtype=dtype),
+        servo_gain=jnp.asarray(servo_gain, dtype=dtype),
+        force=jnp.zeros(shape, dtype=dtype),
+        contacts=jnp.zeros(shape, dtype=jnp.int32),
+    )
+
+
+def platen_separation(walls: WallState):
+    """Specimen height between the platens, h_top + h_bottom (the bottom plane is z = −h_bottom); (B,)."""
+    return walls.position[:, TOP] + walls.position[:, BOTTOM]
+
+
+def cross_section(walls: WallState):
+    """Area and edge lengths of the polygon bounded by the lateral planes.
+
+    Vertex k is the intersection of planes k and k+1 (2×2 solve); edge k runs from vertex k−1 to k.
+    Area by the shoelace formula.
+
+    Returns:
+      (area (B,), edge_lengths (B, F)), m² and m.
+    """
+    normals = walls.normal[2:, :2]
+    positions = walls.position[:, 2:]
+    next_normals = jnp.roll(normals, -1, axis=0)
+    next_positions = jnp.roll(positions, -1, axis=1)
+    nx, ny = normals[None, :, 0], normals[None, :, 1]
+    next_nx, next_ny = next_normals[None, :, 0], next_normals[None, :, 1]
+    # Cramer's rule for [n_k; n_k+1] v = [h_k; h_k+1].
+    det = nx * next_ny - ny * next_nx
+    vx = (positions * next_ny - next_positions * ny) / det
+    vy = (nx * next_positions - next_nx * positions) / det
+    previous_vx = jnp.roll(vx, 1, axis=1)
+    previous_vy = jnp.roll(vy, 1, axis=1)
+    edge_lengths = jnp.sqrt((vx - previous_vx) ** 2 + (vy - previous_vy) ** 2)
+    area = 0.5 * jnp.sum(previous_vx * vy - vx * previous_vy, axis=1)
+    return area, edge_lengths
+
+
+def wall_areas(walls: WallState, platen_area=None):
+    """Area of every wall, (B, W), m².
+
+    Args:
+      walls: the walls.
+      platen_area: (B,) or scalar platen area; required when there are no lateral walls, otherwise the
+        lateral polygon's area is used.
+    """
+    height = platen_separation(walls)
+    if walls.num_lateral > 0:
+        polygon_area, edge_lengths = cross_section(walls)
+        platens = polygon_area if platen_area is None else jnp.broadcast_to(platen_area, polygon_area.shape)
+        lateral = edge_lengths * height[:, None]
+        return jnp.concatenate([platens[:, None], platens[:, None], lateral], axis=1)
+    if platen_area is None:
+        raise ValueError("platen_area is required when there are no lateral walls.")
+    platens = jnp.broadcast_to(jnp.asarray(platen_area, dtype=height.dtype), height.shape)
+    return jnp.stack([platens, platens], axis=1)
+
+
+def wall_stress(walls: WallState, platen_area=None):
+    """Normal stress on every wall, F/A, (B, W), Pa (compression positive)."""
+    return walls.force / wall_areas(walls, platen_area)
+
+
+def servo_velocity(walls: WallState, dt, normal_stiffness, platen_area=None):
+    """New wall velocities: the servo law for servo walls, unchanged velocity for the others (B, W)."""
+    area = wall_areas(walls, platen_area)
+    error = walls.force - walls.target_stress * area
+    stiffness = jnp.reshape(normal_stiffness, (-1, 1)) * jnp.maximum(walls.contacts, 1).astype(area.dtype)
+    servo = jnp.clip(walls.servo_gain * error / (stiffness * dt), -walls.max_speed, walls.max_speed)
+    return jnp.where(walls.servo, servo, walls.velocity)
+
+
+def compensated_add(value, compensation, increment):
+    """(value + increment) by compensated (Kahan–Babuška/Fast2Sum) summation.
+
+    Explicit DEM moves a body by ~1e-9 m per step, below float32 resolution at coordinates of 0.1 m
+    (ulp 7e-9 m): a plain sum loses the motion. The rounding error of each sum is carried in
+    ``compensation`` and fed back into the next increment, so value + compensation tracks the exact sum.
+
+    Returns:
+      (new value, new compensation).
+    """
+    corrected = increment + compensation
+    total = value + corrected
+    return total, corrected - (total - value)
+
+
+def advance_walls(walls: WallState, dt) -> WallState:
+    """Move every plane by its velocity over one step (compensated summation)."""
+    position, compensation = compensated_add(walls.position, walls.position_compensation, dt * walls.velocity)
+    return walls.set(position=position, position_compensation=compensation)
