@@ -80,10 +80,17 @@ class ChunkRunner:
 
         return jax.lax.scan(outer, state, None, length=num_records)
 
-    def reallocate(self, state: DEMState) -> DEMState:
-        """A copy of ``state`` with a larger neighbour list and its contact history carried over."""
+    def reallocate(self, state: DEMState, capacity_growth: float | None = None) -> DEMState:
+        """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
+
+        Args:
+          state: the state whose list to rebuild (at its positions).
+          capacity_growth: spare capacity as a fraction of the old capacity (default: the runner's, for an
+            overflow); 1.0 rebuilds without growing, so the compiled chunk is reused.
+        """
         old = state.neighbors
-        extra = int(np.ceil((self.capacity_growth - 1.0) * old.idx.shape[1]))
+        growth = self.capacity_growth if capacity_growth is None else capacity_growth
+        extra = int(np.ceil((growth - 1.0) * old.idx.shape[1]))
         new = self.neighbor_frame.allocate(state.position, extra_capacity=extra)
         spring = remap_pair_history(old.idx, new.idx, state.pair_spring, self.num_particles)
         self.reallocations += 1

@@ -194,6 +194,7 @@ def rigid_wall_test(
     skin_fraction: float = 0.2,
     servo_gain: float = 0.1,
     max_wall_speed: float | None = None,
+    time_step: float | None = None,
 ) -> RigidWallTest:
     """Build a rigid-wall triaxial test (module docstring) on a specimen, or on a folded batch of copies.
 
@@ -209,6 +210,7 @@ def rigid_wall_test(
       skin_fraction: neighbour skin as a fraction of the particle diameter.
       servo_gain: the servo's α.
       max_wall_speed: servo speed limit, m/s (default: 1 % of a diameter per 1000 steps).
+      time_step: Δt in s, overriding ``dt_safety`` × Δt_crit (e.g. to run cases with one step).
     """
     check_range("cell_pressure", cell_pressure, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
     check_range("density", density, lower=0.0, lower_open=True)
@@ -242,7 +244,7 @@ def rigid_wall_test(
     probe_init, _ = dem(particles, frame, 1.0)
     probe = probe_init(position, walls, neighbors)
     critical = critical_time_step(probe, particles, params)
-    dt = dt_safety * critical
+    dt = dt_safety * critical if time_step is None else float(time_step)
     if max_wall_speed is None:
         max_wall_speed = 0.01 * diameter / (1000 * dt)
     walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
