@@ -225,11 +225,6 @@ def _for_members(value, member):
     return value if value.ndim == 0 else value[member]
 
 
-def _scatter_add(values, segments, num_segments):
-    """Sum (k, M) columns into (k, num_segments) by segment id (one scatter for all k rows)."""
-    return jnp.zeros((values.shape[0], num_segments), values.dtype).at[:, segments].add(values)
-
-
 def _along(position_t, wall_normal):
     """x·e for every sphere (positions (3, N)) and wall (normals (W, 3)): (N, W)."""
     return (
@@ -264,18 +259,21 @@ def compute_forces(
     gj = jnp.where(valid, j, 0)
     member = particles.member[gi]
     law = params.contact
-    position_t = state.position.T
-    compensation_t = state.position_compensation.T
-    velocity_t = state.velocity.T
-    angular_t = state.angular_velocity.T
+    # Gather whole rows of one packed (N, 12) array, then transpose: XLA's CPU gather is ~10× faster on
+    # contiguous rows than on the columns of (3, N) arrays (measured at N = 1816, C = 11865).
+    packed = jnp.concatenate(
+        [state.position, state.position_compensation, state.velocity, state.angular_velocity], axis=1
+    )
+    rows_i = packed[gi].T
+    rows_j = packed[gj].T
     # x_j − x_i of nearby spheres is exact in floating point (Sterbenz), then the low parts are added.
-    branch = (position_t[:, gj] - position_t[:, gi]) + (compensation_t[:, gj] - compensation_t[:, gi])
+    branch = (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
     pairs = contact.pair_contact(
         branch,
-        velocity_t[:, gi],
-        velocity_t[:, gj],
-        angular_t[:, gi],
-        angular_t[:, gj],
+        rows_i[6:9],
+        rows_j[6:9],
+        rows_i[9:12],
+        rows_j[9:12],
         particles.radius[gi],
         particles.radius[gj],
         state.pair_spring.T,
@@ -285,17 +283,22 @@ def compute_forces(
         _for_members(law.friction_coefficient, member),
     )
     pair_force = select(valid, pairs.force_on_j)
-    # One scatter: rows 0–2 force, 3–5 torque; j receives (F, T_j), i receives (−F, T_i).
+    # One row scatter (segment_sum; ~10× faster than scattering columns): columns 0–2 force, 3–5 torque;
+    # j receives (F, T_j), i receives (−F, T_i).
     stacked = jnp.concatenate(
         [
             jnp.concatenate([pair_force, select(valid, pairs.torque_on_j)], axis=0),
             jnp.concatenate([-pair_force, select(valid, pairs.torque_on_i)], axis=0),
         ],
         axis=1,
-    )
+    ).T
     segments = jnp.concatenate([jnp.where(valid, j, n), jnp.where(valid, i, n)])
-    totals = _scatter_add(stacked, segments, n + 1)[:, :n]
+    totals = jax.ops.segment_sum(stacked, segments, num_segments=n + 1)[:n].T
     force_t, torque_t = totals[:3], totals[3:]
+    position_t = state.position.T
+    compensation_t = state.position_compensation.T
+    velocity_t = state.velocity.T
+    angular_t = state.angular_velocity.T
 
     walls = state.walls
     pm = particles.member
