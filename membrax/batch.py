@@ -6,12 +6,14 @@ runs as one compiled call in either of two layouts:
 - **folded**: the B specimens become one system of B·N spheres, member b shifted along x by b × spacing
   (spacing > specimen width + cutoff, so members never interact and one neighbour list serves all);
   ``Particles.member`` tells each sphere its member, walls carry a member axis, and parameters are arrays
-  over members. The gather/scatter kernels then run once over B·N spheres. Measured on a 2-core CPU, a
-  plain ``vmap`` of gather/scatter code runs 1.7–5× slower than the same cases one after another, while
-  this layout runs as fast as serial (``benchmarks/bench_dem.py``), so it is the CPU path.
-- **stacked**: B independent single-member states stacked on a leading axis and stepped with
-  ``jax.vmap(step_fn)``; the GPU path. Neighbour lists cannot be allocated inside ``vmap`` (jax-md #101):
-  each member's list is allocated outside, with one capacity for all (jax-md #192).
+  over members. The gather/scatter kernels then run once over B·N spheres: as fast as serial for small
+  specimens, 12–43 % slower at paper size where the arrays leave the cache (``benchmarks/bench_dem.py``).
+- **stacked**: B independent single-member states stacked on a leading axis (:func:`stack`), run by
+  :func:`map_members` (``lax.map``: members in turn inside one compiled call — the fastest CPU path,
+  because each member's arrays stay in cache) or :func:`vmap_members` (``vmap``: the GPU path; on a
+  2-core CPU a ``vmap`` of gather/scatter code is several times slower than serial). Neighbour lists
+  cannot be allocated inside ``vmap`` (jax-md #101): each member's list is allocated outside, with one
+  capacity for all (jax-md #192).
 
 :func:`fold` / :func:`unfold` convert per-particle arrays; :func:`member_offsets` gives the shifts (to apply
 to wall positions: a plane x·e = h of member b moves to h + offset_b·e).
@@ -23,7 +25,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["fold", "member_offsets", "stack", "unfold", "unstack"]
+__all__ = ["fold", "map_members", "member_offsets", "stack", "unfold", "unstack", "vmap_members"]
+
+
+def map_members(run_fn):
+    """Batch ``run_fn(state, params)`` over stacked members with ``lax.map`` (one call, members in turn).
+
+    The CPU path: each member's arrays stay cache-sized (a folded 9 × 1,816-sphere system spills the
+    pair arrays out of L2 and ran 12 % (float32) to 43 % (float64) slower than serial), and there is one
+    dispatch for the whole batch. Apply it to a whole chunk (a ``fori_loop`` of steps), not to one step.
+    """
+    return lambda states, params: jax.lax.map(lambda member: run_fn(*member), (states, params))
+
+
+def vmap_members(run_fn):
+    """Batch ``run_fn(state, params)`` over stacked members with ``vmap``: the GPU path (data parallel)."""
+    return jax.vmap(run_fn)
 
 
 def member_offsets(num_members: int, spacing: float) -> np.ndarray:

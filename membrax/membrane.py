@@ -1,0 +1,536 @@
+"""Latex membrane as a triangulated thin shell: mesh, stretching, bending and cell-pressure energies.
+
+Contract. A :class:`MembraneMesh` is built once on the host (numpy, deterministic) and holds the
+connectivity and every rest-state quantity the energies need. The energies are pure ``jnp`` functions of
+the current node positions (n_nodes, 3) and the material parameters; they are jittable and differentiable
+with respect to both, and conservative nodal forces are ``-jax.grad`` of :func:`total_energy`
+(:func:`nodal_forces`). SI units throughout: m, Pa, N, J, kg.
+
+The membrane is a band wrapping the specimen: rings of nodes stacked along z, the angle periodic, the
+bottom and top rings meant to be clamped to the platens (O-rings). Triangles are near equilateral and
+oriented so that (x₂ − x₁) × (x₃ − x₁) points away from the axis.
+
+Energies (reference: ``shared/reference/membrane-corrections.md`` §11):
+
+- stretching: constant-strain triangles (CST) with an incompressible neo-Hookean or a St Venant–Kirchhoff
+  law (:func:`stretching_energy`);
+- bending: Discrete Shells (Grinspun et al. 2003) calibrated to the plate rigidity, k_b = D/6
+  (:func:`bending_energy`);
+- cell pressure: the load potential +p V, V the volume enclosed by the band closed with two flat caps
+  (:func:`enclosed_volume`, :func:`pressure_energy`).
+
+Layout and speed: nodes are rows of an (N, 3) array; per-triangle and per-edge quantities gather rows and
+are then handled component-first (3, M) with :mod:`membrax.vector`, because XLA's CPU backend reduces over
+a size-3 axis much more slowly than it adds three rows. All 2 × 2 algebra is written out.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax_md import dataclasses
+
+from membrax.validation import check_range
+from membrax.vector import cross, dot
+
+__all__ = [
+    "MembraneMesh",
+    "cylinder_mesh",
+    "prism_mesh",
+    "flat_mesh",
+    "offset_polygon",
+    "bending_rigidity",
+    "stretching_energy",
+    "bending_energy",
+    "band_volume",
+    "cap_volume",
+    "enclosed_volume",
+    "pressure_energy",
+    "total_energy",
+    "nodal_forces",
+    "lumped_mass",
+]
+
+STRETCHING_MODELS = ("neo_hookean", "svk")
+
+
+@dataclasses.dataclass
+class MembraneMesh:
+    """A triangulated membrane and its rest state (see the module docstring).
+
+    Attributes:
+      reference_position: (N, 3) rest node positions, m.
+      triangles: (T, 3) int32 node indices, outward oriented.
+      bottom_ring: (n_θ,) int32 nodes of the lowest ring, in counter-clockwise order seen from +z.
+      top_ring: (n_θ,) int32 nodes of the highest ring, same order.
+      edges: (E, 2) int32 end nodes (a, b) of the interior edges; (a, b) is the order in which the first
+        adjacent triangle runs along the edge.
+      edge_opposite: (E, 2) int32 the vertex opposite the edge in the first triangle (a, b, c) and in the
+        second triangle (b, a, d).
+      reference_inverse: (T, 2, 2) D_m⁻¹, inverse of the rest edge matrix in the triangle's own frame, 1/m.
+      reference_area: (T,) rest triangle areas A₀, m².
+      rest_dihedral: (E,) rest bending angles θ̄, rad (signed by the triangles' orientation; only θ − θ̄
+        enters the energy).
+      edge_weight: (E,) 3 |ē|² / Ā_e of Discrete Shells, Ā_e the summed rest area of the two triangles.
+    """
+
+    reference_position: jnp.ndarray
+    triangles: jnp.ndarray
+    bottom_ring: jnp.ndarray
+    top_ring: jnp.ndarray
+    edges: jnp.ndarray
+    edge_opposite: jnp.ndarray
+    reference_inverse: jnp.ndarray
+    reference_area: jnp.ndarray
+    rest_dihedral: jnp.ndarray
+    edge_weight: jnp.ndarray
+
+    @property
+    def num_nodes(self) -> int:
+        """N."""
+        return self.reference_position.shape[0]
+
+    @property
+    def num_triangles(self) -> int:
+        """T."""
+        return self.triangles.shape[0]
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Mesh construction (host, numpy)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _band_triangles(num_columns: int, num_rows: int, periodic: bool) -> np.ndarray:
+    """Triangles of a band of ``num_rows`` rows of nodes; row j is offset by half a column when j is odd.
+
+    Node (j, i) has index j * nodes_per_row + i; a periodic band has ``num_columns`` nodes per row and wraps,
+    an open one has ``num_columns + 1``. With u along the row and v along the stack, every triangle runs
+    counter-clockwise in (u, v), so its normal is e_u × e_v (outward for a cylinder, +z for a flat sheet).
+    """
+    per_row = num_columns if periodic else num_columns + 1
+    i = np.arange(num_columns)
+    right = (i + 1) % per_row
+    triangles = []
+    for j in range(num_rows - 1):
+        low, up = j * per_row, (j + 1) * per_row
+        if j % 2 == 0:  # upper row shifted by +½: node U_i sits above the middle of L_i L_{i+1}
+            triangles.append(np.stack([low + i, low + right, up + i], axis=1))
+            triangles.append(np.stack([low + right, up + right, up + i], axis=1))
+        else:  # lower row shifted by +½: node L_i sits below the middle of U_i U_{i+1}
+            triangles.append(np.stack([low + i, low + right, up + right], axis=1))
+            triangles.append(np.stack([low + i, up + right, up + i], axis=1))
+    return np.concatenate(triangles).astype(np.int32)
+
+
+def _interior_edges(triangles: np.ndarray):
+    """Interior edges (E, 2) and their opposite vertices (E, 2), in a deterministic order."""
+    first = {}
+    edges, opposite = [], []
+    for t, (a, b, c) in enumerate(triangles.tolist()):
+        for p, q, r in ((a, b, c), (b, c, a), (c, a, b)):
+            key = (min(p, q), max(p, q))
+            if key in first:
+                p0, q0, r0 = first.pop(key)
+                if (p0, q0) != (q, p):
+                    raise ValueError(f"triangle {t} is not consistently oriented with its neighbour")
+                edges.append((p0, q0))
+                opposite.append((r0, r))
+            else:
+                first[key] = (p, q, r)
+    return np.asarray(edges, dtype=np.int32).reshape(-1, 2), np.asarray(opposite, dtype=np.int32).reshape(
+        -1, 2
+    )
+
+
+def _reference_frames(position: np.ndarray, triangles: np.ndarray):
+    """D_m⁻¹ (T, 2, 2) and A₀ (T,) of each rest triangle, in its frame (e₁ along x₂ − x₁, e₂ in-plane)."""
+    x1, x2, x3 = (position[triangles[:, k]] for k in range(3))
+    edge1, edge2 = x2 - x1, x3 - x1
+    length1 = np.linalg.norm(edge1, axis=1)
+    u = edge1 / length1[:, None]
+    normal = np.cross(edge1, edge2)
+    double_area = np.linalg.norm(normal, axis=1)
+    if np.any(double_area <= 0.0):
+        raise ValueError("degenerate triangle in the reference mesh")
+    v = np.cross(normal / double_area[:, None], u)
+    matrix = np.zeros((triangles.shape[0], 2, 2))
+    matrix[:, 0, 0] = length1
+    matrix[:, 0, 1] = np.einsum("ij,ij->i", edge2, u)
+    matrix[:, 1, 1] = np.einsum("ij,ij->i", edge2, v)
+    return np.linalg.inv(matrix), 0.5 * double_area
+
+
+def _assemble(position, triangles, bottom_ring, top_ring, dtype) -> MembraneMesh:
+    """Compute the rest-state quantities and pack a :class:`MembraneMesh`."""
+    position = np.asarray(position, dtype=np.float64)
+    edges, opposite = _interior_edges(triangles)
+    inverse, area = _reference_frames(position, triangles)
+    # rest angle and weight, with the same formulas as the traced code (in float64 on the host)
+    rest = np.asarray(_dihedral(jnp.asarray(position), jnp.asarray(edges), jnp.asarray(opposite)))
+    triangle_of = {}
+    for t, (a, b, c) in enumerate(triangles.tolist()):
+        for p, q in ((a, b), (b, c), (c, a)):
+            triangle_of.setdefault((min(p, q), max(p, q)), []).append(t)
+    pair_area = np.array([area[triangle_of[(min(a, b), max(a, b))]].sum() for a, b in edges.tolist()])
+    edge_length_sq = np.sum((position[edges[:, 1]] - position[edges[:, 0]]) ** 2, axis=1)
+    dtype = dtype or jnp.result_type(float)
+    return MembraneMesh(
+        reference_position=jnp.asarray(position, dtype=dtype),
+        triangles=jnp.asarray(triangles, dtype=jnp.int32),
+        bottom_ring=jnp.asarray(bottom_ring, dtype=jnp.int32),
+        top_ring=jnp.asarray(top_ring, dtype=jnp.int32),
+        edges=jnp.asarray(edges, dtype=jnp.int32),
+        edge_opposite=jnp.asarray(opposite, dtype=jnp.int32),
+        reference_inverse=jnp.asarray(inverse, dtype=dtype),
+        reference_area=jnp.asarray(area, dtype=dtype),
+        rest_dihedral=jnp.asarray(rest, dtype=dtype),
+        edge_weight=jnp.asarray(3.0 * edge_length_sq / pair_area, dtype=dtype),
+    )
+
+
+def _ring_levels(height: float, target_edge_length: float, z_bottom: float) -> np.ndarray:
+    """Ring heights: spacing ≈ target·√3/2 (equilateral rows), adjusted to land on both ends exactly."""
+    intervals = max(1, round(height / (target_edge_length * math.sqrt(3.0) / 2.0)))
+    return z_bottom + height * np.arange(intervals + 1) / intervals
+
+
+def _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype) -> MembraneMesh:
+    """Band around a closed curve ``point_at(s)`` (s ∈ [0, 1), counter-clockwise) of length ``perimeter``."""
+    check_range("height", height, lower=0.0, lower_open=True)
+    check_range("target_edge_length", target_edge_length, lower=0.0, lower_open=True)
+    num_around = max(3, round(perimeter / target_edge_length))
+    levels = _ring_levels(height, target_edge_length, z_bottom)
+    rings = []
+    for j, z in enumerate(levels):
+        xy = point_at((np.arange(num_around) + 0.5 * (j % 2)) / num_around)
+        rings.append(np.column_stack([xy, np.full(num_around, z)]))
+    position = np.concatenate(rings)
+    triangles = _band_triangles(num_around, len(levels), periodic=True)
+    bottom = np.arange(num_around)
+    top = (len(levels) - 1) * num_around + np.arange(num_around)
+    return _assemble(position, triangles, bottom, top, dtype)
+
+
+def cylinder_mesh(
+    radius: float, height: float, target_edge_length: float, z_bottom: float = 0.0, dtype=None
+) -> MembraneMesh:
+    """Band of near-equilateral triangles on the cylinder r = ``radius``, z ∈ [z_bottom, z_bottom + height].
+
+    n_θ = round(2π R / target) nodes per ring (hoop chord 2R sin(π/n_θ) ≈ target); ring spacing ≈ target·√3/2,
+    rounded so that rings sit exactly at both ends; odd rings are turned by half a step (π/n_θ), so the
+    triangles are near equilateral. Nodes lie on the cylinder; each ring is a regular n_θ-gon.
+
+    Args:
+      radius: R, m, > 0 (the membrane mid-surface).
+      height: m, > 0.
+      target_edge_length: wanted edge length, m, > 0.
+      z_bottom: height of the bottom ring, m.
+      dtype: float dtype of the arrays (default: JAX's default float).
+    """
+    check_range("radius", radius, lower=0.0, lower_open=True)
+
+    def point_at(s):
+        angle = 2.0 * np.pi * s
+        return radius * np.column_stack([np.cos(angle), np.sin(angle)])
+
+    return _band_mesh(point_at, 2.0 * np.pi * radius, height, target_edge_length, z_bottom, dtype)
+
+
+def offset_polygon(outline_vertices, offset: float) -> np.ndarray:
+    """Convex counter-clockwise polygon with every edge moved outward by ``offset`` (mitred corners).
+
+    Vertex k of the result is the intersection of the offset lines of the edges meeting at vertex k:
+    v_k + offset (n_{k−1} + n_k)/(1 + n_{k−1}·n_k), n the outward unit edge normals.
+    """
+    vertices = np.asarray(outline_vertices, dtype=np.float64).reshape(-1, 2)
+    edge = np.roll(vertices, -1, axis=0) - vertices
+    normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / np.linalg.norm(edge, axis=1)[:, None]
+    previous = np.roll(normal, 1, axis=0)
+    miter = (previous + normal) / (1.0 + np.sum(previous * normal, axis=1))[:, None]
+    return vertices + offset * miter
+
+
+def prism_mesh(
+    outline_vertices,
+    offset: float,
+    height: float,
+    target_edge_length: float,
+    z_bottom: float = 0.0,
+    dtype=None,
+) -> MembraneMesh:
+    """Band around a polygonal (e.g. octagonal) prism, its mid-surface ``offset`` outside the outline.
+
+    Rule: the polygon is offset outward with mitred corners (:func:`offset_polygon`); node k of a ring,
+    at parameter s = (k + ½·(j mod 2))/n_θ, is placed at arc length s·P along the offset polygon from its
+    vertex 0, counter-clockwise (P the perimeter, n_θ = round(P/target)). Corners that fall between two
+    nodes are cut by the chord, so the mesh is inscribed in the offset prism.
+
+    Args:
+      outline_vertices: (F, 2) convex polygon, counter-clockwise, m (the particle outline).
+      offset: outward distance of the mid-surface, m, >= 0 (t_m/2 for a membrane touching the outline).
+      height: m, > 0.
+      target_edge_length: m, > 0.
+      z_bottom: height of the bottom ring, m.
+      dtype: float dtype of the arrays (default: JAX's default float).
+    """
+    check_range("offset", offset, lower=0.0)
+    polygon = offset_polygon(outline_vertices, offset)
+    side = np.linalg.norm(np.roll(polygon, -1, axis=0) - polygon, axis=1)
+    start = np.concatenate([[0.0], np.cumsum(side)])
+    perimeter = start[-1]
+
+    def point_at(s):
+        arc = s * perimeter
+        k = np.clip(np.searchsorted(start, arc, side="right") - 1, 0, len(side) - 1)
+        fraction = (arc - start[k]) / side[k]
+        return polygon[k] + fraction[:, None] * (np.roll(polygon, -1, axis=0)[k] - polygon[k])
+
+    return _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype)
+
+
+def flat_mesh(width: float, length: float, target_edge_length: float, dtype=None) -> MembraneMesh:
+    """Flat sheet in the plane z = 0 (normal +z): rows along x stacked along y, odd rows shifted by ½.
+
+    Rows span x ∈ [0, width] (even) or [½a, width + ½a] (odd), a = width/n; row spacing ≈ a√3/2 adjusted
+    to span y ∈ [0, length]. ``bottom_ring`` and ``top_ring`` are the first and last rows (there are no
+    caps: the volume functions do not apply). For patch and bending tests.
+    """
+    check_range("width", width, lower=0.0, lower_open=True)
+    check_range("target_edge_length", target_edge_length, lower=0.0, lower_open=True)
+    columns = max(1, round(width / target_edge_length))
+    spacing = width / columns
+    levels = _ring_levels(length, target_edge_length, 0.0)
+    rows = []
+    for j, y in enumerate(levels):
+        x = (np.arange(columns + 1) + 0.5 * (j % 2)) * spacing
+        rows.append(np.column_stack([x, np.full(columns + 1, y), np.zeros(columns + 1)]))
+    triangles = _band_triangles(columns, len(levels), periodic=False)
+    bottom = np.arange(columns + 1)
+    top = (len(levels) - 1) * (columns + 1) + np.arange(columns + 1)
+    return _assemble(np.concatenate(rows), triangles, bottom, top, dtype)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Energies (traced)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _corners(position, triangles):
+    """Triangle corners component-first: three (3, T) arrays (row gathers, then a transpose)."""
+    return tuple(position[triangles[:, k]].T for k in range(3))
+
+
+def _green_strain(position, mesh: MembraneMesh):
+    """Green–Lagrange strain E = (FᵀF − I)/2 of each triangle, F = D_s D_m⁻¹; returns (E₁₁, E₂₂, E₁₂)."""
+    x1, x2, x3 = _corners(position, mesh.triangles)
+    edge1, edge2 = x2 - x1, x3 - x1
+    inverse = mesh.reference_inverse
+    # columns of F (3 × 2): f_j = edge1 (D_m⁻¹)_{1j} + edge2 (D_m⁻¹)_{2j}
+    f1 = edge1 * inverse[None, :, 0, 0] + edge2 * inverse[None, :, 1, 0]
+    f2 = edge1 * inverse[None, :, 0, 1] + edge2 * inverse[None, :, 1, 1]
+    return 0.5 * (dot(f1, f1) - 1.0), 0.5 * (dot(f2, f2) - 1.0), 0.5 * dot(f1, f2)
+
+
+def stretching_energy(
+    position, mesh: MembraneMesh, modulus, thickness, model="neo_hookean", poisson_ratio=0.5
+):
+    """In-plane strain energy of the membrane with constant-strain triangles, J.
+
+    Per triangle, with D_m the rest edge matrix in the triangle's plane and D_s = [x₂ − x₁, x₃ − x₁] (3 × 2):
+    F = D_s D_m⁻¹, C = FᵀF, E = (C − I)/2 (reference §11; standard finite elements), and
+
+    - ``"neo_hookean"`` (incompressible, plane stress, thickness t = t₀/√det C):
+      W = t₀ A₀ (μ/2)(tr C + 1/det C − 3), μ = E_m/3 (so ν = ½);
+    - ``"svk"`` (St Venant–Kirchhoff, plane stress): W = t₀ A₀ [μ tr(E²) + (λ*/2)(tr E)²],
+      μ = E_m/(2(1+ν)), λ* = E_m ν/(1−ν²).
+
+    Why neo-Hookean: latex is a rubber, near incompressible, and the membrane reaches tens of percent
+    strain where bulging; the neo-Hookean law is the simplest finite-strain rubber law and reduces to
+    E_m, ν = ½ at small strain. SVK is kept for small strains (below ~10 %) and other ν.
+
+    Wrinkling: a membrane cannot carry compression. Here compression resistance comes from the bending
+    energy (:func:`bending_energy`), which lets the mesh wrinkle at its own resolution; a tension-field
+    (relaxed) energy is not implemented, so wrinkles finer than the mesh are not resolved.
+
+    The neo-Hookean bracket is evaluated through E as (4(tr E)² + 8 tr E det E − 4 det E)/det C, an exact
+    rewriting that avoids the cancellation of tr C + 1/det C − 3 at small strain (≈ 10 % error in float32
+    at 10⁻³ strain otherwise).
+
+    Args:
+      position: (N, 3) current node positions, m.
+      mesh: the membrane.
+      modulus: E_m, Pa (scalar; traced, differentiable).
+      thickness: t₀, m (scalar; traced, differentiable).
+      model: ``"neo_hookean"`` or ``"svk"`` (static).
+      poisson_ratio: ν of the SVK law (the neo-Hookean law is incompressible).
+
+    Returns:
+      Scalar energy, J.
+    """
+    if model not in STRETCHING_MODELS:
+        raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
+    e11, e22, e12 = _green_strain(position, mesh)
+    trace = e11 + e22
+    if model == "neo_hookean":
+        determinant = e11 * e22 - e12 * e12
+        det_c = 1.0 + 2.0 * trace + 4.0 * determinant
+        bracket = (4.0 * trace * trace + 8.0 * trace * determinant - 4.0 * determinant) / det_c
+        density = (modulus / 6.0) * bracket  # (μ/2)(...) with μ = E/3
+    else:
+        shear = modulus / (2.0 * (1.0 + poisson_ratio))
+        lame = modulus * poisson_ratio / (1.0 - poisson_ratio * poisson_ratio)
+        density = shear * (e11 * e11 + e22 * e22 + 2.0 * e12 * e12) + 0.5 * lame * trace * trace
+    return thickness * jnp.sum(mesh.reference_area * density)
+
+
+def bending_rigidity(modulus, thickness, poisson_ratio=0.5):
+    """Plate bending rigidity D = E t³ / (12 (1 − ν²)), N·m (Kirchhoff plate theory)."""
+    return modulus * thickness**3 / (12.0 * (1.0 - poisson_ratio * poisson_ratio))
+
+
+def _dihedral(position, edges, opposite):
+    """Signed bending angle θ_e of each interior edge, rad (0 for a flat pair; gradient-safe).
+
+    With the edge a → b of the first triangle (a, b, c) and the second (b, a, d), the unnormalised normals
+    are n₁ = (b − a) × (c − a) and n₂ = (a − b) × (d − b); θ = atan2((n₁ × n₂)·e, |e| n₁·n₂), e = b − a,
+    which is the angle between the normals without normalising them (both atan2 arguments carry the same
+    positive factor). Collapsed triangles (both arguments 0) give θ = 0 with a zero gradient.
+    """
+    a, b = position[edges[:, 0]].T, position[edges[:, 1]].T
+    c, d = position[opposite[:, 0]].T, position[opposite[:, 1]].T
+    edge = b - a
+    normal1 = cross(edge, c - a)
+    normal2 = cross(a - b, d - b)
+    length_sq = dot(edge, edge)
+    length = jnp.sqrt(jnp.where(length_sq > 0.0, length_sq, 1.0))
+    sine = dot(cross(normal1, normal2), edge)
+    cosine = length * dot(normal1, normal2)
+    degenerate = (sine * sine + cosine * cosine) == 0.0
+    return jnp.where(degenerate, 0.0, jnp.arctan2(sine, jnp.where(degenerate, 1.0, cosine)))
+
+
+def bending_energy(position, mesh: MembraneMesh, modulus, thickness, poisson_ratio=0.5):
+    """Discrete Shells bending energy (Grinspun, Hirani, Desbrun & Schröder 2003), J.
+
+        E_b = Σ_{interior edges e} k_b · 3|ē_e|²/Ā_e · (θ_e − θ̄_e)²,   k_b = D/6,   D = E t³/(12(1 − ν²)),
+
+    ē_e, Ā_e the rest edge length and summed rest area of the two adjacent triangles, θ_e the angle
+    between their normals (θ̄_e at rest). k_b = D/6 is calibrated so that a near-equilateral mesh rolled
+    into a cylinder of radius R stores the Kirchhoff energy (D/2)·Area/R² (reference §11: the sum tends to
+    3.00·Area/R² for both edge orientations). On doubly curved shapes the match is only approximate (a
+    sphere gives ≈ 1.02 × the Kirchhoff energy with ν = 0, reference §11).
+
+    Args:
+      position: (N, 3) current node positions, m.
+      mesh: the membrane.
+      modulus: E_m, Pa.
+      thickness: t_m, m.
+      poisson_ratio: ν in D (½ for latex).
+
+    Returns:
+      Scalar energy, J.
+    """
+    angle = _dihedral(position, mesh.edges, mesh.edge_opposite)
+    stiffness = bending_rigidity(modulus, thickness, poisson_ratio) / 6.0
+    change = angle - mesh.rest_dihedral
+    return stiffness * jnp.sum(mesh.edge_weight * change * change)
+
+
+def band_volume(position, mesh: MembraneMesh):
+    """(1/6) Σ_triangles x₁·(x₂ × x₃) over the band alone, m³ (origin-dependent: the band is open)."""
+    x1, x2, x3 = _corners(position, mesh.triangles)
+    return jnp.sum(dot(x1, cross(x2, x3))) / 6.0
+
+
+def cap_volume(position, ring, upward: bool):
+    """Volume term of a flat cap closing a ring, m³: a fan of triangles to the ring's centroid.
+
+    The cap triangles are (c, x_k, x_{k+1}) for the top (``upward``, normal +z, ring counter-clockwise seen
+    from +z) and (c, x_{k+1}, x_k) for the bottom, c the centroid of the ring nodes (so the cap follows the
+    ring, and its pressure force is passed to the ring nodes). Like :func:`band_volume`, origin-dependent.
+    """
+    points = position[ring]
+    centre = jnp.mean(points, axis=0)
+    here = points.T
+    after = jnp.roll(points, -1, axis=0).T
+    first, second = (here, after) if upward else (after, here)
+    triple = centre[0] * (first[1] * second[2] - first[2] * second[1])
+    triple += centre[1] * (first[2] * second[0] - first[0] * second[2])
+    triple += centre[2] * (first[0] * second[1] - first[1] * second[0])
+    return jnp.sum(triple) / 6.0
+
+
+def enclosed_volume(position, mesh: MembraneMesh):
+    """Volume enclosed by the band and two flat end caps, m³ (reference §9, divergence theorem).
+
+        V = (1/6) Σ_f x₁·(x₂ × x₃)   over the band triangles and the cap fans of :func:`cap_volume`.
+
+    The caps stand for the platens: the end rings are meant to be clamped to them, where the fan is
+    exactly the platen's face. The surface is closed for any node positions, so V is exact and independent
+    of the origin; for rings lying in planes it is the exact volume of the polyhedron.
+    """
+    return (
+        band_volume(position, mesh)
+        + cap_volume(position, mesh.bottom_ring, upward=False)
+        + cap_volume(position, mesh.top_ring, upward=True)
+    )
+
+
+def pressure_energy(position, mesh: MembraneMesh, cell_pressure):
+    """Potential of the cell pressure, Π_p = +p V, J (reference §11).
+
+    The cell fluid does work −p dV on the specimen, so its potential is +p V and the nodal force
+    −p ∂V/∂x = −p Σ_f A_f n_f/3 points inward for p > 0 (a negative p is an internal pressure). On the end
+    rings the force includes the cap share; with the rings clamped to the platens it is a reaction.
+
+    Args:
+      position: (N, 3) node positions, m.
+      mesh: the membrane (band and end rings).
+      cell_pressure: p, Pa.
+    """
+    return cell_pressure * enclosed_volume(position, mesh)
+
+
+def total_energy(
+    position,
+    mesh: MembraneMesh,
+    modulus,
+    thickness,
+    cell_pressure,
+    poisson_ratio=0.5,
+    model="neo_hookean",
+):
+    """Stretching + bending + pressure potential of the membrane, J (see the three terms)."""
+    return (
+        stretching_energy(position, mesh, modulus, thickness, model=model, poisson_ratio=poisson_ratio)
+        + bending_energy(position, mesh, modulus, thickness, poisson_ratio)
+        + pressure_energy(position, mesh, cell_pressure)
+    )
+
+
+def nodal_forces(
+    position,
+    mesh: MembraneMesh,
+    modulus,
+    thickness,
+    cell_pressure,
+    poisson_ratio=0.5,
+    model="neo_hookean",
+):
+    """Conservative nodal forces −∂(total energy)/∂x, (N, 3), N."""
+    return -jax.grad(total_energy)(position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model)
+
+
+def lumped_mass(mesh: MembraneMesh, thickness, density=1000.0):
+    """Node masses, (N,), kg: each triangle's rest mass A₀ t ρ shared equally by its three nodes.
+
+    Latex density is about 920–1000 kg/m³.
+    """
+    share = (density * thickness / 3.0) * mesh.reference_area
+    flat = jnp.concatenate([share, share, share])
+    nodes = jnp.concatenate([mesh.triangles[:, 0], mesh.triangles[:, 1], mesh.triangles[:, 2]])
+    return jax.ops.segment_sum(flat, nodes, num_segments=mesh.num_nodes)

@@ -1,0 +1,349 @@
+"""Membrane mesh and energies (membrax.membrane): each test checks a number against theory."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import central_difference
+from scipy.optimize import minimize
+
+from membrax import membrane
+
+
+def _stretched(mesh, stretch_x, stretch_y):
+    """Reference positions under the homogeneous deformation diag(λ1, λ2, 1)."""
+    return mesh.reference_position * jnp.asarray([stretch_x, stretch_y, 1.0])[None, :]
+
+
+def _rotation(angle_z, angle_x):
+    cz, sz, cx, sx = np.cos(angle_z), np.sin(angle_z), np.cos(angle_x), np.sin(angle_x)
+    about_z = np.array([[cz, -sz, 0.0], [sz, cz, 0.0], [0.0, 0.0, 1.0]])
+    about_x = np.array([[1.0, 0.0, 0.0], [0.0, cx, -sx], [0.0, sx, cx]])
+    return jnp.asarray(about_x @ about_z)
+
+
+def _prismatoid_volume(position, mesh):
+    """Exact volume of a stack of layers whose vertices lie on two planes: Σ h/6 (A_low + 4 A_mid + A_up).
+
+    A_mid is the area of the polygon through the midpoints of the layer's zigzag edges, in order.
+    """
+    x = np.asarray(position)
+    per_ring = mesh.bottom_ring.shape[0]
+    rings = x.reshape(-1, per_ring, 3)
+
+    def area(polygon):
+        return 0.5 * np.sum(
+            polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1]
+        )
+
+    total = 0.0
+    for j in range(rings.shape[0] - 1):
+        low, up = rings[j], rings[j + 1]
+        if j % 2 == 0:  # upper ring turned by +½ step: zigzag L0 U0 L1 U1 ...
+            zigzag = np.stack([low, up], axis=1).reshape(-1, 3)
+        else:  # lower ring turned by +½ step: zigzag U0 L0 U1 L1 ...
+            zigzag = np.stack([up, low], axis=1).reshape(-1, 3)
+        middle = 0.5 * (zigzag + np.roll(zigzag, -1, axis=0))
+        height = up[0, 2] - low[0, 2]
+        total += height / 6.0 * (area(low) + 4.0 * area(middle) + area(up))
+    return total
+
+
+# ------------------------------------------------------------------------------------------------ mesh
+
+
+def test_paper_size_mesh_count_and_orientation():
+    # paper specimen: D ≈ 0.25 m (membrane mid-surface radius 0.1265 m), H = 0.449 m, edge 5 mm
+    mesh = membrane.cylinder_mesh(0.1265, 0.449, 0.005)
+    assert mesh.bottom_ring.shape == (159,)
+    assert mesh.num_triangles == 33072  # 2 · 159 · 104 bands
+    small = membrane.cylinder_mesh(1.0, 2.0, 0.3)
+    x = np.asarray(small.reference_position)
+    tri = np.asarray(small.triangles)
+    normal = np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
+    centre = x[tri].mean(axis=1)
+    assert np.all(normal[:, 0] * centre[:, 0] + normal[:, 1] * centre[:, 1] > 0.0)  # outward
+    edge_lengths = np.linalg.norm(x[tri] - x[np.roll(tri, 1, axis=1)], axis=2)
+    assert edge_lengths.max() / edge_lengths.min() < 1.1  # near equilateral
+    assert (
+        np.ptp(x[np.asarray(small.bottom_ring), 2]) == 0.0 and x[np.asarray(small.top_ring), 2].min() == 2.0
+    )
+
+
+# ------------------------------------------------------------------------------------------------ stretching
+
+
+@pytest.mark.parametrize(("stretch_x", "stretch_y"), [(1.3, 1.3), (1.5, 1.0), (1.2, 0.9)])
+def test_patch_neo_hookean_energy_matches_law(stretch_x, stretch_y):
+    mesh = membrane.flat_mesh(0.3, 0.2, 0.05)
+    modulus, thickness = 1.4e6, 2e-3
+    area = float(jnp.sum(mesh.reference_area))
+    law = (modulus / 6.0) * (stretch_x**2 + stretch_y**2 + 1.0 / (stretch_x * stretch_y) ** 2 - 3.0)
+    position = _stretched(mesh, stretch_x, stretch_y) @ _rotation(0.4, 0.7).T  # rotation-invariant
+    energy = membrane.stretching_energy(position, mesh, modulus, thickness)
+    np.testing.assert_allclose(float(energy), law * thickness * area, rtol=1e-8)
+
+
+def test_patch_svk_energy_matches_law():
+    mesh = membrane.flat_mesh(0.3, 0.2, 0.05)
+    modulus, thickness, nu, stretch_x, stretch_y = 1.4e6, 2e-3, 0.3, 1.05, 0.98
+    e11, e22 = (stretch_x**2 - 1.0) / 2.0, (stretch_y**2 - 1.0) / 2.0
+    shear, lame = modulus / (2.0 * (1.0 + nu)), modulus * nu / (1.0 - nu**2)
+    law = shear * (e11**2 + e22**2) + 0.5 * lame * (e11 + e22) ** 2
+    energy = membrane.stretching_energy(
+        _stretched(mesh, stretch_x, stretch_y), mesh, modulus, thickness, model="svk", poisson_ratio=nu
+    )
+    np.testing.assert_allclose(
+        float(energy), law * thickness * float(jnp.sum(mesh.reference_area)), rtol=1e-8
+    )
+
+
+def test_patch_rigid_motion_gives_no_force():
+    mesh = membrane.flat_mesh(0.3, 0.2, 0.05)
+    modulus, thickness = 1.4e6, 2e-3
+    force_scale = modulus * thickness * 0.05 * 0.1  # E t a × 10 % strain
+    moved = mesh.reference_position @ _rotation(0.9, -0.6).T + jnp.asarray([0.3, -1.0, 2.0])[None, :]
+    grad = jax.grad(membrane.stretching_energy)(moved, mesh, modulus, thickness)
+    assert float(jnp.max(jnp.abs(grad))) < 1e-10 * force_scale
+    # a stretched patch: interior nodes carry no net force (uniform stress), the boundary ones do
+    grad = jax.grad(membrane.stretching_energy)(_stretched(mesh, 1.1, 1.0), mesh, modulus, thickness)
+    assert float(jnp.max(jnp.abs(grad))) > 1e-2 * force_scale
+
+
+# ------------------------------------------------------------------------------------------------ pressure
+
+
+def test_closed_cylinder_inflation_matches_thin_shell_theory():
+    """Internal pressure on a long cylinder whose end rings slide radially but are held axially.
+
+    Membrane theory: σ_θ = pR/t. With the end rings held axially the length is fixed, ε_z = 0, so
+    σ_z = ν σ_θ and ε_θ = (1 − ν²) pR/(E t); for ν = ½ (incompressible neo-Hookean at small strain) this is
+    0.75 pR/(E t), the same as for a free closed-end vessel (σ_z = pR/(2t), ε_θ = (1 − ν/2) pR/(E t)) because
+    ν = ½ makes the closed-end axial strain vanish. The state is uniform: no bending boundary layer, so the
+    mid-height ring is compared at 2 %.
+    """
+    radius, height, modulus, thickness, pressure = 1.0, 6.0, 100.0, 0.01, -1e-3  # pR/(Et) = 1e-3
+    mesh = membrane.cylinder_mesh(radius, height, 2.0 * np.pi * radius / 48)
+    n = mesh.num_nodes
+    free = np.ones((n, 3), dtype=bool)
+    free[np.asarray(mesh.bottom_ring), 2] = False
+    free[np.asarray(mesh.top_ring), 2] = False
+    free_index = jnp.asarray(np.flatnonzero(free.ravel()))
+    start = mesh.reference_position.ravel()
+
+    def energy(displacement):  # displacement in units of R, energy in units of E t R²
+        position = start.at[free_index].add(radius * displacement).reshape(n, 3)
+        return membrane.total_energy(position, mesh, modulus, thickness, pressure) / (modulus * thickness)
+
+    value_and_grad = jax.jit(jax.value_and_grad(energy))
+
+    def objective(u):
+        value, grad = value_and_grad(jnp.asarray(u))
+        return float(value), np.asarray(grad)
+
+    result = minimize(
+        objective,
+        np.zeros(free_index.size),
+        jac=True,
+        method="L-BFGS-B",
+        options={"maxiter": 2000, "ftol": 1e-16},
+    )
+    position = np.asarray(start.at[free_index].add(radius * jnp.asarray(result.x)).reshape(n, 3))
+    rings = position.reshape(-1, mesh.bottom_ring.shape[0], 3)
+    middle = rings[rings.shape[0] // 2]
+    centre = middle.mean(axis=0)
+    mean_radius = np.mean(np.hypot(middle[:, 0] - centre[0], middle[:, 1] - centre[1]))
+    theory = 0.75 * (-pressure) * radius / (modulus * thickness)
+    np.testing.assert_allclose((mean_radius - radius) / radius, theory, rtol=0.02)
+
+
+def test_pressure_forces_close_and_cap_carries_p_times_area():
+    mesh = membrane.cylinder_mesh(0.1, 0.3, 0.03)
+    key = jax.random.PRNGKey(0)
+    position = mesh.reference_position + 0.003 * jax.random.normal(key, mesh.reference_position.shape)
+    pressure = 50e3
+    force = -jax.grad(membrane.pressure_energy)(position, mesh, pressure)
+    scale = pressure * 0.1 * 0.3
+    np.testing.assert_allclose(np.asarray(jnp.sum(force, axis=0)), 0.0, atol=1e-12 * scale)
+    torque = jnp.sum(jnp.cross(position, force), axis=0)
+    np.testing.assert_allclose(np.asarray(torque), 0.0, atol=1e-12 * scale * 0.3)
+
+    # explicit assembly: each face f gives −p A_f n_f / 3 to its vertices; the cap fan's centroid share
+    # goes equally to the ring nodes
+    x = np.asarray(position)
+    expected = np.zeros_like(x)
+    tri = np.asarray(mesh.triangles)
+    face = -pressure * np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]]) / 6.0  # −p A n / 3
+    for k in range(3):
+        np.add.at(expected, tri[:, k], face)
+    cap_totals = []
+    for ring, upward in ((np.asarray(mesh.bottom_ring), False), (np.asarray(mesh.top_ring), True)):
+        here, after = ring, np.roll(ring, -1)
+        first, second = (here, after) if upward else (after, here)
+        centre = x[ring].mean(axis=0)
+        cap_face = -pressure * np.cross(x[first] - centre, x[second] - centre) / 6.0
+        np.add.at(expected, first, cap_face)
+        np.add.at(expected, second, cap_face)
+        expected[ring] += cap_face.sum(axis=0) / ring.size
+        cap_totals.append(3.0 * cap_face.sum(axis=0))
+        # the cap force is p × (the ring polygon's projected area), along the inward normal
+        polygon = x[ring]
+        shoelace = 0.5 * np.sum(
+            polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1]
+        )
+        np.testing.assert_allclose(
+            cap_totals[-1][2], pressure * shoelace * (-1.0 if upward else 1.0), rtol=1e-12
+        )
+    np.testing.assert_allclose(np.asarray(force), expected, rtol=0.0, atol=1e-12 * scale)
+
+
+# ------------------------------------------------------------------------------------------------ volume
+
+
+def test_enclosed_volume_exact_for_polyhedron_and_converges_to_cylinder():
+    radius, height = 0.125, 0.4
+    mesh = membrane.cylinder_mesh(radius, height, 0.02, z_bottom=0.05)
+    n = mesh.bottom_ring.shape[0]
+    half = np.pi / n
+    # each layer is an antiprism of regular n-gons: V = H n R² sin(π/n)(1 + 2 cos(π/n))/3
+    exact = height * n * radius**2 * np.sin(half) * (1.0 + 2.0 * np.cos(half)) / 3.0
+    volume = float(membrane.enclosed_volume(mesh.reference_position, mesh))
+    np.testing.assert_allclose(volume, exact, rtol=1e-12)
+    np.testing.assert_allclose(volume, _prismatoid_volume(mesh.reference_position, mesh), rtol=1e-12)
+    # origin-independent (closed surface)
+    shifted = mesh.reference_position + jnp.asarray([1.0, -2.0, 3.0])[None, :]
+    np.testing.assert_allclose(float(membrane.enclosed_volume(shifted, mesh)), exact, rtol=1e-12)
+    errors = []
+    for edge in (0.04, 0.02, 0.01):
+        fine = membrane.cylinder_mesh(radius, height, edge)
+        errors.append(
+            abs(
+                float(membrane.enclosed_volume(fine.reference_position, fine)) / (np.pi * radius**2 * height)
+                - 1
+            )
+        )
+    assert errors[0] > errors[1] > errors[2] and errors[2] < 2e-3
+    np.testing.assert_allclose(errors[1] / errors[2], 4.0, rtol=0.05)  # second order in the edge length
+
+
+def test_octagonal_prism_volume_is_exact():
+    angles = (np.arange(8) + 0.5) * np.pi / 4
+    outline = 0.12 * np.column_stack([np.cos(angles), np.sin(angles)])
+    mesh = membrane.prism_mesh(outline, 0.001, 0.3, 0.02)
+    volume = float(membrane.enclosed_volume(mesh.reference_position, mesh))
+    np.testing.assert_allclose(volume, _prismatoid_volume(mesh.reference_position, mesh), rtol=1e-12)
+    polygon = membrane.offset_polygon(outline, 0.001)
+    # the offset octagon's apothem is the outline's plus the offset
+    np.testing.assert_allclose(
+        np.linalg.norm(polygon[0] + polygon[1]) / 2.0, 0.12 * np.cos(np.pi / 8) + 0.001
+    )
+    # nodes lie on the offset octagon, which the mesh approaches from inside
+    prism = (
+        0.3
+        * 0.5
+        * np.sum(polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1])
+    )
+    assert 0.995 * prism < volume < prism
+
+
+# ------------------------------------------------------------------------------------------------ bending
+
+
+@pytest.mark.parametrize("roll_axis", [0, 1])
+def test_bending_of_rolled_strip_matches_kirchhoff(roll_axis):
+    mesh = membrane.flat_mesh(1.0, 1.0, 0.025)
+    modulus, thickness, radius = 1.0, 0.01, 1.0
+    x = np.asarray(mesh.reference_position).copy()
+    arc = x[:, roll_axis].copy()
+    x[:, roll_axis] = radius * np.sin(arc / radius)  # isometric: no stretching
+    x[:, 2] = radius * (1.0 - np.cos(arc / radius))
+    position = jnp.asarray(x)
+    energy = float(membrane.bending_energy(position, mesh, modulus, thickness))
+    rigidity = float(membrane.bending_rigidity(modulus, thickness))
+    area = float(jnp.sum(mesh.reference_area))
+    np.testing.assert_allclose(energy, 0.5 * rigidity * area / radius**2, rtol=0.05)
+    # the 2 % shortfall is the strip's border (edges on it carry no hinge); against the area covered by
+    # the interior edges' diamonds, Σ Ā_e/3, the calibration is within 1 %
+    rest = mesh.reference_position
+    rest_length_sq = jnp.sum((rest[mesh.edges[:, 1]] - rest[mesh.edges[:, 0]]) ** 2, axis=1)
+    diamond_area = float(jnp.sum(3.0 * rest_length_sq / mesh.edge_weight)) / 3.0  # Σ Ā_e / 3
+    np.testing.assert_allclose(energy, 0.5 * rigidity * diamond_area / radius**2, rtol=0.01)
+    # rolling maps edges to chords, shorter by (a/R)²/24 ≈ 3e-5: a stretching energy negligible here
+    assert float(membrane.stretching_energy(position, mesh, modulus, thickness)) < 1e-3 * energy
+
+
+def test_rest_shape_has_no_energy_and_no_force():
+    mesh = membrane.cylinder_mesh(0.125, 0.2, 0.02)
+    grad = jax.jit(jax.grad(membrane.total_energy))(mesh.reference_position, mesh, 1.4e6, 2e-3, 0.0)
+    assert float(jnp.max(jnp.abs(grad))) < 1e-12 * 1.4e6 * 2e-3 * 0.02
+    assert float(membrane.total_energy(mesh.reference_position, mesh, 1.4e6, 2e-3, 0.0)) < 1e-20
+
+
+# ------------------------------------------------------------------------------------------------ autodiff
+
+
+def test_parameter_gradients_match_central_differences():
+    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    key = jax.random.PRNGKey(1)
+    position = mesh.reference_position + 0.004 * jax.random.normal(key, mesh.reference_position.shape)
+
+    def energy(modulus, thickness, pressure):
+        return membrane.total_energy(position, mesh, modulus, thickness, pressure)
+
+    params = (1.4e6, 2e-3, 30e3)
+    grads = jax.grad(energy, argnums=(0, 1, 2))(*params)
+    for k in range(3):
+        np.testing.assert_allclose(float(grads[k]), central_difference(energy, params, k), rtol=1e-6)
+    np.testing.assert_allclose(float(grads[2]), float(membrane.enclosed_volume(position, mesh)), rtol=1e-12)
+
+    # volume gradient w.r.t. positions along a random direction
+    direction = jax.random.normal(jax.random.PRNGKey(2), position.shape)
+    grad_volume = jax.grad(membrane.enclosed_volume)(position, mesh)
+    step = 1e-6
+
+    def volume_at(s):
+        return float(membrane.enclosed_volume(position + s * direction, mesh))
+
+    finite = (volume_at(step) - volume_at(-step)) / (2.0 * step)
+    np.testing.assert_allclose(float(jnp.sum(grad_volume * direction)), finite, rtol=1e-6)
+
+
+def test_jit_and_vmap_over_material_parameters_match_loop():
+    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    position = mesh.reference_position * jnp.asarray([1.02, 1.02, 0.99])[None, :]
+    moduli = jnp.asarray([1.0e6, 1.4e6, 2.0e6])
+    thicknesses = jnp.asarray([1e-3, 2e-3, 4e-3])
+
+    def energy(modulus, thickness):
+        return membrane.total_energy(position, mesh, modulus, thickness, 20e3)
+
+    batched = jax.jit(jax.vmap(energy))(moduli, thicknesses)
+    forces = jax.vmap(lambda e, t: membrane.nodal_forces(position, mesh, e, t, 20e3))(moduli, thicknesses)
+    for k in range(3):
+        np.testing.assert_allclose(float(batched[k]), float(energy(moduli[k], thicknesses[k])), rtol=1e-13)
+        single = membrane.nodal_forces(position, mesh, moduli[k], thicknesses[k], 20e3)
+        np.testing.assert_allclose(np.asarray(forces[k]), np.asarray(single), rtol=1e-12, atol=1e-9)
+
+
+def test_float64_in_float64_out_and_lumped_mass():
+    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    assert mesh.reference_position.dtype == jnp.float64
+    modulus, thickness = jnp.float64(1.4e6), jnp.float64(2e-3)
+    for value in (
+        membrane.stretching_energy(mesh.reference_position, mesh, modulus, thickness),
+        membrane.bending_energy(mesh.reference_position, mesh, modulus, thickness),
+        membrane.enclosed_volume(mesh.reference_position, mesh),
+        membrane.nodal_forces(mesh.reference_position, mesh, modulus, thickness, jnp.float64(1e4)),
+    ):
+        assert value.dtype == jnp.float64
+    mass = membrane.lumped_mass(mesh, thickness, density=930.0)
+    assert mass.dtype == jnp.float64 and mass.shape == (mesh.num_nodes,)
+    np.testing.assert_allclose(
+        float(jnp.sum(mass)), 930.0 * 2e-3 * float(jnp.sum(mesh.reference_area)), rtol=1e-13
+    )
+
+
+def test_unknown_model_is_rejected():
+    mesh = membrane.flat_mesh(0.1, 0.1, 0.05)
+    with pytest.raises(ValueError, match="model"):
+        membrane.stretching_energy(mesh.reference_position, mesh, 1.0, 1.0, model="mooney")
