@@ -1,0 +1,419 @@
+"""Node–sphere membrane contacts: the law against hand calculations, conservation, candidates, jit/vmap."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax_md import dataclasses
+
+from membrax.membrane_contact import (
+    ERROR_MEMBRANE_CANDIDATE_OVERFLOW,
+    MembraneContactParams,
+    build_candidates,
+    candidate_errors,
+    needs_rebuild,
+    node_sphere_forces,
+    node_sphere_normal_energy,
+    remap_node_history,
+    update_candidates,
+)
+
+THICKNESS = 0.005
+MU = math.tan(math.radians(25.0))
+
+
+def _one_node_call(node, sphere, radius, spring=None, node_velocity=None, params=None, dt=1e-6):
+    params = MembraneContactParams.default() if params is None else params
+    node_position = jnp.asarray(node)[None, :]
+    spring = jnp.zeros((1, 1, 3)) if spring is None else spring
+    velocity = jnp.zeros((1, 3)) if node_velocity is None else node_velocity
+    return node_sphere_forces(
+        node_position,
+        velocity,
+        jnp.asarray(sphere)[None, :],
+        jnp.zeros((1, 3)),
+        jnp.zeros((1, 3)),
+        jnp.asarray([radius]),
+        jnp.zeros((1, 1), dtype=jnp.int32),
+        spring,
+        dt,
+        params,
+        THICKNESS,
+    )
+
+
+def _random_config(seed, num_nodes=30, num_spheres=6, box=0.03):
+    rng = np.random.default_rng(seed)
+    return dict(
+        node_position=jnp.asarray(rng.uniform(0.0, box, (num_nodes, 3))),
+        node_velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_nodes, 3))),
+        sphere_position=jnp.asarray(rng.uniform(0.0, box, (num_spheres, 3))),
+        sphere_velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
+        sphere_angular_velocity=jnp.asarray(rng.normal(0.0, 10.0, (num_spheres, 3))),
+        sphere_radius=jnp.asarray(rng.uniform(0.006, 0.01, num_spheres)),
+    )
+
+
+def _forces(config, candidates, spring, params=None, dt=1e-5):
+    params = MembraneContactParams.default() if params is None else params
+    return node_sphere_forces(
+        config["node_position"],
+        config["node_velocity"],
+        config["sphere_position"],
+        config["sphere_velocity"],
+        config["sphere_angular_velocity"],
+        config["sphere_radius"],
+        candidates,
+        spring,
+        dt,
+        params,
+        THICKNESS,
+    )
+
+
+_jit_forces = jax.jit(_forces)
+
+
+def _all_candidates(config):
+    num_spheres = config["sphere_position"].shape[0]
+    return build_candidates(
+        config["node_position"],
+        config["sphere_position"],
+        config["sphere_radius"],
+        jnp.arange(num_spheres, dtype=jnp.int32),
+        THICKNESS,
+        0.002,
+        num_spheres,
+    )
+
+
+def test_default_parameters_and_time_scale():
+    params = MembraneContactParams.default()
+    assert float(params.normal_stiffness) == 1e5
+    assert float(params.tangential_stiffness) == 1e5
+    assert float(params.friction_coefficient) == pytest.approx(MU, rel=1e-15)
+    # Interior node of a 5 mm near-equilateral mesh, t = 5 mm, 1000 kg/m³: m = (√3/2) a² t ρ = 1.08e-4 kg.
+    mass = math.sqrt(3.0) / 2.0 * 0.005**2 * 0.005 * 1000.0
+    assert mass == pytest.approx(1.0825e-4, rel=1e-4)
+    assert math.sqrt(mass / float(params.normal_stiffness)) == pytest.approx(3.29e-5, rel=1e-2)
+
+
+def test_normal_force_is_k_delta_along_outward_normal_and_minus_grad():
+    radius, overlap = 0.01, 2.0e-4
+    direction = np.array([1.0, -2.0, 0.5]) / np.linalg.norm([1.0, -2.0, 0.5])
+    sphere = np.array([0.1, 0.2, -0.05])
+    node = sphere + (radius + THICKNESS / 2 - overlap) * direction
+    result = _one_node_call(node, sphere, radius)
+    expected = 1e5 * overlap * direction
+    np.testing.assert_allclose(result.node_force[0], expected, rtol=1e-9)
+    np.testing.assert_allclose(result.sphere_force[0], -expected, rtol=1e-9)
+    assert float(result.normal_force[0, 0]) == pytest.approx(1e5 * overlap, rel=1e-9)
+    assert float(result.overlap[0, 0]) == pytest.approx(overlap, rel=1e-9)
+    # The normal torque on the sphere vanishes (force along the arm).
+    np.testing.assert_allclose(result.sphere_torque[0], 0.0, atol=1e-15)
+    grad = jax.grad(node_sphere_normal_energy)(
+        jnp.asarray(node)[None, :],
+        jnp.asarray(sphere)[None, :],
+        jnp.asarray([radius]),
+        jnp.zeros((1, 1), dtype=jnp.int32),
+        1e5,
+        THICKNESS,
+    )
+    np.testing.assert_allclose(-grad[0], expected, rtol=1e-9)
+    energy = node_sphere_normal_energy(
+        jnp.asarray(node)[None, :],
+        jnp.asarray(sphere)[None, :],
+        jnp.asarray([radius]),
+        jnp.zeros((1, 1), dtype=jnp.int32),
+        1e5,
+        THICKNESS,
+    )
+    assert float(energy) == pytest.approx(0.5 * 1e5 * overlap**2, rel=1e-9)
+
+
+def test_static_balance_overlap_is_force_over_stiffness():
+    # A node pressed onto the sphere's top by F: the contact balances F exactly at δ = F/k_n.
+    radius, load = 0.01, 0.7
+    overlap = load / 1e5
+    node = np.array([0.0, 0.0, radius + THICKNESS / 2 - overlap])
+    result = _one_node_call(node, np.zeros(3), radius)
+    np.testing.assert_allclose(result.node_force[0] + np.array([0.0, 0.0, -load]), 0.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("gap", [1e-4, 0.0])
+def test_no_force_in_a_gap_or_exactly_at_the_threshold(gap):
+    radius = 0.01
+    node = np.array([radius + 0.5 * THICKNESS + gap, 0.0, 0.0])
+    result = _one_node_call(node, np.zeros(3), radius, spring=jnp.full((1, 1, 3), 0.3))
+    assert float(result.overlap[0, 0]) == pytest.approx(-gap, abs=1e-15)
+    assert float(result.overlap[0, 0]) <= 0.0
+    np.testing.assert_array_equal(result.node_force, 0.0)
+    np.testing.assert_array_equal(result.sphere_force, 0.0)
+    np.testing.assert_array_equal(result.spring, 0.0)  # the contact opened: the spring is cleared
+
+
+def _push(tangential_load, steps=3000):
+    """Node of mass 1e-4 kg on top of a fixed sphere (R = 1 m), pressed by N = 1 N, pushed along x by T."""
+    radius, normal_load, mass, dt = 1.0, 1.0, 1e-4, 1e-6
+    params = MembraneContactParams.default()
+    damping = 0.5 * 2.0 * math.sqrt(mass * 1e5)  # ζ = 0.5 on the node's absolute velocity
+    external = jnp.asarray([tangential_load, 0.0, -normal_load])
+    start = jnp.asarray([[0.0, 0.0, radius + 0.5 * THICKNESS - normal_load / 1e5]])
+
+    def step(carry, _):
+        position, velocity, spring = carry
+        result = node_sphere_forces(
+            position,
+            velocity,
+            jnp.zeros((1, 3)),
+            jnp.zeros((1, 3)),
+            jnp.zeros((1, 3)),
+            jnp.asarray([radius]),
+            jnp.zeros((1, 1), dtype=jnp.int32),
+            spring,
+            dt,
+            params,
+            THICKNESS,
+        )
+        force = result.node_force + external[None, :] - damping * velocity
+        velocity = velocity + (dt / mass) * force
+        return (position + dt * velocity, velocity, result.spring), result.normal_force[0, 0]
+
+    carry = (start, jnp.zeros((1, 3)), jnp.zeros((1, 1, 3)))
+    (position, velocity, spring), normal_force = jax.jit(lambda c: jax.lax.scan(step, c, None, length=steps))(
+        carry
+    )
+    return position[0], velocity[0], spring[0, 0], normal_force[-1]
+
+
+def test_stick_below_the_coulomb_limit():
+    tangential_load = 0.8 * MU * 1.0
+    position, velocity, spring, normal_force = _push(tangential_load)
+    assert float(normal_force) == pytest.approx(1.0, rel=1e-4)
+    # The spring holds the push; the node sits displaced by T/k_t and is at rest.
+    assert float(-spring[0]) == pytest.approx(tangential_load, rel=1e-4)
+    assert float(position[0]) == pytest.approx(tangential_load / 1e5, rel=1e-3)
+    assert float(jnp.max(jnp.abs(velocity))) < 1e-6
+
+
+def test_slip_above_the_coulomb_limit():
+    tangential_load = 1.2 * MU * 1.0
+    position, velocity, spring, normal_force = _push(tangential_load)
+    assert float(normal_force) == pytest.approx(1.0, rel=1e-3)
+    # Sliding: friction is capped at μ F_n, against the motion, and the node keeps moving along x.
+    assert float(jnp.linalg.norm(spring)) == pytest.approx(MU * float(normal_force), rel=1e-12)
+    assert float(-spring[0]) == pytest.approx(MU * float(normal_force), rel=1e-6)
+    assert float(velocity[0]) > 0.01
+    assert float(position[0]) > 10.0 * tangential_load / 1e5
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_action_reaction_and_angular_momentum(seed):
+    config = _random_config(seed)
+    candidates = _all_candidates(config)
+    rng = np.random.default_rng(seed + 10)
+    spring = jnp.asarray(rng.normal(0.0, 0.05, (*candidates.idx.shape, 3)))
+    result = _jit_forces(config, candidates.idx, spring)
+    assert int(jnp.sum(result.normal_force > 0.0)) >= 10  # a real test: many contacts, many sliding
+    node_force, sphere_force = np.asarray(result.node_force), np.asarray(result.sphere_force)
+    scale = np.max(np.abs(node_force))
+    np.testing.assert_allclose(node_force.sum(0) + sphere_force.sum(0), 0.0, atol=1e-13 * scale)
+    moment = (
+        np.cross(np.asarray(config["node_position"]), node_force).sum(0)
+        + np.cross(np.asarray(config["sphere_position"]), sphere_force).sum(0)
+        + np.asarray(result.sphere_torque).sum(0)
+    )
+    np.testing.assert_allclose(moment, 0.0, atol=1e-13 * scale * 0.03)
+    # Friction torques are present (the check above is not trivially about central forces).
+    assert float(jnp.max(jnp.abs(result.sphere_torque))) > 1e-6
+
+
+def test_normal_forces_are_minus_gradient_of_the_energy():
+    config = _random_config(3)
+    candidates = _all_candidates(config)
+    zero_spring = jnp.zeros((*candidates.idx.shape, 3))
+    still = dict(config, node_velocity=jnp.zeros_like(config["node_velocity"]))
+    still.update(sphere_velocity=jnp.zeros_like(config["sphere_velocity"]))
+    still.update(sphere_angular_velocity=jnp.zeros_like(config["sphere_angular_velocity"]))
+    result = _jit_forces(still, candidates.idx, zero_spring)
+    grad_node, grad_sphere = jax.grad(node_sphere_normal_energy, argnums=(0, 1))(
+        config["node_position"],
+        config["sphere_position"],
+        config["sphere_radius"],
+        candidates.idx,
+        1e5,
+        THICKNESS,
+    )
+    np.testing.assert_allclose(result.node_force, -grad_node, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(result.sphere_force, -grad_sphere, rtol=1e-12, atol=1e-12)
+    assert float(jnp.max(jnp.abs(grad_node))) > 1.0
+
+
+def test_gradient_is_finite_at_coincident_centre_and_padding():
+    node = jnp.zeros((2, 3))
+    candidates = jnp.asarray([[0, 1], [1, 1]], dtype=jnp.int32)  # 1 = N pads
+    grad = jax.grad(node_sphere_normal_energy)(
+        node, jnp.zeros((1, 3)), jnp.asarray([0.01]), candidates, 1e5, 0.0
+    )
+    assert bool(jnp.all(jnp.isfinite(grad)))
+
+
+def _brute_force_sets(config, subset, skin):
+    node = np.asarray(config["node_position"])
+    sphere = np.asarray(config["sphere_position"])
+    radius = np.asarray(config["sphere_radius"])
+    distance = np.linalg.norm(node[:, None, :] - sphere[None, subset, :], axis=-1)
+    within = distance < (radius[subset] + THICKNESS / 2 + skin)[None, :]
+    return [set(np.asarray(subset)[row].tolist()) for row in within]
+
+
+def test_candidates_match_brute_force_and_flag_overflow():
+    config = _random_config(5, num_nodes=200, num_spheres=40, box=0.08)
+    rng = np.random.default_rng(7)
+    subset = jnp.asarray(rng.permutation(40)[:25], dtype=jnp.int32)
+    skin = 0.003
+    reference = _brute_force_sets(config, subset, skin)
+    largest = max(len(s) for s in reference)
+    assert largest >= 3
+    args = (
+        config["node_position"],
+        config["sphere_position"],
+        config["sphere_radius"],
+        subset,
+        THICKNESS,
+        skin,
+    )
+    candidates = jax.jit(build_candidates, static_argnums=6)(*args, largest + 2)
+    idx = np.asarray(candidates.idx)
+    for row, expected in zip(idx, reference, strict=True):
+        found = row[row < 40]
+        assert len(set(found.tolist())) == len(found)
+        assert set(found.tolist()) == expected
+    assert int(candidates.max_count) == largest
+    assert not bool(candidates.did_overflow)
+    assert int(candidate_errors(candidates)) == 0
+    small = build_candidates(*args, largest - 1)
+    assert bool(small.did_overflow)
+    assert int(candidate_errors(small)) == ERROR_MEMBRANE_CANDIDATE_OVERFLOW
+    assert int(small.max_count) == largest
+
+
+def test_remap_node_history_follows_sphere_ids():
+    num_spheres = 9
+    old_idx = jnp.asarray([[3, 7, 1, 9], [0, 9, 9, 9]], dtype=jnp.int32)
+    new_idx = jnp.asarray([[1, 4, 3, 9, 9], [9, 0, 9, 9, 9]], dtype=jnp.int32)
+    history = jnp.stack([old_idx, -old_idx, 10 * old_idx], axis=-1).astype(jnp.float64)
+    carried = remap_node_history(old_idx, new_idx, history, num_spheres)
+    expected = np.zeros((2, 5, 3))
+    expected[0, 0] = [1, -1, 10]
+    expected[0, 2] = [3, -3, 30]
+    expected[1, 1] = [0, 0, 0]
+    np.testing.assert_array_equal(carried, expected)
+    assert carried.shape == (2, 5, 3)
+
+
+def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
+    config = _random_config(11, num_nodes=120, num_spheres=30, box=0.06)
+    num_spheres = 30
+    subset = jnp.arange(num_spheres, dtype=jnp.int32)
+    skin = 0.004
+    candidates = build_candidates(
+        config["node_position"],
+        config["sphere_position"],
+        config["sphere_radius"],
+        subset,
+        THICKNESS,
+        skin,
+        12,
+    )
+    assert not bool(candidates.did_overflow)
+    # Spring value encodes (node, sphere id) so we can tell where it went.
+    idx = candidates.idx
+    node_id = jnp.broadcast_to(jnp.arange(idx.shape[0], dtype=jnp.int32)[:, None], idx.shape)
+    valid = idx < num_spheres
+    spring = jnp.where(valid[..., None], jnp.stack([node_id, idx, node_id + idx], axis=-1), 0).astype(
+        jnp.float64
+    )
+    update = jax.jit(update_candidates)
+
+    moved = config["sphere_position"] + jnp.asarray([0.4 * skin, 0.0, 0.0])[None, :]
+    same, same_spring = update(
+        candidates, spring, config["node_position"], moved, config["sphere_radius"], THICKNESS
+    )
+    assert not bool(needs_rebuild(candidates, config["node_position"], moved))
+    np.testing.assert_array_equal(same.idx, candidates.idx)
+    np.testing.assert_array_equal(same_spring, spring)
+
+    # Permute the subset (new slot order) and move beyond skin/2: a rebuild; springs follow their ids.
+    permuted = dataclasses.replace(candidates, sphere_subset=subset[::-1])
+    moved = config["sphere_position"] + jnp.asarray([0.6 * skin, 0.0, 0.0])[None, :]
+    assert bool(needs_rebuild(permuted, config["node_position"], moved))
+    new, new_spring = update(
+        permuted, spring, config["node_position"], moved, config["sphere_radius"], THICKNESS
+    )
+    np.testing.assert_array_equal(new.reference_sphere_position, moved[::-1])
+    reference = _brute_force_sets(dict(config, sphere_position=moved), np.arange(num_spheres), skin)
+    new_idx, old_idx = np.asarray(new.idx), np.asarray(idx)
+    kept = 0
+    for node in range(new_idx.shape[0]):
+        assert set(new_idx[node][new_idx[node] < num_spheres].tolist()) == reference[node]
+        for slot, sphere in enumerate(new_idx[node]):
+            if sphere < num_spheres and sphere in old_idx[node]:
+                np.testing.assert_array_equal(new_spring[node, slot], [node, sphere, node + sphere])
+                kept += 1
+            else:
+                np.testing.assert_array_equal(new_spring[node, slot], 0.0)
+    assert kept > 50
+
+
+def test_jit_and_vmap_equal_a_loop():
+    configs = [_random_config(20), _random_config(21)]
+    params = MembraneContactParams.default()
+    build = jax.jit(jax.vmap(_all_candidates))
+    batch = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *configs)
+    batched_candidates = build(batch)
+    rng = np.random.default_rng(3)
+    springs = jnp.asarray(rng.normal(0.0, 0.05, (2, 30, 6, 3)))
+
+    def forces(config, idx, spring):
+        return _forces(config, idx, spring, params)
+
+    batched = jax.jit(jax.vmap(forces))(batch, batched_candidates.idx, springs)
+    jitted = jax.jit(forces)
+    build_one = jax.jit(_all_candidates)
+    for member, config in enumerate(configs):
+        candidates = build_one(config)
+        np.testing.assert_array_equal(batched_candidates.idx[member], candidates.idx)
+        compiled = jitted(config, candidates.idx, springs[member])
+        if member == 0:  # eager (op by op) once: it is slow to dispatch
+            looped = forces(config, candidates.idx, springs[member])
+            for a, b in zip(looped, compiled, strict=True):
+                np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-15)
+        for b, c in zip(compiled, batched, strict=True):
+            np.testing.assert_allclose(c[member], b, rtol=1e-12, atol=1e-15)
+
+    # update_candidates under vmap (its cond becomes a select): member 0 rebuilds, member 1 does not.
+    shift = jnp.asarray([[0.0015, 0.0, 0.0], [0.0002, 0.0, 0.0]])
+    moved = batch["sphere_position"] + shift[:, None, :]
+    update = jax.jit(jax.vmap(update_candidates, in_axes=(0, 0, 0, 0, 0, None)))
+    update_one = jax.jit(update_candidates)
+    new, new_springs = update(
+        batched_candidates, springs, batch["node_position"], moved, batch["sphere_radius"], THICKNESS
+    )
+    for member, config in enumerate(configs):
+        candidates = jax.tree_util.tree_map(lambda x, m=member: x[m], batched_candidates)
+        one, one_spring = update_one(
+            candidates,
+            springs[member],
+            config["node_position"],
+            moved[member],
+            config["sphere_radius"],
+            THICKNESS,
+        )
+        np.testing.assert_array_equal(new.idx[member], one.idx)
+        np.testing.assert_array_equal(new_springs[member], one_spring)
+        np.testing.assert_array_equal(new.reference_sphere_position[member], one.reference_sphere_position)
+    np.testing.assert_array_equal(new.reference_sphere_position[0], moved[0])
+    np.testing.assert_array_equal(new.reference_sphere_position[1], batch["sphere_position"][1])
