@@ -35,7 +35,7 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
 
     specimen = packing.fcc_specimen(0.025, width, layers)
     single = triaxial.rigid_wall_test(specimen, 40e3)
-    state = single._set_walls(single.initial_state, True, 0.0, 40e3)
+    state = single.set_walls(single.initial_state, True, 0.0, 40e3)
     _, step = integrate.dem(single.particles, single.runner.neighbor_frame, single.dt, wall_friction=False)
 
     def loop(step_fn, num):
@@ -80,7 +80,7 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
 
     batch_steps = max(steps // 5, 20)
     serial_run = loop(step, batch_steps)
-    states = [single._set_walls(single.initial_state, True, 0.0, pressure[b]) for b in range(CASES)]
+    states = [single.set_walls(single.initial_state, True, 0.0, pressure[b]) for b in range(CASES)]
     timed(serial_run, states[0], case_params(0))  # compile
     serial_time = sum(timed(serial_run, states[b], case_params(b))[1] for b in range(CASES))
 
@@ -88,7 +88,7 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     _, folded_step = integrate.dem(
         folded.particles, folded.runner.neighbor_frame, single.dt, wall_friction=False
     )
-    folded_state = folded._set_walls(folded.initial_state, True, 0.0, pressure)
+    folded_state = folded.set_walls(folded.initial_state, True, 0.0, pressure)
     folded_run = loop(folded_step, batch_steps)
     timed(folded_run, folded_state, case_params())
     _, folded_time = timed(folded_run, folded_state, case_params())

@@ -103,7 +103,11 @@ def kinetic_energy(state: DEMState, particles: Particles):
 
 @dataclasses.dataclass
 class Measurements:
-    """Per-member (B,) records of one state (stresses in Pa, strains as fractions, angles in degrees)."""
+    """Per-member (B,) records of one state (stresses in Pa, strains as fractions, angles in degrees).
+
+    ``wall_force`` and ``wall_position`` are (B, W): the normal force of the particles on every wall (N)
+    and every wall's plane position h (m), in the wall order of :mod:`membrax.walls`.
+    """
 
     step: jnp.ndarray
     axial_strain: jnp.ndarray
@@ -119,6 +123,8 @@ class Measurements:
     unbalanced_force_ratio: jnp.ndarray
     coordination_number: jnp.ndarray
     kinetic_energy: jnp.ndarray
+    wall_force: jnp.ndarray
+    wall_position: jnp.ndarray
 
 
 def measure(
@@ -191,4 +197,6 @@ def measure(
         unbalanced_force_ratio=unbalanced_force_ratio(forces.force, forces, particles, pair_member),
         coordination_number=coordination_number(forces, particles, pair_member),
         kinetic_energy=kinetic_energy(state, particles),
+        wall_force=forces.wall_total_force,
+        wall_position=walls.position + walls.position_compensation,
     )

@@ -73,8 +73,15 @@ class RigidWallTest:
         """B, the number of batch members (folded)."""
         return self.particles.num_members
 
-    def _set_walls(self, state: DEMState, servo, velocity, target) -> DEMState:
-        """Set every wall's mode, velocity and target; 1-D arrays are per member."""
+    def set_walls(self, state: DEMState, servo, velocity, target) -> DEMState:
+        """A copy of ``state`` with every wall's mode, velocity and target stress set.
+
+        Args:
+          state: the state to change.
+          servo: stress-controlled (True) or constant-velocity (False); scalar, (B,) or (B, W).
+          velocity: wall velocities dh/dt, m/s (used by constant-velocity walls); scalar, (B,) or (B, W).
+          target: servo target stresses, Pa; scalar, (B,) or (B, W).
+        """
         walls = state.walls
 
         def per_member(value):
@@ -121,7 +128,7 @@ class RigidWallTest:
         state = self.initial_state if state is None else state
         if tolerance is None:
             tolerance = 1e-3 if state.position.dtype == jnp.float64 else 5e-3
-        state = self._set_walls(state, True, 0.0, self.cell_pressure)
+        state = self.set_walls(state, True, 0.0, self.cell_pressure)
 
         def stop(_, records):
             last_ufr = records.unbalanced_force_ratio[-1]
@@ -165,7 +172,7 @@ class RigidWallTest:
         velocity[:, TOP] = -rate * heights
         servo = np.ones(state.walls.servo.shape, dtype=bool)
         servo[:, :2] = False
-        state = self._set_walls(state, servo, velocity, self.cell_pressure)
+        state = self.set_walls(state, servo, velocity, self.cell_pressure)
         # Strain counts from the start of the test; the stage adds target_axial_strain of the current height.
         steps_per_strain = 1.0 / (rate * self.dt)
         records = []

@@ -267,7 +267,7 @@ def test_rebuilding_every_step_equals_every_fifty_steps():
     velocity[:, walls_lib.TOP] = -0.05
     results = []
     for test, chunks in ((every_step, 1), (rarely, 6)):
-        state = test._set_walls(test.initial_state, False, velocity, 0.0)
+        state = test.set_walls(test.initial_state, False, velocity, 0.0)
         steps_per_chunk = 300 // chunks
         for _ in range(chunks):
             state, _ = test.runner.run(state, test.params, steps_per_chunk, steps_per_chunk, steps_per_chunk)
@@ -276,9 +276,9 @@ def test_rebuilding_every_step_equals_every_fifty_steps():
         results.append(state)
     a, b = results
     assert every_step.dt == rarely.dt
-    start = every_step._set_walls(every_step.initial_state, False, velocity, 0.0)
+    start = every_step.set_walls(every_step.initial_state, False, velocity, 0.0)
     assert count_rebuilds(every_step, start, 100) >= 95
-    assert count_rebuilds(rarely, rarely._set_walls(rarely.initial_state, False, velocity, 0.0), 100) == 0
+    assert count_rebuilds(rarely, rarely.set_walls(rarely.initial_state, False, velocity, 0.0), 100) == 0
     springs = np.linalg.norm(np.asarray(a.pair_spring), axis=1)
     assert np.sum(springs > 0) > 20  # the history matters in this run
     np.testing.assert_allclose(np.asarray(a.position), np.asarray(b.position), rtol=0, atol=1e-12)
@@ -378,7 +378,7 @@ def test_folded_batch_and_vmap_match_a_loop_over_cases():
     _, step = integrate.dem(one.particles, one.runner.neighbor_frame, dt, wall_friction=False)
     cases = [
         (
-            one._set_walls(one.initial_state, True, 0.0, pressure[b]),
+            one.set_walls(one.initial_state, True, 0.0, pressure[b]),
             one.params.set(contact=contact_case(friction[b], stiffness[b])),
         )
         for b in range(3)
@@ -388,7 +388,7 @@ def test_folded_batch_and_vmap_match_a_loop_over_cases():
     _fold_init, fold_step = integrate.dem(
         folded.particles, folded.runner.neighbor_frame, dt, wall_friction=False
     )
-    fold_state = folded._set_walls(folded.initial_state, True, 0.0, pressure)
+    fold_state = folded.set_walls(folded.initial_state, True, 0.0, pressure)
     fold_final = run_steps(fold_step, fold_state, folded.params, num_steps)
     positions = batch.unfold(fold_final.position, 3)
     offsets = batch.member_offsets(3, specimen.width_across_flats + 3 * D)
@@ -468,6 +468,13 @@ def test_love_weber_equals_boundary_stress_after_consolidation(rigid_triaxial_fr
         assert consolidation.love_weber_radial_stress[last, member] == pytest.approx(
             consolidation.wall_radial_stress[last, member], rel=5e-3
         )
+        # Per-wall records: the platens' mean force over the polygon area is the recorded axial stress.
+        platen_force = 0.5 * (
+            consolidation.wall_force[last, member, 0] + consolidation.wall_force[last, member, 1]
+        )
+        assert platen_force / consolidation.area[last, member] == pytest.approx(wall_axial, rel=1e-12)
+        height = consolidation.wall_position[last, member, 0] + consolidation.wall_position[last, member, 1]
+        assert height == pytest.approx(consolidation.height[last, member], rel=1e-12)
 
 
 def test_rigid_wall_peak_between_38_and_44_and_rising_with_friction_as_rowe(rigid_triaxial_friction_series):
