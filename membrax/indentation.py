@@ -1,0 +1,254 @@
+"""Membrane indentation: a flat latex sheet pressed by a uniform pressure onto a fixed array of spheres.
+
+Contract. Static equilibrium of an open sheet (:func:`membrax.membrane.flat_mesh`) lying on a fixed square
+array of equal spheres, loaded by a uniform pressure p on its upper face (positive p pushes the sheet
+down, −z). The total potential energy
+
+    Π(x) = W_stretch(x) + W_bend(x) + p V(x) + U_contact(x)
+
+is minimised over the free node coordinates with scipy's L-BFGS-B on jax gradients (float64 is up to the
+caller: enable x64 first). The pieces:
+
+- W_stretch, W_bend: :func:`membrax.membrane.stretching_energy` (incompressible neo-Hookean) and
+  :func:`membrax.membrane.bending_energy`;
+- p V: the load potential of the pressure, V the volume between the sheet and a horizontal reference
+  plane z = z_ref below it (:func:`projected_volume`). For a piecewise-linear sheet this is exact per
+  triangle: V_T = A_T^xy (z̄_T − z_ref), A_T^xy the signed area of the triangle's projection on the plane
+  z = 0 (positive where the normal (x₂ − x₁) × (x₃ − x₁) points up) and z̄_T the mean height of its three
+  corners. Lowering the sheet lowers V, so +p V pushes it down. Its gradient gives the nodal pressure
+  forces: Σ_nodes (−p ∂V/∂x) = (0, 0, −p Σ_T A_T^xy) exactly (V is invariant under horizontal
+  translations), and on nodes not on the boundary −p ∂V/∂x_i = −p Σ_{T ∋ i} A_T n_T / 3, the usual
+  consistent pressure load, because V differs from the cone volume (1/6) Σ x₁·(x₂ × x₃) only by terms in
+  the boundary nodes (both close the same open surface);
+- U_contact: :func:`membrax.membrane_contact.node_sphere_normal_energy` (frictionless penalty, the node a
+  point on the mid-surface touching when |x − x_i| < R + t_m/2).
+
+Boundary condition: the nodes on the sheet's outline (edges that belong to one triangle) are pinned at
+their initial positions (:func:`boundary_nodes`); the others are free in x, y and z.
+
+Indentation depth (:func:`indentation_depth`): α = (z_top − min z) over the nodes whose (x, y) lies in a
+given cell, z_top = z_sphere + R + t_m/2 the height of the mid-surface resting on the sphere tops. It is
+the largest downward deflection of the mid-surface into that cell's void, measured from the plane of the
+sphere tops. SI units throughout: m, Pa, N, J.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.optimize import minimize
+
+from membrax import membrane
+from membrax.membrane_contact import node_sphere_normal_energy
+
+__all__ = [
+    "IndentationSolution",
+    "projected_volume",
+    "sheet_pressure_energy",
+    "boundary_nodes",
+    "square_sphere_array",
+    "sheet_on_square_array",
+    "indentation_depth",
+    "solve_sheet_on_spheres",
+]
+
+
+class IndentationSolution(NamedTuple):
+    """Result of :func:`solve_sheet_on_spheres`.
+
+    Attributes:
+      position: (n_nodes, 3) equilibrium node positions, m.
+      max_overlap: largest node–sphere penalty overlap δ, m (the penalty's error in the contact geometry).
+      residual: largest |force| on a free node at the end, N (gradient of Π).
+      iterations: L-BFGS-B iterations.
+      success: scipy's convergence flag.
+    """
+
+    position: np.ndarray
+    max_overlap: float
+    residual: float
+    iterations: int
+    success: bool
+
+
+def projected_volume(position, triangles, reference_height=0.0):
+    """Volume between an open triangulated sheet and the plane z = ``reference_height``, m³.
+
+        V = Σ_T A_T^xy (z̄_T − z_ref),   A_T^xy = ½ [(x₂ − x₁)(y₃ − y₁) − (x₃ − x₁)(y₂ − y₁)],
+
+    z̄_T the mean z of the triangle's corners (exact for planar triangles; signed: triangles whose normal
+    points down count negative).
+
+    Args:
+      position: (N, 3) node positions, m.
+      triangles: (T, 3) int node ids.
+      reference_height: z_ref, m.
+    """
+    x1, x2, x3 = (position[triangles[:, k]].T for k in range(3))
+    area_xy = 0.5 * ((x2[0] - x1[0]) * (x3[1] - x1[1]) - (x3[0] - x1[0]) * (x2[1] - x1[1]))
+    mean_height = (x1[2] + x2[2] + x3[2]) / 3.0
+    return jnp.sum(area_xy * (mean_height - reference_height))
+
+
+def sheet_pressure_energy(position, mesh: membrane.MembraneMesh, pressure, reference_height=0.0):
+    """Load potential p V of a pressure on the upper face of an open sheet, J (positive p pushes down).
+
+    V from :func:`projected_volume`; with the outline pinned, the forces on the free nodes do not depend
+    on ``reference_height``.
+    """
+    return pressure * projected_volume(position, mesh.triangles, reference_height)
+
+
+def boundary_nodes(mesh: membrane.MembraneMesh) -> np.ndarray:
+    """Sorted ids of the nodes on the sheet's outline (ends of edges that belong to a single triangle)."""
+    triangles = np.asarray(mesh.triangles)
+    edges = np.sort(
+        np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]]), axis=1
+    )
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    return np.unique(unique[counts == 1])
+
+
+def square_sphere_array(num_per_side: int, diameter: float, centre_xy, height: float = 0.0) -> np.ndarray:
+    """Centres of a touching square array of equal spheres, (num_per_side², 3), m.
+
+    Centres at (c_x + (i − (n − 1)/2) D, c_y + (j − (n − 1)/2) D, height), i, j = 0 … n − 1, so the array
+    is centred on ``centre_xy``; with n even a void (a cell of four spheres) is centred there.
+    """
+    offsets = (np.arange(num_per_side) - 0.5 * (num_per_side - 1)) * diameter
+    gx, gy = np.meshgrid(centre_xy[0] + offsets, centre_xy[1] + offsets, indexing="ij")
+    return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, height)])
+
+
+def sheet_on_square_array(cells: int, diameter: float, target_edge_length: float, thickness: float):
+    """A flat sheet over cells × cells of a touching square sphere array, resting on the sphere tops.
+
+    The sheet is :func:`membrax.membrane.flat_mesh` of side cells·D lifted to z = R + t_m/2 (a rigid
+    shift: the rest quantities are unchanged); the (cells + 1)² sphere centres lie at z = 0, centred under
+    the sheet's bounding box, so the sheet's outline runs along the outer rows of spheres.
+
+    Returns:
+      ``(mesh, sphere_position, cell_min_xy, cell_max_xy)``: the mesh, the (S, 3) centres, and the corners
+      of the central cell (for :func:`indentation_depth`; with ``cells`` odd it is a void between four
+      spheres).
+    """
+    flat = membrane.flat_mesh(cells * diameter, cells * diameter, target_edge_length)
+    position = flat.reference_position.at[:, 2].set(0.5 * diameter + 0.5 * thickness)
+    mesh = dataclasses.replace(flat, reference_position=position)
+    xy = np.asarray(position[:, :2])
+    centre = 0.5 * (xy.min(axis=0) + xy.max(axis=0))
+    spheres = square_sphere_array(cells + 1, diameter, centre)
+    return mesh, spheres, centre - 0.5 * diameter, centre + 0.5 * diameter
+
+
+def indentation_depth(position, cell_min_xy, cell_max_xy, top_height) -> float:
+    """α = top_height − min z over the nodes with cell_min ≤ (x, y) ≤ cell_max, m (see module docstring)."""
+    position = np.asarray(position)
+    inside = np.all((position[:, :2] >= np.asarray(cell_min_xy)[None, :]), axis=1) & np.all(
+        (position[:, :2] <= np.asarray(cell_max_xy)[None, :]), axis=1
+    )
+    return float(top_height - np.min(position[inside, 2]))
+
+
+def _positions(u, base, free_rows, length):
+    """Node positions from the scaled displacements u of the free rows."""
+    return base.at[free_rows].set(base[free_rows] + length * u.reshape(-1, 3))
+
+
+def _scaled_energy(u, base, free_rows, mesh, spheres, radii, candidates, params, length):
+    """Π / (E t L²) as a function of the scaled free displacements u (module docstring)."""
+    pressure, modulus, thickness, stiffness = params[0], params[1], params[2], params[3]
+    x = _positions(u, base, free_rows, length)
+    total = membrane.stretching_energy(x, mesh, modulus, thickness)
+    total = total + membrane.bending_energy(x, mesh, modulus, thickness)
+    total = total + sheet_pressure_energy(x, mesh, pressure)
+    total = total + node_sphere_normal_energy(x, spheres, radii, candidates, stiffness, thickness)
+    return total / (modulus * thickness * length * length)
+
+
+_value_and_grad = jax.jit(jax.value_and_grad(_scaled_energy))
+
+
+def solve_sheet_on_spheres(
+    mesh: membrane.MembraneMesh,
+    sphere_position,
+    sphere_radius,
+    pressure,
+    modulus,
+    thickness,
+    normal_stiffness=1e7,
+    initial_position=None,
+    length_scale=None,
+    max_iterations=5000,
+    tolerance=1e-10,
+) -> IndentationSolution:
+    """Static equilibrium of the sheet on fixed spheres under pressure (module docstring), by L-BFGS-B.
+
+    The outline (:func:`boundary_nodes`) stays at ``mesh.reference_position``; the free nodes start from
+    ``initial_position`` (default the reference). Unknowns are scaled by ``length_scale`` (default the
+    first sphere's diameter) and the energy by E t L², so the tolerances are dimensionless. Every sphere is
+    a contact candidate of every node (dense, exact for the small arrays this is meant for).
+
+    Args:
+      mesh: the sheet (e.g. :func:`membrax.membrane.flat_mesh` lifted onto the sphere tops).
+      sphere_position: (S, 3) fixed sphere centres, m.
+      sphere_radius: (S,) radii, m.
+      pressure: p, Pa (positive pushes down).
+      modulus: E_m, Pa.
+      thickness: t_m, m.
+      normal_stiffness: penalty k_n, N/m (default 1e7: stiffer than the dynamic default 1e5 so that the
+        contact overlap stays far below the indentation; see ``max_overlap``).
+      initial_position: (n_nodes, 3) start (e.g. the solution at a lower pressure), m.
+      length_scale: L, m.
+      max_iterations: L-BFGS-B iteration cap.
+      tolerance: L-BFGS-B ``ftol`` on the scaled energy (``gtol`` is 100 × smaller).
+    """
+    reference = jnp.asarray(mesh.reference_position)
+    dtype = reference.dtype
+    n = reference.shape[0]
+    spheres = jnp.asarray(sphere_position, dtype=dtype)
+    radii = jnp.asarray(sphere_radius, dtype=dtype)
+    num_spheres = spheres.shape[0]
+    candidates = jnp.tile(jnp.arange(num_spheres, dtype=jnp.int32)[None, :], (n, 1))
+    free = np.ones(n, dtype=bool)
+    free[boundary_nodes(mesh)] = False
+    free_rows = jnp.asarray(np.flatnonzero(free))
+    length = float(np.asarray(radii)[0]) * 2.0 if length_scale is None else float(length_scale)
+    start = reference if initial_position is None else jnp.asarray(initial_position, dtype=dtype)
+    params = jnp.asarray([pressure, modulus, thickness, normal_stiffness], dtype=dtype)
+
+    data = (start, free_rows, mesh, spheres, radii, candidates, params, jnp.asarray(length, dtype=dtype))
+
+    def objective(u):
+        value, grad = _value_and_grad(jnp.asarray(u, dtype=dtype), *data)
+        return float(value), np.asarray(grad, dtype=np.float64)
+
+    result = minimize(
+        objective,
+        np.zeros(3 * int(free.sum())),
+        jac=True,
+        method="L-BFGS-B",
+        options={
+            "maxiter": max_iterations,
+            "maxfun": 2 * max_iterations,
+            "ftol": tolerance,
+            "gtol": 1e-2 * tolerance,
+        },
+    )
+    u = jnp.asarray(result.x, dtype=dtype)
+    x = _positions(u, start, free_rows, data[-1])
+    distance = jnp.linalg.norm(x[:, None, :] - spheres[None, :, :], axis=-1)
+    overlap = jnp.max(radii[None, :] + 0.5 * thickness - distance)
+    _, grad = _value_and_grad(u, *data)
+    residual = float(jnp.max(jnp.abs(grad))) * modulus * thickness * length
+    return IndentationSolution(
+        position=np.asarray(x),
+        max_overlap=max(float(overlap), 0.0),
+        residual=residual,
+        iterations=int(result.nit),
+        success=bool(result.success),
+    )
