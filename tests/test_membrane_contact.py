@@ -164,19 +164,7 @@ def _push(tangential_load, steps=3000):
 
     def step(carry, _):
         position, velocity, spring = carry
-        result = node_sphere_forces(
-            position,
-            velocity,
-            jnp.zeros((1, 3)),
-            jnp.zeros((1, 3)),
-            jnp.zeros((1, 3)),
-            jnp.asarray([radius]),
-            jnp.zeros((1, 1), dtype=jnp.int32),
-            spring,
-            dt,
-            params,
-            THICKNESS,
-        )
+        result = _one_node_call(position[0], jnp.zeros(3), radius, spring, velocity, params, dt)
         force = result.node_force + external[None, :] - damping * velocity
         velocity = velocity + (dt / mass) * force
         return (position + dt * velocity, velocity, result.spring), result.normal_force[0, 0]
