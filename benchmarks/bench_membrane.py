@@ -1,0 +1,148 @@
+"""Membrane cost at paper size: energies, forces and node–sphere contact, float32 and float64.
+
+The paper-size membrane (octagonal specimen, 25 mm spheres, 10 across, 25 layers; edge D/5 ≈ 33,000
+triangles) wraps the specimen at t_m/2 outside the outline. For each dtype, in a fresh process, prints:
+
+- membrane forces (−∇ of stretching + bending + pressure energy): compile time and evaluations/s;
+- node–sphere contact forces (K candidate spheres per node, lateral-boundary spheres only): evaluations/s;
+- one candidate-list rebuild (nodes × boundary spheres, brute force): ms;
+- peak resident memory.
+
+Each membrane step of the coupled simulation needs one membrane-force and one contact evaluation, so
+their combined rate bounds the membrane part of the DEM + membrane step (issue target: ≥ 500 steps/s in
+float32 for the whole step). Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5]``.
+"""
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+
+
+def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
+    import jax
+
+    if dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+    import numpy as np
+
+    from membrax import membrane, membrane_contact, packing
+
+    diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
+    specimen = packing.fcc_specimen(diameter, 10, 25)
+    mesh = membrane.prism_mesh(
+        np.asarray(specimen.outline_vertices), 0.5 * thickness, specimen.height, diameter / edges_per_diameter
+    )
+    nodes = jnp.asarray(mesh.reference_position)
+
+    def timed(function, *args):
+        start = time.perf_counter()
+        out = function(*args)
+        jax.block_until_ready(out)
+        return out, time.perf_counter() - start
+
+    forces = jax.jit(lambda x: membrane.nodal_forces(x, mesh, modulus, thickness, pressure))
+    _, first = timed(forces, nodes)
+    _, one = timed(forces, nodes)
+    _, total = timed(lambda x: [forces(x + 1e-9 * k) for k in range(repeats)], nodes)
+    membrane_rate = repeats / total
+
+    spheres = jnp.asarray(specimen.position)
+    radius = jnp.asarray(specimen.radius)
+    subset = jnp.asarray(np.nonzero(np.asarray(specimen.is_lateral_boundary))[0], dtype=jnp.int32)
+    capacity = 8
+    build = jax.jit(
+        lambda x: membrane_contact.build_candidates(
+            x, spheres, radius, subset, thickness, 0.2 * diameter, capacity
+        )
+    )
+    candidates, _ = timed(build, nodes)
+    _, rebuild = timed(build, nodes + 1e-9)
+    params = membrane_contact.MembraneContactParams.default()
+    spring = jnp.zeros((nodes.shape[0], capacity, 3), nodes.dtype)
+    zeros_nodes = jnp.zeros_like(nodes)
+    zeros_spheres = jnp.zeros_like(spheres)
+    contact = jax.jit(
+        lambda x: (
+            membrane_contact.node_sphere_forces(
+                x,
+                zeros_nodes,
+                spheres,
+                zeros_spheres,
+                zeros_spheres,
+                radius,
+                candidates.idx,
+                spring,
+                1e-5,
+                params,
+                thickness,
+            ).node_force
+        )
+    )
+    timed(contact, nodes)
+    _, total_contact = timed(lambda x: [contact(x + 1e-9 * k) for k in range(repeats)], nodes)
+    contact_rate = repeats / total_contact
+    return {
+        "dtype": dtype,
+        "nodes": int(nodes.shape[0]),
+        "triangles": int(mesh.triangles.shape[0]),
+        "boundary_spheres": int(subset.shape[0]),
+        "capacity": capacity,
+        "max_candidates": int(candidates.max_count),
+        "compile_s": first - one,
+        "membrane_forces_per_s": membrane_rate,
+        "contact_forces_per_s": contact_rate,
+        "combined_per_s": 1.0 / (1.0 / membrane_rate + 1.0 / contact_rate),
+        "rebuild_ms": 1e3 * rebuild,
+        "peak_memory_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--edges-per-diameter", type=float, default=5.0)
+    parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(measure(args.child, args.edges_per_diameter, args.repeats)))
+        return
+    rows = []
+    for dtype in ("float32", "float64"):
+        command = [
+            sys.executable,
+            __file__,
+            "--child",
+            dtype,
+            "--edges-per-diameter",
+            str(args.edges_per_diameter),
+            "--repeats",
+            str(args.repeats),
+        ]
+        output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+        rows.append(json.loads(output.strip().splitlines()[-1]))
+    first = rows[0]
+    print(
+        f"membrane benchmark: {first['nodes']} nodes, {first['triangles']} triangles, "
+        f"{first['boundary_spheres']} boundary spheres, K = {first['capacity']} "
+        f"(max candidates found {first['max_candidates']})"
+    )
+    header = (
+        f"{'dtype':<8}{'compile s':>10}{'membrane/s':>11}{'contact/s':>10}{'both/s':>8}"
+        f"{'rebuild ms':>11}{'peak MB':>9}"
+    )
+    print(header)
+    print("-" * len(header))
+    for r in rows:
+        print(
+            f"{r['dtype']:<8}{r['compile_s']:>10.1f}{r['membrane_forces_per_s']:>11.0f}"
+            f"{r['contact_forces_per_s']:>10.0f}{r['combined_per_s']:>8.0f}{r['rebuild_ms']:>11.0f}"
+            f"{r['peak_memory_mb']:>9.0f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
