@@ -16,9 +16,8 @@ Run: ``python benchmarks/bench_dem.py [--width 10 --layers 25 --steps 500]`` (â‰
 import argparse
 import json
 import resource
-import subprocess
-import sys
-import time
+
+from harness import run_each_dtype, timed
 
 CASES = 9
 
@@ -40,12 +39,6 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
 
     def loop(step_fn, num):
         return jax.jit(lambda s, p: jax.lax.fori_loop(0, num, lambda _, x: step_fn(x, p), s))
-
-    def timed(function, *args):
-        start = time.perf_counter()
-        out = function(*args)
-        jax.block_until_ready(out)
-        return out, time.perf_counter() - start
 
     run = loop(step, steps)
     _, compile_and_run = timed(run, state, single.params)
@@ -131,22 +124,7 @@ def main():
     if args.child:
         print(json.dumps(measure(args.child, args.width, args.layers, args.steps)))
         return
-    rows = []
-    for dtype in ("float32", "float64"):
-        command = [
-            sys.executable,
-            __file__,
-            "--child",
-            dtype,
-            "--width",
-            str(args.width),
-            "--layers",
-            str(args.layers),
-            "--steps",
-            str(args.steps),
-        ]
-        output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
-        rows.append(json.loads(output.strip().splitlines()[-1]))
+    rows = run_each_dtype(__file__, {"width": args.width, "layers": args.layers, "steps": args.steps})
     first = rows[0]
     print(
         f"DEM benchmark: {first['particles']} spheres, {first['pairs']} pair slots, "

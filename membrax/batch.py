@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["fold", "map_members", "member_offsets", "stack", "unfold", "unstack", "vmap_members"]
+__all__ = ["fold", "map_members", "member_offsets", "stack", "unfold", "vmap_members"]
 
 
 def map_members(run_fn):
@@ -73,8 +73,3 @@ def unfold(values, num_members: int):
 def stack(trees):
     """Stack a list of pytrees of equal structure along a new leading axis (for ``vmap``)."""
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *trees)
-
-
-def unstack(tree, num_members: int):
-    """Inverse of :func:`stack`."""
-    return [jax.tree_util.tree_map(lambda x, b=b: x[b], tree) for b in range(num_members)]

@@ -39,7 +39,6 @@ __all__ = [
     "servo_velocity",
     "triaxial_walls",
     "wall_areas",
-    "wall_stress",
 ]
 
 BOTTOM = 0
@@ -183,11 +182,6 @@ def wall_areas(walls: WallState, platen_area=None):
         raise ValueError("platen_area is required when there are no lateral walls.")
     platens = jnp.broadcast_to(jnp.asarray(platen_area, dtype=height.dtype), height.shape)
     return jnp.stack([platens, platens], axis=1)
-
-
-def wall_stress(walls: WallState, platen_area=None):
-    """Normal stress on every wall, F/A, (B, W), Pa (compression positive)."""
-    return walls.force / wall_areas(walls, platen_area)
 
 
 def servo_velocity(walls: WallState, dt, normal_stiffness, platen_area=None):

@@ -1,0 +1,30 @@
+"""Shared benchmark plumbing: one fresh process per dtype (x64 is process-global) and a timer."""
+
+import json
+import subprocess
+import sys
+import time
+
+DTYPES = ("float32", "float64")
+
+
+def run_each_dtype(script: str, options: dict) -> list[dict]:
+    """Run ``script --child DTYPE --key value ...`` once per dtype; each child prints one JSON line."""
+    rows = []
+    for dtype in DTYPES:
+        command = [sys.executable, script, "--child", dtype]
+        for key, value in options.items():
+            command += [f"--{key.replace('_', '-')}", str(value)]
+        output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+        rows.append(json.loads(output.strip().splitlines()[-1]))
+    return rows
+
+
+def timed(function, *args):
+    """(result, seconds) of one call, waiting for the device."""
+    import jax
+
+    start = time.perf_counter()
+    out = function(*args)
+    jax.block_until_ready(out)
+    return out, time.perf_counter() - start
