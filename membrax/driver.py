@@ -6,7 +6,8 @@ Between chunks, on the host, it:
 
 - checks the error bits of the state (:mod:`membrax.integrate`);
 - on a neighbour-list overflow, reallocates a larger list from the *chunk's starting state*, carries the
-  contact history over by partner id, and reruns the chunk — contacts are never silently dropped;
+  contact history over by partner id, and reruns the chunk — contacts are never silently dropped; the
+  same for an overflow of the membrane's node–sphere candidate table (``grow_membrane``);
 - on any other error raises :class:`SimulationError` naming the step and a hint, with the state and the
   records of the completed chunks attached so nothing computed so far is lost;
 - calls ``on_chunk(state, records)`` (progress bars, checkpoints) and stops early when ``stop_fn`` says so.
@@ -21,7 +22,8 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from membrax.integrate import ERROR_NEIGHBOR_OVERFLOW, DEMState, describe_errors
+from membrax.integrate import ERROR_NEIGHBOR_OVERFLOW, describe_errors
+from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 from membrax.neighbors import PairNeighborFn, remap_pair_history
 
 __all__ = ["ChunkRunner", "SimulationError", "concatenate_records"]
@@ -52,6 +54,9 @@ class ChunkRunner:
       record_fn: ``record_fn(state, params) -> pytree`` recorded every ``record_every`` steps.
       num_particles: N (for the history remap).
       capacity_growth: the factor by which the pair capacity grows on each reallocation.
+      grow_membrane: for a coupled state (:class:`membrax.membrane_dem.CoupledState`),
+        ``grow_membrane(state, max_count) -> state`` with a node candidate table that holds ``max_count``
+        candidates per node (see :func:`membrax.membrane_dem.grow_candidates`).
     """
 
     def __init__(
@@ -61,12 +66,14 @@ class ChunkRunner:
         record_fn: Callable,
         num_particles: int,
         capacity_growth: float = 1.5,
+        grow_membrane: Callable | None = None,
     ):
         self.step_fn = step_fn
         self.neighbor_frame = neighbor_frame
         self.record_fn = record_fn
         self.num_particles = num_particles
         self.capacity_growth = capacity_growth
+        self.grow_membrane = grow_membrane
         self.reallocations = 0
         self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
 
@@ -80,14 +87,16 @@ class ChunkRunner:
 
         return jax.lax.scan(outer, state, None, length=num_records)
 
-    def reallocate(self, state: DEMState, capacity_growth: float | None = None) -> DEMState:
+    def reallocate(self, state, capacity_growth: float | None = None):
         """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
 
         Args:
-          state: the state whose list to rebuild (at its positions).
+          state: the :class:`DEMState` (or a coupled state holding one as ``.dem``) whose list to rebuild.
           capacity_growth: spare capacity as a fraction of the old capacity (default: the runner's, for an
             overflow); 1.0 rebuilds without growing, so the compiled chunk is reused.
         """
+        if hasattr(state, "membrane"):
+            return state.set(dem=self.reallocate(state.dem, capacity_growth))
         old = state.neighbors
         growth = self.capacity_growth if capacity_growth is None else capacity_growth
         extra = int(np.ceil((growth - 1.0) * old.idx.shape[1]))
@@ -98,7 +107,7 @@ class ChunkRunner:
 
     def run(
         self,
-        state: DEMState,
+        state,
         params,
         num_steps: int,
         chunk_steps: int = 1000,
@@ -128,8 +137,13 @@ class ChunkRunner:
             count = min(records_per_chunk, total_records - done)
             new_state, records = self._chunk(state, params, num_records=count, record_every=record_every)
             error = int(new_state.error)
-            if error & ERROR_NEIGHBOR_OVERFLOW:
-                state = self.reallocate(state)
+            overflow = error & (ERROR_NEIGHBOR_OVERFLOW | ERROR_MEMBRANE_CANDIDATE_OVERFLOW)
+            if overflow and (self.grow_membrane is not None or not error & ERROR_MEMBRANE_CANDIDATE_OVERFLOW):
+                if error & ERROR_NEIGHBOR_OVERFLOW:
+                    state = self.reallocate(state)
+                if error & ERROR_MEMBRANE_CANDIDATE_OVERFLOW:
+                    state = self.grow_membrane(state, int(new_state.membrane.candidates.max_count))
+                    self.reallocations += 1
                 continue
             if error:
                 raise SimulationError(

@@ -47,6 +47,7 @@ from jax_md import dataclasses
 
 from membrax import contact
 from membrax.contact import ContactParams
+from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 from membrax.neighbors import PairNeighborFn, outside_box, remap_pair_history
 from membrax.packing import moment_of_inertia, particle_mass
 from membrax.vector import select
@@ -84,6 +85,8 @@ def describe_errors(error: int) -> list[str]:
         ERROR_NEIGHBOR_OVERFLOW: "neighbour list overflow",
         ERROR_NOT_FINITE: "non-finite position or velocity (reduce the time step or stiffness)",
         ERROR_OUTSIDE_BOX: "a particle left the neighbour-list box (increase the margin)",
+        ERROR_MEMBRANE_CANDIDATE_OVERFLOW: "membrane node candidate table overflow (give the chunk runner a "
+        "grow_membrane function)",
     }
     return [name for bit, name in names.items() if int(error) & bit]
 
@@ -418,7 +421,8 @@ def dem(
             error=jnp.asarray(0, dtype=jnp.int32),
         )
 
-    def step_fn(state: DEMState, params: DEMParams) -> DEMState:
+    def step_fn(state: DEMState, params: DEMParams, sphere_force=None, sphere_torque=None) -> DEMState:
+        """One step; ``sphere_force``/``sphere_torque`` (N, 3) are extra loads at x_n (e.g. the membrane)."""
         neighbors = neighbor_frame.update(state.position, state.neighbors)
         rebuilt = jnp.any(neighbors.reference_position != state.neighbors.reference_position)
         pair_spring = jax.lax.cond(
@@ -428,6 +432,10 @@ def dem(
         )
         state = state.set(neighbors=neighbors, pair_spring=pair_spring)
         forces = compute_forces(state, particles, params, dt, wall_friction)
+        if sphere_force is not None:
+            forces = forces.set(force=forces.force + sphere_force)
+        if sphere_torque is not None:
+            forces = forces.set(torque=forces.torque + sphere_torque)
         force = apply_damping(forces.force, state.velocity, particles.mass, params.damping, particles.member)
         torque = apply_damping(
             forces.torque, state.angular_velocity, particles.inertia, params.damping, particles.member

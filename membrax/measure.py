@@ -14,6 +14,13 @@ Definitions (reference §9):
 - Unbalanced-force ratio: mean |ΣF| over particles / mean contact normal force over closed contacts.
 - Coordination number: 2 × (closed particle–particle contacts) / N (wall contacts not counted).
 - Strains from the walls: ε_a = (H0 − H)/H0 and ε_v = (V0 − V)/V0, V = A H.
+
+With a membrane (:func:`measure_coupled`, one specimen): the volume is the one enclosed by the membrane's
+inner face, V = V_mid − ½ t_m A_band (V_mid enclosed by the mid-surface and the platens,
+:func:`membrax.membrane.enclosed_volume`); the radial strain follows from volume and height,
+ε_r = 1 − √((V/H)/(V₀/H₀)). Internal stresses are Love–Weber with the membrane's node contacts as boundary
+contacts (force of the sphere on the node, arm b = x_node − x_sphere); external stresses are the sphere
+forces on the platens over the platen area (axial) and the cell pressure (radial), as in the paper §4.3.
 """
 
 from __future__ import annotations
@@ -22,12 +29,16 @@ import jax
 import jax.numpy as jnp
 from jax_md import dataclasses
 
+from membrax import membrane as membrane_lib
 from membrax import theory
 from membrax.integrate import DEMParams, DEMState, Forces, Particles, compute_forces
+from membrax.membrane_contact import node_sphere_forces
 from membrax.walls import BOTTOM, TOP, cross_section, platen_separation, wall_areas
 
 __all__ = [
     "Measurements",
+    "MembraneMeasurements",
+    "measure_coupled",
     "coordination_number",
     "kinetic_energy",
     "love_weber_stress",
@@ -197,6 +208,121 @@ def measure(
         unbalanced_force_ratio=unbalanced_force_ratio(forces.force, forces, particles, pair_member),
         coordination_number=coordination_number(forces, particles, pair_member),
         kinetic_energy=kinetic_energy(state, particles),
+        wall_force=forces.wall_total_force,
+        wall_position=walls.position + walls.position_compensation,
+    )
+
+
+@dataclasses.dataclass
+class MembraneMeasurements:
+    """Records of a coupled DEM + membrane state, each (1,) (one specimen); module docstring for the terms.
+
+    Stresses in Pa (compression positive), strains as fractions (compression positive), forces in N.
+    ``membrane_platen_force`` is the axial force of the membrane on the top platen minus that on the
+    bottom one, halved: negative when the membrane pulls the platens together (axial tension).
+    """
+
+    step: jnp.ndarray
+    axial_strain: jnp.ndarray
+    volumetric_strain: jnp.ndarray
+    radial_strain: jnp.ndarray
+    height: jnp.ndarray
+    volume: jnp.ndarray
+    platen_axial_stress: jnp.ndarray
+    love_weber_axial_stress: jnp.ndarray
+    love_weber_radial_stress: jnp.ndarray
+    love_weber_friction_angle: jnp.ndarray
+    unbalanced_force_ratio: jnp.ndarray
+    coordination_number: jnp.ndarray
+    kinetic_energy: jnp.ndarray
+    membrane_platen_force: jnp.ndarray
+    membrane_contacts: jnp.ndarray
+    wall_force: jnp.ndarray
+    wall_position: jnp.ndarray
+
+
+def measure_coupled(
+    state,
+    particles: Particles,
+    mesh,
+    params,
+    dt,
+    initial_height,
+    initial_volume,
+    platen_area,
+    wall_friction: bool = False,
+) -> MembraneMeasurements:
+    """All measurements of a :class:`membrax.membrane_dem.CoupledState` (module docstring).
+
+    Args:
+      state: the coupled state.
+      particles: sphere properties.
+      mesh: the membrane mesh.
+      params: :class:`membrax.membrane_dem.CoupledParams`.
+      dt: time step, s.
+      initial_height: H₀, m.
+      initial_volume: V₀ (inner face), m³.
+      platen_area: m².
+      wall_friction: as in :func:`membrax.integrate.compute_forces`.
+    """
+    spheres, nodes = state.dem, state.membrane
+    mp = params.membrane
+    forces = compute_forces(spheres, particles, params.dem, dt, wall_friction)
+    contact = node_sphere_forces(
+        nodes.position,
+        nodes.velocity,
+        spheres.position,
+        spheres.velocity,
+        spheres.angular_velocity,
+        particles.radius,
+        nodes.candidates.idx,
+        nodes.spring,
+        dt,
+        mp.contact,
+        mp.thickness,
+    )
+    pair_member = jnp.zeros(spheres.neighbors.idx.shape[1], dtype=jnp.int32)
+    walls = spheres.walls
+    height = platen_separation(walls)
+    volume = membrane_lib.enclosed_volume(
+        nodes.position, mesh
+    ) - 0.5 * mp.thickness * membrane_lib.surface_area(nodes.position, mesh)
+    volume = jnp.reshape(volume, (1,))
+    membrane_dyad = jnp.sum(contact.slot_force[:, :, :, None] * contact.branch[:, :, None, :], axis=(0, 1))
+    stress = (
+        love_weber_stress(forces, particles, pair_member, volume)
+        + membrane_dyad[None] / volume[:, None, None]
+    )
+    stress = 0.5 * (stress + jnp.swapaxes(stress, 1, 2))
+    lw_axial, lw_radial = principal_axisymmetric(stress)
+    platen_stress = 0.5 * (forces.wall_total_force[:, TOP] + forces.wall_total_force[:, BOTTOM]) / platen_area
+    major = jnp.maximum(lw_axial, lw_radial)
+    minor = jnp.minimum(lw_axial, lw_radial)
+    positive = minor > 0.0
+    angle = jnp.where(
+        positive,
+        theory.mobilised_friction_angle_deg(jnp.where(positive, major, 2.0), jnp.where(positive, minor, 1.0)),
+        jnp.nan,
+    )
+    net_force = forces.force + contact.sphere_force
+    reaction = nodes.platen_reaction
+    ratio = (volume / height) / (initial_volume / initial_height)
+    return MembraneMeasurements(
+        step=jnp.reshape(spheres.step, (1,)),
+        axial_strain=(initial_height - height) / initial_height,
+        volumetric_strain=(initial_volume - volume) / initial_volume,
+        radial_strain=1.0 - jnp.sqrt(ratio),
+        height=height,
+        volume=volume,
+        platen_axial_stress=platen_stress,
+        love_weber_axial_stress=lw_axial,
+        love_weber_radial_stress=lw_radial,
+        love_weber_friction_angle=angle,
+        unbalanced_force_ratio=unbalanced_force_ratio(net_force, forces, particles, pair_member),
+        coordination_number=coordination_number(forces, particles, pair_member),
+        kinetic_energy=kinetic_energy(spheres, particles),
+        membrane_platen_force=jnp.reshape(0.5 * (reaction[1, 2] - reaction[0, 2]), (1,)),
+        membrane_contacts=jnp.reshape(jnp.sum(contact.overlap > 0.0), (1,)),
         wall_force=forces.wall_total_force,
         wall_position=walls.position + walls.position_compensation,
     )

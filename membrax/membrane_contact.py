@@ -156,6 +156,8 @@ class NodeSphereForces(NamedTuple):
       spring: (n_nodes, K, 3) updated tangential springs (force on the node), N.
       normal_force: (n_nodes, K) |F_n| per slot, N (0 where not touching).
       overlap: (n_nodes, K) δ per slot, m (negative: gap; padded slots −1).
+      slot_force: (n_nodes, K, 3) force of the candidate sphere on the node per slot, N (zero if none).
+      branch: (n_nodes, K, 3) b = x_node − x_sphere per slot, m (the arm of the torque).
     """
 
     node_force: jnp.ndarray
@@ -164,6 +166,8 @@ class NodeSphereForces(NamedTuple):
     spring: jnp.ndarray
     normal_force: jnp.ndarray
     overlap: jnp.ndarray
+    slot_force: jnp.ndarray
+    branch: jnp.ndarray
 
 
 def _component_first(rows):
@@ -288,6 +292,8 @@ def node_sphere_forces(
         spring=to_rows(new_spring),
         normal_force=normal_force,
         overlap=overlap,
+        slot_force=to_rows(force_on_node),
+        branch=to_rows(branch),
     )
 
 

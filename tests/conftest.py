@@ -10,6 +10,10 @@ membrax's neighbour-list wrapper (membrax.neighbors) calls jax-md under local st
 membrax's own code runs strict.
 """
 
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # scipy's L-BFGS-B threads only contend on 2 cores
+
 import jax
 
 jax.config.update("jax_enable_x64", True)

@@ -1,0 +1,409 @@
+"""DEM + membrane: spheres, platens and a latex membrane whose end rings are clamped to the platens.
+
+Contract. ``membrane_dem(particles, neighbor_frame, mesh, dt)`` returns ``(init_fn, step_fn)`` in the
+jax-md style, composed from :func:`membrax.integrate.dem` and the membrane modules:
+
+- ``init_fn(dem_state, params, capacity=8, skin=...) -> CoupledState`` (host side: builds the node–sphere
+  candidate table; the membrane starts at rest at ``mesh.reference_position``, its rings clamped to the
+  platens where they stand in ``dem_state``);
+- ``step_fn(state, params) -> CoupledState`` advances one step under ``jit``; ``params``
+  (:class:`CoupledParams`: the DEM's and the membrane's parameters) is traced, so it can be differentiated
+  and changed without recompiling.
+
+One step (explicit central differences, as the DEM; velocities at half steps):
+
+1. node–sphere contacts at (y_n, x_n) with the velocities of the previous half step
+   (:func:`membrax.membrane_contact.node_sphere_forces`);
+2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.nodal_forces`);
+3. the DEM step with the contacts' reactions added to the spheres (forces and torques);
+4. free nodes: damped leapfrog with the lumped masses (area × t_m × ρ_latex / 3 per triangle corner) and
+   the DEM's damping law (:func:`membrax.integrate.apply_damping`); clamped nodes (the two end rings,
+   the O-rings) follow their platen rigidly: y = y_clamp + (z_platen − z_platen,0) e_z;
+5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
+   (:func:`membrax.membrane_contact.update_candidates`); an overflow sets
+   :data:`~membrax.membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW` in the DEM state's error bitmask,
+   and the chunk driver reallocates a larger table and reruns the chunk.
+
+Platen reactions. The clamp holds the ring nodes against the forces F_k of the membrane and the spheres
+on them, so the membrane loads each platen with R = Σ_ring F_k + p A n_out: the second term removes the
+cell pressure on the cap, which :func:`membrax.membrane.enclosed_volume` closes over the platen face (the
+cell pressure there acts on the platen, not on the membrane); A n_out = ±½ Σ_k y_k × y_{k+1} is the
+ring's vector area, n_out = −e_z at the bottom and +e_z at the top. ``MembraneState.platen_reaction``
+holds R for both platens (N; R_z < 0 on the top platen when the membrane pulls it down). They are
+recorded separately from the sphere–platen forces, which alone drive the platen servo.
+
+Scope: one specimen (``particles.num_members == 1``), the platens being walls 0 and 1 and no lateral
+walls; batches of specimens are the business of :mod:`membrax.sweep`. SI units: m, s, N, Pa, kg.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse.linalg
+from jax_md import dataclasses
+
+from membrax import membrane as membrane_lib
+from membrax.integrate import ERROR_NOT_FINITE, DEMParams, DEMState, Particles, apply_damping, dem
+from membrax.membrane import MembraneMesh
+from membrax.membrane_contact import (
+    MembraneContactParams,
+    NodeCandidates,
+    build_candidates,
+    candidate_errors,
+    node_sphere_forces,
+    remap_node_history,
+    update_candidates,
+)
+from membrax.neighbors import PairNeighborFn
+from membrax.validation import check_range
+from membrax.walls import BOTTOM, TOP, compensated_add
+
+__all__ = [
+    "LATEX_DENSITY",
+    "CoupledParams",
+    "CoupledState",
+    "MembraneParams",
+    "MembraneState",
+    "grow_candidates",
+    "membrane_critical_time_step",
+    "membrane_dem",
+    "platen_heights",
+]
+
+#: Latex density, kg/m³ (920–1000; the issue's "about 1000").
+LATEX_DENSITY = 1000.0
+
+
+@dataclasses.dataclass
+class MembraneParams:
+    """Traced membrane parameters (SI).
+
+    Attributes:
+      modulus: E_m, Pa (paper: 1400 kPa).
+      thickness: t_m, m (paper: 2.5, 3.33 and 5 mm).
+      cell_pressure: p, Pa, on the membrane's outer face.
+      contact: the node–sphere contact law.
+    """
+
+    modulus: jnp.ndarray
+    thickness: jnp.ndarray
+    cell_pressure: jnp.ndarray
+    contact: MembraneContactParams
+
+    @staticmethod
+    def create(
+        modulus_kpa: float = 1400.0,
+        thickness_mm: float = 2.5,
+        cell_pressure_kpa: float = 10.0,
+        contact: MembraneContactParams | None = None,
+    ) -> MembraneParams:
+        """Parameters from laboratory units (kPa, mm), converted once to SI; defaults are the paper's."""
+        check_range("modulus_kpa", modulus_kpa, lower=0.0, lower_open=True, hint="latex: about 1400 kPa.")
+        check_range("thickness_mm", thickness_mm, lower=0.0, lower_open=True, hint="paper: 2.5 to 5 mm.")
+        check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, hint="paper: 10 to 100 kPa.")
+        return MembraneParams(
+            modulus=jnp.asarray(1e3 * modulus_kpa),
+            thickness=jnp.asarray(1e-3 * thickness_mm),
+            cell_pressure=jnp.asarray(1e3 * cell_pressure_kpa),
+            contact=MembraneContactParams.default() if contact is None else contact,
+        )
+
+
+@dataclasses.dataclass
+class CoupledParams:
+    """The traced parameters of a coupled step: the DEM's (contacts, damping) and the membrane's."""
+
+    dem: DEMParams
+    membrane: MembraneParams
+
+
+@dataclasses.dataclass
+class MembraneState:
+    """Everything of the membrane that evolves.
+
+    Attributes:
+      position: (n, 3) node positions y_n, m.
+      position_compensation: (n, 3) low-order part of y_n (compensated summation, as the spheres).
+      velocity: (n, 3) node velocities at the previous half step, m/s.
+      spring: (n, K, 3) tangential springs of the node–sphere slots (force on the node), N.
+      candidates: the node → sphere candidate table.
+      clamp_position: (2, n_θ, 3) the bottom and top ring positions when the platens stood at
+        ``clamp_platen_height``, m.
+      clamp_platen_height: (2,) z of the bottom and top platens when clamped, m.
+      node_force: (n, 3) total force on each node at the last step (membrane + spheres), N.
+      sphere_force: (N, 3) force of the membrane on each sphere at the last step, N.
+      platen_reaction: (2, 3) force of the membrane on the bottom and top platens (module docstring), N.
+    """
+
+    position: jnp.ndarray
+    position_compensation: jnp.ndarray
+    velocity: jnp.ndarray
+    spring: jnp.ndarray
+    candidates: NodeCandidates
+    clamp_position: jnp.ndarray
+    clamp_platen_height: jnp.ndarray
+    node_force: jnp.ndarray
+    sphere_force: jnp.ndarray
+    platen_reaction: jnp.ndarray
+
+
+@dataclasses.dataclass
+class CoupledState:
+    """The DEM state and the membrane state; errors and the step count live in the DEM state."""
+
+    dem: DEMState
+    membrane: MembraneState
+
+    @property
+    def error(self):
+        """int32 error bitmask (the ``ERROR_*`` bits of :mod:`membrax.integrate`, membrane_contact)."""
+        return self.dem.error
+
+    @property
+    def step(self):
+        """Number of steps taken."""
+        return self.dem.step
+
+
+def platen_heights(walls):
+    """(z_bottom, z_top) of the platens of member 0, m (h of the bottom plane is −z, its normal −e_z)."""
+    bottom = walls.position[0, BOTTOM] + walls.position_compensation[0, BOTTOM]
+    top = walls.position[0, TOP] + walls.position_compensation[0, TOP]
+    return jnp.stack([-bottom, top])
+
+
+def _ring_vector_area(ring_position):
+    """½ Σ_k y_k × y_{k+1} over a closed ring (n_θ, 3): the vector area of the polygon, m²."""
+    here = ring_position.T
+    after = jnp.roll(ring_position, -1, axis=0).T
+    return 0.5 * jnp.stack(
+        [
+            jnp.sum(here[1] * after[2] - here[2] * after[1]),
+            jnp.sum(here[2] * after[0] - here[0] * after[2]),
+            jnp.sum(here[0] * after[1] - here[1] * after[0]),
+        ]
+    )
+
+
+def _platen_reaction(node_force, position, mesh: MembraneMesh, cell_pressure):
+    """Force of the membrane on the bottom and top platens, (2, 3), N (module docstring)."""
+    sign = jnp.asarray([-1.0, 1.0], dtype=position.dtype)  # n_out = ∓e_z: A n_out = ∓ vector area
+    return jnp.stack(
+        [
+            jnp.sum(node_force[ring], axis=0) + sign[k] * cell_pressure * _ring_vector_area(position[ring])
+            for k, ring in enumerate((mesh.bottom_ring, mesh.top_ring))
+        ]
+    )
+
+
+def membrane_dem(
+    particles: Particles,
+    neighbor_frame: PairNeighborFn,
+    mesh: MembraneMesh,
+    dt: float,
+    platen_area,
+    sphere_subset=None,
+    latex_density: float = LATEX_DENSITY,
+    stretching_model: str = "neo_hookean",
+    wall_friction: bool = False,
+) -> tuple[Callable, Callable]:
+    """The coupled DEM + membrane simulation as ``(init_fn, step_fn)`` (see the module docstring).
+
+    Args:
+      particles: sphere properties (one specimen).
+      neighbor_frame: the sphere neighbour-list factory.
+      mesh: the membrane (:func:`membrax.membrane.prism_mesh` around the specimen at t_m/2).
+      dt: time step, s (the smaller of the DEM's and :func:`membrane_critical_time_step`'s, with a safety).
+      platen_area: the platen area for the servo, m².
+      sphere_subset: ids of the spheres that may touch the membrane (default: all).
+      latex_density: ρ of the membrane, kg/m³, for the lumped node masses.
+      stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.stretching_energy`).
+      wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
+    """
+    if particles.num_members != 1:
+        raise ValueError(
+            f"membrane_dem couples one specimen, got {particles.num_members} members; batch with vmap."
+        )
+    check_range("latex_density", latex_density, lower=0.0, lower_open=True, hint="kg/m³; latex ≈ 1000.")
+    check_range("dt", dt, lower=0.0, lower_open=True, hint="seconds; see membrane_critical_time_step.")
+    num_spheres = particles.num_particles
+    _, dem_step = dem(particles, neighbor_frame, dt, platen_area=platen_area, wall_friction=wall_friction)
+    if sphere_subset is None:
+        sphere_subset = np.arange(num_spheres)
+    sphere_subset = jnp.asarray(sphere_subset, dtype=jnp.int32)
+    # Mass per unit thickness: lumped_mass is linear in t_m, which stays a traced parameter.
+    mass_per_thickness = membrane_lib.lumped_mass(mesh, 1.0, latex_density)
+    free = np.ones(mesh.num_nodes, dtype=bool)
+    free[np.asarray(mesh.bottom_ring)] = False
+    free[np.asarray(mesh.top_ring)] = False
+    free = jnp.asarray(free)
+    rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
+    node_member = jnp.zeros(mesh.num_nodes, dtype=jnp.int32)
+
+    def init_fn(dem_state: DEMState, params: CoupledParams, capacity: int = 8, skin=None) -> CoupledState:
+        position = mesh.reference_position.astype(dem_state.position.dtype)
+        thickness = params.membrane.thickness
+        if skin is None:
+            skin = 0.2 * 2.0 * float(jnp.max(particles.radius))
+        candidates = build_candidates(
+            position, dem_state.position, particles.radius, sphere_subset, thickness, skin, capacity
+        )
+        zeros = jnp.zeros_like(position)
+        return CoupledState(
+            dem=dem_state,
+            membrane=MembraneState(
+                position=position,
+                position_compensation=zeros,
+                velocity=zeros,
+                spring=jnp.zeros((mesh.num_nodes, capacity, 3), position.dtype),
+                candidates=candidates,
+                clamp_position=position[rings],
+                clamp_platen_height=platen_heights(dem_state.walls),
+                node_force=zeros,
+                sphere_force=jnp.zeros_like(dem_state.position),
+                platen_reaction=jnp.zeros((2, 3), position.dtype),
+            ),
+        )
+
+    def step_fn(state: CoupledState, params: CoupledParams) -> CoupledState:
+        spheres, nodes = state.dem, state.membrane
+        mp = params.membrane
+        contact = node_sphere_forces(
+            nodes.position,
+            nodes.velocity,
+            spheres.position,
+            spheres.velocity,
+            spheres.angular_velocity,
+            particles.radius,
+            nodes.candidates.idx,
+            nodes.spring,
+            dt,
+            mp.contact,
+            mp.thickness,
+        )
+        internal = membrane_lib.nodal_forces(
+            nodes.position, mesh, mp.modulus, mp.thickness, mp.cell_pressure, model=stretching_model
+        )
+        node_force = internal + contact.node_force
+        spheres = dem_step(spheres, params.dem, contact.sphere_force, contact.sphere_torque)
+
+        mass = mp.thickness * mass_per_thickness
+        damped = apply_damping(node_force, nodes.velocity, mass, params.dem.damping, node_member)
+        velocity = jnp.where(free[:, None], nodes.velocity + dt * damped / mass[:, None], 0.0)
+        position, compensation = compensated_add(nodes.position, nodes.position_compensation, dt * velocity)
+        # Clamped rings ride on their platens (rigid vertical motion).
+        platen_z = platen_heights(spheres.walls)
+        shift = platen_z - nodes.clamp_platen_height  # (2,)
+        clamped = (
+            nodes.clamp_position
+            + jnp.stack([jnp.zeros_like(shift), jnp.zeros_like(shift), shift]).T[:, None, :]
+        )
+        position = position.at[rings].set(clamped)
+        compensation = compensation.at[rings].set(0.0)
+        platen_velocity = jnp.stack([-spheres.walls.velocity[0, BOTTOM], spheres.walls.velocity[0, TOP]])
+        ring_velocity = jnp.broadcast_to(
+            jnp.stack([jnp.zeros_like(platen_velocity), jnp.zeros_like(platen_velocity), platen_velocity]).T[
+                :, None, :
+            ],
+            clamped.shape,
+        )
+        velocity = velocity.at[rings].set(ring_velocity)
+
+        candidates, spring = update_candidates(
+            nodes.candidates, contact.spring, position, spheres.position, particles.radius, mp.thickness
+        )
+        finite = jnp.all(jnp.isfinite(position)) & jnp.all(jnp.isfinite(velocity))
+        error = spheres.error | candidate_errors(candidates) | jnp.where(finite, 0, ERROR_NOT_FINITE)
+        return CoupledState(
+            dem=spheres.set(error=error.astype(jnp.int32)),
+            membrane=nodes.set(
+                position=position,
+                position_compensation=compensation,
+                velocity=velocity,
+                spring=spring,
+                candidates=candidates,
+                node_force=node_force,
+                sphere_force=contact.sphere_force,
+                platen_reaction=_platen_reaction(node_force, nodes.position, mesh, mp.cell_pressure),
+            ),
+        )
+
+    return init_fn, step_fn
+
+
+def grow_candidates(state: CoupledState, particles: Particles, capacity: int, thickness) -> CoupledState:
+    """A copy of ``state`` with a node candidate table of ``capacity`` slots, springs carried by sphere id.
+
+    Used by the chunk driver after :data:`~membrax.membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW`.
+
+    Args:
+      state: the state to change (its table is rebuilt at its positions).
+      particles: sphere properties.
+      capacity: the new K (e.g. the overflowing chunk's ``max_count`` plus a margin).
+      thickness: t_m, m.
+    """
+    nodes = state.membrane
+    old = nodes.candidates
+    new = build_candidates(
+        nodes.position,
+        state.dem.position,
+        particles.radius,
+        old.sphere_subset,
+        thickness,
+        old.skin,
+        capacity,
+    )
+    spring = remap_node_history(old.idx, new.idx, nodes.spring, particles.num_particles)
+    return state.set(membrane=nodes.set(candidates=new, spring=spring))
+
+
+def membrane_critical_time_step(
+    mesh: MembraneMesh,
+    params: MembraneParams,
+    latex_density: float = LATEX_DENSITY,
+    contacts_per_node: int = 2,
+    stretching_model: str = "neo_hookean",
+) -> dict:
+    """Critical time steps of the membrane's explicit integration, s.
+
+    ω²_mesh = λ_max(M⁻¹ K) of the membrane's stiffness K = ∇²(W_stretch + W_bend + p V) at the rest shape
+    (Lanczos on Hessian–vector products, reverse over reverse mode), and the contact bound
+    ω²_contact = c k_n / m_min for a node pressed by c spheres at once. Δt_crit = 2/ω for each and for the
+    sum ω² = ω²_mesh + ω²_contact (a Gershgorin-style bound for the coupled node).
+
+    Returns:
+      dict with ``mesh``, ``contact`` and ``combined`` critical steps, s.
+    """
+    position = mesh.reference_position
+    mass = np.asarray(membrane_lib.lumped_mass(mesh, params.thickness, latex_density), dtype=float)
+    free = np.ones(mesh.num_nodes, dtype=bool)
+    free[np.asarray(mesh.bottom_ring)] = False
+    free[np.asarray(mesh.top_ring)] = False
+
+    def energy(x):
+        return membrane_lib.total_energy(
+            x, mesh, params.modulus, params.thickness, params.cell_pressure, model=stretching_model
+        )
+
+    hvp = jax.jit(lambda v: jax.grad(lambda x: jnp.vdot(jax.grad(energy)(x), v))(position))
+    scale = np.repeat(1.0 / np.sqrt(mass), 3) * np.repeat(free, 3)  # M^-1/2, clamped rows removed
+
+    def matvec(vector):
+        vector = np.asarray(vector).ravel() * scale
+        product = np.asarray(hvp(jnp.asarray(vector.reshape(-1, 3), dtype=position.dtype))).ravel()
+        return product * scale
+
+    size = 3 * mesh.num_nodes
+    operator = scipy.sparse.linalg.LinearOperator((size, size), matvec=matvec, dtype=float)
+    omega_sq_mesh = float(scipy.sparse.linalg.eigsh(operator, k=1, which="LA", tol=1e-3)[0][0])
+    omega_sq_contact = contacts_per_node * float(params.contact.normal_stiffness) / float(mass[free].min())
+    return {
+        "mesh": 2.0 / math.sqrt(omega_sq_mesh),
+        "contact": 2.0 / math.sqrt(omega_sq_contact) if omega_sq_contact > 0.0 else math.inf,
+        "combined": 2.0 / math.sqrt(omega_sq_mesh + omega_sq_contact),
+    }

@@ -1,0 +1,240 @@
+"""The triaxial test with a latex membrane: a specimen between two platens, wrapped in a clamped membrane.
+
+Contract. :func:`membrane_test` builds the coupled system of :mod:`membrax.membrane_dem` around a specimen
+— the two platens (servo or strain controlled, frictionless by default), no lateral walls, and a membrane
+mesh whose mid-surface sits t_m/2 outside the outer particles (:func:`membrax.membrane.prism_mesh`) with
+its end rings clamped to the platens — and returns a :class:`MembraneTest`. Its methods run the stages
+with the chunk driver and return the state and the records (:class:`membrax.measure.MembraneMeasurements`,
+numpy arrays with a leading time axis):
+
+- :meth:`MembraneTest.consolidate`: the cell pressure acts on the membrane's outer face; both platens are
+  servo-controlled to the same stress on the particles, until the unbalanced-force ratio falls below
+  ``tolerance`` and the platen stress is within ``stress_tolerance`` of the cell pressure.
+
+Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
+:func:`membrax.membrane_dem.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
+touches only the specimen's lateral-boundary spheres (the candidate subset), which holds for FCC
+specimens, whose outer spheres stay outermost. Units: the builder takes laboratory units (kPa, mm),
+named in the arguments; everything inside is SI.
+"""
+
+from __future__ import annotations
+
+import dataclasses as pydataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from membrax import measure as measure_lib
+from membrax import membrane as membrane_lib
+from membrax.contact import ContactParams
+from membrax.driver import ChunkRunner
+from membrax.integrate import (
+    DEFAULT_SAFETY,
+    DampingParams,
+    DEMParams,
+    critical_time_step,
+    dem,
+    make_particles,
+)
+from membrax.membrane_contact import MembraneContactParams
+from membrax.membrane_dem import (
+    LATEX_DENSITY,
+    CoupledParams,
+    CoupledState,
+    MembraneParams,
+    grow_candidates,
+    membrane_critical_time_step,
+    membrane_dem,
+)
+from membrax.neighbors import pair_neighbor_fn
+from membrax.packing import GRANITE_DENSITY, Specimen
+from membrax.validation import check_range
+from membrax.walls import triaxial_walls
+
+__all__ = ["MembraneTest", "membrane_test"]
+
+
+@pydataclasses.dataclass
+class MembraneTest:
+    """A specimen in a membrane, ready to run (built by :func:`membrane_test`)."""
+
+    specimen: Specimen
+    particles: object
+    mesh: membrane_lib.MembraneMesh
+    params: CoupledParams
+    dt: float
+    critical_dt: dict
+    initial_state: CoupledState
+    runner: ChunkRunner
+    initial_height: float
+    initial_volume: float
+    platen_area: float
+
+    @property
+    def cell_pressure(self) -> float:
+        """σc, Pa."""
+        return float(self.params.membrane.cell_pressure)
+
+    def set_platens(self, state: CoupledState, servo, velocity, target) -> CoupledState:
+        """A copy of ``state`` with both platens' mode, velocity (dh/dt, m/s) and target stress (Pa) set."""
+        walls = state.dem.walls
+        walls = walls.set(
+            servo=jnp.broadcast_to(jnp.asarray(servo), walls.servo.shape),
+            velocity=jnp.broadcast_to(jnp.asarray(velocity, walls.velocity.dtype), walls.velocity.shape),
+            target_stress=jnp.broadcast_to(
+                jnp.asarray(target, walls.target_stress.dtype), walls.target_stress.shape
+            ),
+        )
+        return state.set(dem=state.dem.set(walls=walls))
+
+    def consolidate(
+        self,
+        state: CoupledState | None = None,
+        tolerance: float | None = None,
+        stress_tolerance: float = 0.01,
+        max_steps: int = 200_000,
+        chunk_steps: int = 2000,
+        record_every: int = 100,
+        on_chunk=None,
+    ):
+        """Isotropic consolidation under the cell pressure (module docstring).
+
+        Args:
+          state: starting state (default: the as-built specimen).
+          tolerance: unbalanced-force ratio to reach (default 1e-3 in float64, 5e-3 in float32).
+          stress_tolerance: relative tolerance of the platen stress against the cell pressure.
+          max_steps: give up after this many steps (the records show how far it got).
+          chunk_steps: steps per compiled chunk.
+          record_every: steps between records.
+          on_chunk: progress callback ``on_chunk(state, records)``.
+
+        Returns:
+          (state, records).
+        """
+        state = self.initial_state if state is None else state
+        if tolerance is None:
+            tolerance = 1e-3 if state.dem.position.dtype == jnp.float64 else 5e-3
+        state = self.set_platens(state, True, 0.0, self.cell_pressure)
+
+        def stop(_, records):
+            ratio = float(records.unbalanced_force_ratio[-1, 0])
+            stress = float(records.platen_axial_stress[-1, 0])
+            return ratio < tolerance and abs(stress / self.cell_pressure - 1.0) < stress_tolerance
+
+        return self.runner.run(
+            state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
+        )
+
+
+def membrane_test(
+    specimen: Specimen,
+    cell_pressure_kpa: float = 10.0,
+    membrane_thickness_mm: float = 2.5,
+    membrane_modulus_kpa: float = 1400.0,
+    contact_params: ContactParams | None = None,
+    membrane_contact: MembraneContactParams | None = None,
+    damping: DampingParams | None = None,
+    density: float = GRANITE_DENSITY,
+    latex_density: float = LATEX_DENSITY,
+    edges_per_diameter: float = 5.0,
+    candidate_capacity: int = 8,
+    dt_safety: float = DEFAULT_SAFETY,
+    skin_fraction: float = 0.2,
+    servo_gain: float = 0.1,
+    max_wall_speed: float | None = None,
+    time_step: float | None = None,
+) -> MembraneTest:
+    """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
+
+    Args:
+      specimen: from :func:`membrax.packing.fcc_specimen`.
+      cell_pressure_kpa: σc, kPa, > 0 (paper: 10, 40, 100).
+      membrane_thickness_mm: t_m, mm, > 0 (paper: 2.5, 3.33, 5).
+      membrane_modulus_kpa: E_m, kPa, > 0 (paper: 1400).
+      contact_params: sphere contact law (default :meth:`ContactParams.paper`).
+      membrane_contact: node–sphere law (default :meth:`MembraneContactParams.default`).
+      damping: default Cundall local 0.3 (paper), applied to spheres and membrane nodes alike.
+      density: particle density, kg/m³.
+      latex_density: membrane density, kg/m³.
+      edges_per_diameter: mesh resolution, particle diameter / target edge length (5: ~34,000 triangles at
+        paper size, as the paper).
+      candidate_capacity: initial K of the node candidate table (grown on overflow).
+      dt_safety: Δt = dt_safety × the smaller critical step.
+      skin_fraction: neighbour and candidate skin as a fraction of the particle diameter.
+      servo_gain: the platen servo's α.
+      max_wall_speed: servo speed limit, m/s (default: 1 % of a diameter per 1000 steps).
+      time_step: Δt in s, overriding the rule above.
+    """
+    check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, lower_open=True, hint="paper: 10–100 kPa.")
+    check_range("edges_per_diameter", edges_per_diameter, lower=0.0, lower_open=True)
+    check_range("dt_safety", dt_safety, lower=0.0, upper=1.0, lower_open=True)
+    membrane_params = MembraneParams.create(
+        membrane_modulus_kpa, membrane_thickness_mm, cell_pressure_kpa, membrane_contact
+    )
+    contact_params = ContactParams.paper() if contact_params is None else contact_params
+    damping = DampingParams.local(0.3) if damping is None else damping
+    params = CoupledParams(dem=DEMParams(contact=contact_params, damping=damping), membrane=membrane_params)
+    diameter = specimen.particle_diameter
+    thickness = 1e-3 * membrane_thickness_mm
+    position = jnp.asarray(specimen.position)
+    particles = make_particles(jnp.asarray(specimen.radius), density)
+    walls = triaxial_walls(
+        np.zeros((0, 2)), np.zeros(0), specimen.height, num_members=1, servo_gain=servo_gain
+    )
+    lower = np.min(np.asarray(position), axis=0) - 2.0 * diameter
+    upper = np.max(np.asarray(position), axis=0) + 2.0 * diameter
+    frame = pair_neighbor_fn(
+        lower, upper, cutoff=diameter, skin=skin_fraction * diameter, margin=0.5 * diameter
+    )
+    neighbors = frame.allocate(position)
+    mesh = membrane_lib.prism_mesh(
+        np.asarray(specimen.outline_vertices),
+        0.5 * thickness,
+        specimen.height,
+        diameter / edges_per_diameter,
+        dtype=position.dtype,
+    )
+    dem_init, _ = dem(particles, frame, 1.0)
+    critical = {"dem": critical_time_step(dem_init(position, walls, neighbors), particles, params.dem)}
+    membrane_steps = membrane_critical_time_step(mesh, membrane_params, latex_density)
+    critical.update({f"membrane_{key}": value for key, value in membrane_steps.items()})
+    dt = dt_safety * min(critical["dem"], critical["membrane_combined"]) if time_step is None else time_step
+    if max_wall_speed is None:
+        max_wall_speed = 0.01 * diameter / (1000 * dt)
+    walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
+    platen_area = float(specimen.cross_section_area)
+    subset = np.flatnonzero(np.asarray(specimen.is_lateral_boundary))
+    init_fn, step_fn = membrane_dem(
+        particles, frame, mesh, dt, platen_area, sphere_subset=subset, latex_density=latex_density
+    )
+    state = init_fn(
+        dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
+    )
+    height = float(specimen.height)
+    volume = float(
+        membrane_lib.enclosed_volume(state.membrane.position, mesh)
+        - 0.5 * thickness * membrane_lib.surface_area(state.membrane.position, mesh)
+    )
+
+    def record(s, p):
+        return measure_lib.measure_coupled(s, particles, mesh, p, dt, height, volume, platen_area)
+
+    def grow(s, max_count):
+        capacity = max(max_count + 2, int(np.ceil(1.5 * s.membrane.candidates.capacity)))
+        return grow_candidates(s, particles, min(capacity, subset.size), thickness)
+
+    runner = ChunkRunner(step_fn, frame, record, particles.num_particles, grow_membrane=grow)
+    return MembraneTest(
+        specimen=specimen,
+        particles=particles,
+        mesh=mesh,
+        params=params,
+        dt=float(dt),
+        critical_dt=critical,
+        initial_state=state,
+        runner=runner,
+        initial_height=height,
+        initial_volume=volume,
+        platen_area=platen_area,
+    )

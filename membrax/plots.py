@@ -1,0 +1,258 @@
+"""Matplotlib figures: horizontal sections through the specimen and its membrane (the paper's Fig. 4).
+
+Contract. The geometry functions run on the host in numpy float64 (JAX arrays are converted with
+``np.asarray``; nothing is traced) and work in SI units (m):
+
+- :func:`membrane_section` cuts the triangulated membrane surface with the plane z = height and returns
+  the intersection polylines of (x, y) points;
+- :func:`particle_section` cuts the spheres with the same plane and returns the circles.
+
+:func:`plot_section` draws both on a matplotlib ``Axes`` given by the caller (object API; it never calls
+``pyplot.show``), converting m to mm for display only: the particle sections as filled grey circles (one
+``PatchCollection``) and the membrane mid-surface section as a line, with equal aspect, axes labelled in
+mm and the height in the title.
+
+Section rule. A node counts as above the plane when z >= height and below when z < height, so a node
+exactly on the plane is never ambiguous. An edge crosses the plane when one end is below and the other
+above; it contributes one point, interpolated linearly from its lower to its upper end (the upper end
+itself when it lies on the plane). A triangle with nodes on both sides has exactly two crossing edges and
+contributes the segment between their points; segments are chained into polylines through the edges they
+share. An edge shared by two triangles links two segments, so on a closed band the section is a set of
+closed loops; a loop is returned with its first point repeated at the end (matplotlib's convention) and
+ordered counter-clockwise seen from above (+z). A polyline reaching the mesh boundary is returned open.
+Consecutive coincident points (from nodes lying on the plane) are merged into one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.collections import PatchCollection
+from matplotlib.patches import Circle
+
+__all__ = ["membrane_section", "particle_section", "plot_section"]
+
+MM_PER_M = 1e3
+
+
+def _shoelace(loop: np.ndarray) -> float:
+    """Signed area of a closed (x, y) polygon, positive counter-clockwise (first point may be repeated)."""
+    x, y = loop[:, 0], loop[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def membrane_section(node_position, triangles, height) -> list[np.ndarray]:
+    """Intersection of the triangulated membrane with the horizontal plane z = ``height``.
+
+    See the module docstring for the rule (nodes with z == height count as above; loops closed by repeating
+    the first point and oriented counter-clockwise).
+
+    Args:
+      node_position: (N, 3) node positions in m.
+      triangles: (T, 3) integer node indices.
+      height: z of the cutting plane in m.
+
+    Returns:
+      A list of (M, 2) float64 arrays of (x, y) points in m, one per connected polyline, ordered along it;
+      empty when the plane misses the surface. For a closed loop ``loop[0] == loop[-1]``.
+
+    Raises:
+      ValueError: if an edge crossing the plane is shared by more than two triangles (non-manifold mesh).
+    """
+    position = np.asarray(node_position, dtype=np.float64).reshape(-1, 3)
+    cells = np.asarray(triangles).astype(np.int64).reshape(-1, 3)
+    height = float(height)
+    above = position[:, 2] >= height
+    flags = above[cells]
+    crossing = flags.any(axis=1) & ~flags.all(axis=1)
+    cells = cells[crossing]
+    if cells.shape[0] == 0:
+        return []
+
+    # The two crossing edges of each triangle: (a, b), (b, c), (c, a) with different flags.
+    pairs = np.stack([cells[:, [0, 1]], cells[:, [1, 2]], cells[:, [2, 0]]], axis=1)  # (T, 3, 2)
+    differs = above[pairs[..., 0]] != above[pairs[..., 1]]  # (T, 3), two True per row
+    crossing_pairs = pairs[differs].reshape(-1, 2, 2)  # (T, 2 edges, 2 nodes)
+    # Orient each edge from its lower to its upper node, so both triangles compute the same point.
+    lower_first = ~above[crossing_pairs[..., 0]]
+    low = np.where(lower_first, crossing_pairs[..., 0], crossing_pairs[..., 1])
+    high = np.where(lower_first, crossing_pairs[..., 1], crossing_pairs[..., 0])
+    keys, edge_of_segment = np.unique(
+        np.stack([low, high], axis=-1).reshape(-1, 2), axis=0, return_inverse=True
+    )
+    edge_of_segment = edge_of_segment.reshape(-1, 2)
+    z_low, z_high = position[keys[:, 0], 2], position[keys[:, 1], 2]
+    fraction = (height - z_low) / (z_high - z_low)
+    # (1 − f)·low + f·high returns the upper node exactly when it lies on the plane (f == 1.0 exactly).
+    points = (1.0 - fraction)[:, None] * position[keys[:, 0], :2] + fraction[:, None] * position[
+        keys[:, 1], :2
+    ]
+
+    # Segments incident to each crossing edge.
+    incident: list[list[int]] = [[] for _ in range(keys.shape[0])]
+    for segment, (e0, e1) in enumerate(edge_of_segment.tolist()):
+        incident[e0].append(segment)
+        incident[e1].append(segment)
+    for edge, segments in enumerate(incident):
+        if len(segments) > 2:
+            raise ValueError(
+                f"the edge between nodes {keys[edge].tolist()} is shared by {len(segments)} triangles; "
+                "membrane_section needs a manifold surface (each edge in at most two triangles)."
+            )
+
+    used = np.zeros(edge_of_segment.shape[0], dtype=bool)
+
+    def walk(start_edge: int) -> list[int]:
+        """Edges visited following unused segments from ``start_edge`` until a dead end or back to start."""
+        chain = [start_edge]
+        edge = start_edge
+        while True:
+            following = [s for s in incident[edge] if not used[s]]
+            if not following:
+                return chain
+            segment = following[0]
+            used[segment] = True
+            e0, e1 = edge_of_segment[segment]
+            edge = int(e1 if e0 == edge else e0)
+            chain.append(edge)
+
+    chains = []
+    # Open polylines first: they start at edges with a single triangle (mesh boundary).
+    for edge, segments in enumerate(incident):
+        if len(segments) == 1 and not used[segments[0]]:
+            chains.append((walk(edge), False))
+    for segment in range(edge_of_segment.shape[0]):
+        if not used[segment]:
+            chains.append((walk(int(edge_of_segment[segment, 0])), True))
+
+    polylines = []
+    for chain, closed in chains:
+        line = points[chain]
+        keep = np.ones(line.shape[0], dtype=bool)
+        keep[1:] = np.any(line[1:] != line[:-1], axis=1)
+        line = line[keep]
+        if closed:
+            if not np.all(line[0] == line[-1]):
+                line = np.vstack([line, line[:1]])
+            if _shoelace(line) < 0.0:
+                line = line[::-1].copy()
+        polylines.append(line)
+    return polylines
+
+
+def particle_section(position, radius, height) -> tuple[np.ndarray, np.ndarray]:
+    """Circles cut from the spheres by the horizontal plane z = ``height``.
+
+    A sphere of centre z and radius R is cut when |z − height| < R, in a circle of radius
+    √(R² − (z − height)²) centred at its (x, y).
+
+    Args:
+      position: (N, 3) sphere centres in m.
+      radius: (N,) radii in m, or one scalar for all.
+      height: z of the cutting plane in m.
+
+    Returns:
+      ``(centres, radii)``: (K, 2) circle centres (x, y) and (K,) circle radii in m, float64, for the K cut
+      spheres in their input order.
+    """
+    position = np.asarray(position, dtype=np.float64).reshape(-1, 3)
+    radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), position.shape[:1])
+    distance = position[:, 2] - float(height)
+    cut = np.abs(distance) < radius
+    radii = np.sqrt(radius[cut] ** 2 - distance[cut] ** 2)
+    return position[cut, :2].copy(), radii
+
+
+def _offset_polyline(line: np.ndarray, offset: float) -> np.ndarray:
+    """Polyline moved by ``offset`` along its unit left normals (inward for a counter-clockwise loop).
+
+    The normal at a point is the normalised sum of the unit left normals of the segments meeting there.
+    """
+    closed = line.shape[0] > 2 and np.all(line[0] == line[-1])
+    body = line[:-1] if closed else line
+    if closed:
+        forward = np.roll(body, -1, axis=0) - body
+        backward = body - np.roll(body, 1, axis=0)
+    else:
+        forward = np.vstack([body[1:] - body[:-1], body[-1:] - body[-2:-1]])
+        backward = np.vstack([body[1:2] - body[:1], body[1:] - body[:-1]])
+
+    def unit_left(d):
+        n = np.column_stack([-d[:, 1], d[:, 0]])
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    normal = unit_left(forward) + unit_left(backward)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    moved = body + offset * normal
+    return np.vstack([moved, moved[:1]]) if closed else moved
+
+
+def plot_section(
+    ax,
+    position,
+    radius,
+    node_position,
+    triangles,
+    height,
+    membrane_thickness=None,
+    *,
+    particle_color="0.65",
+    membrane_color="tab:red",
+    linewidth=1.5,
+):
+    """Draw a horizontal section z = ``height`` through the particles and the membrane (paper's Fig. 4).
+
+    Draws the circles of :func:`particle_section` as filled grey patches in one ``PatchCollection`` (label
+    ``"particles"``) and each polyline of :func:`membrane_section` as a line (label ``"membrane"``). With
+    ``membrane_thickness`` t_m it also draws the membrane's inner and outer faces as thin lines (label
+    ``"membrane faces"``), the mid-line moved by ±t_m/2 along the averaged in-plane segment normals.
+    Coordinates are shown in mm; the axes get equal aspect, x/y labels in mm and a title with the height
+    in mm. The data limits cover the particles and the membrane.
+
+    Args:
+      ax: a matplotlib ``Axes`` to draw on.
+      position: (N, 3) sphere centres in m.
+      radius: (N,) radii in m, or a scalar.
+      node_position: (n_nodes, 3) membrane node positions in m (current, deformed configuration).
+      triangles: (T, 3) integer node indices of the membrane.
+      height: z of the section plane in m.
+      membrane_thickness: t_m in m, optional; when given, the faces at ±t_m/2 are drawn.
+      particle_color: face colour of the particle sections.
+      membrane_color: colour of the membrane lines.
+      linewidth: width of the membrane mid-line in points.
+
+    Returns:
+      ``ax``.
+    """
+    centres, radii = particle_section(position, radius, height)
+    circles = [Circle(tuple(c), r) for c, r in zip(centres * MM_PER_M, radii * MM_PER_M, strict=True)]
+    collection = PatchCollection(
+        circles, facecolor=particle_color, edgecolor="0.3", linewidth=0.5, label="particles"
+    )
+    ax.add_collection(collection, autolim=True)
+    lines = membrane_section(node_position, triangles, height)
+    for k, line in enumerate(lines):
+        mm = line * MM_PER_M
+        ax.plot(
+            mm[:, 0],
+            mm[:, 1],
+            color=membrane_color,
+            linewidth=linewidth,
+            label="membrane" if k == 0 else None,
+        )
+        if membrane_thickness is not None and line.shape[0] >= 2:
+            half = 0.5 * float(membrane_thickness) * MM_PER_M
+            for sign in (-1.0, 1.0):
+                face = _offset_polyline(mm, sign * half)
+                ax.plot(
+                    face[:, 0],
+                    face[:, 1],
+                    color=membrane_color,
+                    linewidth=0.5 * linewidth,
+                    label="membrane faces" if (k == 0 and sign < 0) else None,
+                )
+    ax.autoscale_view()
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(f"Horizontal section at z = {float(height) * MM_PER_M:.1f} mm")
+    return ax
