@@ -32,7 +32,7 @@ from jax_md import dataclasses
 from membrax import membrane as membrane_lib
 from membrax import theory
 from membrax.integrate import DEMParams, DEMState, Forces, Particles, compute_forces
-from membrax.membrane_contact import node_sphere_forces
+from membrax.membrane_dem import contact_forces
 from membrax.walls import BOTTOM, TOP, cross_section, platen_separation, wall_areas
 
 __all__ = [
@@ -268,19 +268,7 @@ def measure_coupled(
     spheres, nodes = state.dem, state.membrane
     mp = params.membrane
     forces = compute_forces(spheres, particles, params.dem, dt, wall_friction)
-    contact = node_sphere_forces(
-        nodes.position,
-        nodes.velocity,
-        spheres.position,
-        spheres.velocity,
-        spheres.angular_velocity,
-        particles.radius,
-        nodes.candidates.idx,
-        nodes.spring,
-        dt,
-        mp.contact,
-        mp.thickness,
-    )
+    contact = contact_forces(state, particles, params, dt)
     pair_member = jnp.zeros(spheres.neighbors.idx.shape[1], dtype=jnp.int32)
     walls = spheres.walls
     height = platen_separation(walls)

@@ -66,6 +66,7 @@ from membrax.walls import BOTTOM, TOP, compensated_add
 __all__ = [
     "LATEX_DENSITY",
     "CoupledParams",
+    "contact_forces",
     "CoupledState",
     "MembraneParams",
     "MembraneState",
@@ -201,6 +202,27 @@ def _platen_reaction(node_force, position, mesh: MembraneMesh, cell_pressure):
     )
 
 
+def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):
+    """The node–sphere contacts of a coupled state at its positions (step 1 of the module docstring).
+
+    Returns the :class:`~membrax.membrane_contact.NodeSphereForces` (the springs advanced by one step).
+    """
+    spheres, nodes = state.dem, state.membrane
+    return node_sphere_forces(
+        nodes.position,
+        nodes.velocity,
+        spheres.position,
+        spheres.velocity,
+        spheres.angular_velocity,
+        particles.radius,
+        nodes.candidates.idx,
+        nodes.spring,
+        dt,
+        params.membrane.contact,
+        params.membrane.thickness,
+    )
+
+
 def membrane_dem(
     particles: Particles,
     neighbor_frame: PairNeighborFn,
@@ -273,19 +295,7 @@ def membrane_dem(
     def step_fn(state: CoupledState, params: CoupledParams) -> CoupledState:
         spheres, nodes = state.dem, state.membrane
         mp = params.membrane
-        contact = node_sphere_forces(
-            nodes.position,
-            nodes.velocity,
-            spheres.position,
-            spheres.velocity,
-            spheres.angular_velocity,
-            particles.radius,
-            nodes.candidates.idx,
-            nodes.spring,
-            dt,
-            mp.contact,
-            mp.thickness,
-        )
+        contact = contact_forces(state, particles, params, dt)
         internal = membrane_lib.nodal_forces(
             nodes.position, mesh, mp.modulus, mp.thickness, mp.cell_pressure, model=stretching_model
         )
