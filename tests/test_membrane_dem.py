@@ -124,12 +124,17 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
     - the spheres are in vertical equilibrium: bottom platen force − top platen force + the membrane's
       vertical force on them = 0, within 1 % of p × platen area;
     - no sphere passes through the membrane between nodes: the largest penetration of a sphere into the
-      triangle surface (R − distance from the centre) stays below t_m/2 (the issue's requirement).
+      triangle surface (R − distance from the centre) stays below t_m/2 (the issue's requirement);
+    - the candidate table starts with one slot per node, too few where a node sees two spheres: the driver
+      grows it on the overflow bit and reruns, so the final table holds every node's candidates.
     """
     specimen = packing.fcc_specimen(0.025, 4, 5)
-    test = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)
+    test = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, candidate_capacity=1)
     state, records = test.consolidate(max_steps=3000, chunk_steps=1000, record_every=100, tolerance=0.01)
     assert int(state.error) == 0
+    candidates = state.membrane.candidates
+    assert test.runner.reallocations >= 1
+    assert 2 <= int(candidates.max_count) <= candidates.capacity
     load = test.cell_pressure * test.platen_area
     sphere_force = np.asarray(state.membrane.sphere_force).sum(axis=0)
     reaction = np.asarray(state.membrane.platen_reaction).sum(axis=0)
