@@ -272,10 +272,7 @@ def measure_coupled(
     pair_member = jnp.zeros(spheres.neighbors.idx.shape[1], dtype=jnp.int32)
     walls = spheres.walls
     height = platen_separation(walls)
-    volume = membrane_lib.enclosed_volume(
-        nodes.position, mesh
-    ) - 0.5 * mp.thickness * membrane_lib.surface_area(nodes.position, mesh)
-    volume = jnp.reshape(volume, (1,))
+    volume = jnp.reshape(membrane_lib.inner_volume(nodes.position, mesh, mp.thickness), (1,))
     membrane_dyad = jnp.sum(contact.slot_force[:, :, :, None] * contact.branch[:, :, None, :], axis=(0, 1))
     stress = (
         love_weber_stress(forces, particles, pair_member, volume)

@@ -46,6 +46,7 @@ __all__ = [
     "stretching_energy",
     "bending_energy",
     "surface_area",
+    "inner_volume",
     "band_volume",
     "cap_volume",
     "enclosed_volume",
@@ -549,6 +550,15 @@ def surface_area(position, mesh: MembraneMesh):
     x1, x2, x3 = _corners(position, mesh)
     normal = cross(x2 - x1, x3 - x1)
     return 0.5 * jnp.sum(jnp.sqrt(dot(normal, normal)))
+
+
+def inner_volume(position, mesh: MembraneMesh, thickness):
+    """Volume inside the membrane's inner face, V_mid − ½ t_m A_band, m³ (first order in t_m/R).
+
+    V_mid is :func:`enclosed_volume` (mid-surface and flat caps), A_band the band's :func:`surface_area`:
+    the specimen volume of the membrane test.
+    """
+    return enclosed_volume(position, mesh) - 0.5 * thickness * surface_area(position, mesh)
 
 
 def band_volume(position, mesh: MembraneMesh):

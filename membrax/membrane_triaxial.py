@@ -212,10 +212,7 @@ def membrane_test(
         dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
     )
     height = float(specimen.height)
-    volume = float(
-        membrane_lib.enclosed_volume(state.membrane.position, mesh)
-        - 0.5 * thickness * membrane_lib.surface_area(state.membrane.position, mesh)
-    )
+    volume = float(membrane_lib.inner_volume(state.membrane.position, mesh, thickness))
 
     def record(s, p):
         return measure_lib.measure_coupled(s, particles, mesh, p, dt, height, volume, platen_area)
