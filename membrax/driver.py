@@ -55,8 +55,9 @@ class ChunkRunner:
       num_particles: N (for the history remap).
       capacity_growth: the factor by which the pair capacity grows on each reallocation.
       grow_membrane: for a coupled state (:class:`membrax.membrane_dem.CoupledState`),
-        ``grow_membrane(state, max_count) -> state`` with a node candidate table that holds ``max_count``
-        candidates per node (see :func:`membrax.membrane_dem.grow_candidates`).
+        ``grow_membrane(state, overflowed) -> state`` with a node candidate table large enough for the
+        overflowing chunk's table ``overflowed`` (its ``max_count`` per node, ``max_sphere_count`` per
+        sphere; see :func:`membrax.membrane_dem.grow_candidates`).
     """
 
     def __init__(
@@ -142,7 +143,7 @@ class ChunkRunner:
                 if error & ERROR_NEIGHBOR_OVERFLOW:
                     state = self.reallocate(state)
                 if error & ERROR_MEMBRANE_CANDIDATE_OVERFLOW:
-                    state = self.grow_membrane(state, int(new_state.membrane.candidates.max_count))
+                    state = self.grow_membrane(state, new_state.membrane.candidates)
                     self.reallocations += 1
                 continue
             if error:

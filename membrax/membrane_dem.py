@@ -3,8 +3,9 @@
 Contract. ``membrane_dem(particles, neighbor_frame, mesh, dt)`` returns ``(init_fn, step_fn)`` in the
 jax-md style, composed from :func:`membrax.integrate.dem` and the membrane modules:
 
-- ``init_fn(dem_state, params, capacity=8, skin=...) -> CoupledState`` (host side: builds the node–sphere
-  candidate table; the membrane starts at rest at ``mesh.reference_position``, its rings clamped to the
+- ``init_fn(dem_state, params, capacity=3, skin=..., sphere_capacity=64) -> CoupledState`` (host side:
+  builds the node–sphere candidate table, K per node and M per sphere, both grown by the chunk driver
+  on overflow; the membrane starts at rest at ``mesh.reference_position``, its rings clamped to the
   platens where they stand in ``dem_state``);
 - ``step_fn(state, params) -> CoupledState`` advances one step under ``jit``; ``params``
   (:class:`CoupledParams`: the DEM's and the membrane's parameters) is traced, so it can be differentiated
@@ -220,6 +221,8 @@ def contact_forces(state: CoupledState, particles: Particles, params: CoupledPar
         dt,
         params.membrane.contact,
         params.membrane.thickness,
+        sphere_slots=nodes.candidates.sphere_slots,
+        sphere_subset=nodes.candidates.sphere_subset,
     )
 
 
@@ -267,13 +270,22 @@ def membrane_dem(
     rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
     node_member = jnp.zeros(mesh.num_nodes, dtype=jnp.int32)
 
-    def init_fn(dem_state: DEMState, params: CoupledParams, capacity: int = 8, skin=None) -> CoupledState:
+    def init_fn(
+        dem_state: DEMState, params: CoupledParams, capacity: int = 3, skin=None, sphere_capacity: int = 64
+    ) -> CoupledState:
         position = mesh.reference_position.astype(dem_state.position.dtype)
         thickness = params.membrane.thickness
         if skin is None:
             skin = 0.2 * 2.0 * float(jnp.max(particles.radius))
         candidates = build_candidates(
-            position, dem_state.position, particles.radius, sphere_subset, thickness, skin, capacity
+            position,
+            dem_state.position,
+            particles.radius,
+            sphere_subset,
+            thickness,
+            skin,
+            capacity,
+            sphere_capacity,
         )
         zeros = jnp.zeros_like(position)
         return CoupledState(
@@ -346,7 +358,9 @@ def membrane_dem(
     return init_fn, step_fn
 
 
-def grow_candidates(state: CoupledState, particles: Particles, capacity: int, thickness) -> CoupledState:
+def grow_candidates(
+    state: CoupledState, particles: Particles, capacity: int, thickness, sphere_capacity: int | None = None
+) -> CoupledState:
     """A copy of ``state`` with a node candidate table of ``capacity`` slots, springs carried by sphere id.
 
     Used by the chunk driver after :data:`~membrax.membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW`.
@@ -356,6 +370,7 @@ def grow_candidates(state: CoupledState, particles: Particles, capacity: int, th
       particles: sphere properties.
       capacity: the new K (e.g. the overflowing chunk's ``max_count`` plus a margin).
       thickness: t_m, m.
+      sphere_capacity: the new M, slots per subset sphere (default: unchanged).
     """
     nodes = state.membrane
     old = nodes.candidates
@@ -367,6 +382,7 @@ def grow_candidates(state: CoupledState, particles: Particles, capacity: int, th
         thickness,
         old.skin,
         capacity,
+        old.sphere_capacity if sphere_capacity is None else sphere_capacity,
     )
     spring = remap_node_history(old.idx, new.idx, nodes.spring, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring))

@@ -138,7 +138,7 @@ def membrane_test(
     density: float = GRANITE_DENSITY,
     latex_density: float = LATEX_DENSITY,
     edges_per_diameter: float = 5.0,
-    candidate_capacity: int = 8,
+    candidate_capacity: int = 3,
     dt_safety: float = DEFAULT_SAFETY,
     skin_fraction: float = 0.2,
     servo_gain: float = 0.1,
@@ -217,9 +217,11 @@ def membrane_test(
     def record(s, p):
         return measure_lib.measure_coupled(s, particles, mesh, p, dt, height, volume, platen_area)
 
-    def grow(s, max_count):
-        capacity = max(max_count + 2, int(np.ceil(1.5 * s.membrane.candidates.capacity)))
-        return grow_candidates(s, particles, min(capacity, subset.size), thickness)
+    def grow(s, overflowed):
+        old = s.membrane.candidates
+        capacity = max(int(overflowed.max_count) + 2, int(np.ceil(1.5 * old.capacity)))
+        sphere_capacity = max(int(overflowed.max_sphere_count) + 8, old.sphere_capacity)
+        return grow_candidates(s, particles, min(capacity, subset.size), thickness, sphere_capacity)
 
     runner = ChunkRunner(step_fn, frame, record, particles.num_particles, grow_membrane=grow)
     return MembraneTest(

@@ -17,6 +17,7 @@ from membrax.membrane_contact import (
     node_sphere_forces,
     node_sphere_normal_energy,
     remap_node_history,
+    sphere_slot_table,
     update_candidates,
 )
 
@@ -397,3 +398,80 @@ def test_jit_and_vmap_equal_a_loop():
         np.testing.assert_array_equal(new.reference_sphere_position[member], one.reference_sphere_position)
     np.testing.assert_array_equal(new.reference_sphere_position[0], moved[0])
     np.testing.assert_array_equal(new.reference_sphere_position[1], batch["sphere_position"][1])
+
+
+def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
+    """The gathered sphere sums (fast path) equal segment_sum on the same slots, also under vmap and grad."""
+    config = _random_config(4, num_nodes=60, num_spheres=8)
+    num_spheres = 8
+    subset = jnp.asarray([1, 2, 4, 5, 6, 7], dtype=jnp.int32)  # 0 and 3 may not touch the membrane
+    candidates = build_candidates(
+        config["node_position"],
+        config["sphere_position"],
+        config["sphere_radius"],
+        subset,
+        THICKNESS,
+        0.002,
+        4,
+        sphere_capacity=40,
+    )
+    idx, slots = np.asarray(candidates.idx), np.asarray(candidates.sphere_slots)
+    # Hand count: sphere s owns exactly the flat slots whose id is s.
+    for row, sphere in enumerate(np.asarray(subset)):
+        owned = np.sort(slots[row][slots[row] < idx.size])
+        np.testing.assert_array_equal(owned, np.flatnonzero(idx.reshape(-1) == sphere))
+    assert int(candidates.max_sphere_count) == max(np.sum(idx == s) for s in np.asarray(subset))
+    assert int(candidates.max_sphere_count) >= 3 and not bool(candidates.did_overflow)
+    spring = jnp.asarray(np.random.default_rng(5).normal(0.0, 0.05, (*idx.shape, 3)))
+
+    def both(node_position, spring):
+        args = (
+            node_position,
+            config["node_velocity"],
+            config["sphere_position"],
+            config["sphere_velocity"],
+            config["sphere_angular_velocity"],
+            config["sphere_radius"],
+            candidates.idx,
+            spring,
+            1e-5,
+            MembraneContactParams.default(),
+            THICKNESS,
+        )
+        return node_sphere_forces(*args), node_sphere_forces(
+            *args, sphere_slots=candidates.sphere_slots, sphere_subset=subset
+        )
+
+    scatter, gather = jax.jit(both)(config["node_position"], spring)
+    scale = float(jnp.max(jnp.abs(scatter.sphere_force)))
+    assert scale > 1.0
+    np.testing.assert_allclose(gather.sphere_force, scatter.sphere_force, atol=1e-13 * scale)
+    np.testing.assert_allclose(gather.sphere_torque, scatter.sphere_torque, atol=1e-13 * scale)
+    np.testing.assert_array_equal(gather.sphere_force[jnp.asarray([0, 3])], 0.0)
+    # vmap over two node configurations equals a loop.
+    shifted = config["node_position"] + 1e-4
+    batched = jax.vmap(both)(jnp.stack([config["node_position"], shifted]), jnp.stack([spring, spring]))
+    np.testing.assert_allclose(batched[1].sphere_force[1], both(shifted, spring)[1].sphere_force, atol=1e-12)
+
+    # Reverse mode through the gather path equals the scatter path.
+    def loss(node_position, which):
+        return jnp.sum(both(node_position, spring)[which].sphere_force ** 2)
+
+    grad_gather = jax.grad(loss)(config["node_position"], 1)
+    grad_scatter = jax.grad(loss)(config["node_position"], 0)
+    np.testing.assert_allclose(grad_gather, grad_scatter, atol=1e-10 * float(jnp.max(jnp.abs(grad_scatter))))
+
+    # Too small an M overflows, as K does.
+    small = sphere_slot_table(candidates.idx, subset, num_spheres, 2)
+    assert int(small[1]) == int(candidates.max_sphere_count) and small[0].shape == (6, 2)
+    tight = build_candidates(
+        config["node_position"],
+        config["sphere_position"],
+        config["sphere_radius"],
+        subset,
+        THICKNESS,
+        0.002,
+        4,
+        sphere_capacity=2,
+    )
+    assert int(candidate_errors(tight)) == ERROR_MEMBRANE_CANDIDATE_OVERFLOW
