@@ -421,8 +421,14 @@ def dem(
             error=jnp.asarray(0, dtype=jnp.int32),
         )
 
-    def step_fn(state: DEMState, params: DEMParams, sphere_force=None, sphere_torque=None) -> DEMState:
-        """One step; ``sphere_force``/``sphere_torque`` (N, 3) are extra loads at x_n (e.g. the membrane)."""
+    def step_fn(
+        state: DEMState, params: DEMParams, sphere_force=None, sphere_torque=None, wall_load=None
+    ) -> DEMState:
+        """One step; ``sphere_force``/``sphere_torque`` (N, 3) are extra loads at x_n (e.g. the membrane).
+
+        ``wall_load`` (B, W), N, compression positive: extra normal loads on the walls besides the spheres'
+        (the membrane's pull on the platens); the servos then hold the total, the ram force, at target.
+        """
         neighbors = neighbor_frame.update(state.position, state.neighbors)
         rebuilt = jnp.any(neighbors.reference_position != state.neighbors.reference_position)
         pair_spring = jax.lax.cond(
@@ -444,7 +450,8 @@ def dem(
         angular_velocity = state.angular_velocity + dt * torque / particles.inertia[:, None]
         position, compensation = compensated_add(state.position, state.position_compensation, dt * velocity)
 
-        walls = state.walls.set(force=forces.wall_total_force, contacts=forces.wall_contacts)
+        wall_force = forces.wall_total_force if wall_load is None else forces.wall_total_force + wall_load
+        walls = state.walls.set(force=wall_force, contacts=forces.wall_contacts)
         walls = advance_walls(walls, dt)
         # Without lateral walls the platen area must come from outside; with none given, no servo runs.
         if walls.num_lateral > 0 or platen_area is not None:

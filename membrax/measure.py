@@ -18,9 +18,20 @@ Definitions (reference §9):
 With a membrane (:func:`measure_coupled`, one specimen): the volume is the one enclosed by the membrane's
 inner face, V = V_mid − ½ t_m A_band (V_mid enclosed by the mid-surface and the platens,
 :func:`membrax.membrane.enclosed_volume`); the radial strain follows from volume and height,
-ε_r = 1 − √((V/H)/(V₀/H₀)). Internal stresses are Love–Weber with the membrane's node contacts as boundary
-contacts (force of the sphere on the node, arm b = x_node − x_sphere); external stresses are the sphere
-forces on the platens over the platen area (axial) and the cell pressure (radial), as in the paper §4.3.
+ε_r = 1 − √((V/H)/(V₀/H₀)). The stresses follow the paper's §4.3, with the platen area updated assuming
+right-cylinder deformation, A = A₀ (1 − ε_v)/(1 − ε_a):
+
+- external axial: the ram force over A. The ram holds each platen against the spheres and the membrane,
+  F_ram = F_spheres + R_z (top; R the membrane's reaction, :mod:`membrax.membrane_dem`), averaged over
+  the two platens; external radial: the cell pressure;
+- internal axial: the force the spheres receive from the platens over A (mean of both platens);
+- internal radial: the inward radial force the membrane exerts on the boundary spheres,
+  F_r = −Σ_i F_i · r̂_i (r̂_i the horizontal unit vector from the specimen axis to sphere i; the axis is
+  the centroid of the clamped bottom ring), over the lateral area of the right cylinder of cross-section
+  A, 2 √(π A) H. (For a regular octagon under uniform pressure the cylinder of equal area has a lateral
+  area within 0.11 % of ∮ n·r̂ ds H, so the octagonal specimen needs no shape factor.)
+- Love–Weber, with the membrane's node contacts as boundary contacts (force of the sphere on the node,
+  arm b = x_node − x_sphere).
 """
 
 from __future__ import annotations
@@ -38,6 +49,8 @@ from membrax.walls import BOTTOM, TOP, cross_section, platen_separation, wall_ar
 __all__ = [
     "Measurements",
     "MembraneMeasurements",
+    "membrane_radial_force",
+    "radial_components",
     "measure_coupled",
     "coordination_number",
     "kinetic_energy",
@@ -239,6 +252,14 @@ class MembraneMeasurements:
     membrane_contacts: jnp.ndarray
     wall_force: jnp.ndarray
     wall_position: jnp.ndarray
+    time: jnp.ndarray
+    platen_area: jnp.ndarray
+    ram_force: jnp.ndarray
+    membrane_radial_force: jnp.ndarray
+    external_axial_stress: jnp.ndarray
+    external_radial_stress: jnp.ndarray
+    internal_axial_stress: jnp.ndarray
+    internal_radial_stress: jnp.ndarray
 
 
 def measure_coupled(
@@ -292,10 +313,19 @@ def measure_coupled(
     net_force = forces.force + contact.sphere_force
     reaction = nodes.platen_reaction
     ratio = (volume / height) / (initial_volume / initial_height)
+    axial_strain = (initial_height - height) / initial_height
+    volumetric_strain = (initial_volume - volume) / initial_volume
+    area = platen_area * (1.0 - volumetric_strain) / (1.0 - axial_strain)
+    sphere_platen = 0.5 * (forces.wall_total_force[:, TOP] + forces.wall_total_force[:, BOTTOM])
+    ram = sphere_platen + 0.5 * (reaction[1, 2] - reaction[0, 2])
+    radial_force = jnp.reshape(
+        membrane_radial_force(contact.sphere_force, spheres.position, nodes.clamp_position[0]), (1,)
+    )
+    lateral_area = 2.0 * jnp.sqrt(jnp.pi * area) * height
     return MembraneMeasurements(
         step=jnp.reshape(spheres.step, (1,)),
-        axial_strain=(initial_height - height) / initial_height,
-        volumetric_strain=(initial_volume - volume) / initial_volume,
+        axial_strain=axial_strain,
+        volumetric_strain=volumetric_strain,
         radial_strain=1.0 - jnp.sqrt(ratio),
         height=height,
         volume=volume,
@@ -310,4 +340,38 @@ def measure_coupled(
         membrane_contacts=jnp.reshape(jnp.sum(contact.overlap > 0.0), (1,)),
         wall_force=forces.wall_total_force,
         wall_position=walls.position + walls.position_compensation,
+        time=jnp.reshape(spheres.step.astype(height.dtype) * jnp.asarray(dt, height.dtype), (1,)),
+        platen_area=area,
+        ram_force=ram,
+        membrane_radial_force=radial_force,
+        external_axial_stress=ram / area,
+        external_radial_stress=jnp.reshape(mp.cell_pressure, (1,)).astype(height.dtype),
+        internal_axial_stress=sphere_platen / area,
+        internal_radial_stress=radial_force / lateral_area,
     )
+
+
+def membrane_radial_force(sphere_force, sphere_position, ring_position):
+    """Inward radial force of the membrane on the spheres, F_r = −Σ_i F_i · r̂_i, N (module docstring).
+
+    Args:
+      sphere_force: (N, 3) the membrane's force on each sphere, N.
+      sphere_position: (N, 3), m.
+      ring_position: (n, 3) nodes of a clamped ring, whose centroid fixes the specimen axis.
+
+    Returns:
+      Scalar F_r (positive when the membrane presses the spheres inward).
+    """
+    return jnp.sum(radial_components(sphere_force, sphere_position, ring_position)) * -1.0
+
+
+def radial_components(force, position, ring_position):
+    """Per-row radial component F · r̂ (outward positive) about the axis through the ring's centroid, N.
+
+    r̂ is the horizontal unit vector from the axis to the row's position (zero on the axis itself).
+    """
+    axis = jnp.mean(ring_position[:, :2], axis=0)
+    offset = position[:, :2] - axis[None, :]
+    distance = jnp.sqrt(jnp.sum(offset * offset, axis=1))
+    safe = jnp.where(distance > 0.0, distance, 1.0)
+    return jnp.where(distance > 0.0, jnp.sum(force[:, :2] * offset, axis=1) / safe, 0.0)

@@ -31,7 +31,11 @@ cell pressure on the cap, which :func:`membrax.membrane.enclosed_volume` closes 
 cell pressure there acts on the platen, not on the membrane); A n_out = ±½ Σ_k y_k × y_{k+1} is the
 ring's vector area, n_out = −e_z at the bottom and +e_z at the top. ``MembraneState.platen_reaction``
 holds R for both platens (N; R_z < 0 on the top platen when the membrane pulls it down). They are
-recorded separately from the sphere–platen forces, which alone drive the platen servo.
+recorded separately from the sphere–platen forces. The platen servo holds the ram force: the ram
+balances both, F_ram = F_spheres + R_z on the top platen (F_spheres − R_z on the bottom one), so the
+membrane's normal reactions are passed to the DEM step as extra wall loads. The spheres then receive
+F_ram − R_z from the platen: more than the ram when the membrane is in axial tension (the paper's
+internal σ1 above the external one, its Table 3).
 
 Scope: one specimen (``particles.num_members == 1``), the platens being walls 0 and 1 and no lateral
 walls; batches of specimens are the business of :mod:`membrax.sweep`. SI units: m, s, N, Pa, kg.
@@ -312,7 +316,12 @@ def membrane_dem(
             nodes.position, mesh, mp.modulus, mp.thickness, mp.cell_pressure, model=stretching_model
         )
         node_force = internal + contact.node_force
-        spheres = dem_step(spheres, params.dem, contact.sphere_force, contact.sphere_torque)
+        reaction = _platen_reaction(node_force, nodes.position, mesh, mp.cell_pressure)
+        # The ram holds the platen against the spheres and the membrane: the servo sees both.
+        membrane_load = jnp.stack([-reaction[0, 2], reaction[1, 2]])[None, :]
+        spheres = dem_step(
+            spheres, params.dem, contact.sphere_force, contact.sphere_torque, wall_load=membrane_load
+        )
 
         mass = mp.thickness * mass_per_thickness
         damped = apply_damping(node_force, nodes.velocity, mass, params.dem.damping, node_member)
@@ -351,7 +360,7 @@ def membrane_dem(
                 candidates=candidates,
                 node_force=node_force,
                 sphere_force=contact.sphere_force,
-                platen_reaction=_platen_reaction(node_force, nodes.position, mesh, mp.cell_pressure),
+                platen_reaction=reaction,
             ),
         )
 

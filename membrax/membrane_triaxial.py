@@ -7,9 +7,16 @@ its end rings clamped to the platens — and returns a :class:`MembraneTest`. It
 with the chunk driver and return the state and the records (:class:`membrax.measure.MembraneMeasurements`,
 numpy arrays with a leading time axis):
 
-- :meth:`MembraneTest.consolidate`: the cell pressure acts on the membrane's outer face; both platens are
-  servo-controlled to the same stress on the particles, until the unbalanced-force ratio falls below
-  ``tolerance`` and the platen stress is within ``stress_tolerance`` of the cell pressure.
+- :meth:`MembraneTest.consolidate` (stage 1): the cell pressure acts on the membrane's outer face; both
+  platens are servo-controlled to a ram force of σc × platen area (the ram balances the spheres and the
+  membrane on the platen, :mod:`membrax.membrane_dem`), until the unbalanced-force ratio falls below
+  ``tolerance`` and the ram stress is within ``stress_tolerance`` of σc;
+- :meth:`MembraneTest.shear` (stage 2): drained shearing, the bottom platen fixed and the top one moving
+  down at a constant velocity ε̇ H₁ (H₁ the height after consolidation) from an inertial number
+  I = ε̇ d √(ρ/σc) (GDR MiDi 2004), the cell pressure constant, to a target axial strain. Records every
+  ``record_every_fine`` steps below ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 %
+  strain), every ``record_every_coarse`` after. :meth:`MembraneTest.shear_plan` gives the step counts
+  (the driver of :mod:`membrax.run` uses it to checkpoint and resume within a phase).
 
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
 :func:`membrax.membrane_dem.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
@@ -21,6 +28,7 @@ named in the arguments; everything inside is SI.
 from __future__ import annotations
 
 import dataclasses as pydataclasses
+import math
 
 import jax.numpy as jnp
 import numpy as np
@@ -28,7 +36,7 @@ import numpy as np
 from membrax import measure as measure_lib
 from membrax import membrane as membrane_lib
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner
+from membrax.driver import ChunkRunner, concatenate_records
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -49,8 +57,9 @@ from membrax.membrane_dem import (
 )
 from membrax.neighbors import pair_neighbor_fn
 from membrax.packing import GRANITE_DENSITY, Specimen
+from membrax.triaxial import strain_rate_from_inertial_number
 from membrax.validation import check_range
-from membrax.walls import triaxial_walls
+from membrax.walls import BOTTOM, TOP, triaxial_walls
 
 __all__ = ["MembraneTest", "membrane_test"]
 
@@ -70,6 +79,7 @@ class MembraneTest:
     initial_height: float
     initial_volume: float
     platen_area: float
+    density: float
 
     @property
     def cell_pressure(self) -> float:
@@ -118,13 +128,85 @@ class MembraneTest:
         state = self.set_platens(state, True, 0.0, self.cell_pressure)
 
         def stop(_, records):
-            ratio = float(records.unbalanced_force_ratio[-1, 0])
-            stress = float(records.platen_axial_stress[-1, 0])
-            return ratio < tolerance and abs(stress / self.cell_pressure - 1.0) < stress_tolerance
+            return self.is_consolidated(records, tolerance, stress_tolerance)
 
         return self.runner.run(
             state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
         )
+
+    def is_consolidated(self, records, tolerance: float, stress_tolerance: float = 0.01) -> bool:
+        """The consolidation stop test on the last record: UFR below ``tolerance`` and ram force / A₀ = σc.
+
+        The servo holds the ram force (spheres + membrane on the platen) at σc A₀, with A₀ the platen area.
+        """
+        ratio = float(records.unbalanced_force_ratio[-1, 0])
+        stress = float(records.ram_force[-1, 0]) / self.platen_area
+        return ratio < tolerance and abs(stress / self.cell_pressure - 1.0) < stress_tolerance
+
+    def shear_rate(self, inertial_number: float) -> float:
+        """Axial strain rate ε̇ = I / (d √(ρ/σc)) for an inertial number I (GDR MiDi 2004), 1/s."""
+        check_range("inertial_number", inertial_number, lower=0.0, lower_open=True)
+        return strain_rate_from_inertial_number(
+            inertial_number, self.specimen.particle_diameter, self.density, self.cell_pressure
+        )
+
+    def start_shear(self, state: CoupledState, inertial_number: float = 1e-3) -> CoupledState:
+        """Switch ``state`` to stage 2: bottom platen fixed, top platen down at ε̇ H (current height H)."""
+        walls = state.dem.walls
+        height = float(walls.position[0, TOP] + walls.position[0, BOTTOM])
+        velocity = np.zeros(walls.velocity.shape)
+        velocity[0, TOP] = -self.shear_rate(inertial_number) * height
+        return self.set_platens(state, False, velocity, self.cell_pressure)
+
+    def shear_plan(
+        self,
+        state: CoupledState,
+        target_axial_strain: float = 0.10,
+        inertial_number: float = 1e-3,
+        fine_until_strain: float = 0.01,
+    ) -> tuple[int, int]:
+        """Steps of the two recording phases of stage 2: (fine, coarse).
+
+        Axial strain counts from the start of shearing: the top platen moves ε̇ H Δt per step, so
+        ε_a reaches ``fine_until_strain`` after ε/(ε̇ Δt) steps and the target after the rest.
+        """
+        check_range(
+            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
+        )
+        steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
+        fine_strain = min(fine_until_strain, target_axial_strain)
+        fine = math.ceil(fine_strain * steps_per_strain)
+        coarse = max(math.ceil((target_axial_strain - fine_strain) * steps_per_strain), 0)
+        return fine, coarse
+
+    def shear(
+        self,
+        state: CoupledState,
+        target_axial_strain: float = 0.10,
+        inertial_number: float = 1e-3,
+        record_every_fine: int = 25,
+        fine_until_strain: float = 0.01,
+        record_every_coarse: int = 250,
+        chunk_steps: int = 5000,
+        on_chunk=None,
+    ):
+        """Stage 2: drained shearing at constant cell pressure and axial strain rate (module docstring).
+
+        Returns:
+          (state, records) with the records of both recording rates joined.
+        """
+        fine, coarse = self.shear_plan(state, target_axial_strain, inertial_number, fine_until_strain)
+        state = self.start_shear(state, inertial_number)
+        state, first = self.runner.run(
+            state, self.params, fine, chunk_steps, record_every_fine, on_chunk=on_chunk
+        )
+        parts = [first]
+        if coarse > 0:
+            state, second = self.runner.run(
+                state, self.params, coarse, chunk_steps, record_every_coarse, on_chunk=on_chunk
+            )
+            parts.append(second)
+        return state, concatenate_records([p for p in parts if p is not None])
 
 
 def membrane_test(
@@ -235,5 +317,6 @@ def membrane_test(
         runner=runner,
         initial_height=height,
         initial_volume=volume,
+        density=float(density),
         platen_area=platen_area,
     )

@@ -21,15 +21,37 @@ share. An edge shared by two triangles links two segments, so on a closed band t
 closed loops; a loop is returned with its first point repeated at the end (matplotlib's convention) and
 ordered counter-clockwise seen from above (+z). A polyline reaching the mesh boundary is returned open.
 Consecutive coincident points (from nodes lying on the plane) are merged into one.
+
+Test figures (the paper's Figs 5–8). :func:`plot_friction_angles`, :func:`plot_additional_stresses`,
+:func:`plot_axial_ratio_and_strain_ratio` and :func:`plot_radial_ratio_and_radial_strain` take the records
+of a membrane triaxial test (the mapping described in :mod:`membrax.analysis`) and optionally its
+:func:`membrax.analysis.derived_quantities`, and return a new matplotlib ``Figure`` made without pyplot
+(nothing to close, no global state). The x axis is the axial strain in %, stresses are shown in kPa, angles
+in degrees; each data series is one line, in the order the docstring lists. :func:`save_test_figures`
+writes all four as PNG files.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from matplotlib.collections import PatchCollection
+from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
-__all__ = ["membrane_section", "particle_section", "plot_section"]
+from membrax import analysis
+
+__all__ = [
+    "membrane_section",
+    "particle_section",
+    "plot_section",
+    "plot_friction_angles",
+    "plot_additional_stresses",
+    "plot_axial_ratio_and_strain_ratio",
+    "plot_radial_ratio_and_radial_strain",
+    "save_test_figures",
+]
 
 MM_PER_M = 1e3
 
@@ -256,3 +278,192 @@ def plot_section(
     ax.set_ylabel("y (mm)")
     ax.set_title(f"Horizontal section at z = {float(height) * MM_PER_M:.1f} mm")
     return ax
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Test figures: external against internal stresses (the paper's Figs 5–8)
+# ---------------------------------------------------------------------------------------------------------
+
+PERCENT = 1e2
+KPA_PER_PA = 1e-3
+
+
+def _test_figure(records, derived):
+    """A new pyplot-free Figure with one Axes, the axial strain in %, and the derived quantities."""
+    derived = analysis.derived_quantities(records) if derived is None else derived
+    strain_pct = analysis.record(records, "axial_strain") * PERCENT
+    figure = Figure(figsize=(6.4, 4.4), layout="constrained")
+    ax = figure.add_subplot()
+    ax.set_xlabel("Axial strain εa (%)")
+    ax.grid(True, linewidth=0.5, alpha=0.5)
+    return figure, ax, strain_pct, derived
+
+
+def _twin_legend(ax, twin):
+    """One legend on ``ax`` for the lines of both y axes."""
+    handles, labels = ax.get_legend_handles_labels()
+    more_handles, more_labels = twin.get_legend_handles_labels()
+    ax.legend(handles + more_handles, labels + more_labels, loc="best")
+
+
+def plot_friction_angles(records, derived=None) -> Figure:
+    """Mobilised friction angle from external and internal stresses against axial strain (paper's Fig. 5).
+
+    Lines, in order: ``ax.lines[0]`` external φ', ``ax.lines[1]`` internal φ' and, when the records have
+    the Love–Weber series, ``ax.lines[2]`` Love–Weber φ' (thin); degrees, from
+    sin φ' = (σ1 − σ3)/(σ1 + σ3) (:func:`membrax.analysis.derived_quantities`).
+
+    Args:
+      records: the test records (see :mod:`membrax.analysis`).
+      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+
+    Returns:
+      The Figure.
+    """
+    figure, ax, strain_pct, derived = _test_figure(records, derived)
+    ax.plot(strain_pct, derived["external_friction_angle_deg"], color="tab:blue", label="External")
+    ax.plot(strain_pct, derived["internal_friction_angle_deg"], color="tab:red", label="Internal")
+    if "love_weber_friction_angle_deg" in derived:
+        ax.plot(
+            strain_pct,
+            derived["love_weber_friction_angle_deg"],
+            color="0.4",
+            linewidth=0.7,
+            label="Love–Weber",
+        )
+    ax.set_ylabel("Mobilised friction angle φ' (°)")
+    ax.set_title("Mobilised friction: external and internal stresses")
+    ax.legend(loc="best")
+    return figure
+
+
+def plot_additional_stresses(records, derived=None) -> Figure:
+    """Additional membrane stresses, internal − external, against axial strain (paper's Fig. 6).
+
+    Lines, in order: ``ax.lines[0]`` additional radial stress Δσ_r, ``ax.lines[1]`` additional axial
+    stress Δσ_a, both in kPa.
+
+    Args:
+      records: the test records (see :mod:`membrax.analysis`).
+      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+
+    Returns:
+      The Figure.
+    """
+    figure, ax, strain_pct, derived = _test_figure(records, derived)
+    ax.plot(
+        strain_pct,
+        derived["additional_radial_stress"] * KPA_PER_PA,
+        color="tab:green",
+        label="Additional radial stress",
+    )
+    ax.plot(
+        strain_pct,
+        derived["additional_axial_stress"] * KPA_PER_PA,
+        color="tab:purple",
+        label="Additional axial stress",
+    )
+    ax.set_ylabel("Additional membrane stress (kPa)")
+    ax.set_title("Additional membrane stress (internal − external)")
+    ax.legend(loc="best")
+    return figure
+
+
+def plot_axial_ratio_and_strain_ratio(records, derived=None) -> Figure:
+    """Axial stress ratio internal/external and change in strain ratio dε_r/dε_a (paper's Fig. 7).
+
+    ``figure.axes[0].lines[0]`` is the axial stress ratio (left axis); ``figure.axes[1].lines[0]`` the
+    change in strain ratio from :func:`membrax.analysis.strain_ratio_change` (twin right axis), both
+    dimensionless.
+
+    Args:
+      records: the test records (see :mod:`membrax.analysis`).
+      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+
+    Returns:
+      The Figure.
+    """
+    figure, ax, strain_pct, derived = _test_figure(records, derived)
+    ax.plot(strain_pct, derived["axial_stress_ratio"], color="tab:blue", label="Axial stress ratio")
+    ax.set_ylabel("Axial stress ratio, internal/external")
+    twin = ax.twinx()
+    twin.plot(
+        strain_pct,
+        derived["strain_ratio_change"],
+        color="tab:orange",
+        label="Change in strain ratio dεr/dεa",
+    )
+    twin.set_ylabel("Change in strain ratio dεr/dεa")
+    ax.set_title("Axial stress ratio and change in strain ratio")
+    _twin_legend(ax, twin)
+    return figure
+
+
+def plot_radial_ratio_and_radial_strain(records, derived=None) -> Figure:
+    """Radial stress ratio internal/external and radial strain against axial strain (paper's Fig. 8).
+
+    ``figure.axes[0].lines[0]`` is the radial stress ratio (left axis); ``figure.axes[1].lines[0]`` the
+    radial strain ε_r in % as recorded, compression positive, so bulging is negative (twin right axis).
+
+    Args:
+      records: the test records (see :mod:`membrax.analysis`).
+      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+
+    Returns:
+      The Figure.
+    """
+    figure, ax, strain_pct, derived = _test_figure(records, derived)
+    ax.plot(strain_pct, derived["radial_stress_ratio"], color="tab:green", label="Radial stress ratio")
+    ax.set_ylabel("Radial stress ratio, internal/external")
+    twin = ax.twinx()
+    twin.plot(
+        strain_pct,
+        analysis.record(records, "radial_strain") * PERCENT,
+        color="tab:brown",
+        label="Radial strain εr",
+    )
+    twin.set_ylabel("Radial strain εr (%, compression +)")
+    ax.set_title("Radial stress ratio and radial strain")
+    _twin_legend(ax, twin)
+    return figure
+
+
+#: File names of :func:`save_test_figures` after the stem, with the function drawing each.
+TEST_FIGURES = (
+    ("5_friction.png", plot_friction_angles),
+    ("6_additional_stress.png", plot_additional_stresses),
+    ("7_axial_ratio.png", plot_axial_ratio_and_strain_ratio),
+    ("8_radial_ratio.png", plot_radial_ratio_and_radial_strain),
+)
+
+
+def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> list[Path]:
+    """Write the paper's Figs 5–8 for one test as PNG files.
+
+    Files ``{stem}5_friction.png``, ``{stem}6_additional_stress.png``, ``{stem}7_axial_ratio.png`` and
+    ``{stem}8_radial_ratio.png`` in ``folder`` (created if missing), drawn by :func:`plot_friction_angles`,
+    :func:`plot_additional_stresses`, :func:`plot_axial_ratio_and_strain_ratio` and
+    :func:`plot_radial_ratio_and_radial_strain`. The figures are pyplot-free, so each is released once
+    saved (cleared; nothing stays registered).
+
+    Args:
+      records: the test records (see :mod:`membrax.analysis`).
+      folder: output directory.
+      stem: file-name prefix.
+      derived: :func:`membrax.analysis.derived_quantities` of the records, computed once when not given.
+      dpi: resolution of the PNG files.
+
+    Returns:
+      The paths written, in figure order.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    derived = analysis.derived_quantities(records) if derived is None else derived
+    paths = []
+    for suffix, draw in TEST_FIGURES:
+        figure = draw(records, derived)
+        path = folder / f"{stem}{suffix}"
+        figure.savefig(path, dpi=dpi)
+        figure.clear()
+        paths.append(path)
+    return paths

@@ -1,0 +1,587 @@
+"""The one configuration of a membrane triaxial test: a frozen dataclass, TOML loading and checks.
+
+Contract. :class:`TriaxialConfig` holds every input of a membrane triaxial run in laboratory units, each
+field named with its unit (``cell_pressure_kpa``, ``membrane_thickness_mm``, ``friction_angle_deg``, ...);
+its defaults are the paper's (25 mm spheres, 10 across, 25 FCC layers, 10 kPa, a 5 mm latex membrane of
+1400 kPa, 25° interparticle friction). The SI values the simulator uses are properties converted here,
+once (:attr:`TriaxialConfig.cell_pressure` in Pa, :attr:`TriaxialConfig.membrane_thickness` in m, ...).
+
+A :class:`TriaxialConfig` is valid by construction: ``__post_init__`` checks every field and raises
+:class:`ConfigError` before anything is built or compiled. Integers are accepted for float fields (and
+stored as floats), integral floats for integer fields (stored as ints); booleans, strings and tables are
+never numbers. NaN, ±inf and out-of-range values are refused with the field, its accepted range, the bad
+value and the unit (ranges are checked by :func:`membrax.validation.check_range`). Several bad fields are
+reported together in one :class:`ConfigError`, whose ``errors`` attribute lists them one by one.
+
+TOML layout (:func:`load_config`, read with the standard library's ``tomllib``). Either every key at the
+top level of the file (flat), or every key under one ``[triaxial]`` table and nothing else at the top
+level; keys left out take their defaults::
+
+    # flat                            # or under a table
+    cell_pressure_kpa = 40.0          [triaxial]
+    membrane_thickness_mm = 2.5       cell_pressure_kpa = 40.0
+    layers = 25                       membrane_thickness_mm = 2.5
+
+Unknown keys are errors. A key that names a known quantity in another unit (``cell_pressure_pa``,
+``cell_pressure``, ``particle_diameter_cm``) gets "did you mean `cell_pressure_kpa` (kPa)?"; the unit
+suffixes are ``_kpa`` (kPa), ``_mm`` (mm), ``_deg`` (degrees), ``_kg_m3`` (kg/m³) and ``_n_m`` (N/m).
+:func:`dump_config_toml` writes the flat layout (or the table one) by hand, commented with each field's
+unit and range, and round-trips exactly through :func:`load_config`. :func:`config_from_dict` applies the
+same checks to a mapping (the CLI's ``--set key=value`` overrides, parsed by :func:`parse_overrides`).
+Nothing here uses JAX: plain Python, ``math`` and numpy.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import numbers
+import os
+import tomllib
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+
+from membrax.validation import check_range
+
+__all__ = [
+    "TriaxialConfig",
+    "ConfigError",
+    "load_config",
+    "config_from_dict",
+    "config_to_dict",
+    "dump_config_toml",
+    "with_overrides",
+    "parse_overrides",
+    "UNIT_SUFFIXES",
+]
+
+#: The unit suffixes of the field names and the units they stand for.
+UNIT_SUFFIXES = {
+    "_kg_m3": "kg/m³",
+    "_n_m": "N/m",
+    "_kpa": "kPa",
+    "_mm": "mm",
+    "_deg": "degrees",
+}
+
+#: The optional table that may hold every key of a TOML configuration file.
+TABLE_NAME = "triaxial"
+
+
+class ConfigError(ValueError):
+    """An invalid configuration: the message names each bad field, its accepted range or type and the fix.
+
+    Attributes:
+      errors: one message per problem, in the order found (unknown keys first, then fields in order).
+      source: where the configuration came from (a file path), or ``None``.
+    """
+
+    def __init__(self, errors: str | Iterable[str], source: str | os.PathLike | None = None):
+        self.errors = (errors,) if isinstance(errors, str) else tuple(errors)
+        self.source = None if source is None else os.fspath(source)
+        where = f" in {self.source}" if self.source is not None else ""
+        if len(self.errors) == 1:
+            prefix = f"{self.source}: " if self.source is not None else ""
+            message = f"{prefix}{self.errors[0]}"
+        else:
+            lines = "\n".join(f"  - {error}" for error in self.errors)
+            message = f"{len(self.errors)} problems in the triaxial configuration{where}:\n{lines}"
+        super().__init__(message)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Spec:
+    """How one field is checked: its kind (float, int, bool, str), unit, interval and a fixing hint."""
+
+    kind: type
+    unit: str = ""
+    lower: float | None = None
+    lower_open: bool = False
+    upper: float = math.inf
+    upper_open: bool = True
+    hint: str = ""
+
+    def interval(self) -> str:
+        """The accepted interval as ``check_range`` writes it, e.g. ``(0, inf)``."""
+        left = "(" if self.lower_open else "["
+        right = ")" if self.upper_open else "]"
+        lo = "-inf" if self.lower is None else f"{self.lower:g}"
+        return f"{left}{lo}, {self.upper:g}{right}"
+
+    def describe(self) -> str:
+        """Type, interval and unit, e.g. ``a number in (0, inf) kPa``."""
+        if self.kind is bool:
+            return "a boolean (true or false)"
+        if self.kind is str:
+            return "a non-empty string"
+        what = "an integer" if self.kind is int else "a number"
+        return f"{what} in {self.interval()} {self.unit}"
+
+
+_POSITIVE = {"lower": 0.0, "lower_open": True}
+_NON_NEGATIVE = {"lower": 0.0}
+_ANGLE = {"lower": 0.0, "upper": 90.0}
+_FRACTION_OPEN = {"lower": 0.0, "lower_open": True, "upper": 1.0}
+
+_SPECS: dict[str, _Spec] = {
+    "name": _Spec(str, hint="a name for the run's files: no path separators or control characters"),
+    "particle_diameter_mm": _Spec(float, "mm", **_POSITIVE, hint="the paper uses 25 mm spheres"),
+    "particles_across": _Spec(int, "spheres", lower=2, hint="spheres across the specimen; the paper uses 10"),
+    "layers": _Spec(int, "layers", lower=2, hint="FCC layers; the paper uses 25"),
+    "particle_density_kg_m3": _Spec(float, "kg/m³", **_POSITIVE, hint="solid density, e.g. 2650 kg/m³"),
+    "friction_angle_deg": _Spec(
+        float, "degrees", **_ANGLE, hint="interparticle friction; the paper uses 25°"
+    ),
+    "particle_stiffness_n_m": _Spec(float, "N/m", **_POSITIVE, hint="normal contact stiffness, e.g. 1e7 N/m"),
+    "cell_pressure_kpa": _Spec(float, "kPa", **_POSITIVE, hint="the paper uses 10, 40 and 100 kPa"),
+    "membrane_thickness_mm": _Spec(float, "mm", **_POSITIVE, hint="the paper uses 2.5 to 5 mm"),
+    "membrane_modulus_kpa": _Spec(float, "kPa", **_NON_NEGATIVE, hint="latex, the paper uses 1400 kPa"),
+    "membrane_friction_angle_deg": _Spec(float, "degrees", **_ANGLE, hint="membrane–particle friction"),
+    "membrane_edges_per_diameter": _Spec(
+        float, "edges per particle diameter", **_POSITIVE, hint="mesh edge = diameter / this; e.g. 5"
+    ),
+    "target_axial_strain": _Spec(
+        float, "(strain, dimensionless)", lower=0.0, lower_open=True, upper=1.0, hint="e.g. 0.10 for 10 %"
+    ),
+    "inertial_number": _Spec(
+        float, "(dimensionless)", **_POSITIVE, upper=0.1, upper_open=False, hint="quasi-static: 1e-3"
+    ),
+    "consolidation_tolerance": _Spec(
+        float, "(unbalanced-force ratio)", **_NON_NEGATIVE, hint="0 takes the default for the dtype"
+    ),
+    "consolidation_max_steps": _Spec(int, "steps", lower=1),
+    "record_every_fine": _Spec(int, "steps", lower=1),
+    "fine_until_strain": _Spec(float, "(strain, dimensionless)", **_NON_NEGATIVE, upper=1.0),
+    "record_every_coarse": _Spec(int, "steps", lower=1),
+    "chunk_steps": _Spec(int, "steps", lower=1),
+    "checkpoint_every_chunks": _Spec(int, "chunks", lower=1),
+    "vtk_every_steps": _Spec(int, "steps", lower=0, hint="0 writes no VTK snapshots"),
+    "float64": _Spec(bool),
+    "seed": _Spec(int, "(dimensionless)", lower=0),
+    "dt_safety": _Spec(float, "(fraction of the critical time step)", **_FRACTION_OPEN, upper_open=False),
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class TriaxialConfig:
+    """Every input of a membrane triaxial test, in laboratory units named in the field names.
+
+    Defaults are the paper's values. Ranges: ``(a, b)`` open, ``[a, b]`` closed, ``inf`` unbounded.
+
+    Attributes:
+      name (str): a non-empty name for the run's output files; no path separators or control
+        characters, not ``.`` or ``..``. Default ``"membrax"``.
+      particle_diameter_mm (float): sphere diameter, mm, in (0, inf). Default 25.
+      particles_across (int): spheres across the specimen, in [2, inf). Default 10 (the paper).
+      layers (int): FCC layers of the specimen, in [2, inf). Default 25 (the paper).
+      particle_density_kg_m3 (float): solid density of the spheres, kg/m³, in (0, inf). Default 2650.
+      friction_angle_deg (float): interparticle friction angle, degrees, in [0, 90). Default 25.
+      particle_stiffness_n_m (float): normal contact stiffness, N/m, in (0, inf). Default 1e7.
+      cell_pressure_kpa (float): cell (confining) pressure, kPa, in (0, inf). Default 10.
+      membrane_thickness_mm (float): latex membrane thickness, mm, in (0, inf). Default 5.
+      membrane_modulus_kpa (float): membrane Young's modulus, kPa, in [0, inf); 0 means a membrane without
+        stiffness. Default 1400.
+      membrane_friction_angle_deg (float): membrane–particle friction angle, degrees, in [0, 90).
+        Default 25.
+      membrane_edges_per_diameter (float): membrane mesh resolution, edges per particle diameter
+        (dimensionless), in (0, inf); the mesh edge is particle diameter / this. Default 5.
+      target_axial_strain (float): axial strain at which shearing stops (dimensionless), in (0, 1).
+        Default 0.10.
+      inertial_number (float): inertial number setting the shear strain rate (dimensionless), in
+        (0, 0.1]. Default 1e-3.
+      consolidation_tolerance (float): unbalanced-force ratio ending consolidation (dimensionless), in
+        [0, inf); 0 takes the default for the dtype (1e-3 in float64, 5e-3 in float32). Default 0.
+      consolidation_max_steps (int): most time steps of consolidation, in [1, inf). Default 200000.
+      record_every_fine (int): steps between records while the axial strain is below
+        ``fine_until_strain``, in [1, inf). Default 25.
+      fine_until_strain (float): axial strain (dimensionless) up to which records are fine, in [0, 1).
+        Default 0.01.
+      record_every_coarse (int): steps between records after ``fine_until_strain``, in [1, inf).
+        Default 250.
+      chunk_steps (int): time steps per compiled chunk, in [1, inf). Default 2000.
+      checkpoint_every_chunks (int): chunks between checkpoints, in [1, inf). Default 10.
+      vtk_every_steps (int): steps between VTK snapshots, in [0, inf); 0 writes none. Default 0.
+      float64 (bool): run in double precision. Default false.
+      seed (int): random seed (dimensionless), in [0, inf). Default 0.
+      dt_safety (float): time step as a fraction of the critical one (dimensionless), in (0, 1].
+        Default 0.5.
+
+    Raises:
+      ConfigError: on construction, listing every field that is of the wrong type or out of range.
+    """
+
+    name: str = "membrax"
+    particle_diameter_mm: float = 25.0
+    particles_across: int = 10
+    layers: int = 25
+    particle_density_kg_m3: float = 2650.0
+    friction_angle_deg: float = 25.0
+    particle_stiffness_n_m: float = 1.0e7
+    cell_pressure_kpa: float = 10.0
+    membrane_thickness_mm: float = 5.0
+    membrane_modulus_kpa: float = 1400.0
+    membrane_friction_angle_deg: float = 25.0
+    membrane_edges_per_diameter: float = 5.0
+    target_axial_strain: float = 0.10
+    inertial_number: float = 1.0e-3
+    consolidation_tolerance: float = 0.0
+    consolidation_max_steps: int = 200000
+    record_every_fine: int = 25
+    fine_until_strain: float = 0.01
+    record_every_coarse: int = 250
+    chunk_steps: int = 2000
+    checkpoint_every_chunks: int = 10
+    vtk_every_steps: int = 0
+    float64: bool = False
+    seed: int = 0
+    dt_safety: float = 0.5
+
+    def __post_init__(self):
+        values, errors = _check_fields({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
+        if errors:
+            raise ConfigError(errors)
+        for key, value in values.items():  # store floats as float, integral floats as int
+            object.__setattr__(self, key, value)
+
+    def validate(self) -> TriaxialConfig:
+        """Check every field again and return ``self``.
+
+        Returns:
+          this configuration, unchanged.
+
+        Raises:
+          ConfigError: listing every bad field (cannot happen for an instance built normally, since
+            construction already checks; kept for instances altered with ``object.__setattr__``).
+        """
+        _, errors = _check_fields(config_to_dict(self))
+        if errors:
+            raise ConfigError(errors)
+        return self
+
+    @property
+    def particle_diameter(self) -> float:
+        """Sphere diameter, m."""
+        return self.particle_diameter_mm / 1000.0
+
+    @property
+    def particle_radius(self) -> float:
+        """Sphere radius, m."""
+        return self.particle_diameter_mm / 2000.0
+
+    @property
+    def cell_pressure(self) -> float:
+        """Cell pressure, Pa."""
+        return self.cell_pressure_kpa * 1000.0
+
+    @property
+    def membrane_thickness(self) -> float:
+        """Membrane thickness, m."""
+        return self.membrane_thickness_mm / 1000.0
+
+    @property
+    def membrane_modulus(self) -> float:
+        """Membrane Young's modulus, Pa."""
+        return self.membrane_modulus_kpa * 1000.0
+
+    @property
+    def membrane_edge_length(self) -> float:
+        """Target edge length of the membrane mesh, m: particle diameter / ``membrane_edges_per_diameter``."""
+        return self.particle_diameter / self.membrane_edges_per_diameter
+
+    @property
+    def friction_coefficient(self) -> float:
+        """Interparticle friction coefficient, tan(``friction_angle_deg``)."""
+        return math.tan(math.radians(self.friction_angle_deg))
+
+    @property
+    def membrane_friction_coefficient(self) -> float:
+        """Membrane–particle friction coefficient, tan(``membrane_friction_angle_deg``)."""
+        return math.tan(math.radians(self.membrane_friction_angle_deg))
+
+    @property
+    def consolidation_tolerance_or_none(self) -> float | None:
+        """``consolidation_tolerance``, or ``None`` (the simulator's default for the dtype) when it is 0."""
+        return self.consolidation_tolerance if self.consolidation_tolerance > 0.0 else None
+
+
+FIELD_NAMES: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(TriaxialConfig))
+_DEFAULTS: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(TriaxialConfig)}
+assert set(FIELD_NAMES) == set(_SPECS), "every field needs a spec"
+
+#: (stem, field) for each field with a unit suffix, longest stem first, e.g.
+#: ``("cell_pressure", "cell_pressure_kpa")``.
+_STEMS = sorted(
+    (
+        (field[: -len(suffix)], field)
+        for field in FIELD_NAMES
+        for suffix in UNIT_SUFFIXES
+        if field.endswith(suffix)
+    ),
+    key=lambda pair: -len(pair[0]),
+)
+
+
+def _shown(value: Any) -> str:
+    """A value as the user wrote it, for messages."""
+    if isinstance(value, bool | np.bool_):
+        return f"the boolean {str(value).lower()}"
+    if isinstance(value, str):
+        return f"the string {value!r}"
+    if isinstance(value, Mapping):
+        return "a table"
+    if isinstance(value, list | tuple):
+        return "an array"
+    if isinstance(value, numbers.Real):
+        return repr(value)
+    return f"a {type(value).__name__}"
+
+
+def _example(key: str) -> str:
+    """``key = <default>`` in TOML, as a fix to show."""
+    return f"{key} = {_toml_value(_DEFAULTS[key])}"
+
+
+def _check_name(value: Any) -> tuple[Any, str | None]:
+    spec = _SPECS["name"]
+    if not isinstance(value, str):
+        return value, f'name must be {spec.describe()}; got {_shown(value)}. Write e.g. name = "membrax".'
+    bad = (
+        not value
+        or value in (".", "..")
+        or any(sep in value for sep in ("/", "\\"))
+        or any(ord(char) < 32 or ord(char) == 127 for char in value)
+    )
+    if bad:
+        return value, f"name = {value!r} is not usable in file names; give {spec.describe()}, {spec.hint}."
+    return value, None
+
+
+def _check_value(key: str, value: Any) -> tuple[Any, str | None]:
+    """``(normalised value, None)`` if ``value`` is valid for field ``key``, else ``(value, message)``."""
+    spec = _SPECS[key]
+    if spec.kind is str:
+        return _check_name(value)
+    wrong_type = f"{key} must be {spec.describe()}; got {_shown(value)}."
+    if spec.kind is bool:
+        if isinstance(value, bool | np.bool_):
+            return bool(value), None
+        return value, f"{wrong_type} Write {key} = true or {key} = false (no quotes)."
+    if isinstance(value, bool | np.bool_) or not isinstance(value, numbers.Real):
+        return value, f"{wrong_type} Write it as a number without quotes, e.g. {_example(key)}."
+    if spec.kind is int:
+        if not isinstance(value, numbers.Integral):
+            if not (math.isfinite(value) and float(value).is_integer()):
+                return value, f"{wrong_type} Give a whole number, e.g. {_example(key)}."
+        value = int(value)
+    else:
+        try:
+            value = float(value)
+        except OverflowError:
+            value = math.inf if value > 0 else -math.inf
+    hint = f"Unit: {spec.unit.strip('()')}." + (f" Hint: {spec.hint}." if spec.hint else "")
+    try:
+        check_range(
+            key,
+            value,
+            lower=spec.lower,
+            lower_open=spec.lower_open,
+            upper=spec.upper,
+            upper_open=spec.upper_open,
+            hint=hint,
+        )
+    except OverflowError:  # an integer too large for a float
+        shown = f"{str(value)[:12]}... ({len(str(value))} digits)"
+        return value, f"{key} = {shown} is too large; accepted range is {spec.interval()}. {hint}"
+    except ValueError as error:
+        return value, str(error)
+    return value, None
+
+
+def _check_fields(values: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """Check and normalise every field of ``values`` (all known keys); return the values and the errors."""
+    normalised, errors = {}, []
+    for key in FIELD_NAMES:
+        value, error = _check_value(key, values[key])
+        normalised[key] = value
+        if error is not None:
+            errors.append(error)
+    return normalised, errors
+
+
+def _unknown_key_message(key: Any) -> str:
+    """Why ``key`` is not a field, with the closest field: the same quantity in our unit, or a typo."""
+    text = str(key)
+    lowered = text.lower()
+    for stem, field in _STEMS:
+        if lowered == stem or lowered.startswith(stem + "_"):
+            unit = _SPECS[field].unit
+            return (
+                f"unknown key `{text}`: did you mean `{field}` ({unit})? Fields carry their unit in their "
+                f"name; give the value in {unit}."
+            )
+    close = difflib.get_close_matches(lowered, FIELD_NAMES, n=1, cutoff=0.75)
+    if close:
+        return f"unknown key `{text}`: did you mean `{close[0]}`?"
+    return f"unknown key `{text}`; the known keys are: {', '.join(FIELD_NAMES)}."
+
+
+def config_from_dict(
+    mapping: Mapping[str, Any],
+    *,
+    base: TriaxialConfig | None = None,
+    source: str | os.PathLike | None = None,
+) -> TriaxialConfig:
+    """Build a configuration from a flat mapping of field names to values, with every check.
+
+    Args:
+      mapping: field name → value; fields left out keep their value in ``base``. Units are those in the
+        field names (kPa, mm, degrees, kg/m³, N/m).
+      base: the configuration to start from; ``None`` means the defaults.
+      source: where ``mapping`` came from (a file path), named in the error message.
+
+    Returns:
+      the new, valid configuration.
+
+    Raises:
+      ConfigError: listing every unknown key (with a suggestion) and every bad value.
+    """
+    if not isinstance(mapping, Mapping):
+        raise ConfigError(
+            f"the configuration must be a table of key = value pairs; got {_shown(mapping)}.", source
+        )
+    errors = [_unknown_key_message(key) for key in mapping if key not in _SPECS]
+    values = dict(_DEFAULTS) if base is None else config_to_dict(base)
+    values.update({key: value for key, value in mapping.items() if key in _SPECS})
+    normalised, field_errors = _check_fields(values)
+    errors.extend(field_errors)
+    if errors:
+        raise ConfigError(errors, source)
+    return TriaxialConfig(**normalised)
+
+
+def config_to_dict(cfg: TriaxialConfig) -> dict[str, Any]:
+    """The fields of ``cfg`` as a plain dict, in field order (str, float, int and bool values)."""
+    return {key: getattr(cfg, key) for key in FIELD_NAMES}
+
+
+def with_overrides(cfg: TriaxialConfig, **fields: Any) -> TriaxialConfig:
+    """A copy of ``cfg`` with ``fields`` replaced, checked like a file (unknown keys get suggestions).
+
+    Raises:
+      ConfigError: listing every unknown key and every bad value.
+    """
+    return config_from_dict(fields, base=cfg)
+
+
+def load_config(path: str | os.PathLike) -> TriaxialConfig:
+    """Read a configuration from a TOML file (flat, or all under ``[triaxial]``; see the module docstring).
+
+    Args:
+      path: the TOML file.
+
+    Returns:
+      the configuration; keys left out take their defaults.
+
+    Raises:
+      ConfigError: naming the file when it is missing, unreadable or malformed TOML, or mixes the flat and
+        the ``[triaxial]`` layouts; otherwise listing every unknown key and bad value.
+    """
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as file:
+            data = tomllib.load(file)
+    except FileNotFoundError:
+        raise ConfigError(
+            f"configuration file {path!r} does not exist; check the path (relative paths are taken from "
+            f"the working directory {os.getcwd()!r})."
+        ) from None
+    except OSError as error:
+        raise ConfigError(f"cannot read configuration file {path!r}: {error.strerror or error}.") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as error:
+        raise ConfigError(f"malformed TOML in {path!r}: {error}. Fix the file's syntax.") from None
+    if TABLE_NAME in data:
+        table = data[TABLE_NAME]
+        if not isinstance(table, dict):
+            raise ConfigError(f"`{TABLE_NAME}` must be a table ([{TABLE_NAME}]); got {_shown(table)}.", path)
+        others = [key for key in data if key != TABLE_NAME]
+        if others:
+            raise ConfigError(
+                f"keys {', '.join(f'`{key}`' for key in others)} sit outside the [{TABLE_NAME}] table; put "
+                f"every key under [{TABLE_NAME}], or remove the [{TABLE_NAME}] header and keep them flat.",
+                path,
+            )
+        data = table
+    return config_from_dict(data, source=path)
+
+
+def _toml_string(text: str) -> str:
+    escaped = []
+    for char in text:
+        if char == "\\":
+            escaped.append("\\\\")
+        elif char == '"':
+            escaped.append('\\"')
+        elif ord(char) < 32 or ord(char) == 127:
+            escaped.append(f"\\u{ord(char):04x}")
+        else:
+            escaped.append(char)
+    return '"' + "".join(escaped) + '"'
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return repr(value)  # shortest repr that reads back exactly; finite by construction
+    return _toml_string(value)
+
+
+def dump_config_toml(cfg: TriaxialConfig, *, table: bool = False) -> str:
+    """The configuration as TOML text, one commented line per field, that :func:`load_config` reads back.
+
+    Args:
+      cfg: the configuration.
+      table: put every key under a ``[triaxial]`` table instead of the top level.
+
+    Returns:
+      the TOML text; loading it gives a configuration equal to ``cfg``.
+    """
+    lines = ["# membrax triaxial test configuration; units are in the key names."]
+    if table:
+        lines.append(f"[{TABLE_NAME}]")
+    for key in FIELD_NAMES:
+        lines.append(f"{key} = {_toml_value(getattr(cfg, key))}  # {_SPECS[key].describe()}".rstrip())
+    return "\n".join(lines) + "\n"
+
+
+def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
+    """Parse ``key=value`` strings (the CLI's ``--set``) into a mapping for :func:`config_from_dict`.
+
+    Each value is read as a TOML value (``20``, ``2.5``, ``true``, ``"run 1"``); a value that is not valid
+    TOML is kept as a string, so ``name=run1`` works and ``cell_pressure_kpa=abc`` is reported by
+    :func:`config_from_dict` as a wrong type.
+
+    Raises:
+      ConfigError: for items without ``=`` or with an empty key.
+    """
+    result, errors = {}, []
+    for item in items:
+        key, sep, text = item.partition("=")
+        key, text = key.strip(), text.strip()
+        if not sep or not key:
+            errors.append(f"override {item!r} is not of the form key=value, e.g. cell_pressure_kpa=40.")
+            continue
+        try:
+            parsed = tomllib.loads(f"value = {text}")
+            value = parsed["value"] if list(parsed) == ["value"] else text
+        except tomllib.TOMLDecodeError:
+            value = text
+        result[key] = value
+    if errors:
+        raise ConfigError(errors)
+    return result

@@ -1,0 +1,378 @@
+"""membrax.config: defaults against the paper, exact SI conversions, TOML round trips and every refusal.
+
+Units: the fields are in laboratory units named in their names (kPa, mm, degrees, kg/m³, N/m); the
+properties are SI (Pa, m). Every bad input must raise ConfigError naming the field and its range or the
+suggested key; files live in pytest's tmp_path.
+"""
+
+import dataclasses
+import math
+
+import pytest
+
+from membrax.config import (
+    ConfigError,
+    TriaxialConfig,
+    config_from_dict,
+    config_to_dict,
+    dump_config_toml,
+    load_config,
+    parse_overrides,
+    with_overrides,
+)
+
+
+def _write(tmp_path, text, name="run.toml"):
+    path = tmp_path / name
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+# --- defaults and SI conversions -------------------------------------------------------------------------
+
+
+def test_defaults_are_the_papers_values():
+    cfg = TriaxialConfig()
+    assert cfg.cell_pressure_kpa == 10.0
+    assert cfg.membrane_thickness_mm == 5.0
+    assert cfg.membrane_modulus_kpa == 1400.0
+    assert cfg.particle_diameter_mm == 25.0
+    assert cfg.friction_angle_deg == 25.0
+    assert cfg.particles_across == 10
+    assert cfg.layers == 25
+    assert cfg.name == "membrax"
+    assert cfg.float64 is False
+    assert cfg.vtk_every_steps == 0
+    assert cfg.dt_safety == 0.5
+
+
+def test_si_conversions_are_exact():
+    cfg = TriaxialConfig()
+    assert cfg.cell_pressure == 1.0e4
+    assert cfg.membrane_thickness == 0.005
+    assert cfg.particle_diameter == 0.025
+    assert cfg.particle_radius == 0.0125
+    assert cfg.membrane_modulus == 1.4e6
+    assert cfg.membrane_edge_length == 0.005
+    assert cfg.friction_coefficient == math.tan(math.radians(25.0))
+    assert cfg.membrane_friction_coefficient == math.tan(math.radians(25.0))
+    assert cfg.friction_coefficient == pytest.approx(0.46630765815, rel=1e-10)
+    other = TriaxialConfig(cell_pressure_kpa=40, membrane_thickness_mm=2.5, membrane_friction_angle_deg=0)
+    assert other.cell_pressure == 4.0e4
+    assert other.membrane_thickness == 0.0025
+    assert other.membrane_friction_coefficient == 0.0
+
+
+def test_consolidation_tolerance_zero_means_default():
+    assert TriaxialConfig().consolidation_tolerance_or_none is None
+    assert TriaxialConfig(consolidation_tolerance=2e-3).consolidation_tolerance_or_none == 2e-3
+
+
+def test_frozen_and_types_are_normalised():
+    cfg = TriaxialConfig(cell_pressure_kpa=40, layers=12.0)
+    assert type(cfg.cell_pressure_kpa) is float and cfg.cell_pressure_kpa == 40.0
+    assert type(cfg.layers) is int and cfg.layers == 12
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.layers = 3
+    assert cfg.validate() is cfg
+
+
+def test_docstring_lists_every_field_with_its_range():
+    doc = TriaxialConfig.__doc__
+    for field in dataclasses.fields(TriaxialConfig):
+        assert f"{field.name} (" in doc, field.name
+    for unit_phrase in ("kPa, in (0, inf)", "mm, in (0, inf)", "degrees, in [0, 90)", "kg/m³", "N/m"):
+        assert unit_phrase in doc
+
+
+# --- TOML round trips --------------------------------------------------------------------------------------
+
+
+def test_toml_round_trip_defaults(tmp_path):
+    cfg = TriaxialConfig()
+    assert load_config(_write(tmp_path, dump_config_toml(cfg))) == cfg
+
+
+@pytest.mark.parametrize("table", [False, True])
+def test_toml_round_trip_every_field_changed(tmp_path, table):
+    cfg = TriaxialConfig(
+        name='run "A" ü #1 = x',
+        particle_diameter_mm=12.7,
+        particles_across=6,
+        layers=8,
+        particle_density_kg_m3=2700.5,
+        friction_angle_deg=31.3,
+        particle_stiffness_n_m=3.3e6,
+        cell_pressure_kpa=0.1,
+        membrane_thickness_mm=10.0 / 3.0,
+        membrane_modulus_kpa=0.0,
+        membrane_friction_angle_deg=1e-9,
+        membrane_edges_per_diameter=2.5,
+        target_axial_strain=0.15,
+        inertial_number=0.1,
+        consolidation_tolerance=1e-17,
+        consolidation_max_steps=7,
+        record_every_fine=3,
+        fine_until_strain=0.0,
+        record_every_coarse=33,
+        chunk_steps=100,
+        checkpoint_every_chunks=1,
+        vtk_every_steps=500,
+        float64=True,
+        seed=2**40,
+        dt_safety=1.0,
+    )
+    text = dump_config_toml(cfg, table=table)
+    assert text.count("[triaxial]") == int(table)
+    loaded = load_config(_write(tmp_path, text))
+    assert loaded == cfg
+    assert config_to_dict(loaded) == config_to_dict(cfg)
+    assert loaded.membrane_thickness_mm == 10.0 / 3.0  # bit-exact float
+
+
+def test_partial_file_keeps_defaults_and_table_form(tmp_path):
+    flat = load_config(_write(tmp_path, "cell_pressure_kpa = 40\nlayers = 12\n", "flat.toml"))
+    table = load_config(_write(tmp_path, "[triaxial]\ncell_pressure_kpa = 40\nlayers = 12\n", "t.toml"))
+    assert flat == table == TriaxialConfig(cell_pressure_kpa=40.0, layers=12)
+    assert flat.membrane_thickness_mm == 5.0
+
+
+def test_config_to_dict_and_from_dict():
+    cfg = TriaxialConfig(seed=3)
+    mapping = config_to_dict(cfg)
+    assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 25
+    assert config_from_dict(mapping) == cfg
+    assert config_from_dict({}) == TriaxialConfig()
+
+
+def test_with_overrides_and_parse_overrides():
+    base = TriaxialConfig(layers=8)
+    cfg = with_overrides(base, cell_pressure_kpa=100.0)
+    assert (cfg.layers, cfg.cell_pressure_kpa) == (8, 100.0)
+    assert base.cell_pressure_kpa == 10.0
+    overrides = parse_overrides(["cell_pressure_kpa=40", "name = run1", "float64=true", 'name="a b"'])
+    assert overrides == {"cell_pressure_kpa": 40, "name": "a b", "float64": True}
+    assert config_from_dict(overrides, base=base) == TriaxialConfig(
+        layers=8, cell_pressure_kpa=40.0, name="a b", float64=True
+    )
+    with pytest.raises(ConfigError, match=r"cell_pressure_kpa must be a number.*the string 'abc'"):
+        config_from_dict(parse_overrides(["cell_pressure_kpa=abc"]))
+    with pytest.raises(ConfigError, match="not of the form key=value"):
+        parse_overrides(["cell_pressure_kpa"])
+    with pytest.raises(ConfigError, match="did you mean `cell_pressure_kpa` \\(kPa\\)"):
+        with_overrides(base, cell_pressure_pa=1e4)
+
+
+# --- refusals ----------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "expected"),
+    [
+        (
+            "cell_pressure_kpa",
+            -10.0,
+            "cell_pressure_kpa = -10 is outside the accepted range (0, inf). Unit: kPa",
+        ),
+        ("cell_pressure_kpa", 0.0, "cell_pressure_kpa = 0 is outside the accepted range (0, inf)"),
+        (
+            "membrane_thickness_mm",
+            math.nan,
+            "membrane_thickness_mm is NaN; accepted range is (0, inf). Unit: mm",
+        ),
+        (
+            "particle_diameter_mm",
+            math.inf,
+            "particle_diameter_mm = inf is outside the accepted range (0, inf)",
+        ),
+        (
+            "membrane_modulus_kpa",
+            -math.inf,
+            "membrane_modulus_kpa = -inf is outside the accepted range [0, inf)",
+        ),
+        (
+            "friction_angle_deg",
+            90.0,
+            "friction_angle_deg = 90 is outside the accepted range [0, 90). Unit: degrees",
+        ),
+        (
+            "membrane_friction_angle_deg",
+            -1.0,
+            "membrane_friction_angle_deg = -1 is outside the accepted range [0, 90)",
+        ),
+        ("target_axial_strain", 1.0, "target_axial_strain = 1 is outside the accepted range (0, 1)"),
+        ("inertial_number", 0.2, "inertial_number = 0.2 is outside the accepted range (0, 0.1]"),
+        ("dt_safety", 0.0, "dt_safety = 0 is outside the accepted range (0, 1]"),
+        ("fine_until_strain", 1.0, "fine_until_strain = 1 is outside the accepted range [0, 1)"),
+        (
+            "consolidation_tolerance",
+            -1e-3,
+            "consolidation_tolerance = -0.001 is outside the accepted range [0, inf)",
+        ),
+        (
+            "particle_density_kg_m3",
+            0.0,
+            "particle_density_kg_m3 = 0 is outside the accepted range (0, inf). Unit: kg/m³",
+        ),
+        (
+            "particle_stiffness_n_m",
+            -1.0,
+            "particle_stiffness_n_m = -1 is outside the accepted range (0, inf). Unit: N/m",
+        ),
+        (
+            "membrane_edges_per_diameter",
+            0.0,
+            "membrane_edges_per_diameter = 0 is outside the accepted range (0, inf)",
+        ),
+        ("particles_across", 1, "particles_across = 1 is outside the accepted range [2, inf)"),
+        ("layers", 0, "layers = 0 is outside the accepted range [2, inf)"),
+        ("consolidation_max_steps", 0, "consolidation_max_steps = 0 is outside the accepted range [1, inf)"),
+        ("record_every_fine", 0, "record_every_fine = 0 is outside the accepted range [1, inf)"),
+        ("record_every_coarse", -5, "record_every_coarse = -5 is outside the accepted range [1, inf)"),
+        ("chunk_steps", 0, "chunk_steps = 0 is outside the accepted range [1, inf)"),
+        ("checkpoint_every_chunks", 0, "checkpoint_every_chunks = 0 is outside the accepted range [1, inf)"),
+        ("vtk_every_steps", -1, "vtk_every_steps = -1 is outside the accepted range [0, inf)"),
+        ("seed", -1, "seed = -1 is outside the accepted range [0, inf)"),
+    ],
+)
+def test_out_of_range_names_field_range_value_and_unit(field, value, expected):
+    with pytest.raises(ConfigError) as info:
+        config_from_dict({field: value})
+    assert expected in str(info.value)
+    assert info.value.errors == (str(info.value),)
+    with pytest.raises(ConfigError):  # the dataclass itself refuses it too
+        TriaxialConfig(**{field: value})
+
+
+def test_out_of_range_in_file_names_the_file(tmp_path):
+    path = _write(tmp_path, "cell_pressure_kpa = -5.0\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: cell_pressure_kpa = -5 is outside the accepted range (0, inf)")
+    assert "kPa" in message
+    assert info.value.source == str(path)
+
+
+@pytest.mark.parametrize(
+    ("key", "suggestion"),
+    [
+        ("cell_pressure_pa", "cell_pressure_kpa` (kPa)"),
+        ("cell_pressure", "cell_pressure_kpa` (kPa)"),
+        ("cell_pressure_MPa", "cell_pressure_kpa` (kPa)"),
+        ("membrane_thickness_m", "membrane_thickness_mm` (mm)"),
+        ("particle_diameter_cm", "particle_diameter_mm` (mm)"),
+        ("membrane_modulus_mpa", "membrane_modulus_kpa` (kPa)"),
+        ("friction_angle_rad", "friction_angle_deg` (degrees)"),
+        ("membrane_friction_angle", "membrane_friction_angle_deg` (degrees)"),
+        ("particle_density_g_cm3", "particle_density_kg_m3` (kg/m³)"),
+        ("particle_stiffness_kn_m", "particle_stiffness_n_m` (N/m)"),
+    ],
+)
+def test_wrong_unit_suffix_suggests_the_field(tmp_path, key, suggestion):
+    path = _write(tmp_path, f"{key} = 1.0\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert f"unknown key `{key}`: did you mean `{suggestion}?" in str(info.value)
+
+
+def test_unknown_keys(tmp_path):
+    with pytest.raises(ConfigError, match="unknown key `layer`: did you mean `layers`\\?"):
+        load_config(_write(tmp_path, "layer = 25\n"))
+    with pytest.raises(ConfigError) as info:
+        load_config(_write(tmp_path, "colour = 'red'\n"))
+    assert "unknown key `colour`; the known keys are: name, particle_diameter_mm," in str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        (
+            'cell_pressure_kpa = "10"',
+            "cell_pressure_kpa must be a number in (0, inf) kPa; got the string '10'",
+        ),
+        (
+            "cell_pressure_kpa = true",
+            "cell_pressure_kpa must be a number in (0, inf) kPa; got the boolean true",
+        ),
+        ("cell_pressure_kpa = [10]", "cell_pressure_kpa must be a number in (0, inf) kPa; got an array"),
+        ("layers = 25.5", "layers must be an integer in [2, inf) layers; got 25.5. Give a whole number"),
+        ("layers = nan", "layers must be an integer in [2, inf) layers; got nan"),
+        ("float64 = 1", "float64 must be a boolean (true or false); got 1"),
+        ('float64 = "true"', "float64 must be a boolean (true or false); got the string 'true'"),
+        ("name = 3", "name must be a non-empty string; got 3"),
+        ('name = ""', "name = '' is not usable in file names"),
+        ('name = "a/b"', "name = 'a/b' is not usable in file names"),
+        ("[cell_pressure_kpa]\nx = 1", "cell_pressure_kpa must be a number in (0, inf) kPa; got a table"),
+    ],
+)
+def test_wrong_type(tmp_path, line, expected):
+    with pytest.raises(ConfigError) as info:
+        load_config(_write(tmp_path, line + "\n"))
+    assert expected in str(info.value)
+
+
+def test_integral_float_accepted_for_int_field(tmp_path):
+    cfg = load_config(_write(tmp_path, "layers = 12.0\nconsolidation_max_steps = 2e5\n"))
+    assert (cfg.layers, cfg.consolidation_max_steps) == (12, 200000)
+    assert type(cfg.consolidation_max_steps) is int
+
+
+def test_toml_nan_and_inf(tmp_path):
+    with pytest.raises(ConfigError, match="cell_pressure_kpa is NaN; accepted range is \\(0, inf\\)"):
+        load_config(_write(tmp_path, "cell_pressure_kpa = nan\n"))
+    with pytest.raises(ConfigError, match="membrane_thickness_mm = inf is outside the accepted range"):
+        load_config(_write(tmp_path, "membrane_thickness_mm = inf\n"))
+
+
+def test_several_bad_fields_all_reported(tmp_path):
+    text = 'cell_pressure_kpa = -1.0\nlayers = 1\nmembrane_thickness_m = 0.005\nfloat64 = "no"\n'
+    with pytest.raises(ConfigError) as info:
+        load_config(_write(tmp_path, text))
+    error = info.value
+    assert len(error.errors) == 4
+    message = str(error)
+    assert message.startswith("4 problems in the triaxial configuration in ")
+    for part in (
+        "did you mean `membrane_thickness_mm` (mm)?",
+        "layers = 1 is outside the accepted range [2, inf)",
+        "cell_pressure_kpa = -1 is outside the accepted range (0, inf)",
+        "float64 must be a boolean",
+    ):
+        assert part in message
+    with pytest.raises(ConfigError) as info:
+        TriaxialConfig(cell_pressure_kpa=-1.0, seed=-2)
+    assert len(info.value.errors) == 2
+
+
+def test_malformed_toml_names_file_and_tomllib_message(tmp_path):
+    path = _write(tmp_path, "cell_pressure_kpa = \nlayers 25\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert f"malformed TOML in {str(path)!r}" in message
+    assert "(at line 1, column" in message  # tomllib's own position
+
+
+def test_duplicate_key_is_malformed(tmp_path):
+    with pytest.raises(ConfigError, match="malformed TOML"):
+        load_config(_write(tmp_path, "layers = 3\nlayers = 4\n"))
+
+
+def test_missing_file(tmp_path):
+    path = tmp_path / "absent.toml"
+    with pytest.raises(ConfigError, match=f"configuration file {str(path)!r} does not exist"):
+        load_config(path)
+
+
+def test_triaxial_table_must_hold_everything(tmp_path):
+    with pytest.raises(ConfigError) as info:
+        load_config(_write(tmp_path, "layers = 3\n[triaxial]\ncell_pressure_kpa = 40.0\n"))
+    assert "keys `layers` sit outside the [triaxial] table" in str(info.value)
+    with pytest.raises(ConfigError, match="`triaxial` must be a table"):
+        load_config(_write(tmp_path, "triaxial = 3\n"))
+    with pytest.raises(ConfigError, match="unknown key `cell_pressure_pa`: did you mean `cell_pressure_kpa`"):
+        load_config(_write(tmp_path, "[triaxial]\ncell_pressure_pa = 1e4\n"))
+    with pytest.raises(ConfigError, match="unknown key `other`"):
+        load_config(_write(tmp_path, "[other]\nx = 1\n"))
