@@ -17,6 +17,7 @@ This loop is the one place where lists are reallocated, errors checked and progr
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import jax
@@ -161,3 +162,29 @@ class ChunkRunner:
             if stop_fn is not None and stop_fn(state, chunks[-1]):
                 break
         return state, concatenate_records(chunks)
+
+
+def two_rate_plan(steps_per_strain: float, target_strain: float, fine_until_strain: float) -> tuple[int, int]:
+    """Steps of the two recording phases of a strain-controlled stage: (fine, coarse).
+
+    The strain grows by 1/``steps_per_strain`` per step: the fine phase runs to ``fine_until_strain``
+    (capped at the target), the coarse phase to ``target_strain``.
+    """
+    fine_strain = min(fine_until_strain, target_strain)
+    fine = math.ceil(fine_strain * steps_per_strain)
+    coarse = max(math.ceil((target_strain - fine_strain) * steps_per_strain), 0)
+    return fine, coarse
+
+
+def run_phases(runner: ChunkRunner, state, params, phases, chunk_steps: int, on_chunk=None):
+    """Run ``phases`` = [(steps, record_every), ...] one after another; the records joined.
+
+    Returns:
+      (state, records) with the records of all phases with steps > 0 concatenated.
+    """
+    parts = []
+    for steps, record_every in phases:
+        if steps > 0:
+            state, records = runner.run(state, params, steps, chunk_steps, record_every, on_chunk=on_chunk)
+            parts.append(records)
+    return state, concatenate_records([part for part in parts if part is not None])

@@ -112,6 +112,7 @@ __all__ = [
     "read_pvd",
     "save_checkpoint",
     "load_checkpoint",
+    "read_checkpoint_host",
 ]
 
 #: Field names written by :func:`write_particles_vtk` itself; users may not pass them.
@@ -1066,6 +1067,17 @@ def _restore_leaf(array: np.ndarray, info: dict, template):
     if isinstance(template, np.generic):
         return array[()]
     return jnp.asarray(array, dtype=template.dtype)
+
+
+def read_checkpoint_host(path) -> dict:
+    """The JSON part of a checkpoint's host data, without its state (e.g. to size a template first)."""
+    path = Path(os.fspath(path))
+    entries = _read_checkpoint_entries(path)
+    try:
+        return json.loads(str(entries["__host__"][()]))
+    except (KeyError, json.JSONDecodeError) as error:
+        message = f"checkpoint '{path}' is damaged or not a membrax checkpoint ({error!r})."
+        raise ValueError(message) from error
 
 
 def load_checkpoint(path, like):

@@ -362,7 +362,7 @@ def membrane_radial_force(sphere_force, sphere_position, ring_position):
     Returns:
       Scalar F_r (positive when the membrane presses the spheres inward).
     """
-    return jnp.sum(radial_components(sphere_force, sphere_position, ring_position)) * -1.0
+    return -jnp.sum(radial_components(sphere_force, sphere_position, ring_position))
 
 
 def radial_components(force, position, ring_position):

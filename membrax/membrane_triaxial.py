@@ -28,7 +28,6 @@ named in the arguments; everything inside is SI.
 from __future__ import annotations
 
 import dataclasses as pydataclasses
-import math
 
 import jax.numpy as jnp
 import numpy as np
@@ -36,7 +35,7 @@ import numpy as np
 from membrax import measure as measure_lib
 from membrax import membrane as membrane_lib
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, concatenate_records
+from membrax.driver import ChunkRunner, run_phases, two_rate_plan
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -160,7 +159,6 @@ class MembraneTest:
 
     def shear_plan(
         self,
-        state: CoupledState,
         target_axial_strain: float = 0.10,
         inertial_number: float = 1e-3,
         fine_until_strain: float = 0.01,
@@ -174,10 +172,7 @@ class MembraneTest:
             "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
         )
         steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
-        fine_strain = min(fine_until_strain, target_axial_strain)
-        fine = math.ceil(fine_strain * steps_per_strain)
-        coarse = max(math.ceil((target_axial_strain - fine_strain) * steps_per_strain), 0)
-        return fine, coarse
+        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain)
 
     def shear(
         self,
@@ -195,18 +190,10 @@ class MembraneTest:
         Returns:
           (state, records) with the records of both recording rates joined.
         """
-        fine, coarse = self.shear_plan(state, target_axial_strain, inertial_number, fine_until_strain)
+        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain)
         state = self.start_shear(state, inertial_number)
-        state, first = self.runner.run(
-            state, self.params, fine, chunk_steps, record_every_fine, on_chunk=on_chunk
-        )
-        parts = [first]
-        if coarse > 0:
-            state, second = self.runner.run(
-                state, self.params, coarse, chunk_steps, record_every_coarse, on_chunk=on_chunk
-            )
-            parts.append(second)
-        return state, concatenate_records([p for p in parts if p is not None])
+        phases = [(fine, record_every_fine), (coarse, record_every_coarse)]
+        return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)
 
 
 def membrane_test(

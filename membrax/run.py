@@ -232,7 +232,7 @@ def _run(config, folder: Path, resume, progress, interrupt_after_chunks, tqdm) -
             raise FileNotFoundError(
                 f"no checkpoint at '{checkpoint_path}' to resume from; run without --resume to start afresh."
             )
-        host = _peek_host(checkpoint_path)
+        host = io_lib.read_checkpoint_host(checkpoint_path)
         state, host = io_lib.load_checkpoint(checkpoint_path, _template(test, host["capacities"]))
         phase_index, phase_done, elapsed = host["phase_index"], host["phase_done"], host["elapsed_s"]
         shear_start = host.get("shear_start")
@@ -250,7 +250,7 @@ def _run(config, folder: Path, resume, progress, interrupt_after_chunks, tqdm) -
             _vtk_snapshot(series, state, test)
 
     fine, coarse = test.shear_plan(
-        state, config.target_axial_strain, config.inertial_number, config.fine_until_strain
+        config.target_axial_strain, config.inertial_number, config.fine_until_strain
     )
     plan = {
         "consolidation": (config.consolidation_max_steps, CONSOLIDATION_RECORD_EVERY),
@@ -357,14 +357,6 @@ def _run(config, folder: Path, resume, progress, interrupt_after_chunks, tqdm) -
         raise
     elapsed += time.perf_counter() - stage_clock
     return _finish(folder, config, test, records, shear_start, build_seconds, elapsed, tolerance)
-
-
-def _peek_host(path: Path) -> dict:
-    """The host part of a checkpoint without its state (to size the template)."""
-    import json
-
-    with np.load(path, allow_pickle=False) as entries:
-        return json.loads(str(entries["__host__"][()]))
 
 
 def _metadata(config, test, records, build_seconds, elapsed, tolerance) -> dict:

@@ -29,7 +29,7 @@ import numpy as np
 from membrax import batch
 from membrax import measure as measure_lib
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, concatenate_records
+from membrax.driver import ChunkRunner, run_phases, two_rate_plan
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -174,21 +174,15 @@ class RigidWallTest:
         servo[:, :2] = False
         state = self.set_walls(state, servo, velocity, self.cell_pressure)
         # Strain counts from the start of the test; the stage adds target_axial_strain of the current height.
-        steps_per_strain = 1.0 / (rate * self.dt)
-        records = []
-        fine_strain = min(fine_until_strain, target_axial_strain)
-        fine_steps = math.ceil(fine_strain * steps_per_strain)
-        state, fine = self.runner.run(
-            state, self.params, fine_steps, chunk_steps, record_every_fine, on_chunk=on_chunk
+        fine, coarse = two_rate_plan(1.0 / (rate * self.dt), target_axial_strain, fine_until_strain)
+        return run_phases(
+            self.runner,
+            state,
+            self.params,
+            [(fine, record_every_fine), (coarse, record_every_coarse)],
+            chunk_steps,
+            on_chunk,
         )
-        records.append(fine)
-        remaining = math.ceil((target_axial_strain - fine_strain) * steps_per_strain)
-        if remaining > 0:
-            state, coarse = self.runner.run(
-                state, self.params, remaining, chunk_steps, record_every_coarse, on_chunk=on_chunk
-            )
-            records.append(coarse)
-        return state, concatenate_records([r for r in records if r is not None])
 
 
 def rigid_wall_test(
