@@ -160,7 +160,6 @@ _SPECS: dict[str, _Spec] = {
     "checkpoint_every_chunks": _Spec(int, "chunks", lower=1),
     "vtk_every_steps": _Spec(int, "steps", lower=0, hint="0 writes no VTK snapshots"),
     "float64": _Spec(bool),
-    "seed": _Spec(int, "(dimensionless)", lower=0),
     "dt_safety": _Spec(float, "(fraction of the critical time step)", **_FRACTION_OPEN, upper_open=False),
 }
 
@@ -205,7 +204,6 @@ class TriaxialConfig:
       checkpoint_every_chunks (int): chunks between checkpoints, in [1, inf). Default 10.
       vtk_every_steps (int): steps between VTK snapshots, in [0, inf); 0 writes none. Default 0.
       float64 (bool): run in double precision. Default false.
-      seed (int): random seed (dimensionless), in [0, inf). Default 0.
       dt_safety (float): time step as a fraction of the critical one (dimensionless), in (0, 1].
         Default 0.5.
 
@@ -236,7 +234,6 @@ class TriaxialConfig:
     checkpoint_every_chunks: int = 10
     vtk_every_steps: int = 0
     float64: bool = False
-    seed: int = 0
     dt_safety: float = 0.5
 
     def __post_init__(self):

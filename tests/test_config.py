@@ -119,7 +119,6 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         checkpoint_every_chunks=1,
         vtk_every_steps=500,
         float64=True,
-        seed=2**40,
         dt_safety=1.0,
     )
     text = dump_config_toml(cfg, table=table)
@@ -138,10 +137,10 @@ def test_partial_file_keeps_defaults_and_table_form(tmp_path):
 
 
 def test_config_to_dict_and_from_dict():
-    cfg = TriaxialConfig(seed=3)
+    cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 25
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 24
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 
@@ -233,7 +232,6 @@ def test_with_overrides_and_parse_overrides():
         ("chunk_steps", 0, "chunk_steps = 0 is outside the accepted range [1, inf)"),
         ("checkpoint_every_chunks", 0, "checkpoint_every_chunks = 0 is outside the accepted range [1, inf)"),
         ("vtk_every_steps", -1, "vtk_every_steps = -1 is outside the accepted range [0, inf)"),
-        ("seed", -1, "seed = -1 is outside the accepted range [0, inf)"),
     ],
 )
 def test_out_of_range_names_field_range_value_and_unit(field, value, expected):
@@ -342,7 +340,7 @@ def test_several_bad_fields_all_reported(tmp_path):
     ):
         assert part in message
     with pytest.raises(ConfigError) as info:
-        TriaxialConfig(cell_pressure_kpa=-1.0, seed=-2)
+        TriaxialConfig(cell_pressure_kpa=-1.0, layers=-2)
     assert len(info.value.errors) == 2
 
 
