@@ -42,6 +42,7 @@ __all__ = [
     "prism_mesh",
     "flat_mesh",
     "offset_polygon",
+    "rounded_offset_path",
     "bending_rigidity",
     "stretching_energy",
     "bending_energy",
@@ -281,6 +282,53 @@ def offset_polygon(outline_vertices, offset: float) -> np.ndarray:
     return vertices + offset * miter
 
 
+def rounded_offset_path(outline_vertices, offset: float, corner_radius: float):
+    """Arc-length parametrisation of a convex polygon's outline offset outward with rounded corners.
+
+    The path is the Minkowski sum of the *core* polygon (the outline moved inward by ``corner_radius``, e.g.
+    the polygon of the outer particles' centres when ``corner_radius`` is the particle radius) with a disc
+    of radius ρ = corner_radius + offset: straight sides parallel to the outline's faces, offset from them,
+    joined by circular arcs of radius ρ about the core's vertices. This is where a membrane touching the
+    outer spheres lies, corners included; the mitred offset (:func:`offset_polygon`) leaves a gap of
+    ρ (1/cos(θ/2) − 1) at a corner turning by θ, which cell pressure closes by shortening the perimeter.
+
+    Args:
+      outline_vertices: (F, 2) convex polygon, counter-clockwise, m.
+      offset: outward distance of the path from the outline's faces, m, >= 0.
+      corner_radius: inward offset of the core polygon, m, >= 0.
+
+    Returns:
+      (point_at, perimeter): ``point_at(s)`` maps s ∈ [0, 1) (array) to (n, 2) points on the path at arc
+      length s × perimeter from the start of the arc about core vertex 0, counter-clockwise.
+    """
+    check_range("offset", offset, lower=0.0)
+    check_range("corner_radius", corner_radius, lower=0.0)
+    core = offset_polygon(outline_vertices, -corner_radius)
+    radius = corner_radius + offset
+    edge = np.roll(core, -1, axis=0) - core
+    side = np.linalg.norm(edge, axis=1)
+    normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / side[:, None]
+    # Corner k turns from the normal of edge k − 1 to that of edge k.
+    start_angle = np.arctan2(np.roll(normal, 1, axis=0)[:, 1], np.roll(normal, 1, axis=0)[:, 0])
+    turn = np.mod(np.arctan2(normal[:, 1], normal[:, 0]) - start_angle, 2.0 * np.pi)
+    # Pieces alternate: arc about vertex k, then the side along edge k.
+    length = np.column_stack([radius * turn, side]).ravel()
+    start = np.concatenate([[0.0], np.cumsum(length)])
+    perimeter = float(start[-1])
+
+    def point_at(s):
+        arc = np.asarray(s, dtype=np.float64) * perimeter
+        piece = np.clip(np.searchsorted(start, arc, side="right") - 1, 0, len(length) - 1)
+        along = arc - start[piece]
+        vertex = piece // 2
+        angle = start_angle[vertex] + along / max(radius, np.finfo(float).tiny)
+        on_arc = core[vertex] + radius * np.column_stack([np.cos(angle), np.sin(angle)])
+        on_side = core[vertex] + radius * normal[vertex] + along[:, None] * edge[vertex] / side[vertex, None]
+        return np.where((piece % 2 == 0)[:, None], on_arc, on_side)
+
+    return point_at, perimeter
+
+
 def prism_mesh(
     outline_vertices,
     offset: float,
@@ -288,13 +336,15 @@ def prism_mesh(
     target_edge_length: float,
     z_bottom: float = 0.0,
     dtype=None,
+    corner_radius: float | None = None,
 ) -> MembraneMesh:
     """Band around a polygonal (e.g. octagonal) prism, its mid-surface ``offset`` outside the outline.
 
-    Rule: the polygon is offset outward with mitred corners (:func:`offset_polygon`); node k of a ring,
-    at parameter s = (k + ½·(j mod 2))/n_θ, is placed at arc length s·P along the offset polygon from its
-    vertex 0, counter-clockwise (P the perimeter, n_θ = round(P/target)). Corners that fall between two
-    nodes are cut by the chord, so the mesh is inscribed in the offset prism.
+    Rule: node k of a ring, at parameter s = (k + ½·(j mod 2))/n_θ, is placed at arc length s·P along the
+    offset outline (P its perimeter, n_θ = round(P/target)), counter-clockwise. With ``corner_radius`` the
+    offset outline has rounded corners (:func:`rounded_offset_path`: the membrane wraps the corner spheres,
+    as a real membrane does); without it the corners are mitred (:func:`offset_polygon`), cut by the chord
+    where they fall between two nodes.
 
     Args:
       outline_vertices: (F, 2) convex polygon, counter-clockwise, m (the particle outline).
@@ -303,8 +353,13 @@ def prism_mesh(
       target_edge_length: m, > 0.
       z_bottom: height of the bottom ring, m.
       dtype: float dtype of the arrays (default: JAX's default float).
+      corner_radius: round the corners about the outline moved inward by this much (the particle radius
+        for a specimen's outline), m, >= 0; None for mitred corners.
     """
     check_range("offset", offset, lower=0.0)
+    if corner_radius is not None:
+        point_at, perimeter = rounded_offset_path(outline_vertices, offset, corner_radius)
+        return _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype)
     polygon = offset_polygon(outline_vertices, offset)
     side = np.linalg.norm(np.roll(polygon, -1, axis=0) - polygon, axis=1)
     start = np.concatenate([[0.0], np.cumsum(side)])

@@ -226,7 +226,7 @@ def _run(config, folder: Path, resume, progress, interrupt_after_chunks, tqdm) -
     records: dict[str, list[dict]] = {phase: [] for phase in PHASES}
     phase_index, phase_done, elapsed = 0, 0, 0.0
     shear_start: dict | None = None
-    state = test.initial_state
+    state = test.start_consolidation(test.initial_state)
     if resume:
         if not checkpoint_path.exists():
             raise FileNotFoundError(

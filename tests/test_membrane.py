@@ -246,6 +246,38 @@ def test_octagonal_prism_volume_is_exact():
     assert 0.995 * prism < volume < prism
 
 
+def test_rounded_offset_path_is_the_minkowski_sum_of_the_core_with_a_disc():
+    """Steiner: the perimeter of a convex polygon ⊕ disc(ρ) is P_core + 2πρ, every point lies at distance
+    ρ from the core polygon, and the mesh's enclosed area approaches A_core + ρ P_core + πρ²."""
+    angles = (np.arange(8) + 0.5) * np.pi / 4
+    outline = 0.12 * np.column_stack([np.cos(angles), np.sin(angles)])
+    offset, corner_radius = 0.0025, 0.0125
+    point_at, perimeter = membrane.rounded_offset_path(outline, offset, corner_radius)
+    core = membrane.offset_polygon(outline, -corner_radius)
+    core_side = np.linalg.norm(np.roll(core, -1, axis=0) - core, axis=1)
+    rho = offset + corner_radius
+    np.testing.assert_allclose(perimeter, core_side.sum() + 2 * np.pi * rho, rtol=1e-12)
+    points = point_at(np.linspace(0.0, 1.0, 4001, endpoint=False))
+    # Distance to the (convex) core polygon: the largest signed distance to its edge lines, or to a vertex.
+    edge = np.roll(core, -1, axis=0) - core
+    normal = np.column_stack([edge[:, 1], -edge[:, 0]]) / core_side[:, None]
+    to_lines = np.einsum("pkj,kj->pk", points[:, None, :] - core[None], normal)
+    k = np.argmax(to_lines, axis=1)
+    along = np.einsum("pj,pj->p", points - core[k], edge[k]) / core_side[k] ** 2
+    on_side = (along >= 0) & (along <= 1)
+    to_vertices = np.min(np.linalg.norm(points[:, None, :] - core[None], axis=2), axis=1)
+    distance = np.where(on_side, to_lines[np.arange(len(points)), k], to_vertices)
+    np.testing.assert_allclose(distance, rho, rtol=1e-9)
+    # Consecutive samples are equally spaced in arc length.
+    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    np.testing.assert_allclose(steps, perimeter / 4001, rtol=1e-3)
+    mesh = membrane.prism_mesh(outline, offset, 0.3, 0.005, corner_radius=corner_radius)
+    core_area = 0.5 * np.sum(core[:, 0] * np.roll(core[:, 1], -1) - np.roll(core[:, 0], -1) * core[:, 1])
+    exact = 0.3 * (core_area + rho * core_side.sum() + np.pi * rho**2)
+    volume = float(membrane.enclosed_volume(mesh.reference_position, mesh))
+    assert 0.999 * exact < volume < exact  # inscribed: the chords cut the arcs
+
+
 # ------------------------------------------------------------------------------------------------ bending
 
 
