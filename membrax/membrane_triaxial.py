@@ -3,9 +3,10 @@
 Contract. :func:`membrane_test` builds the coupled system of :mod:`membrax.membrane_dem` around a specimen
 — the two platens (servo or strain controlled, frictionless by default), no lateral walls, and a membrane
 mesh whose mid-surface sits t_m/2 outside the outer particles, its corners rounded about the corner spheres
-(:func:`membrax.membrane.prism_mesh` with ``corner_radius`` = R), with its end rings clamped to the platens — and returns a :class:`MembraneTest`. Its methods run the stages
-with the chunk driver and return the state and the records (:class:`membrax.measure.MembraneMeasurements`,
-numpy arrays with a leading time axis):
+(:func:`membrax.membrane.prism_mesh` with ``corner_radius`` = R), with its end rings clamped to the
+platens — and returns a :class:`MembraneTest`. Its methods run the stages with the chunk driver and
+return the state and the records (:class:`membrax.measure.MembraneMeasurements`, numpy arrays
+with a leading time axis):
 
 - :meth:`MembraneTest.consolidate` (stage 1): the cell pressure acts on the membrane's outer face; both
   platens are servo-controlled to a ram force of σc × platen area (the ram balances the spheres and the

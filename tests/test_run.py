@@ -89,8 +89,10 @@ def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
     _compare(whole.consolidation, resumed.consolidation)
     # Stage 1 servo-controls the ram: at its last record ram / A₀ = σc, with A₀ recovered by hand from the
     # recorded area A = A₀ (1 − ε_v) / (1 − ε_a).
-    end = {name: float(whole.consolidation[name][-1].squeeze()) for name in
-           ("ram_force", "platen_area", "axial_strain", "volumetric_strain")}
+    end = {
+        name: float(whole.consolidation[name][-1].squeeze())
+        for name in ("ram_force", "platen_area", "axial_strain", "volumetric_strain")
+    }
     initial_area = end["platen_area"] * (1.0 - end["axial_strain"]) / (1.0 - end["volumetric_strain"])
     assert end["ram_force"] / initial_area == pytest.approx(1e3 * config.cell_pressure_kpa, rel=0.01)
     assert end["axial_strain"] > 0.0  # the platens moved in
