@@ -1,11 +1,14 @@
 """The membrane triaxial test as a run: stresses against force balance, a vanishing membrane, resume, CLI."""
 
+import functools
 import math
 
+import jax
 import numpy as np
 import pytest
 
 from membrax import cli, packing
+from membrax import membrane as membrane_lib
 from membrax.config import TriaxialConfig
 from membrax.membrane_triaxial import membrane_test
 from membrax.run import CHECKPOINT_NAME, run_test
@@ -27,10 +30,14 @@ SMALL = dict(
 )
 
 
-def _consolidated(modulus_kpa):
+@functools.cache
+def _consolidated(modulus_kpa, thickness_mm=5.0):
     specimen = packing.fcc_specimen(0.025, 4, 5)
     test = membrane_test(
-        specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, membrane_modulus_kpa=modulus_kpa
+        specimen,
+        cell_pressure_kpa=10.0,
+        membrane_thickness_mm=thickness_mm,
+        membrane_modulus_kpa=modulus_kpa,
     )
     state, records = test.consolidate(max_steps=4000, chunk_steps=1000, record_every=100, tolerance=0.01)
     last = {
@@ -69,6 +76,83 @@ def test_ram_force_balances_spheres_and_membrane_and_internal_stresses_match_lov
     inward = -np.sum(np.sum(force[:, :2] * offset, axis=1) / np.linalg.norm(offset, axis=1))
     recorded = float(records.membrane_radial_force[-1, 0])
     assert recorded == pytest.approx(inward, rel=0.02)
+
+
+def _radial_balance(test, state, records):
+    """Inward radial sums (N) about the clamped ring's axis: (spheres, clamps, cell pressure).
+
+    Spheres: the recorded Σ −F·r̂ of the membrane on the spheres. Clamps: Σ −F·r̂ of the ring nodes' total
+    force, which the platens take. Pressure: Σ −F_p·r̂ of the pressure's nodal forces (−∇ p V). A membrane
+    with no stress passes the whole pressure resultant to the spheres and the clamps; hoop compression
+    keeps part of it (hoop tension would add to it).
+    """
+    position = state.membrane.position
+    axis = np.asarray(state.membrane.clamp_position[0])[:, :2].mean(axis=0)
+    offset = np.asarray(position)[:, :2] - axis
+    outward = offset / np.linalg.norm(offset, axis=1)[:, None]
+    pressure_force = -np.asarray(
+        jax.grad(membrane_lib.pressure_energy)(position, test.mesh, test.cell_pressure)
+    )
+    rings = np.concatenate([np.asarray(test.mesh.bottom_ring), np.asarray(test.mesh.top_ring)])
+    node_force = np.asarray(state.membrane.node_force)
+    clamps = -np.sum(node_force[rings, :2] * outward[rings])
+    pressure = -np.sum(pressure_force[:, :2] * outward)
+    return float(records.membrane_radial_force[-1, 0]), clamps, pressure
+
+
+def test_a_vanishing_membrane_passes_the_cell_pressure_through_unchanged():
+    """E_m → 0: the membrane adds nothing, so internal and external stresses agree (4 × 4 × 5, 10 kPa, 5 mm).
+
+    Compared at the paper's 1400 kPa and at 1400/16 = 87.5 kPa (smaller moduli let the nodes sink between
+    the boundary spheres within a few thousand steps: the membrane no longer spans the voids).
+
+    - Axial: the ram is the platen–sphere force plus the membrane's pull, so internal σ1 / external σ1 =
+      1 − pull / ram. Tolerance 2 % at 87.5 kPa; the pull must fall at least 3-fold from 1400 kPa.
+    - Radial: the spheres and the clamps together receive the cell pressure's radial resultant within 5 %
+      at 87.5 kPa, and closer than at 1400 kPa. The clamps' share (the membrane strip between a clamped
+      ring and the first sphere row, about R/H of the lateral area) is geometry, not stiffness: the paper's
+      internal radial stress counts only the spheres, so it stays below σc by that share however soft the
+      membrane.
+    """
+    shares = {}
+    for modulus in (1400.0, 87.5):
+        test, state, records, last = _consolidated(modulus)
+        stress_ratio = float(records.internal_axial_stress[-1, 0] / records.external_axial_stress[-1, 0])
+        reaction = np.asarray(state.membrane.platen_reaction)
+        pull = 0.5 * (reaction[1, 2] - reaction[0, 2]) / last["ram_force"]
+        # internal/external axial is 1 − pull to the step lag between record and state
+        assert stress_ratio == pytest.approx(1.0 - pull, abs=2e-3)
+        spheres, clamps, pressure = _radial_balance(test, state, records)
+        shares[modulus] = (abs(pull), (spheres + clamps) / pressure, clamps / pressure)
+    soft_pull, soft_radial, soft_clamps = shares[87.5]
+    stiff_pull, stiff_radial, _ = shares[1400.0]
+    assert soft_pull < 0.02 and stiff_pull > 3.0 * soft_pull, shares
+    assert abs(soft_radial - 1.0) < 0.05 and abs(soft_radial - 1.0) < abs(stiff_radial - 1.0), shares
+    specimen = test.specimen
+    assert soft_clamps == pytest.approx(specimen.particle_radius / specimen.height, rel=0.5), shares
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason=(
+        "Open (issue 5): the paper's Table 3 signs are not reproduced. On this 4 × 4 × 5 specimen the "
+        "membrane ends consolidation in hoop compression (it sags into the troughs of the FCC flat faces, "
+        "whose alternate layers are recessed by R), so internal σ3 < σc (−2.2 kPa at 5 mm, −1.8 at 2.5 mm); "
+        "internal σ1 − external σ1 is +2.7 kPa at 2.5 mm and −0.7 at 5 mm. The paper: +1.2/+1.8 kPa radial, "
+        "+2.9/+3.9 kPa axial, growing with thickness."
+    ),
+)
+def test_end_of_consolidation_has_the_signs_and_thickness_trend_of_table_3():
+    """Paper Table 3 (10 kPa): internal σ3 > σc, internal σ1 > external σ1, both excesses larger at 5 mm
+    than at 2.5 mm."""
+    excess = {}
+    for thickness in (2.5, 5.0):
+        _, _, records, _ = _consolidated(1400.0, thickness)
+        radial = float(records.internal_radial_stress[-1, 0]) - 1e4
+        axial = float(records.internal_axial_stress[-1, 0] - records.external_axial_stress[-1, 0])
+        excess[thickness] = (radial, axial)
+    assert all(radial > 0 and axial > 0 for radial, axial in excess.values()), excess
+    assert excess[5.0][0] > excess[2.5][0] and excess[5.0][1] > excess[2.5][1], excess
 
 
 def _compare(a, b):
