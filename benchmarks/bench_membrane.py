@@ -37,7 +37,11 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
     specimen = packing.fcc_specimen(diameter, 10, 25)
     mesh = membrane.prism_mesh(
-        np.asarray(specimen.outline_vertices), 0.5 * thickness, specimen.height, diameter / edges_per_diameter
+        np.asarray(specimen.outline_vertices),
+        0.5 * thickness,
+        specimen.height,
+        diameter / edges_per_diameter,
+        corner_radius=specimen.particle_radius,
     )
     nodes = jnp.asarray(mesh.reference_position)
 

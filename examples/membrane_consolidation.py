@@ -34,7 +34,11 @@ def render(state_file: pathlib.Path, out: pathlib.Path, thickness: float, cell_p
     data = np.load(state_file)
     specimen = packing.fcc_specimen(0.025, 10, 25)
     mesh = membrane.prism_mesh(
-        np.asarray(specimen.outline_vertices), 0.5 * thickness, specimen.height, 0.025 / 5.0
+        np.asarray(specimen.outline_vertices),
+        0.5 * thickness,
+        specimen.height,
+        0.025 / 5.0,
+        corner_radius=specimen.particle_radius,
     )
     nodes = jnp.asarray(data["nodes"])
     # Section through the centres of a layer that touches the flat faces (even layers), near mid-height.

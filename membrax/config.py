@@ -138,10 +138,16 @@ _SPECS: dict[str, _Spec] = {
     "particle_stiffness_n_m": _Spec(float, "N/m", **_POSITIVE, hint="normal contact stiffness, e.g. 1e7 N/m"),
     "cell_pressure_kpa": _Spec(float, "kPa", **_POSITIVE, hint="the paper uses 10, 40 and 100 kPa"),
     "membrane_thickness_mm": _Spec(float, "mm", **_POSITIVE, hint="the paper uses 2.5 to 5 mm"),
-    "membrane_modulus_kpa": _Spec(float, "kPa", **_NON_NEGATIVE, hint="latex, the paper uses 1400 kPa"),
+    "membrane_modulus_kpa": _Spec(float, "kPa", **_POSITIVE, hint="latex, the paper uses 1400 kPa"),
     "membrane_friction_angle_deg": _Spec(float, "degrees", **_ANGLE, hint="membrane–particle friction"),
     "membrane_edges_per_diameter": _Spec(
         float, "edges per particle diameter", **_POSITIVE, hint="mesh edge = diameter / this; e.g. 5"
+    ),
+    "membrane_bending_factor": _Spec(
+        float,
+        "(dimensionless)",
+        **_NON_NEGATIVE,
+        hint="1: plate bending E t³/12(1 − ν²); 0: a pure membrane (the signs of the paper's Table 3)",
     ),
     "target_axial_strain": _Spec(
         float, "(strain, dimensionless)", lower=0.0, lower_open=True, upper=1.0, hint="e.g. 0.10 for 10 %"
@@ -181,12 +187,13 @@ class TriaxialConfig:
       particle_stiffness_n_m (float): normal contact stiffness, N/m, in (0, inf). Default 1e7.
       cell_pressure_kpa (float): cell (confining) pressure, kPa, in (0, inf). Default 10.
       membrane_thickness_mm (float): latex membrane thickness, mm, in (0, inf). Default 5.
-      membrane_modulus_kpa (float): membrane Young's modulus, kPa, in [0, inf); 0 means a membrane without
-        stiffness. Default 1400.
+      membrane_modulus_kpa (float): membrane Young's modulus, kPa, in (0, inf). Default 1400.
       membrane_friction_angle_deg (float): membrane–particle friction angle, degrees, in [0, 90).
         Default 25.
       membrane_edges_per_diameter (float): membrane mesh resolution, edges per particle diameter
         (dimensionless), in (0, inf); the mesh edge is particle diameter / this. Default 5.
+      membrane_bending_factor (float): scale of the membrane's bending rigidity (dimensionless), in
+        [0, inf): 1 the plate's E t³/12(1 − ν²), 0 a pure membrane. Default 1.
       target_axial_strain (float): axial strain at which shearing stops (dimensionless), in (0, 1).
         Default 0.10.
       inertial_number (float): inertial number setting the shear strain rate (dimensionless), in
@@ -223,6 +230,7 @@ class TriaxialConfig:
     membrane_modulus_kpa: float = 1400.0
     membrane_friction_angle_deg: float = 25.0
     membrane_edges_per_diameter: float = 5.0
+    membrane_bending_factor: float = 1.0
     target_axial_strain: float = 0.10
     inertial_number: float = 1.0e-3
     consolidation_tolerance: float = 0.0

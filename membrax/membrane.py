@@ -687,12 +687,17 @@ def total_energy(
     cell_pressure,
     poisson_ratio=0.5,
     model="neo_hookean",
+    bending_factor=1.0,
 ):
-    """Stretching + bending + pressure potential of the membrane, J (see the three terms)."""
+    """Stretching + bending + pressure potential of the membrane, J (see the three terms).
+
+    ``bending_factor`` scales the bending energy: 1 is the plate's E t³/12(1 − ν²), 0 a pure membrane
+    (a mesh with no bending stiffness, which may be what the paper's finite-difference mesh was).
+    """
     corners = _corners(position, mesh)  # gathered once for stretching and volume
     return (
         _stretching_energy_of(corners, mesh, modulus, thickness, model, poisson_ratio)
-        + bending_energy(position, mesh, modulus, thickness, poisson_ratio)
+        + bending_factor * bending_energy(position, mesh, modulus, thickness, poisson_ratio)
         + cell_pressure * _enclosed_volume_of(corners, position, mesh)
     )
 
@@ -705,9 +710,12 @@ def nodal_forces(
     cell_pressure,
     poisson_ratio=0.5,
     model="neo_hookean",
+    bending_factor=1.0,
 ):
     """Conservative nodal forces −∂(total energy)/∂x, (N, 3), N."""
-    return -jax.grad(total_energy)(position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model)
+    return -jax.grad(total_energy)(
+        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model, bending_factor
+    )
 
 
 def lumped_mass(mesh: MembraneMesh, thickness, density=1000.0):

@@ -94,12 +94,15 @@ class MembraneParams:
       thickness: t_m, m (paper: 2.5, 3.33 and 5 mm).
       cell_pressure: p, Pa, on the membrane's outer face.
       contact: the node–sphere contact law.
+      bending_factor: scale of the bending rigidity, dimensionless: 1 the plate's E t³/12(1 − ν²), 0 a pure
+        membrane (:func:`membrax.membrane.total_energy`).
     """
 
     modulus: jnp.ndarray
     thickness: jnp.ndarray
     cell_pressure: jnp.ndarray
     contact: MembraneContactParams
+    bending_factor: jnp.ndarray
 
     @staticmethod
     def create(
@@ -107,8 +110,10 @@ class MembraneParams:
         thickness_mm: float = 2.5,
         cell_pressure_kpa: float = 10.0,
         contact: MembraneContactParams | None = None,
+        bending_factor: float = 1.0,
     ) -> MembraneParams:
         """Parameters from laboratory units (kPa, mm), converted once to SI; defaults are the paper's."""
+        check_range("bending_factor", bending_factor, lower=0.0, hint="1: plate bending; 0: none.")
         check_range("modulus_kpa", modulus_kpa, lower=0.0, lower_open=True, hint="latex: about 1400 kPa.")
         check_range("thickness_mm", thickness_mm, lower=0.0, lower_open=True, hint="paper: 2.5 to 5 mm.")
         check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, hint="paper: 10 to 100 kPa.")
@@ -117,6 +122,7 @@ class MembraneParams:
             thickness=jnp.asarray(1e-3 * thickness_mm),
             cell_pressure=jnp.asarray(1e3 * cell_pressure_kpa),
             contact=MembraneContactParams.default() if contact is None else contact,
+            bending_factor=jnp.asarray(float(bending_factor)),
         )
 
 
@@ -313,7 +319,13 @@ def membrane_dem(
         mp = params.membrane
         contact = contact_forces(state, particles, params, dt)
         internal = membrane_lib.nodal_forces(
-            nodes.position, mesh, mp.modulus, mp.thickness, mp.cell_pressure, model=stretching_model
+            nodes.position,
+            mesh,
+            mp.modulus,
+            mp.thickness,
+            mp.cell_pressure,
+            model=stretching_model,
+            bending_factor=mp.bending_factor,
         )
         node_force = internal + contact.node_force
         reaction = _platen_reaction(node_force, nodes.position, mesh, mp.cell_pressure)
@@ -422,7 +434,13 @@ def membrane_critical_time_step(
 
     def energy(x):
         return membrane_lib.total_energy(
-            x, mesh, params.modulus, params.thickness, params.cell_pressure, model=stretching_model
+            x,
+            mesh,
+            params.modulus,
+            params.thickness,
+            params.cell_pressure,
+            model=stretching_model,
+            bending_factor=params.bending_factor,
         )
 
     hvp = jax.jit(lambda v: jax.grad(lambda x: jnp.vdot(jax.grad(energy)(x), v))(position))

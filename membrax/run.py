@@ -95,6 +95,7 @@ def build_test(config: TriaxialConfig) -> MembraneTest:
         density=config.particle_density_kg_m3,
         edges_per_diameter=config.membrane_edges_per_diameter,
         dt_safety=config.dt_safety,
+        bending_factor=config.membrane_bending_factor,
     )
 
 

@@ -105,9 +105,10 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         particle_stiffness_n_m=3.3e6,
         cell_pressure_kpa=0.1,
         membrane_thickness_mm=10.0 / 3.0,
-        membrane_modulus_kpa=0.0,
+        membrane_modulus_kpa=1e-3,
         membrane_friction_angle_deg=1e-9,
         membrane_edges_per_diameter=2.5,
+        membrane_bending_factor=0.0,
         target_axial_strain=0.15,
         inertial_number=0.1,
         consolidation_tolerance=1e-17,
@@ -140,7 +141,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 24
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 25
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 
@@ -188,7 +189,7 @@ def test_with_overrides_and_parse_overrides():
         (
             "membrane_modulus_kpa",
             -math.inf,
-            "membrane_modulus_kpa = -inf is outside the accepted range [0, inf)",
+            "membrane_modulus_kpa = -inf is outside the accepted range (0, inf)",
         ),
         (
             "friction_angle_deg",

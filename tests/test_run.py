@@ -31,13 +31,14 @@ SMALL = dict(
 
 
 @functools.cache
-def _consolidated(modulus_kpa, thickness_mm=5.0):
+def _consolidated(modulus_kpa, thickness_mm=5.0, bending_factor=1.0):
     specimen = packing.fcc_specimen(0.025, 4, 5)
     test = membrane_test(
         specimen,
         cell_pressure_kpa=10.0,
         membrane_thickness_mm=thickness_mm,
         membrane_modulus_kpa=modulus_kpa,
+        bending_factor=bending_factor,
     )
     state, records = test.consolidate(max_steps=4000, chunk_steps=1000, record_every=100, tolerance=0.01)
     last = {
@@ -132,27 +133,47 @@ def test_a_vanishing_membrane_passes_the_cell_pressure_through_unchanged():
     assert soft_clamps == pytest.approx(specimen.particle_radius / specimen.height, rel=0.5), shares
 
 
+def _table_3_excesses(thickness_mm, bending_factor):
+    """(radial, axial) excess of internal over external stress at the end of consolidation, Pa.
+
+    Radial: what the membrane delivers to the spheres and the clamps together, over the right cylinder's
+    lateral area, minus σc. The paper's internal σ3 counts the spheres only; on this 5-layer specimen the
+    clamps take ~R/H = 13 % of the radial load whatever the membrane (see the vanishing-membrane test),
+    on the paper's 25 layers ~3 %, so the clamps' share is added back to compare signs.
+    """
+    test, state, records, _ = _consolidated(1400.0, thickness_mm, bending_factor)
+    spheres, clamps, _ = _radial_balance(test, state, records)
+    internal_radial = float(records.internal_radial_stress[-1, 0])
+    radial = internal_radial * (spheres + clamps) / spheres - test.cell_pressure
+    axial = float(records.internal_axial_stress[-1, 0] - records.external_axial_stress[-1, 0])
+    return radial, axial
+
+
+def test_a_membrane_without_bending_gives_the_signs_and_thickness_trend_of_table_3():
+    """Paper Table 3 (10 kPa): internal σ3 > σc and internal σ1 > external σ1, both excesses larger at 5 mm
+    than at 2.5 mm (paper: +1.2 → +1.8 kPa radial, +2.9 → +3.9 kPa axial).
+
+    With no bending stiffness (``bending_factor=0``) the membrane sags into the troughs of the FCC faces
+    and is stretched there: its tension pulls the platens together and presses on the sphere rows. The
+    magnitudes on this 4 × 4 × 5 specimen are not the paper's (its specimen is 10 × 25).
+    """
+    excess = {thickness: _table_3_excesses(thickness, 0.0) for thickness in (2.5, 5.0)}
+    assert all(radial > 0 and axial > 0 for radial, axial in excess.values()), excess
+    assert excess[5.0][0] > excess[2.5][0] and excess[5.0][1] > excess[2.5][1], excess
+
+
 @pytest.mark.xfail(
     strict=True,
     reason=(
-        "Open (issue 5): the paper's Table 3 signs are not reproduced. On this 4 × 4 × 5 specimen the "
-        "membrane ends consolidation in hoop compression (it sags into the troughs of the FCC flat faces, "
-        "whose alternate layers are recessed by R), so internal σ3 < σc (−2.2 kPa at 5 mm, −1.8 at 2.5 mm); "
-        "internal σ1 − external σ1 is +2.7 kPa at 2.5 mm and −0.7 at 5 mm. The paper: +1.2/+1.8 kPa radial, "
-        "+2.9/+3.9 kPa axial, growing with thickness."
+        "Open (issue 5): with plate bending (E t³/12(1 − ν²), the default) a 5 mm membrane spans the FCC "
+        "faces' troughs stiffly, indents half as far and ends consolidation in hoop compression: on 4 × 4 × 5"
+        " internal σ1 − external σ1 = −0.7 kPa, and σ3 with the clamps' share ≈ −1 kPa. Table 3's signs "
+        "need bending_factor = 0 (previous test)."
     ),
 )
-def test_end_of_consolidation_has_the_signs_and_thickness_trend_of_table_3():
-    """Paper Table 3 (10 kPa): internal σ3 > σc, internal σ1 > external σ1, both excesses larger at 5 mm
-    than at 2.5 mm."""
-    excess = {}
-    for thickness in (2.5, 5.0):
-        _, _, records, _ = _consolidated(1400.0, thickness)
-        radial = float(records.internal_radial_stress[-1, 0]) - 1e4
-        axial = float(records.internal_axial_stress[-1, 0] - records.external_axial_stress[-1, 0])
-        excess[thickness] = (radial, axial)
-    assert all(radial > 0 and axial > 0 for radial, axial in excess.values()), excess
-    assert excess[5.0][0] > excess[2.5][0] and excess[5.0][1] > excess[2.5][1], excess
+def test_a_membrane_with_plate_bending_gives_the_signs_of_table_3():
+    radial, axial = _table_3_excesses(5.0, 1.0)
+    assert radial > 0 and axial > 0, (radial, axial)
 
 
 def _compare(a, b):
