@@ -11,7 +11,8 @@ and writes into ``--out`` (default ``results/membrane_consolidation``):
 - ``state.npz``: the final positions, so the pictures can be redrawn with ``--redraw``.
 
 Run: ``python examples/membrane_consolidation.py [--cell-pressure-kpa 10] [--thickness-mm 5]
-[--max-steps 12000]`` (float32, about 25 steps/s on 2 CPU cores: ~10 min for 12,000 steps).
+[--max-steps 12000]`` (float32 on 2 CPU cores: 4,000 steps to a UFR of 0.013 in 87 s at 46 steps/s while
+another run shared the cores; 85 steps/s alone, ``benchmarks/bench_membrane.py``).
 """
 
 import argparse
