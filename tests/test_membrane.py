@@ -327,6 +327,11 @@ def test_parameter_gradients_match_central_differences():
     for k in range(3):
         np.testing.assert_allclose(float(grads[k]), central_difference(energy, params, k), rtol=1e-6)
     np.testing.assert_allclose(float(grads[2]), float(membrane.enclosed_volume(position, mesh)), rtol=1e-12)
+    # The energy is linear in the bending factor, with slope the plate bending energy.
+    by_factor = jax.grad(lambda factor: membrane.total_energy(position, mesh, *params, bending_factor=factor))
+    np.testing.assert_allclose(
+        float(by_factor(0.3)), float(membrane.bending_energy(position, mesh, *params[:2])), rtol=1e-12
+    )
 
     # volume gradient w.r.t. positions along a random direction
     direction = jax.random.normal(jax.random.PRNGKey(2), position.shape)
