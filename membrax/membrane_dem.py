@@ -110,7 +110,7 @@ class MembraneParams:
         thickness_mm: float = 2.5,
         cell_pressure_kpa: float = 10.0,
         contact: MembraneContactParams | None = None,
-        bending_factor: float = 1.0,
+        bending_factor: float = 0.0,
     ) -> MembraneParams:
         """Parameters from laboratory units (kPa, mm), converted once to SI; defaults are the paper's."""
         check_range("bending_factor", bending_factor, lower=0.0, hint="1: plate bending; 0: none.")

@@ -108,7 +108,7 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         membrane_modulus_kpa=1e-3,
         membrane_friction_angle_deg=1e-9,
         membrane_edges_per_diameter=2.5,
-        membrane_bending_factor=0.0,
+        membrane_bending_factor=0.5,
         target_axial_strain=0.15,
         inertial_number=0.1,
         consolidation_tolerance=1e-17,

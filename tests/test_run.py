@@ -149,13 +149,13 @@ def _table_3_excesses(thickness_mm, bending_factor):
     return radial, axial
 
 
-def test_a_membrane_without_bending_gives_the_signs_and_thickness_trend_of_table_3():
+def test_the_default_membrane_without_bending_gives_the_signs_and_thickness_trend_of_table_3():
     """Paper Table 3 (10 kPa): internal σ3 > σc and internal σ1 > external σ1, both excesses larger at 5 mm
     than at 2.5 mm (paper: +1.2 → +1.8 kPa radial, +2.9 → +3.9 kPa axial).
 
-    With no bending stiffness (``bending_factor=0``) the membrane sags into the troughs of the FCC faces
-    and is stretched there: its tension pulls the platens together and presses on the sphere rows. The
-    magnitudes on this 4 × 4 × 5 specimen are not the paper's (its specimen is 10 × 25).
+    With no bending stiffness (``bending_factor=0``, the default) the membrane sags into the troughs of the
+    FCC faces and is stretched there: its tension pulls the platens together and presses on the sphere
+    rows. The magnitudes on this 4 × 4 × 5 specimen are not the paper's (its specimen is 10 × 25).
     """
     excess = {thickness: _table_3_excesses(thickness, 0.0) for thickness in (2.5, 5.0)}
     assert all(radial > 0 and axial > 0 for radial, axial in excess.values()), excess
