@@ -167,7 +167,7 @@ def test_the_default_membrane_without_bending_gives_the_signs_and_thickness_tren
     reason=(
         "With plate bending (E t³/12(1 − ν²), bending_factor = 1) a 5 mm membrane spans the FCC "
         "faces' troughs stiffly, indents half as far and ends consolidation in hoop compression: on 4 × 4 × 5"
-        " internal σ1 − external σ1 = −0.7 kPa, and σ3 with the clamps' share ≈ −1 kPa. Table 3's signs "
+        " internal σ1 − external σ1 = −0.7 kPa, and σ3 with the clamps' share −1.2 kPa. Table 3's signs "
         "need bending_factor = 0 (previous test)."
     ),
 )
