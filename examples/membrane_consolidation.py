@@ -11,8 +11,8 @@ and writes into ``--out`` (default ``results/membrane_consolidation``):
 - ``state.npz``: the final positions, so the pictures can be redrawn with ``--redraw``.
 
 Run: ``python examples/membrane_consolidation.py [--cell-pressure-kpa 10] [--thickness-mm 5]
-[--max-steps 12000]`` (float32 on 2 CPU cores: 4,000 steps to a UFR of 0.013 in 87 s at 46 steps/s while
-another run shared the cores; 85 steps/s alone, ``benchmarks/bench_membrane.py``).
+[--max-steps 12000]`` (float32 on 2 idle CPU cores: 3,000 steps to a UFR of 0.010 at 71 steps/s, 80 s wall
+with the build).
 """
 
 import argparse
