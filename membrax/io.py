@@ -657,6 +657,16 @@ def write_results(dataset, folder, stem: str = "results", time_dim: str | None =
     return paths
 
 
+def _existing_file(path, what: str, missing_hint: str, inside: str) -> Path:
+    """``path`` as a Path, or FileNotFoundError (missing) / ValueError (a directory) naming ``what``."""
+    path = Path(os.fspath(path))
+    if not path.exists():
+        raise FileNotFoundError(f"{what} '{path}' does not exist; {missing_hint}.")
+    if path.is_dir():
+        raise ValueError(f"{what} path '{path}' is a directory; pass {inside} inside it.")
+    return path
+
+
 def read_results(path) -> xr.Dataset:
     """Read a ``.nc`` written by :func:`write_results`, loaded into memory, the file closed.
 
@@ -666,13 +676,9 @@ def read_results(path) -> xr.Dataset:
       FileNotFoundError: if ``path`` does not exist.
       ValueError: if ``path`` is not a NetCDF3 file.
     """
-    path = Path(os.fspath(path))
-    if not path.exists():
-        raise FileNotFoundError(
-            f"results file '{path}' does not exist; pass the {{stem}}.nc that write_results wrote."
-        )
-    if path.is_dir():
-        raise ValueError(f"'{path}' is a directory; pass the {{stem}}.nc file inside it.")
+    path = _existing_file(
+        path, "results file", "pass the {stem}.nc that write_results wrote", "the {stem}.nc file"
+    )
     data = path.read_bytes()
     try:
         with xr.open_dataset(
@@ -1098,13 +1104,9 @@ def load_checkpoint(path, like):
       ValueError: if ``path`` is not a checkpoint or is damaged, or its leaf count, a shape or a dtype
         differs from ``like`` (naming the first mismatching leaf by its key path).
     """
-    path = Path(os.fspath(path))
-    if not path.exists():
-        raise FileNotFoundError(
-            f"checkpoint '{path}' does not exist; check the path, or start a fresh run without resuming."
-        )
-    if path.is_dir():
-        raise ValueError(f"checkpoint path '{path}' is a directory; pass the checkpoint file inside it.")
+    path = _existing_file(
+        path, "checkpoint", "check the path, or start a fresh run without resuming", "the checkpoint file"
+    )
     entries = _read_checkpoint_entries(path)
     damaged = f"checkpoint '{path}' is damaged"
     fix = "delete it and resume from an earlier checkpoint, or start a fresh run"

@@ -369,6 +369,22 @@ def plot_additional_stresses(records, derived=None) -> Figure:
     return figure
 
 
+def _ratio_with_twin(figure, strain_pct, ratio, ratio_style, other, other_style, title) -> Figure:
+    """Draw a stress ratio on the figure's axes and ``other`` on a twin right axis (Figs 7 and 8).
+
+    Each style is (colour, legend label, axis label).
+    """
+    ax = figure.axes[0]
+    ax.plot(strain_pct, ratio, color=ratio_style[0], label=ratio_style[1])
+    ax.set_ylabel(ratio_style[2])
+    twin = ax.twinx()
+    twin.plot(strain_pct, other, color=other_style[0], label=other_style[1])
+    twin.set_ylabel(other_style[2])
+    ax.set_title(title)
+    _twin_legend(ax, twin)
+    return figure
+
+
 def plot_axial_ratio_and_strain_ratio(records, derived=None) -> Figure:
     """Axial stress ratio internal/external and change in strain ratio dε_r/dε_a (paper's Fig. 7).
 
@@ -383,20 +399,16 @@ def plot_axial_ratio_and_strain_ratio(records, derived=None) -> Figure:
     Returns:
       The Figure.
     """
-    figure, ax, strain_pct, derived = _test_figure(records, derived)
-    ax.plot(strain_pct, derived["axial_stress_ratio"], color="tab:blue", label="Axial stress ratio")
-    ax.set_ylabel("Axial stress ratio, internal/external")
-    twin = ax.twinx()
-    twin.plot(
+    figure, _, strain_pct, derived = _test_figure(records, derived)
+    return _ratio_with_twin(
+        figure,
         strain_pct,
+        derived["axial_stress_ratio"],
+        ("tab:blue", "Axial stress ratio", "Axial stress ratio, internal/external"),
         derived["strain_ratio_change"],
-        color="tab:orange",
-        label="Change in strain ratio dεr/dεa",
+        ("tab:orange", "Change in strain ratio dεr/dεa", "Change in strain ratio dεr/dεa"),
+        "Axial stress ratio and change in strain ratio",
     )
-    twin.set_ylabel("Change in strain ratio dεr/dεa")
-    ax.set_title("Axial stress ratio and change in strain ratio")
-    _twin_legend(ax, twin)
-    return figure
 
 
 def plot_radial_ratio_and_radial_strain(records, derived=None) -> Figure:
@@ -412,20 +424,16 @@ def plot_radial_ratio_and_radial_strain(records, derived=None) -> Figure:
     Returns:
       The Figure.
     """
-    figure, ax, strain_pct, derived = _test_figure(records, derived)
-    ax.plot(strain_pct, derived["radial_stress_ratio"], color="tab:green", label="Radial stress ratio")
-    ax.set_ylabel("Radial stress ratio, internal/external")
-    twin = ax.twinx()
-    twin.plot(
+    figure, _, strain_pct, derived = _test_figure(records, derived)
+    return _ratio_with_twin(
+        figure,
         strain_pct,
+        derived["radial_stress_ratio"],
+        ("tab:green", "Radial stress ratio", "Radial stress ratio, internal/external"),
         analysis.record(records, "radial_strain") * PERCENT,
-        color="tab:brown",
-        label="Radial strain εr",
+        ("tab:brown", "Radial strain εr", "Radial strain εr (%, compression +)"),
+        "Radial stress ratio and radial strain",
     )
-    twin.set_ylabel("Radial strain εr (%, compression +)")
-    ax.set_title("Radial stress ratio and radial strain")
-    _twin_legend(ax, twin)
-    return figure
 
 
 #: File names of :func:`save_test_figures` after the stem, with the function drawing each.
