@@ -76,7 +76,8 @@ RECORD_NAMES = (
 #: axial strain", so the peak strains are left out); Table 3: initial σ3 external 10, internal 11.8 kPa,
 #: σ1 external 10.7, internal 14.6 kPa; Fig. 5 and §5.2: beyond about 3 % axial strain the external φ'
 #: exceeds the internal one "by up to 4°" (the strain of that largest difference is not stated; Fig. 6
-#: puts the second strength peak at 6 %).
+#: puts the second strength peak at 6 %). The Table 2 and 3 numbers are those of
+#: ``membrax.paper.PAPER_TABLE_2`` and ``PAPER_TABLE_3`` at (10.0, 5.0); tests/test_paper.py checks it.
 PAPER_10KPA_5MM = {
     "sigma3_external_kpa": 10.0,
     "sigma3_internal_kpa": 11.8,

@@ -10,6 +10,11 @@ Sub-commands:
            (:data:`DEMO_CONFIG`), written to ``results_demo/`` (:mod:`membrax.run`)
   run      ``membrax run config.toml [--out DIR] [--set key=value] [--resume]``: the test of a TOML
            configuration (:mod:`membrax.config`) into a results folder
+  sweep    ``membrax sweep config.toml --grid cell_pressure_kpa=10,40,100 --grid membrane_thickness_mm=2.5,5
+           [--out DIR] [--set key=value] [--resume] [--devices N]``: the grid as one batched compiled
+           simulation (:mod:`membrax.sweep`)
+  reproduce ``membrax reproduce [--size small|paper]``: the paper's Table 1, then its Tables 2–3 and
+           Figs 5–9 (:mod:`membrax.reproduce`)
 """
 
 from __future__ import annotations
@@ -219,6 +224,48 @@ def _run(args: argparse.Namespace) -> int:
     return _run_config(config, out, args.resume, not args.no_progress)
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from membrax.config import ConfigError, load_config, parse_overrides, with_overrides
+    from membrax.run import RunError
+    from membrax.sweep import parse_grid, run_sweep
+
+    try:
+        config = load_config(args.config)
+        if args.set:
+            config = with_overrides(config, **parse_overrides(args.set))
+        grid = parse_grid(args.grid) if args.grid else None
+        result = run_sweep(
+            config,
+            grid,
+            args.out if args.out is not None else f"results_{config.name}_sweep",
+            resume=args.resume,
+            progress=not args.no_progress,
+            num_devices=args.devices,
+        )
+    except (ConfigError, FileNotFoundError, ValueError, RunError) as error:
+        print(f"membrax: {error}", file=sys.stderr)
+        return 2
+    print((result.folder / "summary.csv").read_text())
+    print(f"{result.seconds:.0f} s; results in {result.folder}: " + ", ".join(sorted(result.files)))
+    return 0
+
+
+def _reproduce(args: argparse.Namespace) -> int:
+    from membrax.reproduce import reproduce
+    from membrax.run import RunError
+
+    try:
+        done = reproduce(
+            args.size, args.out, resume=args.resume, progress=not args.no_progress, num_devices=args.devices
+        )
+    except (ValueError, RunError) as error:
+        print(f"membrax: {error}", file=sys.stderr)
+        return 2
+    print(done["files"]["report"].read_text())
+    print(f"results in {done['folder']}")
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from membrax.config import TriaxialConfig
 
@@ -244,11 +291,39 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration field"
     )
-    for command in (demo, run):
+    sweep = commands.add_parser("sweep", help="a grid of tests as one batched compiled simulation")
+    sweep.add_argument("config", help="TOML configuration file: the base of every member")
+    sweep.add_argument(
+        "--grid",
+        action="append",
+        default=[],
+        metavar="FIELD=V1,V2,...",
+        help="a field and its values (repeat per field; default the paper's Table 1: "
+        "cell_pressure_kpa=10,40,100 and membrane_thickness_mm=2.5,3.33,5)",
+    )
+    sweep.add_argument("--out", default=None, help="results folder (default: results_<name>_sweep)")
+    sweep.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a base configuration field"
+    )
+    reproduce = commands.add_parser(
+        "reproduce", help="the paper's Table 1 sweep, then its Tables 2–3 and Figs 5–9"
+    )
+    reproduce.add_argument(
+        "--size",
+        choices=("small", "paper"),
+        default="small",
+        help="small: 6 × 10 specimen, within 15 min on 2 CPU cores; paper: 10 × 25 (for a GPU)",
+    )
+    reproduce.add_argument("--out", default=None, help="results folder (default: results_reproduce_<size>)")
+    for command in (sweep, reproduce):
+        command.add_argument("--devices", type=int, default=None, help="devices to shard over (default all)")
+    for command in (demo, run, sweep, reproduce):
         command.add_argument("--resume", action="store_true", help="continue from the folder's checkpoint")
         command.add_argument("--no-progress", action="store_true", help="no progress bar")
     demo.set_defaults(func=_demo)
     run.set_defaults(func=_run)
+    sweep.set_defaults(func=_sweep)
+    reproduce.set_defaults(func=_reproduce)
     return parser
 
 

@@ -107,6 +107,7 @@ __all__ = [
     "records_to_dataset",
     "dataset_attrs_to_python",
     "write_results",
+    "write_netcdf",
     "read_results",
     "VTKSeries",
     "read_pvd",
@@ -655,6 +656,24 @@ def write_results(dataset, folder, stem: str = "results", time_dim: str | None =
     _atomic_write_bytes(paths["nc"], netcdf)
     _atomic_write_bytes(paths["csv"], text)
     return paths
+
+
+def write_netcdf(dataset, path) -> Path:
+    """Write an :class:`xarray.Dataset` of any dimensions to one NetCDF3 file (scipy engine), atomically.
+
+    The multi-dimensional sibling of :func:`write_results` (no CSV: a grid of runs does not flatten into one
+    table); read it back with :func:`read_results`. Returns the path.
+    """
+    if not isinstance(dataset, xr.Dataset):
+        raise ValueError(f"dataset is a {type(dataset).__name__}; pass an xarray.Dataset.")
+    path = Path(os.fspath(path))
+    if path.is_dir():
+        raise ValueError(f"NetCDF path '{path}' is a directory; give a file name such as 'sweep.nc'.")
+    _ensure_folder(path.parent, "the folder of the NetCDF path")
+    dataset = dataset.copy(deep=False)
+    dataset.attrs = _storable_attrs(dataset.attrs)
+    _atomic_write_bytes(path, _netcdf_bytes(dataset))
+    return path
 
 
 def _existing_file(path, what: str, missing_hint: str, inside: str) -> Path:

@@ -29,7 +29,10 @@ right-cylinder deformation, A = A₀ (1 − ε_v)/(1 − ε_a):
   F_r = −Σ_i F_i · r̂_i (r̂_i the horizontal unit vector from the specimen axis to sphere i; the axis is
   the centroid of the clamped bottom ring), over the lateral area of the right cylinder of cross-section
   A, 2 √(π A) H. (For a regular octagon under uniform pressure the cylinder of equal area has a lateral
-  area within 0.11 % of ∮ n·r̂ ds H, so the octagonal specimen needs no shape factor.)
+  area within 0.11 % of ∮ n·r̂ ds H, so the octagonal specimen needs no shape factor.) The inward radial
+  force the clamped rings take (``clamp_radial_force``, −Σ F·r̂ over the ring nodes' total forces) is
+  recorded beside it: the strip between a clamp and the first sphere row passes about R/H of the
+  membrane's radial load to the platens, which the paper's internal σ3 does not count.
 - Love–Weber, with the membrane's node contacts as boundary contacts (force of the sphere on the node,
   arm b = x_node − x_sphere).
 """
@@ -256,6 +259,7 @@ class MembraneMeasurements:
     platen_area: jnp.ndarray
     ram_force: jnp.ndarray
     membrane_radial_force: jnp.ndarray
+    clamp_radial_force: jnp.ndarray
     external_axial_stress: jnp.ndarray
     external_radial_stress: jnp.ndarray
     internal_axial_stress: jnp.ndarray
@@ -321,6 +325,12 @@ def measure_coupled(
     radial_force = jnp.reshape(
         membrane_radial_force(contact.sphere_force, spheres.position, nodes.clamp_position[0]), (1,)
     )
+    rings = jnp.concatenate([mesh.bottom_ring, mesh.top_ring])
+    # The membrane's radial load that the clamped rings pass to the platens (the strip between a ring and
+    # the first sphere row): about R/H of the whole on short specimens, not counted as internal σ3.
+    clamp_force = -jnp.sum(
+        radial_components(nodes.node_force[rings], nodes.position[rings], nodes.clamp_position[0])
+    )
     lateral_area = 2.0 * jnp.sqrt(jnp.pi * area) * height
     return MembraneMeasurements(
         step=jnp.reshape(spheres.step, (1,)),
@@ -344,6 +354,7 @@ def measure_coupled(
         platen_area=area,
         ram_force=ram,
         membrane_radial_force=radial_force,
+        clamp_radial_force=jnp.reshape(clamp_force, (1,)),
         external_axial_stress=ram / area,
         external_radial_stress=jnp.reshape(mp.cell_pressure, (1,)).astype(height.dtype),
         internal_axial_stress=sphere_platen / area,

@@ -226,11 +226,21 @@ def _ring_levels(height: float, target_edge_length: float, z_bottom: float) -> n
     return z_bottom + height * np.arange(intervals + 1) / intervals
 
 
-def _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype) -> MembraneMesh:
-    """Band around a closed curve ``point_at(s)`` (s ∈ [0, 1), counter-clockwise) of length ``perimeter``."""
+def _band_mesh(
+    point_at, perimeter, height, target_edge_length, z_bottom, dtype, num_around=None
+) -> MembraneMesh:
+    """Band around a closed curve ``point_at(s)`` (s ∈ [0, 1), counter-clockwise) of length ``perimeter``.
+
+    ``num_around`` (default round(perimeter / target)) fixes n_θ, e.g. to give meshes of several thicknesses
+    one topology (:mod:`membrax.sweep`).
+    """
     check_range("height", height, lower=0.0, lower_open=True)
     check_range("target_edge_length", target_edge_length, lower=0.0, lower_open=True)
-    num_around = max(3, round(perimeter / target_edge_length))
+    if num_around is None:
+        num_around = max(3, round(perimeter / target_edge_length))
+    elif int(num_around) != num_around or num_around < 3:
+        raise ValueError(f"num_around must be an integer >= 3 (nodes per ring), got {num_around!r}.")
+    num_around = int(num_around)
     levels = _ring_levels(height, target_edge_length, z_bottom)
     rings = []
     for j, z in enumerate(levels):
@@ -337,6 +347,7 @@ def prism_mesh(
     z_bottom: float = 0.0,
     dtype=None,
     corner_radius: float | None = None,
+    num_around: int | None = None,
 ) -> MembraneMesh:
     """Band around a polygonal (e.g. octagonal) prism, its mid-surface ``offset`` outside the outline.
 
@@ -355,11 +366,13 @@ def prism_mesh(
       dtype: float dtype of the arrays (default: JAX's default float).
       corner_radius: round the corners about the outline moved inward by this much (the particle radius
         for a specimen's outline), m, >= 0; None for mitred corners.
+      num_around: n_θ, nodes per ring (default round(P/target)); fixing it gives meshes at several offsets
+        (membrane thicknesses) the same topology, for batching.
     """
     check_range("offset", offset, lower=0.0)
     if corner_radius is not None:
         point_at, perimeter = rounded_offset_path(outline_vertices, offset, corner_radius)
-        return _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype)
+        return _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype, num_around)
     polygon = offset_polygon(outline_vertices, offset)
     side = np.linalg.norm(np.roll(polygon, -1, axis=0) - polygon, axis=1)
     start = np.concatenate([[0.0], np.cumsum(side)])
@@ -371,7 +384,7 @@ def prism_mesh(
         fraction = (arc - start[k]) / side[k]
         return polygon[k] + fraction[:, None] * (np.roll(polygon, -1, axis=0)[k] - polygon[k])
 
-    return _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype)
+    return _band_mesh(point_at, perimeter, height, target_edge_length, z_bottom, dtype, num_around)
 
 
 def flat_mesh(width: float, length: float, target_edge_length: float, dtype=None) -> MembraneMesh:

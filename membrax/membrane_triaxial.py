@@ -84,6 +84,11 @@ class MembraneTest:
     initial_volume: float
     platen_area: float
     density: float
+    #: ``make_step(mesh) -> step_fn``: the coupled step around another mesh of the same topology (a traced
+    #: one, e.g. another thickness's rest geometry inside a batch, :mod:`membrax.sweep`).
+    make_step: object = None
+    #: ``make_record(mesh, initial_volume) -> record_fn(state, params)``: the measurements around such a mesh.
+    make_record: object = None
 
     @property
     def cell_pressure(self) -> float:
@@ -243,6 +248,7 @@ def membrane_test(
     max_wall_speed: float | None = None,
     time_step: float | None = None,
     bending_factor: float = 0.0,
+    nodes_around: int | None = None,
 ) -> MembraneTest:
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
 
@@ -269,6 +275,8 @@ def membrane_test(
         it ends consolidation with σ3 ext/int 10/10.7 and σ1 10.5/13.8 kPa (paper: 10/11.8, 10.7/14.6),
         where plate bending gives 10/9.7 and 10.2/10.2 (the membrane spans the FCC faces' troughs stiffly
         and ends in hoop compression).
+      nodes_around: n_θ, membrane nodes per ring (default: perimeter / edge length); a batch over thickness
+        fixes it so that all its meshes share one topology (:mod:`membrax.sweep`).
     """
     check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, lower_open=True, hint="paper: 10–100 kPa.")
     check_range("edges_per_diameter", edges_per_diameter, lower=0.0, lower_open=True)
@@ -301,6 +309,7 @@ def membrane_test(
         # Rounded about the outer spheres: a mitred band leaves the corners unsupported, and cell pressure
         # closing those gaps shortens the perimeter by ~1 %, i.e. hoop compression instead of tension.
         corner_radius=0.5 * diameter,
+        num_around=nodes_around,
     )
     dem_init, _ = dem(particles, frame, 1.0)
     critical = {"dem": critical_time_step(dem_init(position, walls, neighbors), particles, params.dem)}
@@ -312,6 +321,20 @@ def membrane_test(
     walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
     platen_area = float(specimen.cross_section_area)
     subset = np.flatnonzero(np.asarray(specimen.is_lateral_boundary))
+
+    def make_step(member_mesh):
+        return membrane_dem(
+            particles, frame, member_mesh, dt, platen_area, sphere_subset=subset, latex_density=latex_density
+        )[1]
+
+    def make_record(member_mesh, member_volume):
+        def record(s, p):
+            return measure_lib.measure_coupled(
+                s, particles, member_mesh, p, dt, height, member_volume, platen_area
+            )
+
+        return record
+
     init_fn, step_fn = membrane_dem(
         particles, frame, mesh, dt, platen_area, sphere_subset=subset, latex_density=latex_density
     )
@@ -321,8 +344,7 @@ def membrane_test(
     height = float(specimen.height)
     volume = float(membrane_lib.inner_volume(state.membrane.position, mesh, thickness))
 
-    def record(s, p):
-        return measure_lib.measure_coupled(s, particles, mesh, p, dt, height, volume, platen_area)
+    record = make_record(mesh, volume)
 
     def grow(s, overflowed):
         old = s.membrane.candidates
@@ -344,4 +366,6 @@ def membrane_test(
         initial_volume=volume,
         density=float(density),
         platen_area=platen_area,
+        make_step=make_step,
+        make_record=make_record,
     )

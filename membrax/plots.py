@@ -29,6 +29,12 @@ of a membrane triaxial test (the mapping described in :mod:`membrax.analysis`) a
 (nothing to close, no global state). The x axis is the axial strain in %, stresses are shown in kPa, angles
 in degrees; each data series is one line, in the order the docstring lists. :func:`save_test_figures`
 writes all four as PNG files.
+
+Fig. 9 of the paper. :func:`plot_fig9` draws the per-thickness numbers of
+:func:`membrax.paper.fig9_data` (and optionally :func:`membrax.paper.paper_fig9_data`) against the cell
+pressure on a log axis: the Molenkamp & Luger indentation ratio on the left axis, the negative of the
+relative initial axial stress ratio on a twin right axis, ours with open markers and the paper's with
+filled ones; :func:`save_fig9` writes it as ``fig9_indentation.png``.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ import numpy as np
 from matplotlib.collections import PatchCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
+from matplotlib.ticker import NullFormatter
 
 from membrax import analysis
 
@@ -51,6 +58,8 @@ __all__ = [
     "plot_axial_ratio_and_strain_ratio",
     "plot_radial_ratio_and_radial_strain",
     "save_test_figures",
+    "plot_fig9",
+    "save_fig9",
 ]
 
 MM_PER_M = 1e3
@@ -475,3 +484,109 @@ def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> lis
         figure.clear()
         paths.append(path)
     return paths
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The paper's Fig. 9: indentation ratio and initial axial stress ratio against cell pressure
+# ---------------------------------------------------------------------------------------------------------
+
+#: Colours of the membrane thicknesses of :func:`plot_fig9`, in increasing thickness (cycled).
+FIG9_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple")
+
+
+def plot_fig9(data, paper=None) -> Figure:
+    """Indentation ratio and −relative initial axial stress ratio against cell pressure (paper's Fig. 9).
+
+    Lines, one per thickness of ``data`` in increasing thickness (k = 0, 1, …), one colour per thickness:
+    ``figure.axes[0].lines[k]`` the indentation ratio α/D (left axis, solid, small dots);
+    ``figure.axes[1].lines[k]`` our −(σ1,int/σ1,ext − 1) (twin right axis, dashed, open circles); with
+    ``paper``, ``figure.axes[1].lines[n + k]`` (n thicknesses in ``data``) the paper's, for the thicknesses
+    of ``paper`` in increasing order (dotted, filled circles). Each line has one point per cell pressure.
+    The pressure axis is logarithmic, ticked at the pressures drawn.
+
+    Args:
+      data: ``{thickness_mm: {"cell_pressure_kpa", "indentation_ratio",
+        "negative_relative_axial_stress_ratio", ...}}`` as :func:`membrax.paper.fig9_data` returns.
+      paper: the same structure for the paper's values (:func:`membrax.paper.paper_fig9_data`), optional;
+        only its stress ratio is drawn (its indentation ratio is the same theory).
+
+    Returns:
+      The Figure.
+    """
+    figure = Figure(figsize=(7.0, 5.2), layout="constrained")
+    ax = figure.add_subplot()
+    twin = ax.twinx()
+    thicknesses = sorted(data)
+    color = {t: FIG9_COLORS[k % len(FIG9_COLORS)] for k, t in enumerate(thicknesses)}
+    pressures = set()
+    for thickness in thicknesses:
+        series = data[thickness]
+        pressure = np.asarray(series["cell_pressure_kpa"], dtype=np.float64)
+        pressures.update(pressure.tolist())
+        ax.plot(
+            pressure,
+            np.asarray(series["indentation_ratio"], dtype=np.float64),
+            color=color[thickness],
+            marker=".",
+            label=f"α/D, t_m = {thickness:.3g} mm",
+        )
+    for thickness in thicknesses:
+        series = data[thickness]
+        twin.plot(
+            np.asarray(series["cell_pressure_kpa"], dtype=np.float64),
+            np.asarray(series["negative_relative_axial_stress_ratio"], dtype=np.float64),
+            color=color[thickness],
+            linestyle="--",
+            marker="o",
+            markerfacecolor="none",
+            label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, membrax",
+        )
+    if paper is not None:
+        for k, thickness in enumerate(sorted(paper)):
+            series = paper[thickness]
+            pressure = np.asarray(series["cell_pressure_kpa"], dtype=np.float64)
+            pressures.update(pressure.tolist())
+            twin.plot(
+                pressure,
+                np.asarray(series["negative_relative_axial_stress_ratio"], dtype=np.float64),
+                color=color.get(thickness, FIG9_COLORS[k % len(FIG9_COLORS)]),
+                linestyle=":",
+                marker="o",
+                label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, paper",
+            )
+    ax.set_xscale("log")
+    ticks = sorted(pressures)
+    ax.set_xticks(ticks, labels=[f"{p:g}" for p in ticks])
+    ax.xaxis.set_minor_formatter(NullFormatter())
+    ax.set_xlabel("Cell pressure σc (kPa)")
+    ax.set_ylabel("Indentation ratio α/D (Molenkamp & Luger, Eq. 2)")
+    twin.set_ylabel("−relative initial axial stress ratio, 1 − σ1,int/σ1,ext")
+    ax.grid(True, linewidth=0.5, alpha=0.5)
+    ax.set_title("Indentation ratio and initial axial stress ratio (Fig. 9)")
+    handles, labels = ax.get_legend_handles_labels()
+    more_handles, more_labels = twin.get_legend_handles_labels()
+    figure.legend(
+        handles + more_handles, labels + more_labels, loc="outside lower center", ncols=2, fontsize=7
+    )
+    return figure
+
+
+def save_fig9(data, folder, paper=None, dpi=120) -> Path:
+    """Write :func:`plot_fig9` of ``data`` (and ``paper``) as ``fig9_indentation.png`` in ``folder``.
+
+    Args:
+      data: :func:`membrax.paper.fig9_data` of our results.
+      folder: output directory (created if missing).
+      paper: :func:`membrax.paper.paper_fig9_data`, optional.
+      dpi: resolution of the PNG file.
+
+    Returns:
+      The path written.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    figure = plot_fig9(data, paper)
+    path = folder / "fig9_indentation.png"
+    figure.savefig(path, dpi=dpi)
+    figure.clear()
+    return path

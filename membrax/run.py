@@ -50,7 +50,16 @@ from membrax.membrane_dem import grow_candidates
 from membrax.membrane_triaxial import MembraneTest, membrane_test
 from membrax.packing import fcc_specimen
 
-__all__ = ["RUNAWAY_KINETIC_FRACTION", "RunError", "RunResult", "build_test", "run_test"]
+__all__ = [
+    "RUNAWAY_KINETIC_FRACTION",
+    "RunError",
+    "RunResult",
+    "build_test",
+    "consolidation_tolerance",
+    "results_datasets",
+    "run_metadata",
+    "run_test",
+]
 
 #: Kinetic energy above this fraction of σc V₀ stops the run (a quasi-static test stays below 1e-4).
 RUNAWAY_KINETIC_FRACTION = 0.05
@@ -76,8 +85,14 @@ class RunResult:
     metadata: dict
 
 
-def build_test(config: TriaxialConfig) -> MembraneTest:
-    """The membrane test of a configuration (specimen, membrane, platens; nothing compiled yet)."""
+def build_test(
+    config: TriaxialConfig, time_step: float | None = None, nodes_around: int | None = None
+) -> MembraneTest:
+    """The membrane test of a configuration (specimen, membrane, platens; nothing compiled yet).
+
+    ``time_step`` (s) and ``nodes_around`` (membrane nodes per ring) override the test's own choices, as a
+    batch does (:mod:`membrax.sweep`: one Δt and one mesh topology for all its members).
+    """
     specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
     contact = ContactParams.paper(
         friction_angle_deg=config.friction_angle_deg,
@@ -96,7 +111,20 @@ def build_test(config: TriaxialConfig) -> MembraneTest:
         edges_per_diameter=config.membrane_edges_per_diameter,
         dt_safety=config.dt_safety,
         bending_factor=config.membrane_bending_factor,
+        time_step=time_step,
+        nodes_around=nodes_around,
     )
+
+
+def consolidation_tolerance(config: TriaxialConfig) -> float:
+    """The unbalanced-force ratio that ends consolidation.
+
+    The configuration's, else 2e-3 in float64 or 2e-2 in float32 (whose floor with the membrane is ~1e-2).
+    """
+    tolerance = config.consolidation_tolerance_or_none
+    if tolerance is None:
+        tolerance = 2e-3 if config.float64 else 2e-2
+    return tolerance
 
 
 def _records_dict(records) -> dict:
@@ -186,6 +214,8 @@ def run_test(
     resume: bool = False,
     progress: bool = True,
     interrupt_after_chunks: int | None = None,
+    time_step: float | None = None,
+    nodes_around: int | None = None,
 ) -> RunResult:
     """Run the test of ``config`` into ``folder`` (module docstring).
 
@@ -196,6 +226,8 @@ def run_test(
       progress: show a tqdm progress bar.
       interrupt_after_chunks: testing aid: raise ``KeyboardInterrupt`` after this many chunks of this call
         (after any checkpoint of that chunk), as a killed process would stop.
+      time_step: Δt, s, overriding the test's own (as a sweep's common Δt, :mod:`membrax.sweep`).
+      nodes_around: membrane nodes per ring, overriding the mesh's own (as a sweep's common topology).
 
     Returns:
       A :class:`RunResult`.
@@ -209,21 +241,23 @@ def run_test(
     if config.float64 != previous_x64:
         jax.config.update("jax_enable_x64", config.float64)
     try:
-        return _run(config, Path(folder), resume, progress, interrupt_after_chunks, tqdm)
+        return _run(
+            config, Path(folder), resume, progress, interrupt_after_chunks, tqdm, time_step, nodes_around
+        )
     finally:
         if config.float64 != previous_x64:
             jax.config.update("jax_enable_x64", previous_x64)
 
 
-def _run(config, folder: Path, resume, progress, interrupt_after_chunks, tqdm) -> RunResult:
+def _run(
+    config, folder: Path, resume, progress, interrupt_after_chunks, tqdm, time_step=None, nodes_around=None
+) -> RunResult:
     folder.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    test = build_test(config)
+    test = build_test(config, time_step, nodes_around)
     build_seconds = time.perf_counter() - started
     checkpoint_path = folder / CHECKPOINT_NAME
-    tolerance = config.consolidation_tolerance_or_none
-    if tolerance is None:
-        tolerance = 2e-3 if config.float64 else 2e-2  # float32's UFR floor with the membrane is ~1e-2
+    tolerance = consolidation_tolerance(config)
     records: dict[str, list[dict]] = {phase: [] for phase in PHASES}
     phase_index, phase_done, elapsed = 0, 0, 0.0
     shear_start: dict | None = None
@@ -360,7 +394,8 @@ def _run(config, folder: Path, resume, progress, interrupt_after_chunks, tqdm) -
     return _finish(folder, config, test, records, shear_start, build_seconds, elapsed, tolerance)
 
 
-def _metadata(config, test, records, build_seconds, elapsed, tolerance) -> dict:
+def run_metadata(config, test, records, build_seconds, elapsed, tolerance) -> dict:
+    """The attributes of a run's datasets: configuration, version, sizes, Δt, steps, timings, machine."""
     consolidation = _join(records["consolidation"])
     shear_steps = (
         sum(len(c["step"]) for c in records["shear_fine"]) * config.record_every_fine
@@ -385,7 +420,12 @@ def _metadata(config, test, records, build_seconds, elapsed, tolerance) -> dict:
     }
 
 
-def _datasets(records, test, shear_start, metadata):
+def results_datasets(records: dict, shear_start: dict, metadata: dict):
+    """(shear dataset or None, consolidation dataset) from the records of the three phases (module docstring).
+
+    ``records`` maps each of :data:`PHASES` to a list of chunk dicts; ``shear_start`` holds the height and
+    volume at the start of shearing (strains are rebased on them); ``metadata`` becomes the attributes.
+    """
     consolidation = io_lib.records_to_dataset(_join(records["consolidation"]), attrs=metadata)
     shear = _join(records["shear_fine"] + records["shear_coarse"])
     if not shear:
@@ -411,8 +451,8 @@ def _write_partial(folder, records, test, config) -> None:
 
 
 def _finish(folder, config, test, records, shear_start, build_seconds, elapsed, tolerance) -> RunResult:
-    metadata = _metadata(config, test, records, build_seconds, elapsed, tolerance)
-    shear, consolidation = _datasets(records, test, shear_start, metadata)
+    metadata = run_metadata(config, test, records, build_seconds, elapsed, tolerance)
+    shear, consolidation = results_datasets(records, shear_start, metadata)
     files = {"consolidation": io_lib.write_results(consolidation, folder, "consolidation")}
     files["results"] = io_lib.write_results(shear, folder, "results")
     files["figures"] = plots.save_test_figures(shear, folder)

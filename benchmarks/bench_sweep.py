@@ -1,0 +1,115 @@
+"""The paper's Table 1 (9 cases) batched in one compiled call against the 9 run one after another.
+
+For each dtype, in a fresh process, builds the 9 members (10, 40, 100 kPa × 2.5, 3.33, 5 mm) on the
+specimen of ``--size`` (``small``: 6 × 10, membrane edge D/3, the reproduction's; ``paper``: 10 × 25,
+edge D/5) with one Δt and one mesh topology (:func:`membrax.sweep.build_batch`), then times consolidation
+steps:
+
+- batched: one chunk call advancing all 9 members (``lax.map`` on a CPU, ``vmap`` on a GPU, or
+  ``--mode``), compile time and simulation-steps/s (member-steps per second, all members counted);
+- serial: each member's own compiled chunk (:class:`membrax.driver.ChunkRunner`), the 9 in turn:
+  the sum of the 9 compile times and the steps/s over the 9;
+- particle-steps/s (spheres + membrane nodes) of both, peak resident memory, and the wall time the
+  whole Table 1 would take at the batched rate for ``--table-steps`` member-steps per case.
+
+Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mode map|vmap]``.
+"""
+
+import argparse
+import json
+import resource
+import time
+
+from harness import run_each_dtype, timed
+
+
+def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int) -> dict:
+    import jax
+
+    if dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    from membrax import sweep
+    from membrax.config import TriaxialConfig
+    from membrax.reproduce import SIZES
+
+    base = TriaxialConfig(**SIZES[size], float64=dtype == "float64")
+    _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
+    start = time.perf_counter()
+    batch = sweep.build_batch([config for _, config in members], mode=mode or None)
+    build = time.perf_counter() - start
+    record_every = 100
+    count = max(1, steps // record_every)
+    budgets = jnp.full(batch.num_padded, 10 * steps)
+
+    def batched(states):
+        return batch._chunk(
+            states, batch.params, batch.members, budgets, num_records=count, record_every=record_every
+        )
+
+    _, first = timed(batched, batch.initial_state)
+    _, batched_time = timed(batched, batch.initial_state)
+    serial_compile, serial_time = 0.0, 0.0
+    for test in batch.tests:
+        state = test.start_consolidation(test.initial_state)
+
+        def alone(s, test=test):
+            return test.runner._chunk(s, test.params, num_records=count, record_every=record_every)
+
+        _, compile_and_run = timed(alone, state)
+        _, run = timed(alone, state)
+        serial_compile += compile_and_run - run
+        serial_time += run
+    member_steps = batch.num_members * count * record_every
+    bodies = batch.tests[0].particles.num_particles + batch.tests[0].mesh.num_nodes
+    return {
+        "dtype": dtype,
+        "backend": jax.default_backend(),
+        "devices": batch.num_devices,
+        "mode": batch.mode,
+        "members": batch.num_members,
+        "spheres": int(batch.tests[0].particles.num_particles),
+        "nodes": int(batch.tests[0].mesh.num_nodes),
+        "build_s": build,
+        "batched_compile_s": first - batched_time,
+        "batched_steps_per_s": member_steps / batched_time,
+        "batched_particle_steps_per_s": member_steps * bodies / batched_time,
+        "serial_compile_s": serial_compile,
+        "serial_steps_per_s": member_steps / serial_time,
+        "serial_particle_steps_per_s": member_steps * bodies / serial_time,
+        "table1_wall_s_at_batched_rate": batch.num_members * table_steps * batched_time / member_steps,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--child", default=None)
+    parser.add_argument("--size", default="small", choices=("small", "paper"))
+    parser.add_argument("--steps", type=int, default=500)
+    parser.add_argument("--mode", default="", help="map or vmap (default: by backend)")
+    parser.add_argument(
+        "--table-steps", type=int, default=30000, help="member-steps per case for the Table 1 wall estimate"
+    )
+    args = parser.parse_args()
+    options = dict(size=args.size, steps=args.steps, mode=args.mode, table_steps=args.table_steps)
+    if args.child:
+        print(json.dumps(measure(args.child, **options)))
+        return
+    for row in run_each_dtype(__file__, options):
+        print(
+            f"{row['dtype']} {row['backend']} ×{row['devices']} ({row['mode']}), {row['members']} members of "
+            f"{row['spheres']} spheres + {row['nodes']} nodes: build {row['build_s']:.1f} s\n"
+            f"  batched: compile {row['batched_compile_s']:.1f} s, {row['batched_steps_per_s']:.0f} "
+            f"member-steps/s ({row['batched_particle_steps_per_s']:.3g} particle-steps/s)\n"
+            f"  serial : compile {row['serial_compile_s']:.1f} s (9 chunks), {row['serial_steps_per_s']:.0f} "
+            f"member-steps/s ({row['serial_particle_steps_per_s']:.3g} particle-steps/s)\n"
+            f"  batched / serial = {row['batched_steps_per_s'] / row['serial_steps_per_s']:.2f}; Table 1 at "
+            f"{args.table_steps} steps per case ≈ {row['table1_wall_s_at_batched_rate']:.0f} s; peak RSS "
+            f"{row['peak_rss_mb']:.0f} MB"
+        )
+
+
+if __name__ == "__main__":
+    main()

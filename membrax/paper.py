@@ -1,0 +1,497 @@
+"""The paper's Tables 2 and 3 and the numbers of its Fig. 9, beside membrax's own results.
+
+Contract. Every function takes ``results``, a mapping from a case key ``(cell_pressure_kpa,
+membrane_thickness_mm)`` (two positive finite numbers, kPa and mm) to that case's shear records: the
+mapping described in :mod:`membrax.analysis` (a ``dict`` of arrays or an ``xarray.Dataset``, the first
+record being the end of consolidation). Each case needs the series ``axial_strain``,
+``external_axial_stress``, ``external_radial_stress``, ``internal_axial_stress`` and
+``internal_radial_stress`` (:data:`REQUIRED_SERIES`). Everything runs on the host in numpy float64.
+
+- :func:`table_2` and :func:`table_3` return one row (a ``dict`` of floats) per case, sorted by thickness
+  then pressure as in the paper; for each quantity the row holds ours (``{quantity}``), the paper's
+  (``paper_{quantity}``, NaN when the case is not in the paper's grid) and ``difference_{quantity}`` =
+  ours − paper. Table 2 is the peak mobilised φ' (:func:`membrax.analysis.peak`), Table 3 the initial
+  stresses (:func:`membrax.analysis.initial_state`, first record) and the additional (membrane) stresses
+  internal − external.
+- :func:`write_tables` writes both as CSV (exact floats) and Markdown (2 decimals, "–" for NaN).
+- :func:`fig9_data` and :func:`paper_fig9_data` give, per thickness, the numbers of the paper's Fig. 9:
+  the Molenkamp & Luger indentation ratio and the negative of the relative initial axial stress ratio
+  (see below); :func:`membrax.plots.plot_fig9` draws them.
+
+Matching the paper's grid. A case is the paper's case when its pressure and thickness are each within
+0.005 (kPa, mm) of one of the paper's (:func:`paper_key`): a run at 10/3 mm is the paper's 3.33 mm case.
+
+The paper's values (:data:`PAPER_TABLE_2`, :data:`PAPER_TABLE_3`) are copied from its Tables 2 and 3 as
+printed, keyed by ``(cell_pressure_kpa, membrane_thickness_mm)`` floats over (10, 40, 100) kPa × (2.5,
+3.33, 5.0) mm. The tables print the middle thickness as "3.3"; the study's thickness is 3.33 mm (Table 1:
+membrane/particle ratio 2/15 of 25 mm spheres), so it is keyed 3.33.
+
+Fig. 9 (the paper's §5.2). The primary axis is α/D from the paper's Eq. 2 with C = 0.275,
+:func:`membrax.theory.molenkamp_luger_indentation_ratio` with the paper's parameters as ``membrax theory``
+uses them (FCC void ratio, 25 mm spheres, E_m = 1400 kPa, the case's membrane thickness and cell
+pressure). The secondary axis is "the negative of the relative initial axial stress ratio", read here as
+
+    −(σ1,int/σ1,ext − 1) = −Δσ1/σ1,ext        (initial stresses, first record; Table 3 for the paper)
+
+Reading. The paper's Fig. 7 calls σ1,int/σ1,ext the "axial stress ratio (internal to external)" and the
+caption of Fig. 9 speaks of the "internal/external stress ratio"; "initial" is the state of Table 3;
+"relative" takes the ratio relative to 1, i.e. the additional axial stress relative to the external one,
+the quantity of the sentence just before Fig. 9 ("their significance relative to the externally applied
+stresses decreases"). With the paper's Table 3 this gives 0.364, 0.271, 0.221 at 10, 40, 100 kPa for
+5 mm and 0.274, 0.275, 0.364 at 10 kPa for 2.5, 3.33, 5 mm, as its Fig. 9 bullets say (greatest at low
+pressure; thickest membrane the greatest influence), and its negative increases with pressure like
+α/D ∝ σ'^(1/3) ("plotted as a negative to show the correlation"). The plain ratio σ1,int/σ1,ext would
+only shift the curves by 1; normalising Δσ1 by σ3 instead is not what "axial stress ratio" means in the
+paper. This reading is an interpretation [U]: the figure itself is not in the text available.
+
+Checks. An empty ``results``, a key that is not a pair of positive finite numbers, or records missing a
+required series (or holding none) raise ``ValueError`` naming the case and the fix.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from membrax import analysis, io, theory
+
+__all__ = [
+    "PAPER_CELL_PRESSURES_KPA",
+    "PAPER_THICKNESSES_MM",
+    "PAPER_TABLE_2",
+    "PAPER_TABLE_3",
+    "REQUIRED_SERIES",
+    "paper_key",
+    "table_2",
+    "table_3",
+    "write_tables",
+    "fig9_data",
+    "paper_fig9_data",
+]
+
+#: The paper's cell pressures (kPa), its Table 1.
+PAPER_CELL_PRESSURES_KPA = (10.0, 40.0, 100.0)
+#: The paper's membrane thicknesses (mm), its Table 1 (Tables 2 and 3 print 3.33 as "3.3").
+PAPER_THICKNESSES_MM = (2.5, 3.33, 5.0)
+
+# The paper's Table 2 in its row order: σc (kPa), t_m (mm), peak φ' external, internal (degrees).
+_TABLE_2_ROWS = (
+    (10.0, 2.5, 40.3, 40.0),
+    (40.0, 2.5, 39.8, 40.3),
+    (100.0, 2.5, 39.1, 40.1),
+    (10.0, 3.33, 40.6, 40.1),
+    (40.0, 3.33, 39.9, 40.2),
+    (100.0, 3.33, 39.4, 40.1),
+    (10.0, 5.0, 41.1, 40.2),
+    (40.0, 5.0, 40.2, 40.2),
+    (100.0, 5.0, 39.7, 40.1),
+)
+# The paper's Table 3 in its row order: σc (kPa), t_m (mm), initial σ3 ext, σ3 int, σ1 ext, σ1 int (kPa).
+_TABLE_3_ROWS = (
+    (10.0, 2.5, 10.0, 11.2, 10.6, 13.5),
+    (40.0, 2.5, 40.0, 44.1, 40.7, 49.1),
+    (100.0, 2.5, 100.0, 109.4, 101.1, 117.7),
+    (10.0, 3.33, 10.0, 11.5, 10.9, 13.9),
+    (40.0, 3.33, 40.0, 44.4, 40.9, 50.2),
+    (100.0, 3.33, 100.0, 109.7, 100.8, 119.6),
+    (10.0, 5.0, 10.0, 11.8, 10.7, 14.6),
+    (40.0, 5.0, 40.0, 45.0, 41.0, 52.1),
+    (100.0, 5.0, 100.0, 110.6, 101.1, 123.4),
+)
+
+#: The paper's Table 2 (peak mobilised friction angles, degrees, external and internal stresses as in its
+#: §4.3), keyed by ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of
+#: :func:`membrax.analysis.peak`.
+PAPER_TABLE_2 = {
+    (pressure, thickness): {
+        "peak_external_friction_angle_deg": external,
+        "peak_internal_friction_angle_deg": internal,
+    }
+    for pressure, thickness, external, internal in _TABLE_2_ROWS
+}
+
+#: The paper's Table 3 (initial external and internal principal stresses, kPa), keyed by
+#: ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of :func:`membrax.analysis.initial_state`.
+PAPER_TABLE_3 = {
+    (pressure, thickness): {
+        "sigma3_external_kpa": sigma3_external,
+        "sigma3_internal_kpa": sigma3_internal,
+        "sigma1_external_kpa": sigma1_external,
+        "sigma1_internal_kpa": sigma1_internal,
+    }
+    for pressure, thickness, sigma3_external, sigma3_internal, sigma1_external, sigma1_internal in (
+        _TABLE_3_ROWS
+    )
+}
+
+#: Series every case's records must hold (see :mod:`membrax.analysis`).
+REQUIRED_SERIES = (
+    "axial_strain",
+    "external_axial_stress",
+    "external_radial_stress",
+    "internal_axial_stress",
+    "internal_radial_stress",
+)
+
+# A case matches the paper's when pressure and thickness are both within this of the paper's (kPa, mm).
+_GRID_TOLERANCE = 0.005
+
+# (column, Markdown label, unit) of each quantity, in column order.
+_TABLE_2_QUANTITIES = (
+    ("peak_external_friction_angle_deg", "Peak φ' external", "°"),
+    ("peak_internal_friction_angle_deg", "Peak φ' internal", "°"),
+)
+_TABLE_3_QUANTITIES = (
+    ("sigma3_external_kpa", "σ3 external", "kPa"),
+    ("sigma3_internal_kpa", "σ3 internal", "kPa"),
+    ("sigma1_external_kpa", "σ1 external", "kPa"),
+    ("sigma1_internal_kpa", "σ1 internal", "kPa"),
+    ("additional_sigma3_kpa", "Δσ3 = σ3 int − ext", "kPa"),
+    ("additional_sigma1_kpa", "Δσ1 = σ1 int − ext", "kPa"),
+)
+_KEY_COLUMNS = (
+    ("cell_pressure_kpa", "Cell pressure σc", "kPa"),
+    ("membrane_thickness_mm", "Membrane t_m", "mm"),
+)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Input checks
+# ---------------------------------------------------------------------------------------------------------
+
+_RESULTS_HINT = (
+    "pass a mapping {(cell_pressure_kpa, membrane_thickness_mm): shear records}, e.g. "
+    "{(10.0, 5.0): read_results('results_10kPa_5mm/results.nc')}"
+)
+
+
+def _case_key(key) -> tuple[float, float]:
+    """``key`` as ``(cell_pressure_kpa, membrane_thickness_mm)`` floats; ValueError if it is not one."""
+    if isinstance(key, str | bytes) or not isinstance(key, Sequence) or len(key) != 2:
+        raise ValueError(
+            f"results has the key {key!r}, not a (cell_pressure_kpa, membrane_thickness_mm) pair; "
+            f"{_RESULTS_HINT}."
+        )
+    values = []
+    for name, value in zip(("cell_pressure_kpa", "membrane_thickness_mm"), key, strict=True):
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise ValueError(
+                f"results has the key {key!r}, whose {name} {value!r} is not a number; {_RESULTS_HINT}."
+            )
+        value = float(value)
+        if not (math.isfinite(value) and value > 0.0):
+            raise ValueError(
+                f"results has the key {key!r}, whose {name} = {value} is not a positive finite "
+                f"number; {_RESULTS_HINT}."
+            )
+        values.append(value)
+    return values[0], values[1]
+
+
+def _check_records(key: tuple[float, float], records) -> None:
+    """ValueError unless ``records`` holds the :data:`REQUIRED_SERIES`, non-empty and equally long."""
+    case = f"results[({key[0]:g}, {key[1]:g})]"
+    if not isinstance(records, Mapping):
+        raise ValueError(
+            f"{case} is a {type(records).__name__}; pass the case's shear records, a mapping "
+            "name -> 1-D series (dict or xarray.Dataset, see membrax.analysis)."
+        )
+    missing = [name for name in REQUIRED_SERIES if name not in records]
+    if missing:
+        raise ValueError(
+            f"{case} has no series {', '.join(map(repr, missing))}; pass the shear records of a "
+            f"membrane triaxial test, which hold {', '.join(REQUIRED_SERIES)} (membrax.analysis)."
+        )
+    sizes = {name: np.size(records[name]) for name in REQUIRED_SERIES}
+    if 0 in sizes.values() or len(set(sizes.values())) != 1:
+        raise ValueError(
+            f"{case} holds series of {sizes} records; each must hold the same number (at least "
+            "one: the first is the end of consolidation)."
+        )
+
+
+def _cases(results) -> list[tuple[tuple[float, float], object]]:
+    """The checked ``(key, records)`` pairs of ``results``, sorted by thickness then pressure."""
+    if not isinstance(results, Mapping):
+        raise ValueError(f"results is a {type(results).__name__}; {_RESULTS_HINT}.")
+    if not results:
+        raise ValueError(f"results is empty; {_RESULTS_HINT}.")
+    cases = []
+    for key, records in results.items():
+        key = _case_key(key)
+        _check_records(key, records)
+        cases.append((key, records))
+    return sorted(cases, key=lambda case: (case[0][1], case[0][0]))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Tables 2 and 3
+# ---------------------------------------------------------------------------------------------------------
+
+
+def paper_key(cell_pressure_kpa: float, membrane_thickness_mm: float) -> tuple[float, float] | None:
+    """The key of the paper's case matching a pressure and thickness, or ``None`` outside its grid.
+
+    A case matches when its pressure and thickness are each within 0.005 (kPa, mm) of the paper's, so
+    ``paper_key(10, 10 / 3)`` is ``(10.0, 3.33)``.
+
+    Args:
+      cell_pressure_kpa: σc, kPa.
+      membrane_thickness_mm: t_m, mm.
+
+    Returns:
+      A key of :data:`PAPER_TABLE_2` and :data:`PAPER_TABLE_3`, or ``None``.
+    """
+    for pressure in PAPER_CELL_PRESSURES_KPA:
+        for thickness in PAPER_THICKNESSES_MM:
+            if (
+                abs(float(cell_pressure_kpa) - pressure) <= _GRID_TOLERANCE
+                and abs(float(membrane_thickness_mm) - thickness) <= _GRID_TOLERANCE
+            ):
+                return pressure, thickness
+    return None
+
+
+def _row(key: tuple[float, float], ours: Mapping, paper_table: Mapping, quantities) -> dict:
+    """One table row: the key columns, then ours, paper's and ours − paper for each quantity."""
+    paper = paper_table.get(paper_key(*key), {})
+    row = {"cell_pressure_kpa": key[0], "membrane_thickness_mm": key[1]}
+    for name, _, _ in quantities:
+        value = float(ours[name])
+        reference = float(paper.get(name, np.nan))
+        row[name] = value
+        row[f"paper_{name}"] = reference
+        row[f"difference_{name}"] = value - reference
+    return row
+
+
+def _peak_angles(records) -> dict:
+    """:func:`membrax.analysis.peak` from the four stresses and the axial strain only."""
+    derived = {
+        f"{side}_friction_angle_deg": analysis._friction_angle_deg(
+            analysis.record(records, f"{side}_axial_stress"),
+            analysis.record(records, f"{side}_radial_stress"),
+        )
+        for side in ("external", "internal")
+    }
+    return analysis.peak(records, derived)
+
+
+def _with_additional(stresses: Mapping) -> dict:
+    """Initial stresses with the additional (membrane) stresses internal − external added (kPa)."""
+    return {
+        **stresses,
+        "additional_sigma3_kpa": stresses["sigma3_internal_kpa"] - stresses["sigma3_external_kpa"],
+        "additional_sigma1_kpa": stresses["sigma1_internal_kpa"] - stresses["sigma1_external_kpa"],
+    }
+
+
+def table_2(results) -> list[dict]:
+    """The paper's Table 2 for our cases: peak mobilised φ' from external and internal stresses.
+
+    Args:
+      results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
+
+    Returns:
+      One dict of floats per case, sorted by thickness then pressure, with the columns
+      ``cell_pressure_kpa, membrane_thickness_mm`` and, for ``q`` in ``peak_external_friction_angle_deg,
+      peak_internal_friction_angle_deg`` (degrees, :func:`membrax.analysis.peak`): ``q``, ``paper_q`` (NaN
+      outside the paper's grid) and ``difference_q`` = ours − paper.
+
+    Raises:
+      ValueError: see the module docstring (Checks).
+    """
+    return [
+        _row(key, _peak_angles(records), PAPER_TABLE_2, _TABLE_2_QUANTITIES)
+        for key, records in _cases(results)
+    ]
+
+
+def table_3(results) -> list[dict]:
+    """The paper's Table 3 for our cases: initial stresses and the additional membrane stresses.
+
+    Args:
+      results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
+
+    Returns:
+      One dict of floats per case, sorted by thickness then pressure, with the columns
+      ``cell_pressure_kpa, membrane_thickness_mm`` and, for ``q`` in ``sigma3_external_kpa,
+      sigma3_internal_kpa, sigma1_external_kpa, sigma1_internal_kpa`` (the first record,
+      :func:`membrax.analysis.initial_state`) and ``additional_sigma3_kpa, additional_sigma1_kpa`` (internal
+      − external), all kPa: ``q``, ``paper_q`` (NaN outside the paper's grid) and ``difference_q`` = ours −
+      paper.
+
+    Raises:
+      ValueError: see the module docstring (Checks).
+    """
+    paper = {key: _with_additional(values) for key, values in PAPER_TABLE_3.items()}
+    return [
+        _row(key, _with_additional(analysis.initial_state(records)), paper, _TABLE_3_QUANTITIES)
+        for key, records in _cases(results)
+    ]
+
+
+def _csv_text(rows: list[dict]) -> str:
+    """Header line of column names, then one line per row; floats by ``repr`` (exact; ``nan`` for NaN)."""
+    columns = list(rows[0])
+    lines = [",".join(columns)]
+    lines.extend(",".join(repr(float(row[column])) for column in columns) for row in rows)
+    return "\n".join(lines) + "\n"
+
+
+def _markdown_cell(value: float) -> str:
+    return f"{value:.2f}" if math.isfinite(value) else "–"
+
+
+def _markdown_text(rows: list[dict], quantities, title: str, note: str) -> str:
+    """A titled Markdown table: key columns, then ours, paper and ours − paper for each quantity."""
+    header, columns = [], []
+    for name, label, unit in _KEY_COLUMNS:
+        header.append(f"{label} ({unit})")
+        columns.append(name)
+    for name, label, unit in quantities:
+        header += [f"{label} ({unit})", f"{label}, paper ({unit})", f"{label}, ours − paper ({unit})"]
+        columns += [name, f"paper_{name}", f"difference_{name}"]
+    lines = [f"# {title}", "", note, "", "| " + " | ".join(header) + " |", "|" + "---:|" * len(header)]
+    lines.extend("| " + " | ".join(_markdown_cell(row[column]) for column in columns) + " |" for row in rows)
+    return "\n".join(lines) + "\n"
+
+
+def write_tables(results, folder) -> dict[str, Path]:
+    """Write Tables 2 and 3 as CSV and Markdown into ``folder``, each file atomically.
+
+    Files: ``table2.csv`` and ``table3.csv`` (the columns of :func:`table_2` / :func:`table_3`, one line per
+    case, floats written exactly, ``nan`` for NaN; read with ``np.loadtxt(path, delimiter=",",
+    skiprows=1)`` or the ``csv`` module), and ``table2.md`` and ``table3.md`` (a title, a note and one
+    table row per case, units in the headers, numbers to 2 decimals, "–" for NaN).
+
+    Args:
+      results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
+      folder: output directory, created (with parents) if missing.
+
+    Returns:
+      ``{"table2.csv": path, "table2.md": path, "table3.csv": path, "table3.md": path}``.
+
+    Raises:
+      ValueError: for bad ``results`` (see the module docstring), or if ``folder`` exists and is not a
+        directory or cannot be created.
+    """
+    rows_2, rows_3 = table_2(results), table_3(results)
+    folder = io._ensure_folder(folder)
+    note = (
+        "Ours from membrax; paper from Tables 2 and 3 of the paper (– where it has no such case; its "
+        "3.3 mm is the 3.33 mm membrane)."
+    )
+    texts = {
+        "table2.csv": _csv_text(rows_2),
+        "table2.md": _markdown_text(
+            rows_2, _TABLE_2_QUANTITIES, "Table 2: peak mobilised friction angle, external and internal", note
+        ),
+        "table3.csv": _csv_text(rows_3),
+        "table3.md": _markdown_text(
+            rows_3, _TABLE_3_QUANTITIES, "Table 3: initial stresses and additional membrane stresses", note
+        ),
+    }
+    paths = {}
+    for name, text in texts.items():
+        paths[name] = folder / name
+        io._atomic_write_bytes(paths[name], text.encode("utf-8"))
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Fig. 9: indentation ratio and initial axial stress ratio against cell pressure
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _paper_parameters() -> tuple[float, float, float]:
+    """The paper's void ratio, sphere diameter (mm) and membrane modulus (kPa), from ``membrax theory``."""
+    from membrax import cli  # imported here: the command layer may import this module
+
+    return theory.FCC_VOID_RATIO, cli.PAPER_PARTICLE_DIAMETER_MM, cli.PAPER_MEMBRANE_MODULUS_KPA
+
+
+def _negative_relative_ratio(sigma1_internal: float, sigma1_external: float) -> float:
+    """−(σ1,int/σ1,ext − 1), NaN when σ1,ext is zero or either stress is not finite."""
+    if not (math.isfinite(sigma1_internal) and math.isfinite(sigma1_external)) or sigma1_external == 0.0:
+        return math.nan
+    return -(sigma1_internal / sigma1_external - 1.0)
+
+
+def _fig9_series(
+    stresses: Mapping, c: float, diameter_mm: float | None = None, modulus_kpa: float | None = None
+) -> dict[float, dict[str, np.ndarray]]:
+    """Fig. 9 numbers from ``{(pressure, thickness): initial stresses}``, grouped by thickness."""
+    void_ratio, paper_diameter_mm, paper_modulus_kpa = _paper_parameters()
+    diameter_mm = paper_diameter_mm if diameter_mm is None else diameter_mm
+    modulus_kpa = paper_modulus_kpa if modulus_kpa is None else modulus_kpa
+    data = {}
+    for thickness in sorted({key[1] for key in stresses}):
+        pressures = np.array(sorted(key[0] for key in stresses if key[1] == thickness), dtype=np.float64)
+        args = (void_ratio, diameter_mm, thickness, pressures, modulus_kpa, c)
+        data[thickness] = {
+            "cell_pressure_kpa": pressures,
+            "indentation_ratio": np.asarray(
+                theory.molenkamp_luger_indentation_ratio(*args), dtype=np.float64
+            ),
+            "indentation_ratio_valid": np.asarray(theory.molenkamp_luger_validity(*args).valid, dtype=bool),
+            "negative_relative_axial_stress_ratio": np.array(
+                [
+                    _negative_relative_ratio(
+                        stresses[p, thickness]["sigma1_internal_kpa"],
+                        stresses[p, thickness]["sigma1_external_kpa"],
+                    )
+                    for p in pressures.tolist()
+                ],
+                dtype=np.float64,
+            ),
+        }
+    return data
+
+
+def fig9_data(
+    results,
+    c: float = 0.275,
+    *,
+    particle_diameter_mm: float | None = None,
+    membrane_modulus_kpa: float | None = None,
+) -> dict[float, dict[str, np.ndarray]]:
+    """The numbers of the paper's Fig. 9 for our cases, per membrane thickness.
+
+    Args:
+      results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
+      c: Molenkamp & Luger's constant C (0.15–0.4; the paper uses the mean, 0.275).
+      particle_diameter_mm: D of Eq. 2, mm; default the paper's 25 mm (give yours if the runs used another).
+      membrane_modulus_kpa: E_m of Eq. 2, kPa; default the paper's 1400 kPa.
+
+    Returns:
+      ``{thickness_mm: {...}}`` in increasing thickness, each with float64 arrays over the cases of that
+      thickness in increasing pressure: ``cell_pressure_kpa``; ``indentation_ratio`` α/D (the paper's
+      Eq. 2 with the case's t_m and σc, D, E_m and the FCC void ratio);
+      ``indentation_ratio_valid`` (bool: inside Molenkamp & Luger's stated range,
+      :func:`membrax.theory.molenkamp_luger_validity`); ``negative_relative_axial_stress_ratio``
+      −(σ1,int/σ1,ext − 1) at the first record (see the module docstring; NaN when σ1,ext is 0).
+
+    Raises:
+      ValueError: for bad ``results`` (see the module docstring), or ``c``, D or E_m not positive.
+    """
+    stresses = {key: analysis.initial_state(records) for key, records in _cases(results)}
+    return _fig9_series(stresses, c, particle_diameter_mm, membrane_modulus_kpa)
+
+
+def paper_fig9_data(c: float = 0.275) -> dict[float, dict[str, np.ndarray]]:
+    """The numbers of the paper's Fig. 9 from its Table 3, computed as :func:`fig9_data` computes ours.
+
+    Args:
+      c: Molenkamp & Luger's constant C (the paper: 0.275).
+
+    Returns:
+      The structure of :func:`fig9_data` over the paper's grid (thicknesses 2.5, 3.33, 5.0 mm; pressures
+      10, 40, 100 kPa), the stress ratio from :data:`PAPER_TABLE_3` (e.g. −(14.6/10.7 − 1) at 10 kPa,
+      5 mm). α/D of the middle membrane is for 3.33 mm (``membrax theory`` uses 10/3 mm: 0.03 % higher).
+    """
+    return _fig9_series(PAPER_TABLE_3, c)
