@@ -26,20 +26,19 @@ from pathlib import Path
 
 from membrax import paper, plots
 from membrax import sweep as sweep_lib
+from membrax.cli import DEMO_CONFIG
 from membrax.config import TriaxialConfig
 
 __all__ = ["SIZES", "reproduce"]
 
 #: The two specimen sizes of ``membrax reproduce`` (configuration fields over the paper's defaults).
 SIZES = {
-    "small": dict(
-        particles_across=6,
-        layers=10,
-        membrane_edges_per_diameter=3.0,
-        inertial_number=5e-3,
-        chunk_steps=5000,
-        checkpoint_every_chunks=5,
-    ),
+    # The demo's specimen, membrane and rate (the grid sets pressure and thickness).
+    "small": {
+        key: value
+        for key, value in DEMO_CONFIG.items()
+        if key not in ("name", "cell_pressure_kpa", "membrane_thickness_mm", "target_axial_strain")
+    },
     "paper": dict(chunk_steps=5000, checkpoint_every_chunks=5),
 }
 
