@@ -1,18 +1,22 @@
 """The paper's Table 1 (9 cases) batched in one compiled call against the 9 run one after another.
 
-For each dtype, in a fresh process, builds the 9 members (10, 40, 100 kPa × 2.5, 3.33, 5 mm) on the
-specimen of ``--size`` (``small``: 6 × 10, membrane edge D/3, the reproduction's; ``paper``: 10 × 25,
-edge D/5) with one Δt and one mesh topology (:func:`membrax.sweep.build_batch`), then times consolidation
-steps:
+For each dtype, in a fresh process split into one CPU device per core
+(:func:`membrax.devices.split_cpu_devices`, as ``membrax sweep`` does; ``--cpu-devices``), builds the 9
+members (10, 40, 100 kPa × 2.5, 3.33, 5 mm) on the specimen of ``--size`` (``small``: 6 × 10, membrane
+edge D/3, the reproduction's; ``paper``: 10 × 25, edge D/5) with one Δt and one mesh topology
+(:func:`membrax.sweep.build_batch`), then times consolidation steps:
 
-- batched: one chunk call advancing all 9 members (``lax.map`` on a CPU, ``vmap`` on a GPU, or
-  ``--mode``), compile time and simulation-steps/s (member-steps per second, all members counted);
-- serial: each member's own compiled chunk (:class:`membrax.driver.ChunkRunner`), the 9 in turn:
-  the sum of the 9 compile times and the steps/s over the 9;
-- particle-steps/s (spheres + membrane nodes) of both, peak resident memory, and the wall time the
-  whole Table 1 would take at the batched rate for ``--table-steps`` member-steps per case.
+- batched: one chunk call advancing all 9 members, sharded over the devices (``lax.map`` over each
+  device's members on a CPU, ``vmap`` on a GPU, or ``--mode``; padding members have no steps to do, as in a
+  sweep): compile time and simulation-steps/s (member-steps per second, real members counted);
+- batched on one device: the same call unsharded (on a CPU: one device using every core per operation);
+- serial: each member's own compiled chunk (:class:`membrax.driver.ChunkRunner`) on the default device,
+  the 9 in turn: the sum of the 9 compile times and the steps/s over the 9;
+- particle-steps/s (spheres + membrane nodes), peak resident memory, and the wall time the whole Table 1
+  would take at the batched rate for ``--table-steps`` member-steps per case.
 
-Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mode map|vmap]``.
+Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mode map|vmap]
+[--cpu-devices N]``.
 """
 
 import argparse
@@ -23,9 +27,14 @@ import time
 from harness import run_each_dtype, timed
 
 
-def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int) -> dict:
+def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int, cpu_devices: int) -> dict:
+    import dataclasses
+
     import jax
 
+    from membrax.devices import split_cpu_devices
+
+    split_cpu_devices(cpu_devices or None)
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
@@ -41,15 +50,36 @@ def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int) -> d
     build = time.perf_counter() - start
     record_every = 100
     count = max(1, steps // record_every)
-    budgets = jnp.full(batch.num_padded, 10 * steps)
+    real = batch.num_members
+    # Only the padding needed to split the members evenly over the devices is a frozen copy (no steps).
+    budgets = jnp.asarray([10 * steps] * real + [0] * (batch.num_padded - real))
 
-    def batched(states):
-        return batch._chunk(
-            states, batch.params, batch.members, budgets, num_records=count, record_every=record_every
-        )
+    def rate(chunk_of, states, left):
+        def call(s):
+            return chunk_of(s, left, num_records=count, record_every=record_every)
 
-    _, first = timed(batched, batch.initial_state)
-    _, batched_time = timed(batched, batch.initial_state)
+        _, first = timed(call, states)
+        _, run = timed(call, states)
+        return first - run, run
+
+    sharded_compile, sharded_time = rate(
+        lambda s, left, **kw: batch._chunk(s, batch.params, batch.members, left, **kw),
+        batch.initial_state,
+        budgets,
+    )
+    one = dataclasses.replace(
+        batch,
+        num_devices=1,
+        **{
+            name: jax.tree.map(lambda x: x[:real], getattr(batch, name))
+            for name in ("params", "members", "initial_state")
+        },
+    )
+    one_compile, one_time = rate(
+        lambda s, left, **kw: one._chunk(s, one.params, one.members, left, **kw),
+        one.initial_state,
+        budgets[:real],
+    )
     serial_compile, serial_time = 0.0, 0.0
     for test in batch.tests:
         state = test.start_consolidation(test.initial_state)
@@ -61,24 +91,26 @@ def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int) -> d
         _, run = timed(alone, state)
         serial_compile += compile_and_run - run
         serial_time += run
-    member_steps = batch.num_members * count * record_every
+    member_steps = real * count * record_every
     bodies = batch.tests[0].particles.num_particles + batch.tests[0].mesh.num_nodes
     return {
         "dtype": dtype,
         "backend": jax.default_backend(),
         "devices": batch.num_devices,
         "mode": batch.mode,
-        "members": batch.num_members,
+        "members": real,
         "spheres": int(batch.tests[0].particles.num_particles),
         "nodes": int(batch.tests[0].mesh.num_nodes),
         "build_s": build,
-        "batched_compile_s": first - batched_time,
-        "batched_steps_per_s": member_steps / batched_time,
-        "batched_particle_steps_per_s": member_steps * bodies / batched_time,
+        "batched_compile_s": sharded_compile,
+        "batched_steps_per_s": member_steps / sharded_time,
+        "batched_particle_steps_per_s": member_steps * bodies / sharded_time,
+        "one_device_compile_s": one_compile,
+        "one_device_steps_per_s": member_steps / one_time,
         "serial_compile_s": serial_compile,
         "serial_steps_per_s": member_steps / serial_time,
         "serial_particle_steps_per_s": member_steps * bodies / serial_time,
-        "table1_wall_s_at_batched_rate": batch.num_members * table_steps * batched_time / member_steps,
+        "table1_wall_s_at_batched_rate": real * table_steps * sharded_time / member_steps,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
 
@@ -89,11 +121,18 @@ def main() -> None:
     parser.add_argument("--size", default="small", choices=("small", "paper"))
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--mode", default="", help="map or vmap (default: by backend)")
+    parser.add_argument("--cpu-devices", type=int, default=0, help="CPU devices (default: one per core)")
     parser.add_argument(
         "--table-steps", type=int, default=30000, help="member-steps per case for the Table 1 wall estimate"
     )
     args = parser.parse_args()
-    options = dict(size=args.size, steps=args.steps, mode=args.mode, table_steps=args.table_steps)
+    options = dict(
+        size=args.size,
+        steps=args.steps,
+        mode=args.mode,
+        table_steps=args.table_steps,
+        cpu_devices=args.cpu_devices,
+    )
     if args.child:
         print(json.dumps(measure(args.child, **options)))
         return
@@ -103,6 +142,8 @@ def main() -> None:
             f"{row['spheres']} spheres + {row['nodes']} nodes: build {row['build_s']:.1f} s\n"
             f"  batched: compile {row['batched_compile_s']:.1f} s, {row['batched_steps_per_s']:.0f} "
             f"member-steps/s ({row['batched_particle_steps_per_s']:.3g} particle-steps/s)\n"
+            f"  batched on 1 device: compile {row['one_device_compile_s']:.1f} s, "
+            f"{row['one_device_steps_per_s']:.0f} member-steps/s\n"
             f"  serial : compile {row['serial_compile_s']:.1f} s (9 chunks), {row['serial_steps_per_s']:.0f} "
             f"member-steps/s ({row['serial_particle_steps_per_s']:.3g} particle-steps/s)\n"
             f"  batched / serial = {row['batched_steps_per_s'] / row['serial_steps_per_s']:.2f}; Table 1 at "

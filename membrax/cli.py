@@ -224,7 +224,21 @@ def _run(args: argparse.Namespace) -> int:
     return _run_config(config, out, args.resume, not args.no_progress)
 
 
+def _split_cpu(args: argparse.Namespace) -> bool:
+    """One CPU device per core (or ``--devices``) before anything starts JAX; False on a bad count."""
+    from membrax.devices import split_cpu_devices
+
+    try:
+        split_cpu_devices(args.devices)
+    except ValueError as error:
+        print(f"membrax: --devices: {error}", file=sys.stderr)
+        return False
+    return True
+
+
 def _sweep(args: argparse.Namespace) -> int:
+    if not _split_cpu(args):
+        return 2
     from membrax.config import ConfigError, load_config, parse_overrides, with_overrides
     from membrax.run import RunError
     from membrax.sweep import parse_grid, run_sweep
@@ -251,6 +265,8 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
+    if not _split_cpu(args):
+        return 2
     from membrax.reproduce import reproduce
     from membrax.run import RunError
 
@@ -316,7 +332,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reproduce.add_argument("--out", default=None, help="results folder (default: results_reproduce_<size>)")
     for command in (sweep, reproduce):
-        command.add_argument("--devices", type=int, default=None, help="devices to shard over (default all)")
+        command.add_argument(
+            "--devices",
+            type=int,
+            default=None,
+            help="devices to shard over (default all; on a CPU one device per core)",
+        )
     for command in (demo, run, sweep, reproduce):
         command.add_argument("--resume", action="store_true", help="continue from the folder's checkpoint")
         command.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -30,12 +30,15 @@ member's chunk) and shear for different numbers of steps (ε̇ ∝ √σc at a f
 batch runs until the last one is done. Each member therefore follows exactly the steps it would take alone
 with the same Δt and mesh (tests/test_sweep.py checks batched = serial).
 
-Devices. With several devices (GPUs, or CPU devices from
-``XLA_FLAGS=--xla_force_host_platform_device_count=N``) the member axis is sharded across them with
-``jax.shard_map`` (members padded with frozen copies to a multiple of the device count). Across several
-hosts, call ``jax.distributed.initialize()`` in every process before :func:`run_sweep`: ``jax.devices()``
-then lists every host's devices, but a batch shards over the local ones only: between chunks the driver
-reads every member's error bits and records on the host. Give each process its share of the grid (e.g.
+Devices. With several devices the member axis is sharded across them with ``jax.shard_map`` (members
+padded with frozen copies to a multiple of the device count). On a CPU this is the fast batching: one
+device per core (:func:`membrax.devices.split_cpu_devices`, called before other membrax imports;
+``membrax sweep`` and ``membrax reproduce`` do it) runs each core's members side by side, each member's
+arrays on one core, which beats both one device using the cores for every operation and the members run
+one after another (``benchmarks/bench_sweep.py``). Across several hosts, call
+``jax.distributed.initialize()`` in every process before :func:`run_sweep`: ``jax.devices()`` then lists
+every host's devices, but a batch shards over the local ones only: between chunks the driver reads every
+member's error bits and records on the host. Give each process its share of the grid (e.g.
 ``jax.process_index()`` picks the pressures) and merge the ``sweep.nc`` files with
 ``xarray.combine_by_coords`` (README).
 
@@ -52,6 +55,7 @@ import json
 import math
 import time
 import types
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
@@ -71,6 +75,7 @@ from membrax.config import (
     parse_overrides,
     with_overrides,
 )
+from membrax.devices import cpu_cores
 from membrax.driver import SimulationError
 from membrax.integrate import ERROR_NEIGHBOR_OVERFLOW, describe_errors
 from membrax.membrane import rounded_offset_path
@@ -94,6 +99,7 @@ __all__ = [
     "DEFAULT_GRID",
     "BatchedTest",
     "SweepResult",
+    "balanced_order",
     "build_batch",
     "grid_members",
     "parse_grid",
@@ -268,6 +274,7 @@ class BatchedTest:
       params: stacked :class:`membrax.membrane_dem.CoupledParams`, padded to a multiple of ``num_devices``.
       members: stacked per-member constants: the mesh's rest geometry and the initial inner volume.
       initial_state: stacked states at the start of consolidation (servo on).
+      order: member b of the batch is ``configs[order[b]]`` of :func:`build_batch`'s argument.
     """
 
     configs: list
@@ -279,6 +286,7 @@ class BatchedTest:
     params: object
     members: dict
     initial_state: object
+    order: list = pydataclasses.field(default_factory=list)
     reallocations: int = 0
 
     def __post_init__(self):
@@ -460,8 +468,67 @@ class BatchedTest:
         return states, padded[: self.num_members]
 
 
+def _resolve_devices(num_devices: int | None, num_members: int) -> int:
+    available = jax.local_device_count()
+    num_devices = available if num_devices is None else int(num_devices)
+    if not 1 <= num_devices <= available:
+        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
+    return min(num_devices, num_members)
+
+
+def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
+    """An order of the members whose contiguous device shares carry about equal work.
+
+    ``shard_map`` gives device d the d-th contiguous block of the (padded) member axis, and a chunk lasts
+    as long as its busiest device. Low-pressure members shear for the most steps (ε̇ ∝ √σc at a fixed
+    inertial number), so grid order would load one device with them. Greedy longest-first (each member,
+    heaviest first, to the least-loaded block with a free slot; the last block holds the padding), then
+    swaps between the busiest block and another while they lower the busiest load.
+
+    Args:
+      work: each member's expected steps.
+      num_devices: devices the member axis is split over.
+
+    Returns:
+      Member indices in batch order (a permutation of ``range(len(work))``).
+    """
+    count = len(work)
+    per_device = math.ceil(count / num_devices)
+    free = [per_device] * num_devices
+    free[-1] -= per_device * num_devices - count
+    blocks: list[list[int]] = [[] for _ in range(num_devices)]
+    for b in sorted(range(count), key=lambda i: (-work[i], i)):
+        d = min(
+            (d for d in range(num_devices) if free[d] > 0), key=lambda d: (sum(work[i] for i in blocks[d]), d)
+        )
+        blocks[d].append(b)
+        free[d] -= 1
+
+    def load(block):
+        return sum(work[i] for i in block)
+
+    improved = True
+    while improved:
+        improved = False
+        busiest = max(range(num_devices), key=lambda d: load(blocks[d]))
+        for d in range(num_devices):
+            for i, j in itertools.product(range(len(blocks[busiest])), range(len(blocks[d]))):
+                a, b = blocks[busiest][i], blocks[d][j]
+                gain = work[a] - work[b]
+                if gain > 0 and load(blocks[d]) + gain < load(blocks[busiest]):
+                    blocks[busiest][i], blocks[d][j] = b, a
+                    improved = True
+                    break
+            if improved:
+                break
+    return [b for block in blocks for b in sorted(block)]
+
+
 def build_batch(
-    configs: Sequence[TriaxialConfig], num_devices: int | None = None, mode: str | None = None
+    configs: Sequence[TriaxialConfig],
+    num_devices: int | None = None,
+    mode: str | None = None,
+    order: Sequence[int] | None = None,
 ) -> BatchedTest:
     """Build the members of one batch (same structure, :data:`BATCHED_FIELDS` may differ).
 
@@ -470,6 +537,9 @@ def build_batch(
       num_devices: devices to shard the member axis over (default: every local device of the default
         backend).
       mode: ``"map"`` or ``"vmap"`` (default: ``"vmap"`` on a GPU, ``"map"`` otherwise).
+      order: the members' order on the batch axis, indices into ``configs`` (default
+        :func:`balanced_order` of each member's consolidation limit plus planned shear steps). The batch's
+        ``configs`` and ``tests`` are in this order, and ``BatchedTest.order`` keeps it.
 
     Raises:
       ValueError: no members, members that differ in a field outside :data:`BATCHED_FIELDS`, a bad mode
@@ -489,11 +559,7 @@ def build_batch(
     mode = mode or ("vmap" if jax.default_backend() == "gpu" else "map")
     if mode not in ("map", "vmap"):
         raise ValueError(f"mode = {mode!r}; give 'map' (CPU) or 'vmap' (GPU).")
-    available = jax.local_device_count()
-    num_devices = available if num_devices is None else int(num_devices)
-    if not 1 <= num_devices <= available:
-        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
-    num_devices = min(num_devices, len(configs))
+    num_devices = _resolve_devices(num_devices, len(configs))
     nodes_around = _common_nodes_around(configs)
     tests = [build_test(c, nodes_around=nodes_around) for c in configs]
     dt = min(t.dt for t in tests)
@@ -501,17 +567,28 @@ def build_batch(
         t if t.dt == dt else build_test(c, time_step=dt, nodes_around=nodes_around)
         for t, c in zip(tests, configs, strict=True)
     ]
+    if order is None:
+        work = [
+            c.consolidation_max_steps
+            + sum(t.shear_plan(c.target_axial_strain, c.inertial_number, c.fine_until_strain))
+            for c, t in zip(configs, tests, strict=True)
+        ]
+        order = balanced_order(work, num_devices)
+    order = [int(i) for i in order]
+    if sorted(order) != list(range(len(configs))):
+        raise ValueError(f"order = {order}; give a permutation of range({len(configs)}).")
+    configs, tests = [configs[i] for i in order], [tests[i] for i in order]
     states = [t.start_consolidation(t.initial_state) for t in tests]
     lists = _shared_neighbors(tests[0].runner.neighbor_frame, [s.dem.position for s in states])
     states = [s.set(dem=s.dem.set(neighbors=nl)) for s, nl in zip(states, lists, strict=True)]
     num_padded = num_devices * math.ceil(len(tests) / num_devices)
-    order = list(range(len(tests))) + [0] * (num_padded - len(tests))
+    slots = list(range(len(tests))) + [0] * (num_padded - len(tests))
     members = [
         {
             **{name: getattr(tests[b].mesh, name) for name in GEOMETRY_FIELDS},
             "initial_volume": jnp.asarray(tests[b].initial_volume, tests[b].mesh.reference_area.dtype),
         }
-        for b in order
+        for b in slots
     ]
     return BatchedTest(
         configs=configs,
@@ -520,9 +597,10 @@ def build_batch(
         nodes_around=nodes_around,
         num_devices=num_devices,
         mode=mode,
-        params=stack([tests[b].params for b in order]),
+        params=stack([tests[b].params for b in slots]),
         members=stack(members),
-        initial_state=stack([states[b] for b in order]),
+        initial_state=stack([states[b] for b in slots]),
+        order=order,
     )
 
 
@@ -827,7 +905,8 @@ def run_sweep(
       folder: results folder (default ``results_{base.name}_sweep``), created.
       resume: continue from the folder's checkpoints.
       progress: tqdm progress bars.
-      num_devices: devices to shard each batch over (default all).
+      num_devices: devices to shard each batch over (default all; on a CPU see
+        :func:`membrax.devices.split_cpu_devices`).
       mode: ``"map"``/``"vmap"`` (default by backend, :func:`build_batch`).
       interrupt_after_chunks: testing aid: ``KeyboardInterrupt`` after this many chunks of this call.
 
@@ -848,6 +927,13 @@ def run_sweep(
             + "\n[grid]\n"
             + "".join(f"{key} = {json.dumps(list(values))}\n" for key, values in coordinates.items())
         )
+    if jax.default_backend() == "cpu" and jax.local_device_count() == 1 and cpu_cores() > 1 < len(members):
+        warnings.warn(
+            f"one CPU device on {cpu_cores()} cores: call membrax.devices.split_cpu_devices() before "
+            "importing the rest of membrax (or any JAX operation) to run the members side by side, one "
+            "per core (bench_sweep: 1.7× faster on 2 cores).",
+            stacklevel=2,
+        )
     groups: dict[tuple, list] = {}
     for index, config in members:
         groups.setdefault(_structure_key(config), []).append((index, config))
@@ -860,14 +946,25 @@ def run_sweep(
         for g, group in enumerate(groups.values()):
             group_folder = folder / "groups" / f"group_{g}"
             done_file = group_folder / "results.nc"
+            # The batch order (balanced_order) depends on the device count: a resumed group keeps its own.
+            order_file = group_folder / "members.json"
+            order = None
+            if resume and order_file.exists():
+                order = json.loads(order_file.read_text())
+            elif resume and group_folder.exists():
+                order = list(range(len(group)))  # a folder written before members.json: grid order
             if resume and done_file.exists():
+                group = [group[i] for i in order]
                 shear_group = [io_lib.read_results(group_folder / f"shear_{k}.nc") for k in range(len(group))]
                 consolidation_group = [
                     io_lib.read_results(group_folder / f"consolidation_{k}.nc") for k in range(len(group))
                 ]
             else:
                 build_start = time.perf_counter()
-                batch = build_batch([config for _, config in group], num_devices, mode)
+                batch = build_batch([config for _, config in group], num_devices, mode, order)
+                group = [group[i] for i in batch.order]
+                group_folder.mkdir(parents=True, exist_ok=True)
+                order_file.write_text(json.dumps(batch.order))
                 build_seconds = time.perf_counter() - build_start
                 records, shear_start, elapsed = _run_group(
                     batch, group_folder, resume, progress, interrupt_after_chunks, chunk_counter

@@ -1,5 +1,6 @@
 """Sweeps: a batch equals its members run alone, sharded equals unsharded, resume, the paper's trends."""
 
+import itertools
 import json
 import math
 import os
@@ -207,6 +208,23 @@ def test_two_devices_give_the_results_of_one(tmp_path):
     assert report["early"] <= 1e-9, report
 
 
+def test_members_are_dealt_to_devices_with_balanced_work():
+    """Table 1's work per member (consolidation limit + shear steps ∝ 1/√σc) on 2 devices: the order's
+    busiest device carries the least load any split into 5 + 4 members can (exhaustive search)."""
+    steps_10, steps_40, steps_100 = 24150, 12200, 7775  # shear steps of the small reproduction
+    work = [10000 + w for w in (steps_10,) * 3 + (steps_40,) * 3 + (steps_100,) * 3]
+    order = sweep.balanced_order(work, 2)
+    assert sorted(order) == list(range(9))
+    busiest = max(sum(work[i] for i in order[:5]), sum(work[i] for i in order[5:]))
+    best = min(
+        max(sum(work[i] for i in first), sum(work) - sum(work[i] for i in first))
+        for first in itertools.combinations(range(9), 5)
+    )
+    assert busiest == best == 112700  # 2 × 34150 + 2 × 22200 on the device with 4 members
+    assert max(sum(work[:5]), sum(work[5:])) == 146850  # grid order: all three 10 kPa members on one device
+    assert sweep.balanced_order(work, 1) == list(range(9))
+
+
 def test_grids_are_parsed_and_checked():
     """--grid items become the members in row-major order; bad items name the problem."""
     grid = sweep.parse_grid(["cell_pressure_kpa=10,40,100", "membrane_thickness_mm=2.5, 5"])
@@ -243,3 +261,30 @@ def test_the_sweep_command_reports_a_bad_grid(tmp_path, capsys):
     assert "FIELD=V1" in capsys.readouterr().err
     assert cli.main(["sweep", str(path), "--grid", "cell_presure_kpa=10,40", "--no-progress"]) == 2
     assert "not a simulation field" in capsys.readouterr().err
+    assert cli.main(["sweep", str(path), "--devices", "0", "--no-progress"]) == 2
+    assert "at least 1 CPU device" in capsys.readouterr().err
+
+
+SPLIT = textwrap.dedent(
+    """
+    import json, warnings
+    import jax
+    from membrax.devices import split_cpu_devices
+    made = split_cpu_devices(3)
+    from membrax import sweep  # imports jax_md, which starts the backend
+    count = jax.local_device_count("cpu")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        late = split_cpu_devices(2)
+    print(json.dumps({"made": made, "count": count, "late": late, "warned": len(caught)}))
+    """
+)
+
+
+def test_the_cpu_splits_into_one_device_per_core_before_jax_starts():
+    """split_cpu_devices(3) before JAX starts gives 3 CPU devices; afterwards it keeps 3 and warns."""
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    env.pop("XLA_FLAGS", None)
+    done = subprocess.run([sys.executable, "-c", SPLIT], env=env, capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == {"made": 3, "count": 3, "late": 3, "warned": 1}
