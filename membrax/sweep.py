@@ -538,8 +538,8 @@ def build_batch(
         backend).
       mode: ``"map"`` or ``"vmap"`` (default: ``"vmap"`` on a GPU, ``"map"`` otherwise).
       order: the members' order on the batch axis, indices into ``configs`` (default
-        :func:`balanced_order` of each member's consolidation limit plus planned shear steps). The batch's
-        ``configs`` and ``tests`` are in this order, and ``BatchedTest.order`` keeps it.
+        :func:`balanced_order` of each member's planned shear steps plus two chunks of consolidation).
+        The batch's ``configs`` and ``tests`` are in this order, and ``BatchedTest.order`` keeps it.
 
     Raises:
       ValueError: no members, members that differ in a field outside :data:`BATCHED_FIELDS`, a bad mode
@@ -568,8 +568,10 @@ def build_batch(
         for t, c in zip(tests, configs, strict=True)
     ]
     if order is None:
+        # Shear steps are planned; consolidation stops when its test holds (unknown beforehand, about
+        # alike for all members), so every member is charged two chunks of it.
         work = [
-            c.consolidation_max_steps
+            min(c.consolidation_max_steps, 2 * c.chunk_steps)
             + sum(t.shear_plan(c.target_axial_strain, c.inertial_number, c.fine_until_strain))
             for c, t in zip(configs, tests, strict=True)
         ]
