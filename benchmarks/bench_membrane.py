@@ -72,7 +72,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     candidates, _ = timed(build, nodes)
     _, rebuild = timed(build, nodes + 1e-9)
     params = membrane_contact.MembraneContactParams.default()
-    spring = jnp.zeros((nodes.shape[0], capacity, 3), nodes.dtype)
+    spring = jnp.zeros((3, nodes.shape[0], capacity), nodes.dtype)  # component-first, as the state carries it
     zeros_nodes = jnp.zeros_like(nodes)
     zeros_spheres = jnp.zeros_like(spheres)
     contact = in_loop(

@@ -48,13 +48,14 @@ contact unseen between rebuilds. A node with more than K candidates sets ``did_o
 subset order are kept, the rest dropped): :func:`candidate_errors` turns it into
 :data:`ERROR_MEMBRANE_CANDIDATE_OVERFLOW` for the state's error bitmask (compatible with
 :mod:`membrax.integrate`'s ``ERROR_*`` bits), so the host driver reallocates with a larger K (``max_count``
-says how large) and reruns: contacts are never silently dropped. The springs, (n_nodes, K, 3), follow
+says how large) and reruns: contacts are never silently dropped. The springs, (3, n_nodes, K), follow
 their sphere ids per node through rebuilds (:func:`remap_node_history`, the per-row analogue of
 :func:`membrax.neighbors.remap_pair_history`). Cost: 17,000 nodes × 600 spheres (10.2 M distance checks)
 take about 90 ms per rebuild with K = 8 (150 ms with K = 16) on 2 CPU cores, XLA-CPU, float64.
 
 Layout: nodes and spheres are rows of (n, 3) arrays; per-slot quantities gather rows (``x[idx]``) and are
-then handled component-first (3, n_nodes, K) with :mod:`membrax.vector`. Sphere forces are sums over
+then handled component-first (3, n_nodes, K) with :mod:`membrax.vector`; the carried springs stay in that
+layout. Sphere forces are sums over
 the table's sphere incidence (``NodeCandidates.sphere_slots``, built with the table) of gathered slot
 rows; without it, ``jax.ops.segment_sum`` on rows (the same sums, several times slower on XLA-CPU).
 SI units: m, s, N, N·m, kg.
@@ -168,7 +169,9 @@ class NodeSphereForces(NamedTuple):
       node_force: (n_nodes, 3) total contact force on each node, N.
       sphere_force: (N, 3) total contact force on each sphere, N.
       sphere_torque: (N, 3) total contact torque on each sphere about its centre, N·m.
-      spring: (n_nodes, K, 3) updated tangential springs (force on the node), N.
+      spring: (3, n_nodes, K) updated tangential springs (force on the node), N, component-first like the
+        slot law itself, so the carried state is the law's own output (a row-major copy would make XLA
+        evaluate the law a second time: 28 % of the coupled step at paper size).
       normal_force: (n_nodes, K) |F_n| per slot, N (0 where not touching).
       overlap: (n_nodes, K) δ per slot, m (negative: gap; padded slots −1).
       slot_force: (n_nodes, K, 3) force of the candidate sphere on the node per slot, N (zero if none).
@@ -257,7 +260,7 @@ def node_sphere_forces(
       sphere_angular_velocity: (N, 3), rad/s.
       sphere_radius: (N,), m.
       candidates: (n_nodes, K) int sphere ids padded with N (``NodeCandidates.idx``).
-      spring: (n_nodes, K, 3) carried tangential springs (force on the node), N.
+      spring: (3, n_nodes, K) carried tangential springs (force on the node), N.
       dt: time step, s.
       params: :class:`MembraneContactParams`.
       membrane_thickness: t_m, m.
@@ -279,13 +282,13 @@ def node_sphere_forces(
     active = overlap > 0.0
     normal_force = dot(normal_force_vector, normal)
 
-    node_velocity_t = _component_first(jnp.broadcast_to(node_velocity[:, None, :], spring.shape))
+    node_velocity_t = jnp.broadcast_to(_component_first(node_velocity)[:, :, None], spring.shape)
     sphere_velocity_t = _component_first(sphere_velocity[safe_idx])
     sphere_angular_velocity_t = _component_first(sphere_angular_velocity[safe_idx])
     relative_velocity = node_velocity_t - (sphere_velocity_t + cross(sphere_angular_velocity_t, branch))
     tangential_velocity = relative_velocity - scale(dot(relative_velocity, normal), normal)
     new_spring = tangential_spring_update(
-        _component_first(spring),
+        spring,
         normal,
         tangential_velocity,
         dt,
@@ -320,7 +323,7 @@ def node_sphere_forces(
         node_force=jnp.sum(to_rows(force_on_node), axis=1),
         sphere_force=sphere_force,
         sphere_torque=sphere_torque,
-        spring=to_rows(new_spring),
+        spring=new_spring,
         normal_force=normal_force,
         overlap=overlap,
         slot_force=to_rows(force_on_node),
@@ -458,18 +461,24 @@ def needs_rebuild(candidates: NodeCandidates, node_position, sphere_position):
     return (node_moved > half_skin) | (sphere_moved > half_skin)
 
 
-def remap_node_history(old_idx, new_idx, old_history, num_spheres: int):
+def remap_node_history(old_idx, new_idx, old_history, num_spheres: int, components_first: bool = False):
     """Carry per-slot history from one node candidate table to another by sphere id, row by row.
 
     Args:
       old_idx: (n_nodes, K_old) int sphere ids padded with ``num_spheres`` (distinct within a row).
       new_idx: (n_nodes, K_new) int, same convention.
-      old_history: (n_nodes, K_old, ...) values per old slot (e.g. tangential springs).
+      old_history: (n_nodes, K_old, ...) values per old slot, or (C, n_nodes, K_old) with
+        ``components_first`` (the tangential springs).
       num_spheres: N (the padding value).
+      components_first: the history's slot axes are its last two.
 
     Returns:
-      (n_nodes, K_new, ...) history: the old value of the same (node, sphere) pair, zero elsewhere.
+      (n_nodes, K_new, ...) history (or (C, n_nodes, K_new)): the old value of the same (node, sphere)
+      pair, zero elsewhere.
     """
+    if components_first:
+        rows = remap_node_history(old_idx, new_idx, jnp.moveaxis(old_history, 0, -1), num_spheres)
+        return jnp.moveaxis(rows, -1, 0)
     match = (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx < num_spheres)[:, :, None]
     flat = old_history.reshape((*old_history.shape[:2], -1))
     carried = jnp.einsum("nij,njc->nic", match.astype(flat.dtype), flat)
@@ -488,7 +497,7 @@ def update_candidates(
 
     Args:
       candidates: the current :class:`NodeCandidates`.
-      spring: (n_nodes, K, 3) springs of the current table.
+      spring: (3, n_nodes, K) springs of the current table.
       node_position: (n_nodes, 3), m.
       sphere_position: (N, 3), m.
       sphere_radius: (N,), m.
@@ -525,7 +534,7 @@ def update_candidates(
             sphere_slots=slots,
             max_sphere_count=max_sphere_count,
         )
-        return new, remap_node_history(candidates.idx, idx, spring, num_spheres)
+        return new, remap_node_history(candidates.idx, idx, spring, num_spheres, components_first=True)
 
     def keep(_):
         return candidates, spring

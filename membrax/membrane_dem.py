@@ -142,7 +142,7 @@ class MembraneState:
       position: (n, 3) node positions y_n, m.
       position_compensation: (n, 3) low-order part of y_n (compensated summation, as the spheres).
       velocity: (n, 3) node velocities at the previous half step, m/s.
-      spring: (n, K, 3) tangential springs of the node–sphere slots (force on the node), N.
+      spring: (3, n, K) tangential springs of the node–sphere slots (force on the node), N.
       candidates: the node → sphere candidate table.
       clamp_position: (2, n_θ, 3) the bottom and top ring positions when the platens stood at
         ``clamp_platen_height``, m.
@@ -304,7 +304,7 @@ def membrane_dem(
                 position=position,
                 position_compensation=zeros,
                 velocity=zeros,
-                spring=jnp.zeros((mesh.num_nodes, capacity, 3), position.dtype),
+                spring=jnp.zeros((3, mesh.num_nodes, capacity), position.dtype),
                 candidates=candidates,
                 clamp_position=position[rings],
                 clamp_platen_height=platen_heights(dem_state.walls),
@@ -405,7 +405,9 @@ def grow_candidates(
         capacity,
         old.sphere_capacity if sphere_capacity is None else sphere_capacity,
     )
-    spring = remap_node_history(old.idx, new.idx, nodes.spring, particles.num_particles)
+    spring = remap_node_history(
+        old.idx, new.idx, nodes.spring, particles.num_particles, components_first=True
+    )
     return state.set(membrane=nodes.set(candidates=new, spring=spring))
 
 

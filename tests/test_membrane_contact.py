@@ -28,7 +28,7 @@ MU = math.tan(math.radians(25.0))
 def _one_node_call(node, sphere, radius, spring=None, node_velocity=None, params=None, dt=1e-6):
     params = MembraneContactParams.default() if params is None else params
     node_position = jnp.asarray(node)[None, :]
-    spring = jnp.zeros((1, 1, 3)) if spring is None else spring
+    spring = jnp.zeros((3, 1, 1)) if spring is None else spring
     velocity = jnp.zeros((1, 3)) if node_velocity is None else node_velocity
     return node_sphere_forces(
         node_position,
@@ -139,7 +139,7 @@ def test_static_balance_overlap_is_force_over_stiffness():
 def test_no_force_in_a_gap_or_exactly_at_the_threshold(gap):
     radius = 0.01
     node = np.array([radius + 0.5 * THICKNESS + gap, 0.0, 0.0])
-    result = _one_node_call(node, np.zeros(3), radius, spring=jnp.full((1, 1, 3), 0.3))
+    result = _one_node_call(node, np.zeros(3), radius, spring=jnp.full((3, 1, 1), 0.3))
     assert float(result.overlap[0, 0]) == pytest.approx(-gap, abs=1e-15)
     assert float(result.overlap[0, 0]) <= 0.0
     np.testing.assert_array_equal(result.node_force, 0.0)
@@ -162,11 +162,11 @@ def _push(tangential_load, steps=3000):
         velocity = velocity + (dt / mass) * force
         return (position + dt * velocity, velocity, result.spring), result.normal_force[0, 0]
 
-    carry = (start, jnp.zeros((1, 3)), jnp.zeros((1, 1, 3)))
+    carry = (start, jnp.zeros((1, 3)), jnp.zeros((3, 1, 1)))
     (position, velocity, spring), normal_force = jax.jit(lambda c: jax.lax.scan(step, c, None, length=steps))(
         carry
     )
-    return position[0], velocity[0], spring[0, 0], normal_force[-1]
+    return position[0], velocity[0], spring[:, 0, 0], normal_force[-1]
 
 
 def test_stick_below_the_coulomb_limit():
@@ -195,7 +195,7 @@ def test_action_reaction_and_angular_momentum(seed):
     config = _random_config(seed)
     candidates = _all_candidates(config)
     rng = np.random.default_rng(seed + 10)
-    spring = jnp.asarray(rng.normal(0.0, 0.05, (*candidates.idx.shape, 3)))
+    spring = jnp.asarray(rng.normal(0.0, 0.05, (3, *candidates.idx.shape)))
     result = _jit_forces(config, candidates.idx, spring)
     assert int(jnp.sum(result.normal_force > 0.0)) >= 10  # a real test: many contacts, many sliding
     node_force, sphere_force = np.asarray(result.node_force), np.asarray(result.sphere_force)
@@ -214,7 +214,7 @@ def test_action_reaction_and_angular_momentum(seed):
 def test_normal_forces_are_minus_gradient_of_the_energy():
     config = _random_config(3)
     candidates = _all_candidates(config)
-    zero_spring = jnp.zeros((*candidates.idx.shape, 3))
+    zero_spring = jnp.zeros((3, *candidates.idx.shape))
     still = dict(config, node_velocity=jnp.zeros_like(config["node_velocity"]))
     still.update(sphere_velocity=jnp.zeros_like(config["sphere_velocity"]))
     still.update(sphere_angular_velocity=jnp.zeros_like(config["sphere_angular_velocity"]))
@@ -293,6 +293,11 @@ def test_remap_node_history_follows_sphere_ids():
     expected[1, 1] = [0, 0, 0]
     np.testing.assert_array_equal(carried, expected)
     assert carried.shape == (2, 5, 3)
+    # The carried springs' layout, (3, n_nodes, K): the same values.
+    springs = remap_node_history(
+        old_idx, new_idx, jnp.moveaxis(history, -1, 0), num_spheres, components_first=True
+    )
+    np.testing.assert_array_equal(springs, np.moveaxis(expected, -1, 0))
 
 
 def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
@@ -314,9 +319,7 @@ def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
     idx = candidates.idx
     node_id = jnp.broadcast_to(jnp.arange(idx.shape[0], dtype=jnp.int32)[:, None], idx.shape)
     valid = idx < num_spheres
-    spring = jnp.where(valid[..., None], jnp.stack([node_id, idx, node_id + idx], axis=-1), 0).astype(
-        jnp.float64
-    )
+    spring = jnp.where(valid[None], jnp.stack([node_id, idx, node_id + idx]), 0).astype(jnp.float64)
     update = jax.jit(update_candidates)
 
     moved = config["sphere_position"] + jnp.asarray([0.4 * skin, 0.0, 0.0])[None, :]
@@ -342,10 +345,10 @@ def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
         assert set(new_idx[node][new_idx[node] < num_spheres].tolist()) == reference[node]
         for slot, sphere in enumerate(new_idx[node]):
             if sphere < num_spheres and sphere in old_idx[node]:
-                np.testing.assert_array_equal(new_spring[node, slot], [node, sphere, node + sphere])
+                np.testing.assert_array_equal(new_spring[:, node, slot], [node, sphere, node + sphere])
                 kept += 1
             else:
-                np.testing.assert_array_equal(new_spring[node, slot], 0.0)
+                np.testing.assert_array_equal(new_spring[:, node, slot], 0.0)
     assert kept > 50
 
 
@@ -356,7 +359,7 @@ def test_jit_and_vmap_equal_a_loop():
     batch = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *configs)
     batched_candidates = build(batch)
     rng = np.random.default_rng(3)
-    springs = jnp.asarray(rng.normal(0.0, 0.05, (2, 30, 6, 3)))
+    springs = jnp.asarray(rng.normal(0.0, 0.05, (2, 3, 30, 6)))
 
     def forces(config, idx, spring):
         return _forces(config, idx, spring, params)
@@ -422,7 +425,7 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
         np.testing.assert_array_equal(owned, np.flatnonzero(idx.reshape(-1) == sphere))
     assert int(candidates.max_sphere_count) == max(np.sum(idx == s) for s in np.asarray(subset))
     assert int(candidates.max_sphere_count) >= 3 and not bool(candidates.did_overflow)
-    spring = jnp.asarray(np.random.default_rng(5).normal(0.0, 0.05, (*idx.shape, 3)))
+    spring = jnp.asarray(np.random.default_rng(5).normal(0.0, 0.05, (3, *idx.shape)))
 
     def both(node_position, spring):
         args = (
