@@ -468,14 +468,6 @@ class BatchedTest:
         return states, padded[: self.num_members]
 
 
-def _resolve_devices(num_devices: int | None, num_members: int) -> int:
-    available = jax.local_device_count()
-    num_devices = available if num_devices is None else int(num_devices)
-    if not 1 <= num_devices <= available:
-        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
-    return min(num_devices, num_members)
-
-
 def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
     """An order of the members whose contiguous device shares carry about equal work.
 
@@ -497,16 +489,14 @@ def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
     free = [per_device] * num_devices
     free[-1] -= per_device * num_devices - count
     blocks: list[list[int]] = [[] for _ in range(num_devices)]
-    for b in sorted(range(count), key=lambda i: (-work[i], i)):
-        d = min(
-            (d for d in range(num_devices) if free[d] > 0), key=lambda d: (sum(work[i] for i in blocks[d]), d)
-        )
-        blocks[d].append(b)
-        free[d] -= 1
 
     def load(block):
         return sum(work[i] for i in block)
 
+    for b in sorted(range(count), key=lambda i: (-work[i], i)):
+        d = min((d for d in range(num_devices) if free[d] > 0), key=lambda d: (load(blocks[d]), d))
+        blocks[d].append(b)
+        free[d] -= 1
     improved = True
     while improved:
         improved = False
@@ -559,7 +549,11 @@ def build_batch(
     mode = mode or ("vmap" if jax.default_backend() == "gpu" else "map")
     if mode not in ("map", "vmap"):
         raise ValueError(f"mode = {mode!r}; give 'map' (CPU) or 'vmap' (GPU).")
-    num_devices = _resolve_devices(num_devices, len(configs))
+    available = jax.local_device_count()
+    num_devices = available if num_devices is None else int(num_devices)
+    if not 1 <= num_devices <= available:
+        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
+    num_devices = min(num_devices, len(configs))
     nodes_around = _common_nodes_around(configs)
     tests = [build_test(c, nodes_around=nodes_around) for c in configs]
     dt = min(t.dt for t in tests)
