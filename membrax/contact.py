@@ -36,6 +36,7 @@ import jax
 import jax.numpy as jnp
 from jax_md import dataclasses
 
+from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
 __all__ = [
@@ -177,7 +178,8 @@ def pair_contact(
         # A sum of independent per-contact energies: its gradient is each contact's own force.
         return jnp.sum(normal_energy(radius_i + radius_j - safe_norm(separation), normal_stiffness))
 
-    normal_force_vector = -jax.grad(energy)(branch)  # on j
+    # The gradient taken per component: XLA-CPU forms it without padding each one into a (3, ...) array.
+    normal_force_vector = -jnp.stack(jax.grad(energy)(tuple(branch)))  # on j
     normal, distance = safe_normalize(branch)
     overlap = radius_i + radius_j - distance
     active = overlap > 0.0
@@ -188,6 +190,10 @@ def pair_contact(
         velocity_i + cross(angular_velocity_i, arm_i)
     )
     tangential_velocity = contact_velocity - scale(dot(contact_velocity, normal), normal)
+    # Stored once each: XLA-CPU would otherwise re-evaluate the law per component and per output.
+    normal_force_vector, normal, tangential_velocity, normal_force, active, arm_i, arm_j = materialize(
+        normal_force_vector, normal, tangential_velocity, normal_force, active, arm_i, arm_j
+    )
     new_spring = tangential_spring_update(
         spring,
         normal,
@@ -198,7 +204,7 @@ def pair_contact(
         normal_force,
         active,
     )
-    force_on_j = normal_force_vector + new_spring
+    force_on_j, new_spring = materialize(normal_force_vector + new_spring, new_spring)
     return PairContact(
         force_on_j=force_on_j,
         torque_on_i=cross(arm_i, -force_on_j),

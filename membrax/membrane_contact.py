@@ -71,6 +71,7 @@ import jax.numpy as jnp
 from jax_md import dataclasses
 
 from membrax.contact import normal_energy, tangential_spring_update
+from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
 __all__ = [
@@ -205,7 +206,11 @@ def _slot_geometry(node_position, sphere_position, sphere_radius, candidates, me
 
 
 def _slot_energy(branch, reach, valid, normal_stiffness):
-    """Sum of the per-slot normal energies ½ k_n max(δ, 0)², δ = reach − |b|; padded slots contribute 0."""
+    """Sum of the per-slot normal energies ½ k_n max(δ, 0)², δ = reach − |b|; padded slots contribute 0.
+
+    ``branch`` is (3, n_nodes, K) or a tuple of its three components; the gradient with respect to the
+    tuple is three arrays, which XLA-CPU forms without padding each component into a (3, ...) array.
+    """
     overlap = jnp.where(valid, reach - safe_norm(branch), -1.0)
     return jnp.sum(normal_energy(overlap, normal_stiffness))
 
@@ -276,7 +281,9 @@ def node_sphere_forces(
     branch, reach, valid, safe_idx = _slot_geometry(
         node_position, sphere_position, sphere_radius, candidates, membrane_thickness
     )
-    normal_force_vector = -jax.grad(_slot_energy)(branch, reach, valid, params.normal_stiffness)  # on node
+    normal_force_vector = -jnp.stack(
+        jax.grad(_slot_energy)(tuple(branch), reach, valid, params.normal_stiffness)
+    )  # on the node
     normal, distance = safe_normalize(branch)
     overlap = jnp.where(valid, reach - distance, -1.0)
     active = overlap > 0.0
@@ -287,6 +294,10 @@ def node_sphere_forces(
     sphere_angular_velocity_t = _component_first(sphere_angular_velocity[safe_idx])
     relative_velocity = node_velocity_t - (sphere_velocity_t + cross(sphere_angular_velocity_t, branch))
     tangential_velocity = relative_velocity - scale(dot(relative_velocity, normal), normal)
+    # Stored once each: XLA-CPU would otherwise re-evaluate the law per component and per output.
+    normal_force_vector, normal, tangential_velocity, normal_force, active = materialize(
+        normal_force_vector, normal, tangential_velocity, normal_force, active
+    )
     new_spring = tangential_spring_update(
         spring,
         normal,
@@ -298,6 +309,7 @@ def node_sphere_forces(
         active,
     )
     force_on_node = select(valid, normal_force_vector + new_spring)  # (3, n_nodes, K)
+    new_spring, force_on_node = materialize(new_spring, force_on_node)
     torque_on_sphere = cross(branch, -force_on_node)
 
     def to_rows(vector):
@@ -320,7 +332,7 @@ def node_sphere_forces(
         sphere_force, sphere_torque = on_spheres[:, :3], on_spheres[:, 3:]
 
     return NodeSphereForces(
-        node_force=jnp.sum(to_rows(force_on_node), axis=1),
+        node_force=sum(force_on_node[:, :, k] for k in range(force_on_node.shape[2])).T,
         sphere_force=sphere_force,
         sphere_torque=sphere_torque,
         spring=new_spring,
