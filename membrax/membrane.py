@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax_md import dataclasses
 
+from membrax.fusion import materialize
 from membrax.validation import check_range
 from membrax.vector import cross, dot, scale
 
@@ -194,7 +195,7 @@ def _assemble(position, triangles, bottom_ring, top_ring, dtype) -> MembraneMesh
     corner_index = triangles.T.reshape(-1)
     hinge_index = np.concatenate([edges[:, 0], edges[:, 1], opposite[:, 0], opposite[:, 1]])
     num_nodes = position.shape[0]
-    rest = np.asarray(_dihedral_angle(*np.split(position[hinge_index].T, 4, axis=1)))
+    rest = np.asarray(_dihedral_angle(position[hinge_index].T))
     triangle_of = {}
     for t, (a, b, c) in enumerate(triangles.tolist()):
         for p, q in ((a, b), (b, c), (c, a)):
@@ -439,7 +440,9 @@ def _gather_components_forward(position, index, incidence):
 
 
 def _gather_components_backward(incidence, cotangent):
-    rows = jax.lax.optimization_barrier(cotangent.T)
+    # Stored before the transpose: XLA-CPU would otherwise evaluate the cotangent's producer in
+    # transposed order inside the copy (3× slower at paper size).
+    rows = materialize(cotangent).T
     padded = jnp.concatenate([rows, jnp.zeros((1, rows.shape[1]), rows.dtype)])
     total = padded[incidence[:, 0]]
     for k in range(1, incidence.shape[1]):  # K ≤ 20: unrolled row gathers
@@ -450,14 +453,74 @@ def _gather_components_backward(incidence, cotangent):
 gather_components.defvjp(_gather_components_forward, _gather_components_backward)
 
 
+def _gathered_corners(position, mesh: MembraneMesh):
+    """Triangle corners component-first, (3, 3T): first corners of all triangles, then second, third."""
+    return gather_components(position, mesh.corner_index, mesh.corner_incidence)
+
+
 def _corners(position, mesh: MembraneMesh):
     """Triangle corners component-first: three (3, T) arrays."""
-    return jnp.split(gather_components(position, mesh.corner_index, mesh.corner_incidence), 3, axis=1)
+    return jnp.split(_gathered_corners(position, mesh), 3, axis=1)
 
 
-def _hinges(position, mesh: MembraneMesh):
-    """Hinge vertices component-first (a, b, c, d), four (3, E) arrays (see :func:`_dihedral_angle`)."""
-    return jnp.split(gather_components(position, mesh.hinge_index, mesh.hinge_incidence), 4, axis=1)
+def _gathered_hinges(position, mesh: MembraneMesh):
+    """Hinge vertices component-first, (3, 4E): a, b, c, d of all hinges (see :func:`_dihedral_angle`)."""
+    return gather_components(position, mesh.hinge_index, mesh.hinge_incidence)
+
+
+@jax.custom_vjp
+def _triangle_invariants(corners, inverse):
+    """Green–Lagrange strain (E₁₁, E₂₂, E₁₂) and triple product x₁·(x₂ × x₃) of each triangle, (T,) each.
+
+    Reverse mode uses the closed-form derivative below (forward mode is not defined, as for
+    :func:`gather_components`).
+
+    Args:
+      corners: (3, 3T) the gathered corners (:func:`_gathered_corners`).
+      inverse: (T, 2, 2) the rest frames D_m⁻¹.
+    """
+    x1, x2, x3 = jnp.split(corners, 3, axis=1)
+    return (*_green_strain_of(x1, x2, x3, inverse), dot(x1, cross(x2, x3)))
+
+
+def _triangle_invariants_forward(corners, inverse):
+    return _triangle_invariants(corners, inverse), (corners, inverse)
+
+
+def _triangle_invariants_backward(residuals, cotangents):
+    # Standard constant-strain triangle algebra: with f₁, f₂ the columns of F = [e₁ e₂] D_m⁻¹
+    # (e₁ = x₂ − x₁, e₂ = x₃ − x₁, m = D_m⁻¹), ∂f₁/∂(x₁, x₂, x₃) = (−m₀₀ − m₁₀, m₀₀, m₁₀) I and
+    # ∂f₂/∂(x₁, x₂, x₃) = (−m₀₁ − m₁₁, m₀₁, m₁₁) I; dE₁₁ = f₁·df₁, dE₂₂ = f₂·df₂, dE₁₂ = (f₁·df₂ + f₂·df₁)/2;
+    # ∂(x₁·(x₂ × x₃))/∂x₁ = x₂ × x₃ and cyclically. Autodiff of the same formulas made XLA-CPU pad each
+    # component of each corner's cotangent into its own array; here they come out as one (3, 3, T) array.
+    corners, inverse = residuals
+    # Stored once: the per-triangle cotangents would otherwise be recomputed for all nine entries.
+    c11, c22, c12, c_volume = materialize(*cotangents)
+    num_triangles = inverse.shape[0]
+    x = corners.reshape(3, 3, num_triangles)  # (component, corner, triangle)
+    x1, x2, x3 = x[:, 0], x[:, 1], x[:, 2]
+    edge1, edge2 = x2 - x1, x3 - x1
+    m00, m01, m10, m11 = inverse[:, 0, 0], inverse[:, 0, 1], inverse[:, 1, 0], inverse[:, 1, 1]
+    f1 = edge1 * m00[None] + edge2 * m10[None]
+    f2 = edge1 * m01[None] + edge2 * m11[None]
+    # ∂E/∂f₁ and ∂E/∂f₂ contracted with the cotangents, then spread on the corners.
+    pull1 = scale(c11, f1) + scale(0.5 * c12, f2)
+    pull2 = scale(c22, f2) + scale(0.5 * c12, f1)
+    along1 = jnp.stack([-(m00 + m10), m00, m10])[None]  # ∂f₁/∂x_k, (1, 3, T)
+    along2 = jnp.stack([-(m01 + m11), m01, m11])[None]
+    volume = jnp.stack([cross(x2, x3), cross(x3, x1), cross(x1, x2)], axis=1)
+    d_corners = pull1[:, None] * along1 + pull2[:, None] * along2 + c_volume[None, None] * volume
+    d_inverse = jnp.stack(
+        [
+            jnp.stack([dot(pull1, edge1), dot(pull2, edge1)], axis=-1),
+            jnp.stack([dot(pull1, edge2), dot(pull2, edge2)], axis=-1),
+        ],
+        axis=1,
+    )  # ∂/∂m_ij = pull_j · e_i
+    return d_corners.reshape(corners.shape), d_inverse
+
+
+_triangle_invariants.defvjp(_triangle_invariants_forward, _triangle_invariants_backward)
 
 
 def _green_strain_of(x1, x2, x3, inverse):
@@ -471,7 +534,7 @@ def _green_strain_of(x1, x2, x3, inverse):
 
 def _green_strain(position, mesh: MembraneMesh):
     """Green–Lagrange strain (E₁₁, E₂₂, E₁₂) of each triangle at the given node positions."""
-    return _green_strain_of(*_corners(position, mesh), mesh.reference_inverse)
+    return _triangle_invariants(_gathered_corners(position, mesh), mesh.reference_inverse)[:3]
 
 
 def stretching_energy(
@@ -510,14 +573,16 @@ def stretching_energy(
     Returns:
       Scalar energy, J.
     """
-    return _stretching_energy_of(_corners(position, mesh), mesh, modulus, thickness, model, poisson_ratio)
+    return _stretching_energy_of(
+        _green_strain(position, mesh), mesh, modulus, thickness, model, poisson_ratio
+    )
 
 
-def _stretching_energy_of(corners, mesh: MembraneMesh, modulus, thickness, model, poisson_ratio):
-    """:func:`stretching_energy` from the triangle corners (3, T) × 3."""
+def _stretching_energy_of(strain, mesh: MembraneMesh, modulus, thickness, model, poisson_ratio):
+    """:func:`stretching_energy` from the triangles' Green–Lagrange strain (E₁₁, E₂₂, E₁₂), (T,) each."""
     if model not in STRETCHING_MODELS:
         raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
-    e11, e22, e12 = _green_strain_of(*corners, mesh.reference_inverse)
+    e11, e22, e12 = strain
     trace = e11 + e22
     if model == "neo_hookean":
         determinant = e11 * e22 - e12 * e12
@@ -536,21 +601,23 @@ def bending_rigidity(modulus, thickness, poisson_ratio=0.5):
     return modulus * thickness**3 / (12.0 * (1.0 - poisson_ratio * poisson_ratio))
 
 
-def _dihedral_and_gradient(a, b, c, d):
-    """Signed bending angle θ of each hinge and its gradient with respect to a, b, c, d (component-first).
+def _dihedral_and_gradient(hinges, with_gradient=True):
+    """Signed bending angle θ of each hinge (E,) and its gradient ∂θ/∂(a, b, c, d) as one (3, 4, E) array.
 
-    The edge a → b belongs to the first triangle (a, b, c) and, reversed, to the second (b, a, d). With the
-    unnormalised normals n₁ = (b − a) × (c − a), n₂ = (a − b) × (d − b) and e = b − a,
-    θ = atan2((n₁ × n₂)·e, |e| n₁·n₂) is the angle between the normals without normalising them (both
-    atan2 arguments carry the same positive factor); 0 for a flat pair. Its gradient is the classical
-    hinge formula (Bridson, Marino & Fedkiw 2003; Tamstorf & Grinspun 2013), with q_i = 1/|n_i|²:
+    ``hinges`` is (3, 4E), the vertices a, b, c, d of every hinge component-first. The edge a → b belongs
+    to the first triangle (a, b, c) and, reversed, to the second (b, a, d). With the unnormalised normals
+    n₁ = (b − a) × (c − a), n₂ = (a − b) × (d − b) and e = b − a, θ = atan2((n₁ × n₂)·e, |e| n₁·n₂) is the
+    angle between the normals without normalising them (both atan2 arguments carry the same positive
+    factor); 0 for a flat pair. Its gradient is the classical hinge formula (Bridson, Marino & Fedkiw 2003;
+    Tamstorf & Grinspun 2013), with q_i = 1/|n_i|²:
 
         ∂θ/∂c = −|e| q₁ n₁,   ∂θ/∂d = −|e| q₂ n₂,
         ∂θ/∂a = −[(c − b)·e q₁ n₁ + (d − b)·e q₂ n₂]/|e|,   ∂θ/∂b = −[(a − c)·e q₁ n₁ + (a − d)·e q₂ n₂]/|e|
 
     (the four sum to zero: a rigid translation does not bend). Collapsed triangles (n_i = 0) or edges give
-    θ = 0 with a zero gradient.
+    θ = 0 with a zero gradient. With ``with_gradient=False`` the gradient is None.
     """
+    a, b, c, d = jnp.split(hinges, 4, axis=1)
     edge = b - a
     normal1 = cross(edge, c - a)
     normal2 = cross(a - b, d - b)
@@ -561,29 +628,52 @@ def _dihedral_and_gradient(a, b, c, d):
     area1_sq, area2_sq = dot(normal1, normal1), dot(normal2, normal2)
     degenerate = (area1_sq == 0.0) | (area2_sq == 0.0) | (length_sq == 0.0)
     angle = jnp.where(degenerate, 0.0, jnp.arctan2(sine, jnp.where(degenerate, 1.0, cosine)))
+    if not with_gradient:
+        return angle, None
     weight1 = jnp.where(degenerate, 0.0, 1.0 / jnp.where(degenerate, 1.0, area1_sq))
     weight2 = jnp.where(degenerate, 0.0, 1.0 / jnp.where(degenerate, 1.0, area2_sq))
     along1, along2 = scale(weight1, normal1), scale(weight2, normal2)
-    grad_c = scale(-length, along1)
-    grad_d = scale(-length, along2)
-    project1, project2 = scale(-1.0 / length, along1), scale(-1.0 / length, along2)
-    grad_a = scale(dot(c - b, edge), project1) + scale(dot(d - b, edge), project2)
-    grad_b = scale(dot(a - c, edge), project1) + scale(dot(a - d, edge), project2)
-    return angle, (grad_a, grad_b, grad_c, grad_d)
+    along_edge = jnp.stack([dot(c - b, edge), dot(d - b, edge), dot(a - c, edge), dot(a - d, edge)])
+    # Stored once: the four vertex gradients share them, and XLA-CPU would recompute them per vertex
+    # and component (membrax.fusion).
+    along1, along2, length, along_edge = materialize(along1, along2, length, along_edge)
+    inverse_length = 1.0 / length
+    gradient = jnp.stack(
+        [
+            -scale(inverse_length, scale(along_edge[0], along1) + scale(along_edge[1], along2)),
+            -scale(inverse_length, scale(along_edge[2], along1) + scale(along_edge[3], along2)),
+            scale(-length, along1),
+            scale(-length, along2),
+        ],
+        axis=1,
+    )
+    return angle, gradient
 
 
-@jax.custom_jvp
-def _dihedral_angle(a, b, c, d):
-    """Signed bending angle θ of each hinge, rad (see :func:`_dihedral_and_gradient`)."""
-    return _dihedral_and_gradient(a, b, c, d)[0]
+@jax.custom_vjp
+def _dihedral_angle(hinges):
+    """Signed bending angle θ of each hinge, rad, from the gathered hinge vertices (3, 4E) (a, b, c, d).
+
+    See :func:`_dihedral_and_gradient` for the angle and its closed-form gradient, which reverse mode
+    uses (forward mode is not defined, as for :func:`gather_components`).
+    """
+    return _dihedral_and_gradient(hinges, with_gradient=False)[0]
 
 
-@_dihedral_angle.defjvp
-def _dihedral_angle_jvp(primals, tangents):
+def _dihedral_angle_forward(hinges):
     # The closed-form gradient is one pass over the hinges; autodiff of atan2 and the cross products was
     # 8× slower on XLA-CPU (its backward splits into one fusion per output component).
-    angle, gradients = jax.lax.optimization_barrier(_dihedral_and_gradient(*primals))
-    return angle, sum(dot(gradient, tangent) for gradient, tangent in zip(gradients, tangents, strict=True))
+    angle, gradient = _dihedral_and_gradient(hinges)
+    return angle, materialize(gradient)
+
+
+def _dihedral_angle_backward(gradient, cotangent):
+    # The cotangent stored once: it would otherwise be recomputed for each vertex and component.
+    cotangent = materialize(cotangent)
+    return ((gradient * cotangent[None, None]).reshape(gradient.shape[0], -1),)
+
+
+_dihedral_angle.defvjp(_dihedral_angle_forward, _dihedral_angle_backward)
 
 
 def bending_energy(position, mesh: MembraneMesh, modulus, thickness, poisson_ratio=0.5):
@@ -607,7 +697,7 @@ def bending_energy(position, mesh: MembraneMesh, modulus, thickness, poisson_rat
     Returns:
       Scalar energy, J.
     """
-    angle = _dihedral_angle(*_hinges(position, mesh))
+    angle = _dihedral_angle(_gathered_hinges(position, mesh))
     stiffness = bending_rigidity(modulus, thickness, poisson_ratio) / 6.0
     change = angle - mesh.rest_dihedral
     return stiffness * jnp.sum(mesh.edge_weight * change * change)
@@ -666,12 +756,13 @@ def enclosed_volume(position, mesh: MembraneMesh):
     exactly the platen's face. The surface is closed for any node positions, so V is exact and independent
     of the origin; for rings lying in planes it is the exact volume of the polyhedron.
     """
-    return _enclosed_volume_of(_corners(position, mesh), position, mesh)
+    return _enclosed_volume_of(band_volume(position, mesh), position, mesh)
 
 
-def _enclosed_volume_of(corners, position, mesh: MembraneMesh):
+def _enclosed_volume_of(band, position, mesh: MembraneMesh):
+    """:func:`enclosed_volume` from the band's own term (:func:`band_volume`)."""
     return (
-        _band_volume_of(corners)
+        band
         + cap_volume(position, mesh.bottom_ring, upward=False)
         + cap_volume(position, mesh.top_ring, upward=True)
     )
@@ -707,11 +798,12 @@ def total_energy(
     ``bending_factor`` scales the bending energy: 1 is the plate's E t³/12(1 − ν²), 0 a pure membrane
     (a mesh with no bending stiffness, which may be what the paper's finite-difference mesh was).
     """
-    corners = _corners(position, mesh)  # gathered once for stretching and volume
+    # One pass over the triangles gives both the strain and the band's volume term.
+    *strain, triple = _triangle_invariants(_gathered_corners(position, mesh), mesh.reference_inverse)
     return (
-        _stretching_energy_of(corners, mesh, modulus, thickness, model, poisson_ratio)
+        _stretching_energy_of(strain, mesh, modulus, thickness, model, poisson_ratio)
         + bending_factor * bending_energy(position, mesh, modulus, thickness, poisson_ratio)
-        + cell_pressure * _enclosed_volume_of(corners, position, mesh)
+        + cell_pressure * _enclosed_volume_of(jnp.sum(triple) / 6.0, position, mesh)
     )
 
 

@@ -345,6 +345,48 @@ def test_parameter_gradients_match_central_differences():
     np.testing.assert_allclose(float(jnp.sum(grad_volume * direction)), finite, rtol=1e-6)
 
 
+@pytest.mark.parametrize("model", ["neo_hookean", "svk"])
+def test_nodal_forces_and_hessian_match_central_differences(model):
+    # The closed-form derivatives of the triangles and hinges against the energy itself: the directional
+    # derivative of U is −F·v, and the Hessian–vector product (reverse over reverse, as in
+    # membrane_critical_time_step) is the directional derivative of −F.
+    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    key1, key2 = jax.random.split(jax.random.PRNGKey(3))
+    position = mesh.reference_position * jnp.asarray([1.05, 1.05, 0.97])[None, :]
+    position = position + 0.003 * jax.random.normal(key1, position.shape)
+    direction = jax.random.normal(key2, position.shape)
+    params = (1.4e6, 3e-3, 30e3)
+
+    def energy(x):
+        return membrane.total_energy(x, mesh, *params, model=model)
+
+    def energy_at(s):
+        return float(energy(position + s * direction))
+
+    step = 1e-6
+    force = jax.jit(lambda x: membrane.nodal_forces(x, mesh, *params, model=model))
+    finite = (energy_at(step) - energy_at(-step)) / (2.0 * step)
+    np.testing.assert_allclose(-float(jnp.sum(force(position) * direction)), finite, rtol=1e-6)
+    hvp = jax.grad(lambda x: jnp.vdot(jax.grad(energy)(x), direction))(position)
+    finite_hvp = -(force(position + step * direction) - force(position - step * direction)) / (2.0 * step)
+    scale_ = float(jnp.max(jnp.abs(hvp)))
+    np.testing.assert_allclose(np.asarray(hvp), np.asarray(finite_hvp), rtol=0, atol=1e-5 * scale_)
+
+    # The derivative with respect to the rest frames D_m⁻¹ (a mesh quantity) is carried too.
+    def energy_of_frames(inverse):
+        return membrane.stretching_energy(
+            position, mesh.set(reference_inverse=inverse), *params[:2], model=model
+        )
+
+    frames_direction = jax.random.normal(jax.random.PRNGKey(4), mesh.reference_inverse.shape)
+    grad_frames = jax.grad(energy_of_frames)(mesh.reference_inverse)
+    finite_frames = (
+        float(energy_of_frames(mesh.reference_inverse + step * frames_direction))
+        - float(energy_of_frames(mesh.reference_inverse - step * frames_direction))
+    ) / (2.0 * step)
+    np.testing.assert_allclose(float(jnp.sum(grad_frames * frames_direction)), finite_frames, rtol=1e-6)
+
+
 def test_jit_and_vmap_over_material_parameters_match_loop():
     mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
     position = mesh.reference_position * jnp.asarray([1.02, 1.02, 0.99])[None, :]
