@@ -12,6 +12,9 @@ triangles) wraps the specimen at t_m/2 outside the outline. For each dtype, in a
   steps/s and particle-steps/s (spheres + nodes);
 - peak resident memory.
 
+Rates are the best of three timed runs (after a compiling one): on a shared machine other work only
+ever lengthens a run.
+
 Each membrane step of the coupled simulation needs one membrane-force and one contact evaluation, so
 their combined rate bounds the membrane part of the DEM + membrane step (issue target: ≥ 500 steps/s in
 float32 for the whole step). Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5]``.
@@ -21,7 +24,7 @@ import argparse
 import json
 import resource
 
-from harness import run_each_dtype, timed
+from harness import best_of, run_each_dtype, timed
 
 
 def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
@@ -57,7 +60,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     _, one = timed(forces_once, nodes)
     membrane_loop = in_loop(forces)
     timed(membrane_loop, nodes)
-    _, total = timed(membrane_loop, nodes)
+    total = best_of(membrane_loop, nodes)
     membrane_rate = repeats / total
 
     spheres = jnp.asarray(specimen.position)
@@ -95,7 +98,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
         )
     )
     timed(contact, nodes)
-    _, total_contact = timed(contact, nodes)
+    total_contact = best_of(contact, nodes)
     contact_rate = repeats / total_contact
     test = membrane_triaxial.membrane_test(
         specimen,
@@ -108,7 +111,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
         lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: test.runner.step_fn(x, test.params), s)
     )
     state, coupled_first = timed(coupled, state)
-    _, coupled_total = timed(coupled, state)
+    coupled_total = best_of(coupled, state)
     coupled_rate = repeats / coupled_total
     return {
         "dtype": dtype,
