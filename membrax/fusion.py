@@ -7,10 +7,10 @@ other backends it is a plain identity.
 
 Why. XLA-CPU fuses chains of cheap elementwise operations (adds, multiplies, selects) into each consumer
 and has no multi-output loop fusion, so a per-contact formula that feeds three vector components and two
-outputs (a carried spring and a force) is evaluated six times. In the node–sphere law at paper size
-(51,660 slots) that recomputation cost 5.4 ms per step against 1.4 ms with the intermediates stored
-(``benchmarks/bench_membrane.py``). ``jax.lax.optimization_barrier`` does not help there: XLA-CPU
-removes it before fusion. A conditional does survive, and its result is stored, so :func:`materialize`
+outputs (a carried spring and a force) is evaluated six times. At paper size (51,660 node–sphere slots)
+storing the law's intermediates took the contact forces from 407 to 845 evaluations/s in float32
+(``benchmarks/bench_membrane.py``, same machine). ``jax.lax.optimization_barrier`` does not help there:
+XLA-CPU removes it before fusion. A conditional does survive, and its result is stored, so :func:`materialize`
 wraps the arrays in ``lax.cond`` on a predicate that is always true but that XLA cannot fold
 (x = x or x ≠ x, true even for NaN, so no value is ever replaced). The predicate stays unbatched under
 ``vmap`` (a custom batching rule applies the same conditional to the batched arrays), because a batched

@@ -423,8 +423,8 @@ def gather_components(position, index, incidence):
     loop: with ``incidence`` (N, K), the slots of ``index`` holding each row padded with S (built on the
     host, see :class:`MembraneMesh`), the cotangent is summed by K row gathers instead,
     ∂/∂position_n = Σ_k ḡ[incidence[n, k]], ḡ the cotangent rows with a zero row appended. And the
-    gathered, transposed array is materialised once (an optimisation barrier), because XLA otherwise
-    re-gathers it inside every consumer fusion. Together they made the membrane forces 4× faster.
+    gathered, transposed array sits behind an optimisation barrier, so that a backend that keeps it
+    (XLA-CPU removes it) does not re-gather it inside every consumer fusion.
     Reverse mode only (``jax.grad``, ``jax.vjp``, reverse over reverse); forward mode is not defined.
 
     Args:
@@ -440,9 +440,7 @@ def _gather_components_forward(position, index, incidence):
 
 
 def _gather_components_backward(incidence, cotangent):
-    # Stored before the transpose: XLA-CPU would otherwise evaluate the cotangent's producer in
-    # transposed order inside the copy (3× slower at paper size).
-    rows = materialize(cotangent).T
+    rows = cotangent.T
     padded = jnp.concatenate([rows, jnp.zeros((1, rows.shape[1]), rows.dtype)])
     total = padded[incidence[:, 0]]
     for k in range(1, incidence.shape[1]):  # K ≤ 20: unrolled row gathers
