@@ -497,10 +497,8 @@ def _triangle_invariants_backward(residuals, cotangents):
     num_triangles = inverse.shape[0]
     x = corners.reshape(3, 3, num_triangles)  # (component, corner, triangle)
     x1, x2, x3 = x[:, 0], x[:, 1], x[:, 2]
-    edge1, edge2 = x2 - x1, x3 - x1
+    edge1, edge2, f1, f2 = _deformation_columns(x1, x2, x3, inverse)
     m00, m01, m10, m11 = inverse[:, 0, 0], inverse[:, 0, 1], inverse[:, 1, 0], inverse[:, 1, 1]
-    f1 = edge1 * m00[None] + edge2 * m10[None]
-    f2 = edge1 * m01[None] + edge2 * m11[None]
     # ∂E/∂f₁ and ∂E/∂f₂ contracted with the cotangents, then spread on the corners.
     pull1 = scale(c11, f1) + scale(0.5 * c12, f2)
     pull2 = scale(c22, f2) + scale(0.5 * c12, f1)
@@ -521,12 +519,18 @@ def _triangle_invariants_backward(residuals, cotangents):
 _triangle_invariants.defvjp(_triangle_invariants_forward, _triangle_invariants_backward)
 
 
-def _green_strain_of(x1, x2, x3, inverse):
-    """Green–Lagrange strain E = (FᵀF − I)/2 of each triangle, F = D_s D_m⁻¹; returns (E₁₁, E₂₂, E₁₂)."""
+def _deformation_columns(x1, x2, x3, inverse):
+    """Edges e₁ = x₂ − x₁, e₂ = x₃ − x₁ and the columns f₁, f₂ of F = [e₁ e₂] D_m⁻¹, (3, T) each."""
     edge1, edge2 = x2 - x1, x3 - x1
-    # columns of F (3 × 2): f_j = edge1 (D_m⁻¹)_{1j} + edge2 (D_m⁻¹)_{2j}
+    # f_j = e₁ (D_m⁻¹)_{1j} + e₂ (D_m⁻¹)_{2j}
     f1 = edge1 * inverse[None, :, 0, 0] + edge2 * inverse[None, :, 1, 0]
     f2 = edge1 * inverse[None, :, 0, 1] + edge2 * inverse[None, :, 1, 1]
+    return edge1, edge2, f1, f2
+
+
+def _green_strain_of(x1, x2, x3, inverse):
+    """Green–Lagrange strain E = (FᵀF − I)/2 of each triangle, F = D_s D_m⁻¹; returns (E₁₁, E₂₂, E₁₂)."""
+    _, _, f1, f2 = _deformation_columns(x1, x2, x3, inverse)
     return 0.5 * (dot(f1, f1) - 1.0), 0.5 * (dot(f2, f2) - 1.0), 0.5 * dot(f1, f2)
 
 

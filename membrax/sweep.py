@@ -927,7 +927,7 @@ def run_sweep(
         warnings.warn(
             f"one CPU device on {cpu_cores()} cores: call membrax.devices.split_cpu_devices() before "
             "importing the rest of membrax (or any JAX operation) to run the members side by side, one "
-            "per core (bench_sweep: 1.5–1.8× faster on 2 cores).",
+            "per core (bench_sweep: 1.5–2.5× faster than serial on 2 cores).",
             stacklevel=2,
         )
     groups: dict[tuple, list] = {}
