@@ -723,12 +723,8 @@ def inner_volume(position, mesh: MembraneMesh, thickness):
 
 def band_volume(position, mesh: MembraneMesh):
     """(1/6) Σ_triangles x₁·(x₂ × x₃) over the band alone, m³ (origin-dependent: the band is open)."""
-    return _band_volume_of(_corners(position, mesh))
-
-
-def _band_volume_of(corners):
-    x1, x2, x3 = corners
-    return jnp.sum(dot(x1, cross(x2, x3))) / 6.0
+    triple = _triangle_invariants(_gathered_corners(position, mesh), mesh.reference_inverse)[3]
+    return jnp.sum(triple) / 6.0
 
 
 def cap_volume(position, ring, upward: bool):
