@@ -666,7 +666,7 @@ def _dihedral_angle_forward(hinges):
     # The closed-form gradient is one pass over the hinges; autodiff of atan2 and the cross products was
     # 8× slower on XLA-CPU (its backward splits into one fusion per output component).
     angle, gradient = _dihedral_and_gradient(hinges)
-    return angle, materialize(gradient)
+    return angle, gradient
 
 
 def _dihedral_angle_backward(gradient, cotangent):
