@@ -26,6 +26,7 @@ a size-3 axis much more slowly than it adds three rows. All 2 × 2 algebra is wr
 
 from __future__ import annotations
 
+import functools
 import math
 
 import jax
@@ -33,6 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax_md import dataclasses
 
+from membrax import native
 from membrax.fusion import materialize
 from membrax.validation import check_range
 from membrax.vector import cross, dot, scale
@@ -815,10 +817,68 @@ def nodal_forces(
     model="neo_hookean",
     bending_factor=1.0,
 ):
-    """Conservative nodal forces −∂(total energy)/∂x, (N, 3), N."""
+    """Conservative nodal forces −∂(total energy)/∂x, (N, 3), N.
+
+    On the CPU, in float32 or float64, the forces come from a compiled kernel (:mod:`membrax.native`,
+    ``membrane_forces.cc``) that evaluates the same formulas in one pass over the triangles and hinges,
+    and skips the hinges when ``bending_factor`` is 0; their derivatives (``jax.grad``, ``jax.vjp``) are
+    those of the JAX expression −∇(total energy), which is used everywhere else and is the reference the
+    tests hold the kernel to (agreement to round-off).
+    """
+    if model not in STRETCHING_MODELS:
+        raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
+    position = jnp.asarray(position)
+    args = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+    if position.dtype in (jnp.float32, jnp.float64) and native.available():
+        return _COMPILED_NODAL_FORCES[model](*args)
+    return _reference_nodal_forces(*args, model)
+
+
+def _reference_nodal_forces(
+    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
+):
+    """−∇(total energy) by ``jax.grad``: the definition of :func:`nodal_forces`."""
     return -jax.grad(total_energy)(
         position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model, bending_factor
     )
+
+
+def _kernel_nodal_forces(
+    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
+):
+    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`_reference_nodal_forces`)."""
+    dtype = position.dtype
+    scalars = jnp.stack(
+        [
+            jnp.asarray(value, dtype)
+            for value in (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+        ]
+    )
+    return native.call(
+        "membrane_forces",
+        dtype,
+        jax.ShapeDtypeStruct(position.shape, dtype),
+        position,
+        mesh.corner_index,
+        mesh.reference_inverse.astype(dtype),
+        mesh.reference_area.astype(dtype),
+        mesh.hinge_index,
+        mesh.edge_weight.astype(dtype),
+        mesh.rest_dihedral.astype(dtype),
+        mesh.bottom_ring,
+        mesh.top_ring,
+        scalars,
+        model=np.int64(STRETCHING_MODELS.index(model)),
+    )
+
+
+_COMPILED_NODAL_FORCES = {
+    model: native.with_reference(
+        functools.partial(_kernel_nodal_forces, model=model),
+        functools.partial(_reference_nodal_forces, model=model),
+    )
+    for model in STRETCHING_MODELS
+}
 
 
 def lumped_mass(mesh: MembraneMesh, thickness, density=1000.0):

@@ -70,6 +70,7 @@ import jax
 import jax.numpy as jnp
 from jax_md import dataclasses
 
+from membrax import native
 from membrax.contact import normal_energy, tangential_spring_update
 from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
@@ -257,6 +258,11 @@ def node_sphere_forces(
     F_node = k_n δ n + s',  F_sphere = −F_node,  τ_sphere = b × F_sphere,  b = x_node − x_sphere,
     s' = tangential_spring_update(s, n, Π_t[v_node − v_i − ω_i × b], Δt, k_t, μ, k_n δ, δ > 0).
 
+    On the CPU, in float32 or float64, the forces, torques and springs come from a compiled kernel
+    (:mod:`membrax.native`, ``node_sphere.cc``) that finds the touching slots in one vectorised pass and
+    applies this law to those alone; derivatives are those of the JAX law below
+    (``_reference_node_sphere_forces``), which the tests hold the kernel to (agreement to round-off).
+
     Args:
       node_position: (n_nodes, 3), m.
       node_velocity: (n_nodes, 3), m/s.
@@ -277,6 +283,113 @@ def node_sphere_forces(
     Returns:
       A :class:`NodeSphereForces`.
     """
+    args = (
+        node_position,
+        node_velocity,
+        sphere_position,
+        sphere_velocity,
+        sphere_angular_velocity,
+        sphere_radius,
+        candidates,
+        spring,
+        dt,
+        params,
+        membrane_thickness,
+    )
+    dtype = jnp.asarray(node_position).dtype
+    if dtype not in (jnp.float32, jnp.float64) or not native.available():
+        return _reference_node_sphere_forces(*args, sphere_slots=sphere_slots, sphere_subset=sphere_subset)
+    node_force, sphere_force, sphere_torque, new_spring = _compiled_node_sphere_forces(*args)
+    # The per-slot fields from the geometry and the new springs; XLA drops those a caller does not use.
+    branch, reach, valid, _ = _slot_geometry(
+        node_position, sphere_position, sphere_radius, candidates, membrane_thickness
+    )
+    normal, distance = safe_normalize(branch)
+    overlap = jnp.where(valid, reach - distance, -1.0)
+    normal_force = jnp.where(distance > 0.0, params.normal_stiffness * jnp.maximum(overlap, 0.0), 0.0)
+    force_on_node = select(valid, scale(normal_force, normal) + new_spring)
+    return NodeSphereForces(
+        node_force=node_force,
+        sphere_force=sphere_force,
+        sphere_torque=sphere_torque,
+        spring=new_spring,
+        normal_force=normal_force,
+        overlap=overlap,
+        slot_force=jnp.moveaxis(force_on_node, 0, -1),
+        branch=jnp.moveaxis(branch, 0, -1),
+    )
+
+
+def _kernel_node_sphere_forces(
+    node_position,
+    node_velocity,
+    sphere_position,
+    sphere_velocity,
+    sphere_angular_velocity,
+    sphere_radius,
+    candidates,
+    spring,
+    dt,
+    params,
+    membrane_thickness,
+):
+    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc)."""
+    dtype = node_position.dtype
+    scalars = jnp.stack(
+        [
+            jnp.asarray(value, dtype)
+            for value in (
+                dt,
+                params.normal_stiffness,
+                params.tangential_stiffness,
+                params.friction_coefficient,
+                membrane_thickness,
+            )
+        ]
+    )
+    rows = jax.ShapeDtypeStruct(node_position.shape, dtype)
+    sphere_rows = jax.ShapeDtypeStruct(sphere_position.shape, dtype)
+    return native.call(
+        "node_sphere_forces",
+        dtype,
+        (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
+        node_position,
+        node_velocity.astype(dtype),
+        sphere_position.astype(dtype),
+        sphere_velocity.astype(dtype),
+        sphere_angular_velocity.astype(dtype),
+        sphere_radius.astype(dtype),
+        candidates.astype(jnp.int32),
+        spring.astype(dtype),
+        scalars,
+    )
+
+
+def _reference_outputs(*args):
+    """The four outputs of the kernel, from the JAX law (the definition)."""
+    result = _reference_node_sphere_forces(*args)
+    return result.node_force, result.sphere_force, result.sphere_torque, result.spring
+
+
+_compiled_node_sphere_forces = native.with_reference(_kernel_node_sphere_forces, _reference_outputs)
+
+
+def _reference_node_sphere_forces(
+    node_position,
+    node_velocity,
+    sphere_position,
+    sphere_velocity,
+    sphere_angular_velocity,
+    sphere_radius,
+    candidates,
+    spring,
+    dt,
+    params: MembraneContactParams,
+    membrane_thickness,
+    sphere_slots=None,
+    sphere_subset=None,
+) -> NodeSphereForces:
+    """:func:`node_sphere_forces` in JAX: the definition of the law, and its derivatives."""
     num_spheres = sphere_position.shape[0]
     branch, reach, valid, safe_idx = _slot_geometry(
         node_position, sphere_position, sphere_radius, candidates, membrane_thickness

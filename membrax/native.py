@@ -1,0 +1,165 @@
+"""Compiled CPU kernels for the hottest loops, built on first use, with the JAX code as reference.
+
+Contract. :func:`available` says whether the kernels in ``membrax/native/*.cc`` are compiled and
+registered with XLA as FFI targets (``jax.ffi``) for the CPU; when it is false, every caller uses its
+pure-JAX path, which computes the same numbers. The kernels are built once per machine with the C++
+compiler that XLA's headers need (``g++``, C++17), into a cache folder keyed by the source's hash and
+the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/membrax``), and loaded with ``ctypes``.
+``MEMBRAX_NATIVE=0`` turns them off. A failed build warns once and falls back to JAX.
+
+Why. XLA-CPU has no multi-output loop fusion and turns each per-element formula into several passes
+over memory (see :mod:`membrax.fusion`); a membrane force is a short formula over 34,000 triangles, and
+one loop that computes it once per element and adds it to its nodes does in one pass what XLA does in a
+dozen. The callers keep their JAX formulas as the definition: they use them for derivatives (a kernel
+is wrapped in ``jax.custom_vjp`` whose backward pass is the JAX code's) and on other backends
+(``lax.platform_dependent``), and the tests check kernel against JAX.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import functools
+import hashlib
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import warnings
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+__all__ = ["available", "build", "cache_dir", "call", "with_reference"]
+
+_SOURCES = ("membrane_forces.cc", "node_sphere.cc", "pair_contact.cc")
+_HEADERS = ("contact_law.h",)
+_TARGETS = {
+    "membrax_membrane_forces_f32": "MembraxMembraneForcesF32",
+    "membrax_membrane_forces_f64": "MembraxMembraneForcesF64",
+    "membrax_node_sphere_forces_f32": "MembraxNodeSphereForcesF32",
+    "membrax_node_sphere_forces_f64": "MembraxNodeSphereForcesF64",
+    "membrax_pair_contact_f32": "MembraxPairContactF32",
+    "membrax_pair_contact_f64": "MembraxPairContactF64",
+}
+_FLAGS = ("-O3", "-march=native", "-fopenmp-simd", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC")
+
+
+def cache_dir() -> Path:
+    """The folder of the compiled library: ``$MEMBRAX_CACHE_DIR`` or ``~/.cache/membrax``."""
+    return Path(os.environ.get("MEMBRAX_CACHE_DIR") or Path.home() / ".cache" / "membrax")
+
+
+def _source_dir() -> Path:
+    return Path(__file__).parent / "native"
+
+
+def _cpu_signature() -> str:
+    # -march=native: a library built on one CPU may not run on another sharing the cache folder.
+    flags = ""
+    try:
+        with open("/proc/cpuinfo") as cpuinfo:
+            flags = next((line for line in cpuinfo if line.startswith("flags")), "")
+    except OSError:
+        pass
+    return f"{platform.machine()} {flags}"
+
+
+def _library_path() -> Path:
+    digest = hashlib.sha256()
+    for name in _SOURCES + _HEADERS:
+        digest.update((_source_dir() / name).read_bytes())
+    digest.update(" ".join(_FLAGS).encode())
+    digest.update(jax.ffi.include_dir().encode())
+    digest.update(_cpu_signature().encode())
+    return cache_dir() / f"membrax_native_{digest.hexdigest()[:16]}.so"
+
+
+def build() -> Path:
+    """Compile the kernels if the cache lacks them; returns the library's path.
+
+    Raises:
+      RuntimeError: no C++ compiler, or the compilation failed (its messages are included).
+    """
+    target = _library_path()
+    if target.exists():
+        return target
+    compiler = os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++")
+    if compiler is None:
+        raise RuntimeError("no C++ compiler found (install g++ or set CXX)")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    # Built under a temporary name and renamed, so that concurrent processes never load half a file.
+    with tempfile.NamedTemporaryFile(dir=target.parent, suffix=".so", delete=False) as partial:
+        partial_path = Path(partial.name)
+    command = [
+        compiler,
+        *_FLAGS,
+        f"-I{jax.ffi.include_dir()}",
+        *(str(_source_dir() / name) for name in _SOURCES),
+        "-o",
+        str(partial_path),
+    ]
+    result = subprocess.run(command, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        partial_path.unlink(missing_ok=True)
+        errors = [line for line in result.stderr.splitlines() if "error" in line][:10]
+        raise RuntimeError(f"compiling the membrax kernels failed: {' '.join(command)}: " + "; ".join(errors))
+    partial_path.replace(target)
+    return target
+
+
+@functools.cache
+def available() -> bool:
+    """Whether the compiled kernels are registered for the CPU (built on the first call).
+
+    False when ``MEMBRAX_NATIVE=0``, or when the build failed (with one warning saying why).
+    """
+    if os.environ.get("MEMBRAX_NATIVE", "1").strip().lower() in ("0", "false", "no", "off"):
+        return False
+    try:
+        library = ctypes.cdll.LoadLibrary(str(build()))
+        for target, symbol in _TARGETS.items():
+            jax.ffi.register_ffi_target(target, jax.ffi.pycapsule(getattr(library, symbol)), platform="cpu")
+    except (OSError, RuntimeError, AttributeError) as error:
+        warnings.warn(
+            f"membrax: compiled CPU kernels unavailable, using the JAX code ({error}). "
+            "Set MEMBRAX_NATIVE=0 to silence this.",
+            stacklevel=2,
+        )
+        return False
+    return True
+
+
+def call(name: str, dtype, results, *args, **attributes):
+    """Call the kernel ``name`` (``membrax_<name>_f32`` or ``_f64`` after ``dtype``) on ``args``.
+
+    ``results`` is one ``jax.ShapeDtypeStruct`` or a tuple of them; ``attributes`` are the handler's static
+    attributes (numpy scalars). Under ``vmap`` the kernel runs once per batch member.
+    """
+    suffix = "f32" if jnp.dtype(dtype) == jnp.float32 else "f64"
+    function = jax.ffi.ffi_call(f"membrax_{name}_{suffix}", results, vmap_method="sequential")
+    return function(*args, **attributes)
+
+
+def with_reference(kernel, reference):
+    """``kernel`` on the CPU and ``reference`` on other backends, with the derivatives of ``reference``.
+
+    Both take the same positional arguments and return the same arrays; ``reference`` is the JAX
+    definition the kernel computes. Reverse mode (``jax.grad``, ``jax.vjp``, and reverse over reverse
+    through the reference) is defined; forward mode is not (``jax.custom_vjp``).
+    """
+
+    @jax.custom_vjp
+    def compiled(*args):
+        return jax.lax.platform_dependent(*args, cpu=kernel, default=reference)
+
+    def forward(*args):
+        return compiled(*args), args
+
+    def backward(args, cotangents):
+        _, pullback = jax.vjp(reference, *args)
+        return pullback(cotangents)
+
+    compiled.defvjp(forward, backward)
+    return compiled

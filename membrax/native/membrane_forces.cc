@@ -1,0 +1,311 @@
+// Membrane nodal forces −∂(W_stretch + f_b W_bend + p V)/∂x in one pass over triangles and hinges.
+//
+// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the formulas are those
+// of membrax/membrane.py, which remains the reference (and supplies the derivatives of these forces,
+// see membrax.membrane.nodal_forces). The per-element loops are written branch-free so that the
+// compiler vectorises them; each writes its corner forces into a component-first scratch array, and a
+// serial loop adds them to the nodes (a scatter cannot be vectorised safely, and is cheap in order).
+//
+// Inputs (T: float or double):
+//   position       (N, 3) T    node positions, m
+//   corner_index   (3T,) i32   first corners of all triangles, then second, then third
+//   inverse        (T, 2, 2) T the rest frames D_m⁻¹, 1/m
+//   area           (T,) T      rest areas A₀, m²
+//   hinge_index    (4E,) i32   edge starts a, ends b, opposite vertices c (first triangle), d (second)
+//   edge_weight    (E,) T      3|ē|²/Ā of Discrete Shells
+//   rest_dihedral  (E,) T      θ̄, rad
+//   bottom_ring, top_ring (n,) i32  the end rings, counter-clockwise seen from +z
+//   scalars        (5,) T      E_m (Pa), t_m (m), p (Pa), ν, f_b (bending factor)
+// Attribute: model (0 neo-Hookean, 1 St Venant–Kirchhoff).
+// Output: force (N, 3) T, N.
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace {
+
+// atan(a) for 0 ≤ a ≤ 1 (Cephes atanf: relative error ≤ 2.1e-7 on [0, 1], checked against std::atan).
+inline float atan_unit(float a) {
+  const bool big = a > 0.41421356237309505f;  // tan(π/8): reduce with atan a = π/4 + atan((a−1)/(a+1))
+  const float offset = big ? 0.78539816339744831f : 0.0f;
+  const float x = big ? (a - 1.0f) / (a + 1.0f) : a;
+  const float z = x * x;
+  return offset +
+         ((((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z -
+           3.33329491539e-1f) * z * x + x);
+}
+
+// atan(a) for 0 ≤ a ≤ 1 (Cephes atan, rational P/Q: relative error ≤ 2.3e-16 on [0, 1]).
+inline double atan_unit(double a) {
+  const bool big = a > 0.66;
+  const double offset = big ? 0.78539816339744830962 : 0.0;
+  const double x = big ? (a - 1.0) / (a + 1.0) : a;
+  double z = x * x;
+  const double p = ((((-8.750608600031904122785e-1 * z - 1.615753718733365076637e1) * z -
+                      7.500855792314704667340e1) * z - 1.228866684490136173410e2) * z -
+                    6.485021904942025371773e1);
+  const double q = (((((z + 2.485846490142306297962e1) * z + 1.650270098316988542046e2) * z +
+                      4.328810604912902668951e2) * z + 4.853903996359136964868e2) * z +
+                    1.945506571482613964425e2);
+  z = x * (z * p / q) + x;
+  return offset + (big ? z + 3.061616997868382943065e-17 : z);
+}
+
+// atan2(y, x), branch-free so that loops calling it vectorise.
+template <typename T>
+inline T atan2_branchless(T y, T x) {
+  const T ax = std::fabs(x), ay = std::fabs(y);
+  const T largest = std::max(ax, ay), smallest = std::min(ax, ay);
+  const T ratio = largest > T(0) ? smallest / (largest > T(0) ? largest : T(1)) : T(0);
+  T angle = atan_unit(ratio);
+  angle = ay > ax ? T(1.57079632679489661923) - angle : angle;
+  angle = x < T(0) ? T(3.14159265358979323846) - angle : angle;
+  return y < T(0) ? -angle : angle;
+}
+
+// Stretching and cell pressure of each triangle: corner forces, component-first (corner, component, t).
+template <typename T>
+void triangle_forces(const T* __restrict x, const int32_t* __restrict corner, const T* __restrict inverse,
+                     const T* __restrict area, int64_t num_triangles, T modulus, T thickness,
+                     T pressure, T poisson, int64_t model, T* __restrict out) {
+  const int64_t n = num_triangles;
+  const T shear = modulus / (T(2) * (T(1) + poisson));
+  const T lame = modulus * poisson / (T(1) - poisson * poisson);
+  const T sixth_pressure = pressure / T(6);
+#pragma omp simd
+  for (int64_t t = 0; t < n; ++t) {
+    const int64_t i1 = 3 * int64_t(corner[t]), i2 = 3 * int64_t(corner[n + t]),
+                  i3 = 3 * int64_t(corner[2 * n + t]);
+    const T x1[3] = {x[i1], x[i1 + 1], x[i1 + 2]};
+    const T x2[3] = {x[i2], x[i2 + 1], x[i2 + 2]};
+    const T x3[3] = {x[i3], x[i3 + 1], x[i3 + 2]};
+    const T m00 = inverse[4 * t], m01 = inverse[4 * t + 1], m10 = inverse[4 * t + 2],
+            m11 = inverse[4 * t + 3];
+    T f1[3], f2[3];
+    for (int c = 0; c < 3; ++c) {
+      const T e1 = x2[c] - x1[c], e2 = x3[c] - x1[c];
+      f1[c] = e1 * m00 + e2 * m10;  // F = [e₁ e₂] D_m⁻¹
+      f2[c] = e1 * m01 + e2 * m11;
+    }
+    const T e11 = T(0.5) * (f1[0] * f1[0] + f1[1] * f1[1] + f1[2] * f1[2] - T(1));
+    const T e22 = T(0.5) * (f2[0] * f2[0] + f2[1] * f2[1] + f2[2] * f2[2] - T(1));
+    const T e12 = T(0.5) * (f1[0] * f2[0] + f1[1] * f2[1] + f1[2] * f2[2]);
+    const T trace = e11 + e22;
+    T d11, d22, d12;  // ∂w/∂E₁₁, ∂w/∂E₂₂, ∂w/∂E₁₂ of the energy density
+    if (model == 0) {
+      // w = (E_m/6)(4 tr² + 8 tr det − 4 det)/det C, det C = 1 + 2 tr + 4 det (membrane.py).
+      const T det = e11 * e22 - e12 * e12;
+      const T det_c = T(1) + T(2) * trace + T(4) * det;
+      const T bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
+      const T by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
+      const T by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
+      const T k = modulus / T(6);
+      d11 = k * (by_trace + by_det * e22);
+      d22 = k * (by_trace + by_det * e11);
+      d12 = k * (-T(2) * by_det * e12);
+    } else {
+      // w = μ(E₁₁² + E₂₂² + 2E₁₂²) + (λ*/2) tr².
+      d11 = T(2) * shear * e11 + lame * trace;
+      d22 = T(2) * shear * e22 + lame * trace;
+      d12 = T(4) * shear * e12;
+    }
+    const T scale = thickness * area[t];
+    const T c11 = scale * d11, c22 = scale * d22, c12 = scale * d12;
+    T cross23[3], cross31[3], cross12[3];
+    cross23[0] = x2[1] * x3[2] - x2[2] * x3[1];
+    cross23[1] = x2[2] * x3[0] - x2[0] * x3[2];
+    cross23[2] = x2[0] * x3[1] - x2[1] * x3[0];
+    cross31[0] = x3[1] * x1[2] - x3[2] * x1[1];
+    cross31[1] = x3[2] * x1[0] - x3[0] * x1[2];
+    cross31[2] = x3[0] * x1[1] - x3[1] * x1[0];
+    cross12[0] = x1[1] * x2[2] - x1[2] * x2[1];
+    cross12[1] = x1[2] * x2[0] - x1[0] * x2[2];
+    cross12[2] = x1[0] * x2[1] - x1[1] * x2[0];
+    for (int c = 0; c < 3; ++c) {
+      // dE₁₁ = f₁·df₁, dE₂₂ = f₂·df₂, dE₁₂ = (f₁·df₂ + f₂·df₁)/2; ∂f₁/∂x = (−m₀₀ − m₁₀, m₀₀, m₁₀).
+      const T pull1 = c11 * f1[c] + T(0.5) * c12 * f2[c];
+      const T pull2 = c22 * f2[c] + T(0.5) * c12 * f1[c];
+      const T g2 = m00 * pull1 + m01 * pull2;
+      const T g3 = m10 * pull1 + m11 * pull2;
+      out[(0 * 3 + c) * n + t] = g2 + g3 - sixth_pressure * cross23[c];  // −(∂W/∂x₁ + p ∂V/∂x₁)
+      out[(1 * 3 + c) * n + t] = -g2 - sixth_pressure * cross31[c];
+      out[(2 * 3 + c) * n + t] = -g3 - sixth_pressure * cross12[c];
+    }
+  }
+}
+
+// Bending of each hinge: −2 k w (θ − θ̄) ∂θ/∂(a, b, c, d), component-first (vertex, component, e).
+template <typename T>
+void hinge_forces(const T* __restrict x, const int32_t* __restrict vertex, const T* __restrict weight,
+                  const T* __restrict rest, int64_t num_hinges, T stiffness, T* __restrict out) {
+  const int64_t n = num_hinges;
+#pragma omp simd
+  for (int64_t e = 0; e < n; ++e) {
+    const int64_t ia = 3 * int64_t(vertex[e]), ib = 3 * int64_t(vertex[n + e]),
+                  ic = 3 * int64_t(vertex[2 * n + e]), id = 3 * int64_t(vertex[3 * n + e]);
+    T a[3], b[3], c[3], d[3];
+    for (int k = 0; k < 3; ++k) {
+      a[k] = x[ia + k];
+      b[k] = x[ib + k];
+      c[k] = x[ic + k];
+      d[k] = x[id + k];
+    }
+    T edge[3], ca[3], db[3];
+    for (int k = 0; k < 3; ++k) {
+      edge[k] = b[k] - a[k];
+      ca[k] = c[k] - a[k];
+      db[k] = d[k] - b[k];
+    }
+    // n₁ = (b − a) × (c − a), n₂ = (a − b) × (d − b) (membrane.py, _dihedral_and_gradient)
+    const T n1[3] = {edge[1] * ca[2] - edge[2] * ca[1], edge[2] * ca[0] - edge[0] * ca[2],
+                     edge[0] * ca[1] - edge[1] * ca[0]};
+    const T n2[3] = {-(edge[1] * db[2] - edge[2] * db[1]), -(edge[2] * db[0] - edge[0] * db[2]),
+                     -(edge[0] * db[1] - edge[1] * db[0])};
+    const T length_sq = edge[0] * edge[0] + edge[1] * edge[1] + edge[2] * edge[2];
+    const T length = std::sqrt(length_sq > T(0) ? length_sq : T(1));
+    const T n12[3] = {n1[1] * n2[2] - n1[2] * n2[1], n1[2] * n2[0] - n1[0] * n2[2],
+                      n1[0] * n2[1] - n1[1] * n2[0]};
+    const T sine = n12[0] * edge[0] + n12[1] * edge[1] + n12[2] * edge[2];
+    const T cosine = length * (n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2]);
+    const T area1_sq = n1[0] * n1[0] + n1[1] * n1[1] + n1[2] * n1[2];
+    const T area2_sq = n2[0] * n2[0] + n2[1] * n2[1] + n2[2] * n2[2];
+    const bool degenerate = (area1_sq == T(0)) | (area2_sq == T(0)) | (length_sq == T(0));
+    const T angle = degenerate ? T(0) : atan2_branchless(sine, cosine);
+    const T w1 = degenerate ? T(0) : T(1) / (degenerate ? T(1) : area1_sq);
+    const T w2 = degenerate ? T(0) : T(1) / (degenerate ? T(1) : area2_sq);
+    // Force = −∂E/∂x = −2 k w (θ − θ̄) ∂θ/∂x.
+    const T coefficient = -T(2) * stiffness * weight[e] * (angle - rest[e]);
+    T cb_e = T(0), db_e = T(0), ac_e = T(0), ad_e = T(0);
+    for (int k = 0; k < 3; ++k) {
+      cb_e += (c[k] - b[k]) * edge[k];
+      db_e += db[k] * edge[k];
+      ac_e += (a[k] - c[k]) * edge[k];
+      ad_e += (a[k] - d[k]) * edge[k];
+    }
+    const T inverse_length = T(1) / length;
+    for (int k = 0; k < 3; ++k) {
+      const T along1 = w1 * n1[k], along2 = w2 * n2[k];
+      out[(0 * 3 + k) * n + e] = -coefficient * inverse_length * (cb_e * along1 + db_e * along2);
+      out[(1 * 3 + k) * n + e] = -coefficient * inverse_length * (ac_e * along1 + ad_e * along2);
+      out[(2 * 3 + k) * n + e] = -coefficient * length * along1;
+      out[(3 * 3 + k) * n + e] = -coefficient * length * along2;
+    }
+  }
+}
+
+// Adds the component-first corner forces to the nodes.
+template <typename T>
+void add_to_nodes(const T* __restrict per_corner, const int32_t* __restrict index, int64_t num_corners,
+                  int64_t num_elements, T* __restrict force) {
+  for (int64_t k = 0; k < num_corners; ++k) {
+    const int32_t* node = index + k * num_elements;
+    const T* fx = per_corner + (3 * k) * num_elements;
+    const T* fy = fx + num_elements;
+    const T* fz = fy + num_elements;
+    for (int64_t e = 0; e < num_elements; ++e) {
+      T* f = force + 3 * int64_t(node[e]);
+      f[0] += fx[e];
+      f[1] += fy[e];
+      f[2] += fz[e];
+    }
+  }
+}
+
+// The cap fans: V_cap = (1/6) Σ_k c·(u_k × v_k), c the ring centroid, (u, v) = (x_k, x_k+1) on the top
+// (upward) and (x_k+1, x_k) on the bottom; force −p ∂V_cap/∂x (membrane.py, cap_volume).
+template <typename T>
+void cap_forces(const T* x, const int32_t* ring, int64_t count, bool upward, T pressure, T* force) {
+  if (count == 0) return;
+  T centre[3] = {0, 0, 0};
+  for (int64_t k = 0; k < count; ++k)
+    for (int c = 0; c < 3; ++c) centre[c] += x[3 * int64_t(ring[k]) + c];
+  for (int c = 0; c < 3; ++c) centre[c] /= T(count);
+  T summed_cross[3] = {0, 0, 0};  // Σ u × v = ∂(6 V_cap)/∂c
+  const T factor = -pressure / T(6);
+  for (int64_t k = 0; k < count; ++k) {
+    const int64_t here = ring[k], after = ring[(k + 1) % count];
+    const int64_t iu = 3 * (upward ? here : after), iv = 3 * (upward ? after : here);
+    const T* u = x + iu;
+    const T* v = x + iv;
+    summed_cross[0] += u[1] * v[2] - u[2] * v[1];
+    summed_cross[1] += u[2] * v[0] - u[0] * v[2];
+    summed_cross[2] += u[0] * v[1] - u[1] * v[0];
+    // ∂[c·(u × v)]/∂u = v × c, ∂/∂v = c × u
+    force[iu + 0] += factor * (v[1] * centre[2] - v[2] * centre[1]);
+    force[iu + 1] += factor * (v[2] * centre[0] - v[0] * centre[2]);
+    force[iu + 2] += factor * (v[0] * centre[1] - v[1] * centre[0]);
+    force[iv + 0] += factor * (centre[1] * u[2] - centre[2] * u[1]);
+    force[iv + 1] += factor * (centre[2] * u[0] - centre[0] * u[2]);
+    force[iv + 2] += factor * (centre[0] * u[1] - centre[1] * u[0]);
+  }
+  for (int64_t k = 0; k < count; ++k)
+    for (int c = 0; c < 3; ++c) force[3 * int64_t(ring[k]) + c] += factor * summed_cross[c] / T(count);
+}
+
+template <ffi::DataType dtype>
+ffi::Error membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
+                           ffi::Buffer<dtype> inverse, ffi::Buffer<dtype> area,
+                           ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
+                           ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
+                           ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars, int64_t model,
+                           ffi::ResultBuffer<dtype> force) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = position.element_count() / 3;
+  const int64_t num_triangles = area.element_count();
+  const int64_t num_hinges = edge_weight.element_count();
+  if (position.element_count() != size_t(3 * num_nodes) || scalars.element_count() != 5 ||
+      corner_index.element_count() != size_t(3 * num_triangles) ||
+      inverse.element_count() != size_t(4 * num_triangles) ||
+      hinge_index.element_count() != size_t(4 * num_hinges) ||
+      rest_dihedral.element_count() != size_t(num_hinges)) {
+    return ffi::Error::InvalidArgument("membrane_forces: inconsistent array sizes");
+  }
+  const T* x = position.typed_data();
+  const T* s = scalars.typed_data();
+  const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4];
+  T* f = force->typed_data();
+  std::fill(f, f + 3 * num_nodes, T(0));
+
+  thread_local std::vector<T> scratch;
+  scratch.resize(size_t(12 * std::max(num_triangles, num_hinges)));
+  triangle_forces<T>(x, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles,
+                     modulus, thickness, pressure, poisson, model, scratch.data());
+  add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, f);
+  if (bending_factor != T(0)) {  // a zero factor multiplies the whole bending term: nothing to add
+    const T stiffness = bending_factor * modulus * thickness * thickness * thickness /
+                        (T(12) * (T(1) - poisson * poisson)) / T(6);  // k_b = D/6
+    hinge_forces<T>(x, hinge_index.typed_data(), edge_weight.typed_data(), rest_dihedral.typed_data(),
+                    num_hinges, stiffness, scratch.data());
+    add_to_nodes<T>(scratch.data(), hinge_index.typed_data(), 4, num_hinges, f);
+  }
+  cap_forces<T>(x, bottom_ring.typed_data(), bottom_ring.element_count(), false, pressure, f);
+  cap_forces<T>(x, top_ring.typed_data(), top_ring.element_count(), true, pressure, f);
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+#define MEMBRAX_MEMBRANE_HANDLER(name, dtype)                                  \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, membrane_forces<dtype>,                  \
+                                ffi::Ffi::Bind()                               \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Attr<int64_t>("model")                    \
+                                    .Ret<ffi::Buffer<dtype>>());
+
+MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF32, ffi::F32)
+MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF64, ffi::F64)

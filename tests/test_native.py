@@ -1,0 +1,275 @@
+"""Compiled CPU kernels (membrax.native) against the JAX laws they stand for.
+
+Each kernel must give the numbers of its JAX definition to round-off (float64: 1e-12 of the largest
+entry; the torques lose about three digits to the cancellation of arm × normal force, so 1e-10), keep
+the conservation laws of the definition (momentum, angular momentum), and carry the definition's
+derivatives through ``jax.grad``; ``vmap`` must equal a loop. Without a compiler, or with the kernels
+switched off, everything falls back to the JAX code, with a warning when a build fails.
+"""
+
+import math
+import os
+import shutil
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from membrax import contact, membrane, native
+from membrax.membrane_contact import (
+    MembraneContactParams,
+    _reference_node_sphere_forces,
+    node_sphere_forces,
+)
+
+pytestmark = pytest.mark.skipif(
+    not (os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++")),
+    reason="no C++ compiler: the JAX code runs instead (tested everywhere else)",
+)
+
+
+def _relative_error(result, reference):
+    result, reference = np.asarray(result), np.asarray(reference)
+    return np.max(np.abs(result - reference)) / max(np.max(np.abs(reference)), 1e-300)
+
+
+def test_kernels_build_and_register():
+    """With a compiler at hand the kernels must build: a silent fallback would hide a broken kernel."""
+    assert native.available()
+    assert native.build().exists()
+
+
+def _deformed_cylinder(seed=0, dtype=jnp.float64):
+    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.02)
+    rng = np.random.default_rng(seed)
+    position = mesh.reference_position * jnp.asarray([1.03, 1.03, 0.98])[None, :] + jnp.asarray(
+        rng.normal(0.0, 1e-3, mesh.reference_position.shape)
+    )
+    if dtype == jnp.float32:
+        mesh = jax.tree.map(lambda a: a.astype(jnp.float32) if a.dtype == jnp.float64 else a, mesh)
+        position = position.astype(jnp.float32)
+    return mesh, position
+
+
+@pytest.mark.parametrize("model", ["neo_hookean", "svk"])
+@pytest.mark.parametrize("bending_factor", [0.0, 1.0])
+def test_membrane_forces_kernel_matches_jax(model, bending_factor):
+    mesh, position = _deformed_cylinder()
+    args = (position, mesh, 1.4e6, 0.005, 1e4, 0.45, bending_factor, model)
+    compiled = jax.jit(membrane.nodal_forces, static_argnums=(6,))(
+        position, mesh, 1.4e6, 0.005, 1e4, 0.45, model, bending_factor
+    )
+    reference = membrane._reference_nodal_forces(*args)
+    assert _relative_error(compiled, reference) < 1e-12
+    # Band and caps close the surface, so every energy is invariant under translation: Σ F = 0.
+    assert np.max(np.abs(np.sum(compiled, axis=0))) < 1e-12 * compiled.shape[0] * np.max(np.abs(compiled))
+
+
+def test_membrane_forces_kernel_float32_as_accurate_as_jax():
+    """In float32 the kernel and XLA make errors of the same size against the float64 forces."""
+    mesh64, position64 = _deformed_cylinder()
+    mesh32, position32 = _deformed_cylinder(dtype=jnp.float32)
+    exact = membrane._reference_nodal_forces(position64, mesh64, 1.4e6, 0.005, 1e4, 0.5, 1.0, "neo_hookean")
+
+    def call(fn):
+        return fn(position32, mesh32, jnp.float32(1.4e6), jnp.float32(0.005), jnp.float32(1e4), 0.5)
+
+    compiled = call(lambda *a: membrane.nodal_forces(*a, bending_factor=jnp.float32(1.0)))
+    reference = call(lambda *a: membrane._reference_nodal_forces(*a, jnp.float32(1.0), "neo_hookean"))
+    assert compiled.dtype == jnp.float32
+    error_kernel = _relative_error(compiled.astype(jnp.float64), exact)
+    error_jax = _relative_error(reference.astype(jnp.float64), exact)
+    assert error_kernel < 1e-4
+    assert error_kernel < 3.0 * error_jax
+
+
+def test_membrane_forces_kernel_gradients_and_vmap():
+    mesh, position = _deformed_cylinder(seed=1)
+    direction = jnp.asarray(np.random.default_rng(2).normal(size=position.shape))
+
+    def work(fn, x, modulus, pressure):
+        return jnp.sum(direction * fn(x, mesh, modulus, 0.004, pressure, 0.5, 0.7, "neo_hookean"))
+
+    def compiled(x, mesh, modulus, thickness, pressure, nu, bending, model):
+        return membrane.nodal_forces(x, mesh, modulus, thickness, pressure, nu, model, bending)
+
+    for wrt in (0, 1, 2):
+        got = jax.grad(work, argnums=1 + wrt)(compiled, position, 1.4e6, 2e4)
+        want = jax.grad(work, argnums=1 + wrt)(membrane._reference_nodal_forces, position, 1.4e6, 2e4)
+        assert _relative_error(got, want) < 1e-12
+    # The Hessian–vector product −∂F/∂x·v against a central difference of the kernel's forces.
+    step = 1e-7
+    hvp = jax.grad(work, argnums=1)(compiled, position, 1.4e6, 2e4)
+    plus = compiled(position + step * direction, mesh, 1.4e6, 0.004, 2e4, 0.5, 0.7, "neo_hookean")
+    minus = compiled(position - step * direction, mesh, 1.4e6, 0.004, 2e4, 0.5, 0.7, "neo_hookean")
+    central = jnp.sum(direction * (plus - minus)) / (2 * step)
+    assert float(jnp.sum(hvp * direction)) == pytest.approx(float(central), rel=1e-6)
+
+    pressures = jnp.asarray([1e4, 5e4, 1e5])
+    batched = jax.vmap(lambda p: compiled(position, mesh, 1.4e6, 0.004, p, 0.5, 0.0, "svk"))(pressures)
+    for k, pressure in enumerate(pressures):
+        single = membrane._reference_nodal_forces(position, mesh, 1.4e6, 0.004, pressure, 0.5, 0.0, "svk")
+        assert _relative_error(batched[k], single) < 1e-12
+
+
+def _node_sphere_case(seed=3, num_nodes=400, num_spheres=12, capacity=4):
+    """Nodes on and around spheres, with carried springs: sticking, sliding and open slots, padding."""
+    rng = np.random.default_rng(seed)
+    sphere_position = rng.uniform(-0.05, 0.05, (num_spheres, 3))
+    radius = rng.uniform(0.008, 0.012, num_spheres)
+    owner = rng.integers(0, num_spheres, num_nodes)
+    direction = rng.normal(size=(num_nodes, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    # Distances from R − 1 mm (touching, t_m/2 = 2.5 mm) to R + 4 mm (open).
+    distance = radius[owner] + rng.uniform(-0.001, 0.004, num_nodes)
+    node_position = sphere_position[owner] + distance[:, None] * direction
+    node_position[0] = sphere_position[owner[0]]  # a node at a sphere centre: zero normal
+    candidates = np.full((num_nodes, capacity), num_spheres, dtype=np.int32)
+    candidates[:, 0] = owner
+    candidates[:, 1] = (owner + 1) % num_spheres
+    candidates[::3, 2] = (owner[::3] + 2) % num_spheres
+    spring = rng.normal(0.0, 60.0, (3, num_nodes, capacity))  # N: some slots stick, some slide
+    return dict(
+        node_position=jnp.asarray(node_position),
+        node_velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_nodes, 3))),
+        sphere_position=jnp.asarray(sphere_position),
+        sphere_velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
+        sphere_angular_velocity=jnp.asarray(rng.normal(0.0, 10.0, (num_spheres, 3))),
+        sphere_radius=jnp.asarray(radius),
+        candidates=jnp.asarray(candidates),
+        spring=jnp.asarray(spring),
+        dt=1e-5,
+        params=MembraneContactParams.default(),
+        membrane_thickness=0.005,
+    )
+
+
+def test_node_sphere_kernel_matches_jax_and_conserves_momentum():
+    case = _node_sphere_case()
+    compiled = jax.jit(node_sphere_forces)(**case)
+    reference = _reference_node_sphere_forces(**case)
+    touching = reference.overlap > 0.0
+    limit = math.tan(math.radians(25.0)) * reference.normal_force
+    sliding = touching & (jnp.linalg.norm(reference.spring, axis=0) >= 0.999 * limit)
+    touching, sliding = int(jnp.sum(touching)), int(jnp.sum(sliding))
+    assert touching > 100 and sliding > 10  # both regimes of the law are exercised
+    for field in reference._fields:
+        tolerance = 1e-10 if field == "sphere_torque" else 1e-12
+        assert _relative_error(getattr(compiled, field), getattr(reference, field)) < tolerance, field
+    # Newton's third law and angular momentum about the origin (torques about the sphere centres).
+    assert np.allclose(np.sum(compiled.node_force, 0), -np.sum(compiled.sphere_force, 0), atol=1e-12)
+    moment = (
+        np.sum(np.cross(case["node_position"], compiled.node_force), 0)
+        + np.sum(np.cross(case["sphere_position"], compiled.sphere_force), 0)
+        + np.sum(compiled.sphere_torque, 0)
+    )
+    assert np.max(np.abs(moment)) < 1e-12 * float(np.max(np.abs(compiled.node_force)))
+
+
+def test_node_sphere_kernel_gradients_and_vmap():
+    case = _node_sphere_case(seed=4, num_nodes=60)
+    weights = jnp.asarray(np.random.default_rng(5).normal(size=(60, 3)))
+
+    def work(fn, node_position, thickness):
+        result = fn(**{**case, "node_position": node_position, "membrane_thickness": thickness})
+        return jnp.sum(weights * result.node_force) + jnp.sum(result.spring**2)
+
+    for argnum in (1, 2):
+        got = jax.grad(work, argnums=argnum)(node_sphere_forces, case["node_position"], 0.005)
+        want = jax.grad(work, argnums=argnum)(_reference_node_sphere_forces, case["node_position"], 0.005)
+        assert _relative_error(got, want) < 1e-12
+    thicknesses = jnp.asarray([0.003, 0.005])
+    batched = jax.vmap(lambda t: node_sphere_forces(**{**case, "membrane_thickness": t}).node_force)(
+        thicknesses
+    )
+    for k, thickness in enumerate(thicknesses):
+        single = _reference_node_sphere_forces(**{**case, "membrane_thickness": thickness}).node_force
+        assert _relative_error(batched[k], single) < 1e-12
+
+
+def _pair_case(seed=6, count=3000):
+    rng = np.random.default_rng(seed)
+    radius_i, radius_j = rng.uniform(0.011, 0.013, count), rng.uniform(0.011, 0.013, count)
+    direction = rng.normal(size=(3, count))
+    direction /= np.linalg.norm(direction, axis=0)
+    # Centre distances from 1 mm of overlap to 1 mm of gap; one pair at the same centre.
+    branch = direction * (radius_i + radius_j + rng.uniform(-0.001, 0.001, count))
+    branch[:, 0] = 0.0
+    return (
+        jnp.asarray(branch),
+        jnp.asarray(rng.normal(0.0, 0.1, (3, count))),
+        jnp.asarray(rng.normal(0.0, 0.1, (3, count))),
+        jnp.asarray(rng.normal(0.0, 5.0, (3, count))),
+        jnp.asarray(rng.normal(0.0, 5.0, (3, count))),
+        jnp.asarray(radius_i),
+        jnp.asarray(radius_j),
+        jnp.asarray(rng.normal(0.0, 20.0, (3, count))),
+        1e-6,
+        jnp.asarray(rng.uniform(0.5e7, 1.5e7, count)),  # per-contact stiffness, as for batch members
+        5e6,
+        math.tan(math.radians(25.0)),
+    )
+
+
+def test_pair_kernel_matches_jax_and_conserves_angular_momentum():
+    args = _pair_case()
+    compiled = jax.jit(contact.pair_contact)(*args)
+    reference = contact._reference_pair_contact(*args)
+    assert int(jnp.sum(reference.overlap > 0.0)) > 1000
+    for field in ("force_on_j", "spring", "normal_force", "overlap"):
+        assert _relative_error(getattr(compiled, field), getattr(reference, field)) < 1e-12, field
+    for field in ("torque_on_i", "torque_on_j"):
+        assert _relative_error(getattr(compiled, field), getattr(reference, field)) < 1e-10, field
+    # Per contact, about the centre of i: x_j × F_j + T_i + T_j = 0 (the force on i acts at its centre).
+    branch, force = np.asarray(args[0]), np.asarray(compiled.force_on_j)
+    moment = np.cross(branch.T, force.T).T + np.asarray(compiled.torque_on_i + compiled.torque_on_j)
+    assert np.max(np.abs(moment)) < 1e-12 * np.max(np.abs(np.cross(branch.T, force.T)))
+
+
+def test_pair_kernel_gradients_and_vmap():
+    args = _pair_case(seed=7, count=200)
+    weights = jnp.asarray(np.random.default_rng(8).normal(size=(3, 200)))
+
+    def work(fn, branch, spring):
+        result = fn(branch, *args[1:7], spring, *args[8:])
+        return jnp.sum(weights * (result.force_on_j + result.torque_on_j)) + jnp.sum(result.spring**2)
+
+    for argnum in (1, 2):
+        got = jax.grad(work, argnums=argnum)(contact.pair_contact, args[0], args[7])
+        want = jax.grad(work, argnums=argnum)(contact._reference_pair_contact, args[0], args[7])
+        assert _relative_error(got, want) < 1e-12
+    frictions = jnp.asarray([0.2, 0.5])
+    batched = jax.vmap(lambda mu: contact.pair_contact(*args[:11], mu).spring)(frictions)
+    for k, mu in enumerate(frictions):
+        assert _relative_error(batched[k], contact._reference_pair_contact(*args[:11], mu).spring) < 1e-12
+
+
+def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
+    """A compiler that fails: one warning, no kernels, and the JAX numbers."""
+    script = textwrap.dedent(
+        """
+        import warnings
+        import jax
+        jax.config.update("jax_enable_x64", True)
+        from membrax import membrane, native
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ok = native.available()
+        mesh = membrane.cylinder_mesh(0.1, 0.1, 0.03)
+        x = mesh.reference_position * 1.01
+        same = bool((membrane.nodal_forces(x, mesh, 1e6, 0.003, 1e4)
+                     == membrane._reference_nodal_forces(x, mesh, 1e6, 0.003, 1e4, 0.5, 1.0,
+                                                         "neo_hookean")).all())
+        ours = [str(w.message) for w in caught if "membrax" in str(w.message)]
+        print(ok, len(ours), "compiling the membrax kernels failed" in ours[0], same)
+        """
+    )
+    environment = {**os.environ, "CXX": "false", "MEMBRAX_CACHE_DIR": str(tmp_path)}
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, env=environment, check=True
+    )
+    assert result.stdout.split() == ["False", "1", "True", "True"]
