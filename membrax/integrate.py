@@ -45,12 +45,12 @@ import numpy as np
 import scipy.sparse.linalg
 from jax_md import dataclasses
 
-from membrax import contact
+from membrax import contact, native
 from membrax.contact import ContactParams
 from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 from membrax.neighbors import PairNeighborFn, outside_box, remap_pair_history
 from membrax.packing import moment_of_inertia, particle_mass
-from membrax.vector import select
+from membrax.vector import safe_norm, select
 from membrax.walls import WallState, advance_walls, compensated_add, servo_velocity
 
 __all__ = [
@@ -244,6 +244,119 @@ def _wall_gap(position_t, compensation_t, wall_position, wall_compensation, wall
     )
 
 
+def _pair_branch(position, compensation, gi, gj):
+    """The branch x_j − x_i of each pair slot, (3, C), position compensation included."""
+    # Gathering rows of one packed array is ~10× faster on XLA-CPU than gathering columns of (3, N).
+    # x_j − x_i of nearby spheres is exact in floating point (Sterbenz), then the low parts are added.
+    packed = jnp.concatenate([position, compensation], axis=1)
+    rows_i, rows_j = packed[gi].T, packed[gj].T
+    return (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
+
+
+def _pair_totals_reference(
+    position,
+    compensation,
+    velocity,
+    angular_velocity,
+    radius,
+    idx,
+    spring,
+    normal_stiffness,
+    tangential_stiffness,
+    friction_coefficient,
+    dt,
+):
+    """The sphere–sphere contacts of a neighbour list, summed per sphere (the JAX definition).
+
+    Returns (totals (N, 6): force and torque on each sphere; new springs (C, 3); force on j per slot
+    (C, 3)), padded slots (i = N) zeroed. j receives (F, T_j), i receives (−F, T_i).
+    """
+    n = radius.shape[0]
+    i, j = idx[0], idx[1]
+    valid = i < n
+    gi = jnp.where(valid, i, 0)
+    gj = jnp.where(valid, j, 0)
+    # Gather whole rows of one packed (N, 12) array, then transpose: XLA's CPU gather is ~10× faster on
+    # contiguous rows than on the columns of (3, N) arrays (measured at N = 1816, C = 11865).
+    packed = jnp.concatenate([position, compensation, velocity, angular_velocity], axis=1)
+    rows_i = packed[gi].T
+    rows_j = packed[gj].T
+    # x_j − x_i of nearby spheres is exact in floating point (Sterbenz), then the low parts are added.
+    branch = (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
+    pairs = contact._reference_pair_contact(
+        branch,
+        rows_i[6:9],
+        rows_j[6:9],
+        rows_i[9:12],
+        rows_j[9:12],
+        radius[gi],
+        radius[gj],
+        spring.T,
+        dt,
+        normal_stiffness,
+        tangential_stiffness,
+        friction_coefficient,
+    )
+    pair_force = select(valid, pairs.force_on_j)
+    # One row scatter (segment_sum; ~10× faster than scattering columns): columns 0–2 force, 3–5 torque;
+    # j receives (F, T_j), i receives (−F, T_i).
+    stacked = jnp.concatenate(
+        [
+            jnp.concatenate([pair_force, select(valid, pairs.torque_on_j)], axis=0),
+            jnp.concatenate([-pair_force, select(valid, pairs.torque_on_i)], axis=0),
+        ],
+        axis=1,
+    ).T
+    segments = jnp.concatenate([jnp.where(valid, j, n), jnp.where(valid, i, n)])
+    totals = jax.ops.segment_sum(stacked, segments, num_segments=n + 1)[:n]
+    return totals, select(valid, pairs.spring).T, pair_force.T
+
+
+def _pair_totals_kernel(
+    position,
+    compensation,
+    velocity,
+    angular_velocity,
+    radius,
+    idx,
+    spring,
+    normal_stiffness,
+    tangential_stiffness,
+    friction_coefficient,
+    dt,
+):
+    """:func:`_pair_totals_reference` by the compiled kernel (``pair_contact.cc``, ``dem_pairs``)."""
+    dtype = position.dtype
+    n, slots = radius.shape[0], spring.shape[0]
+
+    def per_slot(value):
+        return jnp.broadcast_to(jnp.asarray(value, dtype), (slots,))
+
+    return native.call(
+        "dem_pairs",
+        dtype,
+        (
+            jax.ShapeDtypeStruct((n, 6), dtype),
+            jax.ShapeDtypeStruct((slots, 3), dtype),
+            jax.ShapeDtypeStruct((slots, 3), dtype),
+        ),
+        position,
+        compensation.astype(dtype),
+        velocity.astype(dtype),
+        angular_velocity.astype(dtype),
+        radius.astype(dtype),
+        idx.astype(jnp.int32),
+        spring.astype(dtype),
+        per_slot(normal_stiffness),
+        per_slot(tangential_stiffness),
+        per_slot(friction_coefficient),
+        jnp.asarray(dt, dtype).reshape(1),
+    )
+
+
+_compiled_pair_totals = native.with_reference(_pair_totals_kernel, _pair_totals_reference)
+
+
 def compute_forces(
     state: DEMState, particles: Particles, params: DEMParams, dt, wall_friction: bool = True
 ) -> Forces:
@@ -262,42 +375,31 @@ def compute_forces(
     gj = jnp.where(valid, j, 0)
     member = particles.member[gi]
     law = params.contact
-    # Gather whole rows of one packed (N, 12) array, then transpose: XLA's CPU gather is ~10× faster on
-    # contiguous rows than on the columns of (3, N) arrays (measured at N = 1816, C = 11865).
-    packed = jnp.concatenate(
-        [state.position, state.position_compensation, state.velocity, state.angular_velocity], axis=1
-    )
-    rows_i = packed[gi].T
-    rows_j = packed[gj].T
-    # x_j − x_i of nearby spheres is exact in floating point (Sterbenz), then the low parts are added.
-    branch = (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
-    pairs = contact.pair_contact(
-        branch,
-        rows_i[6:9],
-        rows_j[6:9],
-        rows_i[9:12],
-        rows_j[9:12],
-        particles.radius[gi],
-        particles.radius[gj],
-        state.pair_spring.T,
-        dt,
+    pair_args = (
+        state.position,
+        state.position_compensation,
+        state.velocity,
+        state.angular_velocity,
+        particles.radius,
+        state.neighbors.idx,
+        state.pair_spring,
         _for_members(law.normal_stiffness, member),
         _for_members(law.tangential_stiffness, member),
         _for_members(law.friction_coefficient, member),
+        dt,
     )
-    pair_force = select(valid, pairs.force_on_j)
-    # One row scatter (segment_sum; ~10× faster than scattering columns): columns 0–2 force, 3–5 torque;
-    # j receives (F, T_j), i receives (−F, T_i).
-    stacked = jnp.concatenate(
-        [
-            jnp.concatenate([pair_force, select(valid, pairs.torque_on_j)], axis=0),
-            jnp.concatenate([-pair_force, select(valid, pairs.torque_on_i)], axis=0),
-        ],
-        axis=1,
-    ).T
-    segments = jnp.concatenate([jnp.where(valid, j, n), jnp.where(valid, i, n)])
-    totals = jax.ops.segment_sum(stacked, segments, num_segments=n + 1)[:n].T
-    force_t, torque_t = totals[:3], totals[3:]
+    if state.position.dtype in (jnp.float32, jnp.float64) and native.available():
+        totals, pair_spring, pair_force = _compiled_pair_totals(*pair_args)
+    else:
+        totals, pair_spring, pair_force = _pair_totals_reference(*pair_args)
+    force_t, torque_t = totals.T[:3], totals.T[3:]
+    # The pairs' geometry for the measurements (XLA drops it where no one uses it).
+    branch = _pair_branch(state.position, state.position_compensation, gi, gj)
+    pair_distance = safe_norm(branch)
+    pair_overlap = particles.radius[gi] + particles.radius[gj] - pair_distance
+    pair_normal_force = jnp.where(
+        valid & (pair_distance > 0.0), pair_args[7] * jnp.maximum(pair_overlap, 0.0), 0.0
+    )
     position_t = state.position.T
     compensation_t = state.position_compensation.T
     velocity_t = state.velocity.T
@@ -357,11 +459,11 @@ def compute_forces(
     return Forces(
         force=force_t.T + state.external_force,
         torque=torque_t.T,
-        pair_spring=select(valid, pairs.spring).T,
+        pair_spring=pair_spring,
         wall_spring=wall_spring,
-        pair_force=pair_force.T,
-        pair_branch=select(valid, pairs.branch).T,
-        pair_normal_force=jnp.where(valid, pairs.normal_force, 0.0),
+        pair_force=pair_force,
+        pair_branch=select(valid, branch).T,
+        pair_normal_force=pair_normal_force,
         wall_force=jnp.moveaxis(wall_force_t, 0, 2),
         wall_arm=wall_arm,
         wall_normal_force=wall_normal_force,

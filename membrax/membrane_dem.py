@@ -53,7 +53,16 @@ import scipy.sparse.linalg
 from jax_md import dataclasses
 
 from membrax import membrane as membrane_lib
-from membrax.integrate import ERROR_NOT_FINITE, DEMParams, DEMState, Particles, apply_damping, dem
+from membrax import native
+from membrax.integrate import (
+    ERROR_NOT_FINITE,
+    DampingParams,
+    DEMParams,
+    DEMState,
+    Particles,
+    apply_damping,
+    dem,
+)
 from membrax.membrane import MembraneMesh
 from membrax.membrane_contact import (
     MembraneContactParams,
@@ -70,6 +79,7 @@ from membrax.walls import BOTTOM, TOP, compensated_add
 
 __all__ = [
     "LATEX_DENSITY",
+    "advance_nodes",
     "CoupledParams",
     "contact_forces",
     "CoupledState",
@@ -213,6 +223,64 @@ def _platen_reaction(node_force, position, mesh: MembraneMesh, cell_pressure):
     )
 
 
+def advance_nodes(
+    membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping: DampingParams
+):
+    """Step 4 of the module docstring for every node: (total force, velocity, position, compensation).
+
+    F = F_membrane + F_contact; F_d = F − α|F| sign(v) − γ m v (:func:`membrax.integrate.apply_damping`);
+    v' = v + Δt F_d/m on the free nodes and 0 on the others (``free``, (n,) bool); x' + c' = x + c + Δt v'
+    (:func:`membrax.walls.compensated_add`). On the CPU, in float32 or float64, one pass of a compiled
+    kernel (:mod:`membrax.native`, ``membrane_nodes.cc``) does it; derivatives are those of this JAX code.
+    The damping coefficients are one specimen's (scalars, or arrays of one member).
+    """
+    args = (membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping)
+    if position.dtype in (jnp.float32, jnp.float64) and native.available():
+        return _compiled_advance_nodes(*args)
+    return _advance_nodes_reference(*args)
+
+
+def _advance_nodes_reference(
+    membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping
+):
+    force = membrane_force + contact_force
+    member = jnp.zeros(position.shape[0], dtype=jnp.int32)
+    damped = apply_damping(force, velocity, mass, damping, member)
+    velocity = jnp.where(free[:, None], velocity + dt * damped / mass[:, None], 0.0)
+    position, compensation = compensated_add(position, compensation, dt * velocity)
+    return force, velocity, position, compensation
+
+
+def _advance_nodes_kernel(
+    membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping
+):
+    dtype = position.dtype
+    scalars = jnp.stack(
+        [
+            jnp.asarray(dt, dtype),
+            jnp.ravel(damping.local_coefficient)[0].astype(dtype),
+            jnp.ravel(damping.viscous_rate)[0].astype(dtype),
+        ]
+    )
+    rows = jax.ShapeDtypeStruct(position.shape, dtype)
+    return native.call(
+        "membrane_nodes",
+        dtype,
+        (rows, rows, rows, rows),
+        membrane_force.astype(dtype),
+        contact_force.astype(dtype),
+        position,
+        compensation.astype(dtype),
+        velocity.astype(dtype),
+        mass.astype(dtype),
+        free.astype(dtype),
+        scalars,
+    )
+
+
+_compiled_advance_nodes = native.with_reference(_advance_nodes_kernel, _advance_nodes_reference)
+
+
 def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):
     """The node–sphere contacts of a coupled state at its positions (step 1 of the module docstring).
 
@@ -278,7 +346,6 @@ def membrane_dem(
     free[np.asarray(mesh.top_ring)] = False
     free = jnp.asarray(free)
     rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
-    node_member = jnp.zeros(mesh.num_nodes, dtype=jnp.int32)
 
     def init_fn(
         dem_state: DEMState, params: CoupledParams, capacity: int = 3, skin=None, sphere_capacity: int = 64
@@ -327,7 +394,18 @@ def membrane_dem(
             model=stretching_model,
             bending_factor=mp.bending_factor,
         )
-        node_force = internal + contact.node_force
+        mass = mp.thickness * mass_per_thickness
+        node_force, velocity, position, compensation = advance_nodes(
+            internal,
+            contact.node_force,
+            nodes.position,
+            nodes.position_compensation,
+            nodes.velocity,
+            mass,
+            free,
+            dt,
+            params.dem.damping,
+        )
         reaction = _platen_reaction(node_force, nodes.position, mesh, mp.cell_pressure)
         # The ram holds the platen against the spheres and the membrane: the servo sees both.
         membrane_load = jnp.stack([-reaction[0, 2], reaction[1, 2]])[None, :]
@@ -335,10 +413,6 @@ def membrane_dem(
             spheres, params.dem, contact.sphere_force, contact.sphere_torque, wall_load=membrane_load
         )
 
-        mass = mp.thickness * mass_per_thickness
-        damped = apply_damping(node_force, nodes.velocity, mass, params.dem.damping, node_member)
-        velocity = jnp.where(free[:, None], nodes.velocity + dt * damped / mass[:, None], 0.0)
-        position, compensation = compensated_add(nodes.position, nodes.position_compensation, dt * velocity)
         # Clamped rings ride on their platens (rigid vertical motion).
         platen_z = platen_heights(spheres.walls)
         shift = platen_z - nodes.clamp_platen_height  # (2,)

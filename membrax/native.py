@@ -33,15 +33,19 @@ import jax.numpy as jnp
 
 __all__ = ["available", "build", "cache_dir", "call", "with_reference"]
 
-_SOURCES = ("membrane_forces.cc", "node_sphere.cc", "pair_contact.cc")
+_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "pair_contact.cc")
 _HEADERS = ("contact_law.h",)
 _TARGETS = {
     "membrax_membrane_forces_f32": "MembraxMembraneForcesF32",
     "membrax_membrane_forces_f64": "MembraxMembraneForcesF64",
+    "membrax_membrane_nodes_f32": "MembraxMembraneNodesF32",
+    "membrax_membrane_nodes_f64": "MembraxMembraneNodesF64",
     "membrax_node_sphere_forces_f32": "MembraxNodeSphereForcesF32",
     "membrax_node_sphere_forces_f64": "MembraxNodeSphereForcesF64",
     "membrax_pair_contact_f32": "MembraxPairContactF32",
     "membrax_pair_contact_f64": "MembraxPairContactF64",
+    "membrax_dem_pairs_f32": "MembraxDemPairsF32",
+    "membrax_dem_pairs_f64": "MembraxDemPairsF64",
 }
 _FLAGS = ("-O3", "-march=native", "-fopenmp-simd", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC")
 
@@ -137,6 +141,8 @@ def call(name: str, dtype, results, *args, **attributes):
     ``results`` is one ``jax.ShapeDtypeStruct`` or a tuple of them; ``attributes`` are the handler's static
     attributes (numpy scalars). Under ``vmap`` the kernel runs once per batch member.
     """
+    if not available():  # registers the targets on first use
+        raise RuntimeError("the membrax CPU kernels are not available (see membrax.native.available)")
     suffix = "f32" if jnp.dtype(dtype) == jnp.float32 else "f64"
     function = jax.ffi.ffi_call(f"membrax_{name}_{suffix}", results, vmap_method="sequential")
     return function(*args, **attributes)

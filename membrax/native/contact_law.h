@@ -1,4 +1,4 @@
-// The tangential spring of the Cundall–Strack law, shared by the sphere–sphere and node–sphere kernels.
+// The Cundall–Strack contact law shared by the kernels: the tangential spring and the sphere–sphere law.
 //
 // membrax.contact.tangential_spring_update is the reference:
 //   s' = |s| Π_t(s)/|Π_t(s)| − k_t Δt v_t, then s'' = s' min(1, μ F_n/|s'|); s'' = 0 if not in contact.
@@ -43,6 +43,41 @@ __attribute__((always_inline)) inline Vec3<T> tangential_spring(Vec3<T> spring, 
   const T trial_length = std::sqrt(dot(trial, trial));
   const T slip = trial_length > limit ? limit / (trial_length > T(0) ? trial_length : T(1)) : T(1);
   return (active ? slip : T(0)) * trial;
+}
+
+// Sphere–sphere Cundall–Strack contact (membrax.contact.pair_contact is the reference), b = x_j − x_i:
+//   δ = R_i + R_j − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on j),
+//   arm_i = (R_i − δ/2) n̂, arm_j = −(R_j − δ/2) n̂,
+//   v_t = Π_t[(v_j + ω_j × arm_j) − (v_i + ω_i × arm_i)], s' = tangential_spring(s, n̂, v_t, k_t Δt, μ|F_n|, δ > 0),
+//   F = F_n + s' on j, torque arm_i × (−F) on i and arm_j × F on j.
+template <typename T>
+struct PairResult {
+  Vec3<T> force_on_j, torque_on_i, torque_on_j, spring;
+};
+
+template <typename T>
+__attribute__((always_inline)) inline PairResult<T> sphere_pair(Vec3<T> branch, Vec3<T> velocity_i,
+                                                                Vec3<T> velocity_j, Vec3<T> angular_i,
+                                                                Vec3<T> angular_j, T radius_i, T radius_j,
+                                                                Vec3<T> spring, T normal_stiffness,
+                                                                T tangential_stiffness, T friction, T dt) {
+  const T distance_sq = dot(branch, branch);
+  const bool apart = distance_sq > T(0);
+  const T distance = std::sqrt(distance_sq);
+  const T inverse_distance = apart ? T(1) / (apart ? distance : T(1)) : T(0);
+  const T overlap = radius_i + radius_j - distance;
+  const bool active = overlap > T(0);
+  // |F_n| = k_n max(δ, 0) (zero at |b| = 0, where the guarded norm has a zero gradient)
+  const T normal_force = apart ? normal_stiffness * (overlap > T(0) ? overlap : T(0)) : T(0);
+  const Vec3<T> normal = inverse_distance * branch;
+  const Vec3<T> arm_i = (radius_i - T(0.5) * overlap) * normal;
+  const Vec3<T> arm_j = (-(radius_j - T(0.5) * overlap)) * normal;
+  const Vec3<T> relative = (velocity_j + cross(angular_j, arm_j)) - (velocity_i + cross(angular_i, arm_i));
+  const Vec3<T> tangential_velocity = relative - dot(relative, normal) * normal;
+  const Vec3<T> updated = tangential_spring(spring, normal, tangential_velocity, tangential_stiffness * dt,
+                                            friction * normal_force, active);
+  const Vec3<T> force = normal_force * normal + updated;
+  return {force, cross(arm_i, T(-1) * force), cross(arm_j, force), updated};
 }
 
 }  // namespace membrax

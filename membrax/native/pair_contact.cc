@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <vector>
 
 #include "contact_law.h"
 #include "xla/ffi/api/ffi.h"
@@ -42,34 +43,107 @@ void pair_law(const T* __restrict b, const T* __restrict vi, const T* __restrict
               const T* __restrict wj, const T* __restrict ri, const T* __restrict rj, const T* __restrict s,
               const T* __restrict kn, const T* __restrict kt, const T* __restrict mu, T dt, int64_t n,
               T* __restrict force, T* __restrict torque_i, T* __restrict torque_j, T* __restrict springs) {
-  using Vec3 = membrax::Vec3<T>;
-  using membrax::cross;
-  using membrax::dot;
 #pragma GCC ivdep
   for (int64_t k = 0; k < n; ++k) {
-    const Vec3 x = load(b, n, k);
-    const T distance_sq = dot(x, x);
-    const bool apart = distance_sq > T(0);
-    const T distance = std::sqrt(distance_sq);
-    const T inverse_distance = apart ? T(1) / (apart ? distance : T(1)) : T(0);
-    const T overlap = ri[k] + rj[k] - distance;
-    const bool active = overlap > T(0);
-    // |F_n| = k_n max(δ, 0) (zero at |b| = 0, where the guarded norm has a zero gradient)
-    const T normal_force = apart ? kn[k] * (overlap > T(0) ? overlap : T(0)) : T(0);
-    const Vec3 normal = inverse_distance * x;
-    const Vec3 arm_i = (ri[k] - T(0.5) * overlap) * normal;
-    const Vec3 arm_j = (-(rj[k] - T(0.5) * overlap)) * normal;
-    const Vec3 relative =
-        (load(vj, n, k) + cross(load(wj, n, k), arm_j)) - (load(vi, n, k) + cross(load(wi, n, k), arm_i));
-    const Vec3 tangential_velocity = relative - dot(relative, normal) * normal;
-    const Vec3 updated = membrax::tangential_spring(load(s, n, k), normal, tangential_velocity, kt[k] * dt,
-                                                    mu[k] * normal_force, active);
-    const Vec3 f = normal_force * normal + updated;
-    store(force, n, k, f);
-    store(torque_i, n, k, cross(arm_i, T(-1) * f));
-    store(torque_j, n, k, cross(arm_j, f));
-    store(springs, n, k, updated);
+    const auto result = membrax::sphere_pair(load(b, n, k), load(vi, n, k), load(vj, n, k), load(wi, n, k),
+                                             load(wj, n, k), ri[k], rj[k], load(s, n, k), kn[k], kt[k], mu[k], dt);
+    store(force, n, k, result.force_on_j);
+    store(torque_i, n, k, result.torque_on_i);
+    store(torque_j, n, k, result.torque_on_j);
+    store(springs, n, k, result.spring);
   }
+}
+
+// The DEM's pair forces (membrax.integrate._pair_totals_reference): for each neighbour-list slot
+// (i, j) = idx[:, k] (padded with N), gather the two spheres (positions with their compensation, b =
+// (x_j − x_i) + (c_j − c_i)), apply the law, zero the padded slots, and sum per sphere: j receives
+// (F, T_j), i receives (−F, T_i).
+template <typename T>
+void dem_pair_law(const T* __restrict position, const T* __restrict compensation, const T* __restrict velocity,
+                  const T* __restrict angular, const T* __restrict radius, const int32_t* __restrict idx,
+                  const T* __restrict spring, const T* __restrict kn, const T* __restrict kt,
+                  const T* __restrict mu, T dt, int64_t num_spheres, int64_t num_slots, T* __restrict pair_force,
+                  T* __restrict new_spring, T* __restrict torque_i, T* __restrict torque_j) {
+  using Vec3 = membrax::Vec3<T>;
+#pragma GCC ivdep
+  for (int64_t k = 0; k < num_slots; ++k) {
+    const int32_t i = idx[k], j = idx[num_slots + k];
+    const bool valid = i < num_spheres;
+    const int64_t gi = valid ? i : 0, gj = valid ? j : 0;
+    const Vec3 branch = (Vec3{position[3 * gj], position[3 * gj + 1], position[3 * gj + 2]} -
+                         Vec3{position[3 * gi], position[3 * gi + 1], position[3 * gi + 2]}) +
+                        (Vec3{compensation[3 * gj], compensation[3 * gj + 1], compensation[3 * gj + 2]} -
+                         Vec3{compensation[3 * gi], compensation[3 * gi + 1], compensation[3 * gi + 2]});
+    const auto result = membrax::sphere_pair(
+        branch, Vec3{velocity[3 * gi], velocity[3 * gi + 1], velocity[3 * gi + 2]},
+        Vec3{velocity[3 * gj], velocity[3 * gj + 1], velocity[3 * gj + 2]},
+        Vec3{angular[3 * gi], angular[3 * gi + 1], angular[3 * gi + 2]},
+        Vec3{angular[3 * gj], angular[3 * gj + 1], angular[3 * gj + 2]}, radius[gi], radius[gj],
+        Vec3{spring[3 * k], spring[3 * k + 1], spring[3 * k + 2]}, kn[k], kt[k], mu[k], dt);
+    const T keep = valid ? T(1) : T(0);
+    const T f[3] = {keep * result.force_on_j.x, keep * result.force_on_j.y, keep * result.force_on_j.z};
+    const T s[3] = {keep * result.spring.x, keep * result.spring.y, keep * result.spring.z};
+    const T ti[3] = {keep * result.torque_on_i.x, keep * result.torque_on_i.y, keep * result.torque_on_i.z};
+    const T tj[3] = {keep * result.torque_on_j.x, keep * result.torque_on_j.y, keep * result.torque_on_j.z};
+    for (int c = 0; c < 3; ++c) {
+      pair_force[3 * k + c] = f[c];
+      new_spring[3 * k + c] = s[c];
+      torque_i[3 * k + c] = ti[c];
+      torque_j[3 * k + c] = tj[c];
+    }
+  }
+}
+
+template <ffi::DataType dtype>
+ffi::Error dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation, ffi::Buffer<dtype> velocity,
+                     ffi::Buffer<dtype> angular_velocity, ffi::Buffer<dtype> radius, ffi::Buffer<ffi::S32> idx,
+                     ffi::Buffer<dtype> spring, ffi::Buffer<dtype> normal_stiffness,
+                     ffi::Buffer<dtype> tangential_stiffness, ffi::Buffer<dtype> friction_coefficient,
+                     ffi::Buffer<dtype> time_step, ffi::ResultBuffer<dtype> totals,
+                     ffi::ResultBuffer<dtype> new_spring, ffi::ResultBuffer<dtype> pair_force) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t n = radius.element_count();
+  const int64_t slots = spring.element_count() / 3;
+  for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
+    if (rows->element_count() != size_t(3 * n))
+      return ffi::Error::InvalidArgument("dem_pairs: sphere arrays must be (N, 3) with N the radii's length");
+  }
+  for (const auto* scalar : {&normal_stiffness, &tangential_stiffness, &friction_coefficient}) {
+    if (scalar->element_count() != size_t(slots))
+      return ffi::Error::InvalidArgument("dem_pairs: per-slot parameters must be (C,)");
+  }
+  if (idx.element_count() != size_t(2 * slots)) return ffi::Error::InvalidArgument("dem_pairs: idx must be (2, C)");
+  thread_local std::vector<T> scratch;
+  scratch.resize(size_t(6 * slots));
+  T* torque_i = scratch.data();
+  T* torque_j = torque_i + 3 * slots;
+  T* force = pair_force->typed_data();
+  const int32_t* id = idx.typed_data();
+  dem_pair_law<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
+                  angular_velocity.typed_data(), radius.typed_data(), id, spring.typed_data(),
+                  normal_stiffness.typed_data(), tangential_stiffness.typed_data(),
+                  friction_coefficient.typed_data(), time_step.typed_data()[0], n, slots, force,
+                  new_spring->typed_data(), torque_i, torque_j);
+  T* total = totals->typed_data();
+  std::fill(total, total + 6 * n, T(0));
+  // As the reference's one segment sum: first every slot's share of j, then every slot's share of i.
+  for (int64_t k = 0; k < slots; ++k) {
+    if (id[k] >= n) continue;
+    T* row = total + 6 * int64_t(id[slots + k]);
+    for (int c = 0; c < 3; ++c) {
+      row[c] += force[3 * k + c];
+      row[3 + c] += torque_j[3 * k + c];
+    }
+  }
+  for (int64_t k = 0; k < slots; ++k) {
+    if (id[k] >= n) continue;
+    T* row = total + 6 * int64_t(id[k]);
+    for (int c = 0; c < 3; ++c) {
+      row[c] -= force[3 * k + c];
+      row[3 + c] += torque_i[3 * k + c];
+    }
+  }
+  return ffi::Error::Success();
 }
 
 template <ffi::DataType dtype>
@@ -123,3 +197,36 @@ ffi::Error pair_contact(ffi::Buffer<dtype> branch, ffi::Buffer<dtype> velocity_i
 
 MEMBRAX_PAIR_HANDLER(MembraxPairContactF32, ffi::F32)
 MEMBRAX_PAIR_HANDLER(MembraxPairContactF64, ffi::F64)
+
+XLA_FFI_DEFINE_HANDLER_SYMBOL(MembraxDemPairsF32, dem_pairs<ffi::F32>,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::S32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Arg<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>()
+                                  .Ret<ffi::Buffer<ffi::F32>>());
+XLA_FFI_DEFINE_HANDLER_SYMBOL(MembraxDemPairsF64, dem_pairs<ffi::F64>,
+                              ffi::Ffi::Bind()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::S32>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Arg<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>()
+                                  .Ret<ffi::Buffer<ffi::F64>>());
