@@ -2,10 +2,16 @@
 
 Contract. :func:`available` says whether the kernels in ``membrax/native/*.cc`` are compiled and
 registered with XLA as FFI targets (``jax.ffi``) for the CPU; when it is false, every caller uses its
-pure-JAX path, which computes the same numbers. The kernels are built once per machine with the C++
-compiler that XLA's headers need (``g++``, C++17), into a cache folder keyed by the source's hash and
-the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/membrax``), and loaded with ``ctypes``.
-``MEMBRAX_NATIVE=0`` turns them off. A failed build warns once and falls back to JAX.
+pure-JAX path, which computes the same numbers to round-off. The kernels are built once per machine
+with a C++17 compiler (``$CXX``, else ``g++``) against XLA's FFI headers, into a cache folder keyed by
+the sources' hash and the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/membrax``), and loaded with
+``ctypes``. ``MEMBRAX_NATIVE=0`` turns them off. A failed build warns once and falls back to JAX.
+
+Kernels: the membrane's nodal forces (:func:`membrax.membrane.nodal_forces`), its node update
+(:func:`membrax.membrane_dem.advance_nodes`), the node–sphere law
+(:func:`membrax.membrane_contact.node_sphere_forces`), the sphere–sphere law
+(:func:`membrax.contact.pair_contact`) and the DEM's pair forces summed per sphere
+(:func:`membrax.integrate.compute_forces`). Each caller wraps its kernel with :func:`with_reference`.
 
 Why. XLA-CPU has no multi-output loop fusion and turns each per-element formula into several passes
 over memory (see :mod:`membrax.fusion`); a membrane force is a short formula over 34,000 triangles, and
@@ -35,17 +41,13 @@ __all__ = ["available", "build", "cache_dir", "call", "with_reference"]
 
 _SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "pair_contact.cc")
 _HEADERS = ("contact_law.h",)
-_TARGETS = {
-    "membrax_membrane_forces_f32": "MembraxMembraneForcesF32",
-    "membrax_membrane_forces_f64": "MembraxMembraneForcesF64",
-    "membrax_membrane_nodes_f32": "MembraxMembraneNodesF32",
-    "membrax_membrane_nodes_f64": "MembraxMembraneNodesF64",
-    "membrax_node_sphere_forces_f32": "MembraxNodeSphereForcesF32",
-    "membrax_node_sphere_forces_f64": "MembraxNodeSphereForcesF64",
-    "membrax_pair_contact_f32": "MembraxPairContactF32",
-    "membrax_pair_contact_f64": "MembraxPairContactF64",
-    "membrax_dem_pairs_f32": "MembraxDemPairsF32",
-    "membrax_dem_pairs_f64": "MembraxDemPairsF64",
+# Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
+_KERNELS = {
+    "membrane_forces": "MembraxMembraneForces",  # membrane.nodal_forces
+    "membrane_nodes": "MembraxMembraneNodes",  # membrane_dem.advance_nodes
+    "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
+    "pair_contact": "MembraxPairContact",  # contact.pair_contact
+    "dem_pairs": "MembraxDemPairs",  # integrate.compute_forces (pairs)
 }
 _FLAGS = ("-O3", "-march=native", "-fopenmp-simd", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC")
 
@@ -123,9 +125,13 @@ def available() -> bool:
         return False
     try:
         library = ctypes.cdll.LoadLibrary(str(build()))
-        for target, symbol in _TARGETS.items():
-            jax.ffi.register_ffi_target(target, jax.ffi.pycapsule(getattr(library, symbol)), platform="cpu")
+        for name, symbol in _KERNELS.items():
+            for suffix in ("f32", "f64"):
+                handler = jax.ffi.pycapsule(getattr(library, symbol + suffix.upper()))
+                jax.ffi.register_ffi_target(f"membrax_{name}_{suffix}", handler, platform="cpu")
     except (OSError, RuntimeError, AttributeError) as error:
+        if jax.default_backend() != "cpu":  # the kernels would serve only CPU side work there
+            return False
         warnings.warn(
             f"membrax: compiled CPU kernels unavailable, using the JAX code ({error}). "
             "Set MEMBRAX_NATIVE=0 to silence this.",
