@@ -1,17 +1,19 @@
-// Sphere–sphere Cundall–Strack contacts: forces, torques and tangential springs, one vectorised pass.
+// Sphere–sphere Cundall–Strack contacts: the law alone, and the DEM's pair forces summed per sphere.
 //
-// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the law is that of
-// membrax/contact.py (pair_contact), which remains the reference and supplies the derivatives. Per
-// contact, with b = x_j − x_i:
-//   δ = R_i + R_j − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on j),
-//   arm_i = (R_i − δ/2) n̂, arm_j = −(R_j − δ/2) n̂,
-//   v_t = Π_t[(v_j + ω_j × arm_j) − (v_i + ω_i × arm_i)], s' = tangential_spring(...) (contact_law.h),
-//   F = F_n + s' on j, torque arm_i × (−F) on i and arm_j × F on j.
+// XLA FFI handlers for the CPU, compiled on first use by membrax/native.py. The law (contact_law.h,
+// sphere_pair) is that of membrax/contact.py (pair_contact), which remains the reference and supplies
+// the derivatives.
 //
-// Inputs (T: float or double), component-first like the JAX law: branch, velocity_i, velocity_j,
-// angular_velocity_i, angular_velocity_j (3, C); radius_i, radius_j (C,); spring (3, C); normal_stiffness,
-// tangential_stiffness, friction_coefficient (C,); dt (1,).
+// pair_contact: one vectorised pass over component-first contacts, like the JAX law. Inputs (T: float
+// or double): branch, velocity_i, velocity_j, angular_velocity_i, angular_velocity_j (3, C); radius_i,
+// radius_j (C,); spring (3, C); normal_stiffness, tangential_stiffness, friction_coefficient (C,); dt (1,).
 // Outputs: force_on_j, torque_on_i, torque_on_j, spring' (3, C).
+//
+// dem_pairs: gather, law and per-sphere sums over a neighbour list (membrax/integrate.py,
+// _pair_totals_reference). Inputs: position, compensation, velocity, angular_velocity (N, 3); radius
+// (N,); idx (2, C) i32 padded with N; spring (C, 3); normal_stiffness, tangential_stiffness,
+// friction_coefficient (C,); dt (1,). Outputs: totals (N, 6) force and torque per sphere; spring' and
+// the force on j (C, 3), zero on padded slots.
 
 #include <algorithm>
 #include <cmath>
@@ -198,35 +200,23 @@ ffi::Error pair_contact(ffi::Buffer<dtype> branch, ffi::Buffer<dtype> velocity_i
 MEMBRAX_PAIR_HANDLER(MembraxPairContactF32, ffi::F32)
 MEMBRAX_PAIR_HANDLER(MembraxPairContactF64, ffi::F64)
 
-XLA_FFI_DEFINE_HANDLER_SYMBOL(MembraxDemPairsF32, dem_pairs<ffi::F32>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Arg<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>()
-                                  .Ret<ffi::Buffer<ffi::F32>>());
-XLA_FFI_DEFINE_HANDLER_SYMBOL(MembraxDemPairsF64, dem_pairs<ffi::F64>,
-                              ffi::Ffi::Bind()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::S32>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Arg<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>()
-                                  .Ret<ffi::Buffer<ffi::F64>>());
+#define MEMBRAX_DEM_PAIRS_HANDLER(name, dtype)                 \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, dem_pairs<dtype>,         \
+                                ffi::Ffi::Bind()                \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<ffi::S32>>() \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()  \
+                                    .Ret<ffi::Buffer<dtype>>()  \
+                                    .Ret<ffi::Buffer<dtype>>()  \
+                                    .Ret<ffi::Buffer<dtype>>());
+
+MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF32, ffi::F32)
+MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF64, ffi::F64)
