@@ -36,7 +36,6 @@ import jax
 import jax.numpy as jnp
 from jax_md import dataclasses
 
-from membrax import native
 from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
@@ -157,10 +156,6 @@ def pair_contact(
 ) -> PairContact:
     """Sphere–sphere Cundall–Strack contacts (see the module docstring for the law).
 
-    On the CPU, in float32 or float64, the forces, torques and springs come from a compiled kernel
-    (:mod:`membrax.native`, ``pair_contact.cc``), one vectorised pass over the contacts; derivatives are
-    those of the JAX law (``_reference_pair_contact``), which the tests hold the kernel to.
-
     Args:
       branch: x_j − x_i (3, ...), m (computed by the caller, with the position compensation).
       velocity_i: velocity of sphere i (3, ...), m/s.
@@ -178,53 +173,6 @@ def pair_contact(
     Returns:
       A :class:`PairContact`; ``branch`` is x_j − x_i (for the Love–Weber stress).
     """
-    args = (
-        branch,
-        velocity_i,
-        velocity_j,
-        angular_velocity_i,
-        angular_velocity_j,
-        radius_i,
-        radius_j,
-        spring,
-        dt,
-        normal_stiffness,
-        tangential_stiffness,
-        friction_coefficient,
-    )
-    branch = jnp.asarray(branch)
-    if branch.dtype not in (jnp.float32, jnp.float64) or not native.available():
-        return _reference_pair_contact(*args)
-    force_on_j, torque_on_i, torque_on_j, new_spring = _compiled_pair_contact(*args)
-    # The scalar fields from the geometry; XLA drops them where a caller does not use them.
-    overlap = radius_i + radius_j - safe_norm(branch)
-    normal_force = jnp.where(safe_norm(branch) > 0.0, normal_stiffness * jnp.maximum(overlap, 0.0), 0.0)
-    return PairContact(
-        force_on_j=force_on_j,
-        torque_on_i=torque_on_i,
-        torque_on_j=torque_on_j,
-        spring=new_spring,
-        normal_force=normal_force,
-        overlap=overlap,
-        branch=branch,
-    )
-
-
-def _reference_pair_contact(
-    branch,
-    velocity_i,
-    velocity_j,
-    angular_velocity_i,
-    angular_velocity_j,
-    radius_i,
-    radius_j,
-    spring,
-    dt,
-    normal_stiffness,
-    tangential_stiffness,
-    friction_coefficient,
-) -> PairContact:
-    """:func:`pair_contact` in JAX: the definition of the law, and its derivatives."""
 
     def energy(separation):
         # A sum of independent per-contact energies: its gradient is each contact's own force.
@@ -266,60 +214,6 @@ def _reference_pair_contact(
         overlap=overlap,
         branch=branch,
     )
-
-
-def _pair_outputs(*args):
-    """The four outputs of the kernel, from the JAX law (the definition)."""
-    result = _reference_pair_contact(*args)
-    return result.force_on_j, result.torque_on_i, result.torque_on_j, result.spring
-
-
-def _kernel_pair_contact(
-    branch,
-    velocity_i,
-    velocity_j,
-    angular_velocity_i,
-    angular_velocity_j,
-    radius_i,
-    radius_j,
-    spring,
-    dt,
-    normal_stiffness,
-    tangential_stiffness,
-    friction_coefficient,
-):
-    """(force on j, torque on i, torque on j, new spring) from the compiled kernel (pair_contact.cc)."""
-    dtype = branch.dtype
-    shape = branch.shape
-
-    def vector(value):  # (3, ...) → (3, C)
-        return jnp.broadcast_to(jnp.asarray(value, dtype), shape).reshape(3, -1)
-
-    def scalar(value):  # () or (...) → (C,)
-        return jnp.broadcast_to(jnp.asarray(value, dtype), shape[1:]).reshape(-1)
-
-    rows = jax.ShapeDtypeStruct((3, math.prod(shape[1:])), dtype)
-    outputs = native.call(
-        "pair_contact",
-        dtype,
-        (rows, rows, rows, rows),
-        vector(branch),
-        vector(velocity_i),
-        vector(velocity_j),
-        vector(angular_velocity_i),
-        vector(angular_velocity_j),
-        scalar(radius_i),
-        scalar(radius_j),
-        vector(spring),
-        scalar(normal_stiffness),
-        scalar(tangential_stiffness),
-        scalar(friction_coefficient),
-        jnp.asarray(dt, dtype).reshape(1),
-    )
-    return tuple(output.reshape(shape) for output in outputs)
-
-
-_compiled_pair_contact = native.with_reference(_kernel_pair_contact, _pair_outputs)
 
 
 @dataclasses.dataclass

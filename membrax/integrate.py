@@ -283,7 +283,7 @@ def _pair_totals_reference(
     rows_j = packed[gj].T
     # x_j − x_i of nearby spheres is exact in floating point (Sterbenz), then the low parts are added.
     branch = (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
-    pairs = contact._reference_pair_contact(
+    pairs = contact.pair_contact(
         branch,
         rows_i[6:9],
         rows_j[6:9],
@@ -375,6 +375,7 @@ def compute_forces(
     gj = jnp.where(valid, j, 0)
     member = particles.member[gi]
     law = params.contact
+    pair_stiffness = _for_members(law.normal_stiffness, member)
     pair_args = (
         state.position,
         state.position_compensation,
@@ -383,12 +384,12 @@ def compute_forces(
         particles.radius,
         state.neighbors.idx,
         state.pair_spring,
-        _for_members(law.normal_stiffness, member),
+        pair_stiffness,
         _for_members(law.tangential_stiffness, member),
         _for_members(law.friction_coefficient, member),
         dt,
     )
-    if state.position.dtype in (jnp.float32, jnp.float64) and native.available():
+    if native.enabled_for(state.position.dtype):
         totals, pair_spring, pair_force = _compiled_pair_totals(*pair_args)
     else:
         totals, pair_spring, pair_force = _pair_totals_reference(*pair_args)
@@ -398,7 +399,7 @@ def compute_forces(
     pair_distance = safe_norm(branch)
     pair_overlap = particles.radius[gi] + particles.radius[gj] - pair_distance
     pair_normal_force = jnp.where(
-        valid & (pair_distance > 0.0), pair_args[7] * jnp.maximum(pair_overlap, 0.0), 0.0
+        valid & (pair_distance > 0.0), pair_stiffness * jnp.maximum(pair_overlap, 0.0), 0.0
     )
     position_t = state.position.T
     compensation_t = state.position_compensation.T

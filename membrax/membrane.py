@@ -829,7 +829,7 @@ def nodal_forces(
         raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
     position = jnp.asarray(position)
     args = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
-    if position.dtype in (jnp.float32, jnp.float64) and native.available():
+    if native.enabled_for(position.dtype):
         return _COMPILED_NODAL_FORCES[model](*args)
     return _reference_nodal_forces(*args, model)
 

@@ -296,8 +296,7 @@ def node_sphere_forces(
         params,
         membrane_thickness,
     )
-    dtype = jnp.asarray(node_position).dtype
-    if dtype not in (jnp.float32, jnp.float64) or not native.available():
+    if not native.enabled_for(jnp.asarray(node_position).dtype):
         return _reference_node_sphere_forces(*args, sphere_slots=sphere_slots, sphere_subset=sphere_subset)
     node_force, sphere_force, sphere_torque, new_spring = _compiled_node_sphere_forces(*args)
     # The per-slot fields from the geometry and the new springs; XLA drops those a caller does not use.

@@ -235,7 +235,7 @@ def advance_nodes(
     The damping coefficients are one specimen's (scalars, or arrays of one member).
     """
     args = (membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping)
-    if position.dtype in (jnp.float32, jnp.float64) and native.available():
+    if native.enabled_for(position.dtype):
         return _compiled_advance_nodes(*args)
     return _advance_nodes_reference(*args)
 

@@ -9,9 +9,9 @@ the sources' hash and the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/memb
 
 Kernels: the membrane's nodal forces (:func:`membrax.membrane.nodal_forces`), its node update
 (:func:`membrax.membrane_dem.advance_nodes`), the node–sphere law
-(:func:`membrax.membrane_contact.node_sphere_forces`), the sphere–sphere law
-(:func:`membrax.contact.pair_contact`) and the DEM's pair forces summed per sphere
-(:func:`membrax.integrate.compute_forces`). Each caller wraps its kernel with :func:`with_reference`.
+(:func:`membrax.membrane_contact.node_sphere_forces`) and the DEM's sphere–sphere contacts summed per
+sphere (:func:`membrax.integrate.compute_forces`, with the law of :func:`membrax.contact.pair_contact`).
+Each caller wraps its kernel with :func:`with_reference`.
 
 Why. XLA-CPU has no multi-output loop fusion and turns each per-element formula into several passes
 over memory (see :mod:`membrax.fusion`); a membrane force is a short formula over 34,000 triangles, and
@@ -37,16 +37,15 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-__all__ = ["available", "build", "cache_dir", "call", "with_reference"]
+__all__ = ["available", "build", "cache_dir", "call", "enabled_for", "with_reference"]
 
-_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "pair_contact.cc")
+_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
 _HEADERS = ("contact_law.h",)
 # Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
 _KERNELS = {
     "membrane_forces": "MembraxMembraneForces",  # membrane.nodal_forces
     "membrane_nodes": "MembraxMembraneNodes",  # membrane_dem.advance_nodes
     "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
-    "pair_contact": "MembraxPairContact",  # contact.pair_contact
     "dem_pairs": "MembraxDemPairs",  # integrate.compute_forces (pairs)
 }
 _FLAGS = ("-O3", "-march=native", "-fopenmp-simd", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC")
@@ -139,6 +138,11 @@ def available() -> bool:
         )
         return False
     return True
+
+
+def enabled_for(dtype) -> bool:
+    """Whether arrays of ``dtype`` go through the kernels: float32 or float64, and :func:`available`."""
+    return jnp.dtype(dtype) in (jnp.float32, jnp.float64) and available()
 
 
 def call(name: str, dtype, results, *args, **attributes):

@@ -1,19 +1,16 @@
-// Sphere–sphere Cundall–Strack contacts: the law alone, and the DEM's pair forces summed per sphere.
+// The DEM's sphere–sphere contacts over a neighbour list, summed per sphere, in one pass.
 //
-// XLA FFI handlers for the CPU, compiled on first use by membrax/native.py. The law (contact_law.h,
-// sphere_pair) is that of membrax/contact.py (pair_contact), which remains the reference and supplies
+// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py. For each slot (i, j) =
+// idx[:, k] (padded with N) it gathers the two spheres (b = (x_j − x_i) + (c_j − c_i), positions with
+// their compensation), applies the Cundall–Strack law (contact_law.h, sphere_pair; the reference is
+// membrax.contact.pair_contact), zeroes the padded slots and sums per sphere: j receives (F, T_j), i
+// receives (−F, T_i). membrax/integrate.py (_pair_totals_reference) is the JAX definition and supplies
 // the derivatives.
 //
-// pair_contact: one vectorised pass over component-first contacts, like the JAX law. Inputs (T: float
-// or double): branch, velocity_i, velocity_j, angular_velocity_i, angular_velocity_j (3, C); radius_i,
-// radius_j (C,); spring (3, C); normal_stiffness, tangential_stiffness, friction_coefficient (C,); dt (1,).
-// Outputs: force_on_j, torque_on_i, torque_on_j, spring' (3, C).
-//
-// dem_pairs: gather, law and per-sphere sums over a neighbour list (membrax/integrate.py,
-// _pair_totals_reference). Inputs: position, compensation, velocity, angular_velocity (N, 3); radius
-// (N,); idx (2, C) i32 padded with N; spring (C, 3); normal_stiffness, tangential_stiffness,
-// friction_coefficient (C,); dt (1,). Outputs: totals (N, 6) force and torque per sphere; spring' and
-// the force on j (C, 3), zero on padded slots.
+// Inputs (T: float or double): position, compensation, velocity, angular_velocity (N, 3); radius (N,);
+// idx (2, C) i32 padded with N; spring (C, 3); normal_stiffness, tangential_stiffness,
+// friction_coefficient (C,); dt (1,). Outputs: totals (N, 6) force and torque per sphere; spring' and the
+// force on j (C, 3), zero on padded slots.
 
 #include <algorithm>
 #include <cmath>
@@ -27,39 +24,7 @@ namespace ffi = xla::ffi;
 
 namespace {
 
-// Entry k of a component-first (3, n) array, and its store.
-template <typename T>
-__attribute__((always_inline)) inline membrax::Vec3<T> load(const T* __restrict a, int64_t n, int64_t k) {
-  return {a[k], a[n + k], a[2 * n + k]};
-}
-
-template <typename T>
-__attribute__((always_inline)) inline void store(T* __restrict a, int64_t n, int64_t k, membrax::Vec3<T> v) {
-  a[k] = v.x;
-  a[n + k] = v.y;
-  a[2 * n + k] = v.z;
-}
-
-template <typename T>
-void pair_law(const T* __restrict b, const T* __restrict vi, const T* __restrict vj, const T* __restrict wi,
-              const T* __restrict wj, const T* __restrict ri, const T* __restrict rj, const T* __restrict s,
-              const T* __restrict kn, const T* __restrict kt, const T* __restrict mu, T dt, int64_t n,
-              T* __restrict force, T* __restrict torque_i, T* __restrict torque_j, T* __restrict springs) {
-#pragma GCC ivdep
-  for (int64_t k = 0; k < n; ++k) {
-    const auto result = membrax::sphere_pair(load(b, n, k), load(vi, n, k), load(vj, n, k), load(wi, n, k),
-                                             load(wj, n, k), ri[k], rj[k], load(s, n, k), kn[k], kt[k], mu[k], dt);
-    store(force, n, k, result.force_on_j);
-    store(torque_i, n, k, result.torque_on_i);
-    store(torque_j, n, k, result.torque_on_j);
-    store(springs, n, k, result.spring);
-  }
-}
-
-// The DEM's pair forces (membrax.integrate._pair_totals_reference): for each neighbour-list slot
-// (i, j) = idx[:, k] (padded with N), gather the two spheres (positions with their compensation, b =
-// (x_j − x_i) + (c_j − c_i)), apply the law, zero the padded slots, and sum per sphere: j receives
-// (F, T_j), i receives (−F, T_i).
+// Pass 1, vectorised: gather, law and per-slot outputs (padded slots zeroed).
 template <typename T>
 void dem_pair_law(const T* __restrict position, const T* __restrict compensation, const T* __restrict velocity,
                   const T* __restrict angular, const T* __restrict radius, const int32_t* __restrict idx,
@@ -148,57 +113,7 @@ ffi::Error dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensatio
   return ffi::Error::Success();
 }
 
-template <ffi::DataType dtype>
-ffi::Error pair_contact(ffi::Buffer<dtype> branch, ffi::Buffer<dtype> velocity_i, ffi::Buffer<dtype> velocity_j,
-                        ffi::Buffer<dtype> angular_velocity_i, ffi::Buffer<dtype> angular_velocity_j,
-                        ffi::Buffer<dtype> radius_i, ffi::Buffer<dtype> radius_j, ffi::Buffer<dtype> spring,
-                        ffi::Buffer<dtype> normal_stiffness, ffi::Buffer<dtype> tangential_stiffness,
-                        ffi::Buffer<dtype> friction_coefficient, ffi::Buffer<dtype> time_step,
-                        ffi::ResultBuffer<dtype> force_on_j, ffi::ResultBuffer<dtype> torque_on_i,
-                        ffi::ResultBuffer<dtype> torque_on_j, ffi::ResultBuffer<dtype> new_spring) {
-  using T = ffi::NativeType<dtype>;
-  const int64_t n = radius_i.element_count();
-  for (const auto* vector : {&branch, &velocity_i, &velocity_j, &angular_velocity_i, &angular_velocity_j, &spring}) {
-    if (vector->element_count() != size_t(3 * n))
-      return ffi::Error::InvalidArgument("pair_contact: vectors must be (3, C) with C the radii's length");
-  }
-  for (const auto* scalar : {&radius_j, &normal_stiffness, &tangential_stiffness, &friction_coefficient}) {
-    if (scalar->element_count() != size_t(n))
-      return ffi::Error::InvalidArgument("pair_contact: per-contact scalars must be (C,)");
-  }
-  pair_law<T>(branch.typed_data(), velocity_i.typed_data(), velocity_j.typed_data(),
-              angular_velocity_i.typed_data(), angular_velocity_j.typed_data(), radius_i.typed_data(),
-              radius_j.typed_data(), spring.typed_data(), normal_stiffness.typed_data(),
-              tangential_stiffness.typed_data(), friction_coefficient.typed_data(), time_step.typed_data()[0], n,
-              force_on_j->typed_data(), torque_on_i->typed_data(), torque_on_j->typed_data(),
-              new_spring->typed_data());
-  return ffi::Error::Success();
-}
-
 }  // namespace
-
-#define MEMBRAX_PAIR_HANDLER(name, dtype)                     \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, pair_contact<dtype>,    \
-                                ffi::Ffi::Bind()              \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>());
-
-MEMBRAX_PAIR_HANDLER(MembraxPairContactF32, ffi::F32)
-MEMBRAX_PAIR_HANDLER(MembraxPairContactF64, ffi::F64)
 
 #define MEMBRAX_DEM_PAIRS_HANDLER(name, dtype)                 \
   XLA_FFI_DEFINE_HANDLER_SYMBOL(name, dem_pairs<dtype>,         \
