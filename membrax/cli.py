@@ -328,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--size",
         choices=("small", "paper"),
         default="small",
-        help="small: 6 × 10 specimen, within 15 min on 2 CPU cores; paper: 10 × 25 (for a GPU)",
+        help="small: 6 × 10 specimen, ≈ 3 min on 2 CPU cores; paper: 10 × 25, REPRO_TIME on 2 CPU cores",
     )
     reproduce.add_argument("--out", default=None, help="results folder (default: results_reproduce_<size>)")
     for command in (sweep, reproduce):

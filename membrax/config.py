@@ -155,6 +155,31 @@ _SPECS: dict[str, _Spec] = {
     "inertial_number": _Spec(
         float, "(dimensionless)", **_POSITIVE, upper=0.1, upper_open=False, hint="quasi-static: 1e-3"
     ),
+    "shear_ramp_strain": _Spec(
+        float,
+        "(strain, dimensionless)",
+        **_NON_NEGATIVE,
+        upper=0.1,
+        hint="axial strain at which the platens reach full speed after a linear ramp; 0: a step change",
+    ),
+    "symmetric_loading": _Spec(bool),
+    "membrane_contact_offset_factor": _Spec(
+        float,
+        "(fraction of t_m/2)",
+        **_NON_NEGATIVE,
+        upper=1.0,
+        upper_open=False,
+        hint="0: nodes touch the sphere surface (the paper); 1: the membrane's inner face does",
+    ),
+    "imperfection_fraction": _Spec(
+        float,
+        "(fraction of the particle diameter)",
+        **_NON_NEGATIVE,
+        upper=0.01,
+        upper_open=False,
+        hint="radii reduced by up to this fraction of d, at random; 0: a perfect lattice",
+    ),
+    "imperfection_seed": _Spec(int, "(seed)", lower=0),
     "consolidation_tolerance": _Spec(
         float, "(unbalanced-force ratio)", **_NON_NEGATIVE, hint="0 takes the default for the dtype"
     ),
@@ -199,6 +224,19 @@ class TriaxialConfig:
         Default 0.10.
       inertial_number (float): inertial number setting the shear strain rate (dimensionless), in
         (0, 0.1]. Default 1e-3.
+      shear_ramp_strain (float): axial strain (dimensionless) at which the platens reach full speed after
+        a linear ramp from rest, in [0, 0.1]; 0 starts them at full speed (a step change, whose stress
+        wave shows as a spurious peak). Default 1e-2 (see membrax.membrane_triaxial.DEFAULT_RAMP_STRAIN).
+      symmetric_loading (bool): both platens close at half the rate each (true), or the bottom one
+        stays and the top one closes at the full rate. Default true.
+      membrane_contact_offset_factor (float): where membrane nodes touch spheres, as a fraction of
+        t_m/2 outside the sphere surface, in [0, 1]: 0 the sphere surface (the paper's nodes "lie on the
+        surface of the respective particle"), 1 the membrane's inner face touches it (nodes on the
+        mid-surface, t_m/2 off). Default 1.
+      imperfection_fraction (float): seeded imperfection, the largest radius reduction as a fraction of
+        the particle diameter, in [0, 0.01]; each sphere's radius is reduced by a uniform random fraction
+        of it (the lattice's centres stay). Default 0 (a perfect lattice).
+      imperfection_seed (int): seed of the imperfection's random numbers, in [0, inf). Default 0.
       consolidation_tolerance (float): unbalanced-force ratio ending consolidation (dimensionless), in
         [0, inf); 0 takes the default for the dtype (1e-3 in float64, 5e-3 in float32). Default 0.
       consolidation_max_steps (int): most time steps of consolidation, in [1, inf). Default 200000.
@@ -234,6 +272,11 @@ class TriaxialConfig:
     membrane_bending_factor: float = 0.0
     target_axial_strain: float = 0.10
     inertial_number: float = 1.0e-3
+    shear_ramp_strain: float = 1.0e-2
+    symmetric_loading: bool = True
+    membrane_contact_offset_factor: float = 1.0
+    imperfection_fraction: float = 0.0
+    imperfection_seed: int = 0
     consolidation_tolerance: float = 0.0
     consolidation_max_steps: int = 200000
     record_every_fine: int = 25

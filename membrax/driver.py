@@ -164,14 +164,18 @@ class ChunkRunner:
         return state, concatenate_records(chunks)
 
 
-def two_rate_plan(steps_per_strain: float, target_strain: float, fine_until_strain: float) -> tuple[int, int]:
+def two_rate_plan(
+    steps_per_strain: float, target_strain: float, fine_until_strain: float, ramp_strain: float = 0.0
+) -> tuple[int, int]:
     """Steps of the two recording phases of a strain-controlled stage: (fine, coarse).
 
-    The strain grows by 1/``steps_per_strain`` per step: the fine phase runs to ``fine_until_strain``
-    (capped at the target), the coarse phase to ``target_strain``.
+    The strain grows by 1/``steps_per_strain`` per step once the platens are at speed: the fine phase runs
+    to ``fine_until_strain`` (capped at the target), the coarse phase to ``target_strain``. A linear ramp
+    from rest that ends at strain ``ramp_strain`` (:func:`membrax.walls.set_control`) lasts 2 ε_ramp/ε̇
+    and so delays every later strain by ε_ramp/ε̇: the fine phase takes that many steps more.
     """
     fine_strain = min(fine_until_strain, target_strain)
-    fine = math.ceil(fine_strain * steps_per_strain)
+    fine = math.ceil((fine_strain + ramp_strain) * steps_per_strain)
     coarse = max(math.ceil((target_strain - fine_strain) * steps_per_strain), 0)
     return fine, coarse
 

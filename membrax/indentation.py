@@ -163,22 +163,27 @@ def triangular_sphere_array(
     return np.concatenate(rows)
 
 
-def _sheet_on_sphere_tops(width: float, length: float, diameter: float, target_edge_length, thickness):
+def _sheet_on_sphere_tops(
+    width: float, length: float, diameter: float, target_edge_length, thickness, contact_offset_factor=1.0
+):
     """A flat sheet resting on the tops of spheres of diameter D centred at z = 0, and its (x, y) centre.
 
-    :func:`membrax.membrane.flat_mesh` of ``width`` × ``length`` lifted to z = R + t_m/2 (a rigid shift:
+    :func:`membrax.membrane.flat_mesh` of ``width`` × ``length`` lifted to z = R + f t_m/2 (f the
+    ``contact_offset_factor`` of :func:`solve_sheet_on_spheres`; a rigid shift:
     the rest quantities are unchanged). The centre is that of its (x, y) bounding box
     [0, width + a/2] × [0, length], m, a the mesh's column spacing (flat_mesh shifts odd rows by a/2);
     the callers centre their sphere arrays on it.
     """
     flat = membrane.flat_mesh(width, length, target_edge_length)
-    position = flat.reference_position.at[:, 2].set(0.5 * diameter + 0.5 * thickness)
+    position = flat.reference_position.at[:, 2].set(0.5 * diameter + 0.5 * contact_offset_factor * thickness)
     mesh = dataclasses.replace(flat, reference_position=position)
     xy = np.asarray(position[:, :2])
     return mesh, 0.5 * (xy.min(axis=0) + xy.max(axis=0))
 
 
-def sheet_on_square_array(cells: int, diameter: float, target_edge_length: float, thickness: float):
+def sheet_on_square_array(
+    cells: int, diameter: float, target_edge_length: float, thickness: float, contact_offset_factor=1.0
+):
     """A flat sheet over cells × cells of a touching square sphere array, resting on the sphere tops.
 
     The sheet is :func:`membrax.membrane.flat_mesh` of side cells·D lifted to z = R + t_m/2 (a rigid
@@ -191,7 +196,7 @@ def sheet_on_square_array(cells: int, diameter: float, target_edge_length: float
       spheres).
     """
     mesh, centre = _sheet_on_sphere_tops(
-        cells * diameter, cells * diameter, diameter, target_edge_length, thickness
+        cells * diameter, cells * diameter, diameter, target_edge_length, thickness, contact_offset_factor
     )
     spheres = square_sphere_array(cells + 1, diameter, centre)
     return mesh, spheres, centre - 0.5 * diameter, centre + 0.5 * diameter
@@ -215,7 +220,9 @@ def triangle_voids(sphere_position, diameter: float, tolerance: float = 1e-9) ->
     return triples
 
 
-def sheet_on_triangular_array(cells: int, diameter: float, target_edge_length: float, thickness: float):
+def sheet_on_triangular_array(
+    cells: int, diameter: float, target_edge_length: float, thickness: float, contact_offset_factor=1.0
+):
     """A flat sheet over a touching triangular sphere array (:func:`triangular_sphere_array`), on the tops.
 
     The sheet is :func:`membrax.membrane.flat_mesh` of cells·D along x by 2k·h along y (h = D√3/2 the row
@@ -234,6 +241,7 @@ def sheet_on_triangular_array(cells: int, diameter: float, target_edge_length: f
       diameter: D, m.
       target_edge_length: mesh edge, m.
       thickness: t_m, m.
+      contact_offset_factor: f, the sheet starts at z = R + f t_m/2 (:func:`solve_sheet_on_spheres`).
 
     Returns:
       ``(mesh, sphere_position, void_xy)``: the mesh, the (S, 3) centres, and the (3, 2) counter-clockwise
@@ -245,7 +253,12 @@ def sheet_on_triangular_array(cells: int, diameter: float, target_edge_length: f
         raise ValueError(f"cells = {cells}: need >= 3 to keep the measured void off the pinned outline")
     rows = 2 * max(1, round(cells / math.sqrt(3.0)))
     mesh, centre = _sheet_on_sphere_tops(
-        cells * diameter, rows * 0.5 * math.sqrt(3.0) * diameter, diameter, target_edge_length, thickness
+        cells * diameter,
+        rows * 0.5 * math.sqrt(3.0) * diameter,
+        diameter,
+        target_edge_length,
+        thickness,
+        contact_offset_factor,
     )
     spheres = triangular_sphere_array(cells + 1, rows + 1, diameter, centre)
     voids = triangle_voids(spheres, diameter)
@@ -301,12 +314,12 @@ def _positions(u, base, free_rows, length):
 
 def _scaled_energy(u, base, free_rows, mesh, spheres, radii, candidates, params, length):
     """Π / (E t L²) as a function of the scaled free displacements u (module docstring)."""
-    pressure, modulus, thickness, stiffness = params[0], params[1], params[2], params[3]
+    pressure, modulus, thickness, stiffness, contact_thickness = (params[k] for k in range(5))
     x = _positions(u, base, free_rows, length)
     total = membrane.stretching_energy(x, mesh, modulus, thickness)
     total = total + membrane.bending_energy(x, mesh, modulus, thickness)
     total = total + sheet_pressure_energy(x, mesh, pressure)
-    total = total + node_sphere_normal_energy(x, spheres, radii, candidates, stiffness, thickness)
+    total = total + node_sphere_normal_energy(x, spheres, radii, candidates, stiffness, contact_thickness)
     return total / (modulus * thickness * length * length)
 
 
@@ -325,6 +338,7 @@ def solve_sheet_on_spheres(
     length_scale=None,
     max_iterations=5000,
     tolerance=1e-10,
+    contact_offset_factor=1.0,
 ) -> IndentationSolution:
     """Static equilibrium of the sheet on fixed spheres under pressure (module docstring), by L-BFGS-B.
 
@@ -346,6 +360,8 @@ def solve_sheet_on_spheres(
       length_scale: L, m.
       max_iterations: L-BFGS-B iteration cap.
       tolerance: L-BFGS-B ``ftol`` on the scaled energy (``gtol`` is 100 × smaller).
+      contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the sheet's lower face on the sphere;
+        0: its nodes, the mid-surface, on the sphere surface; as in :mod:`membrax.membrane_dem`).
     """
     reference = jnp.asarray(mesh.reference_position)
     dtype = reference.dtype
@@ -359,7 +375,8 @@ def solve_sheet_on_spheres(
     free_rows = jnp.asarray(np.flatnonzero(free))
     length = float(np.asarray(radii)[0]) * 2.0 if length_scale is None else float(length_scale)
     start = reference if initial_position is None else jnp.asarray(initial_position, dtype=dtype)
-    params = jnp.asarray([pressure, modulus, thickness, normal_stiffness], dtype=dtype)
+    contact_thickness = contact_offset_factor * thickness
+    params = jnp.asarray([pressure, modulus, thickness, normal_stiffness, contact_thickness], dtype=dtype)
 
     data = (start, free_rows, mesh, spheres, radii, candidates, params, jnp.asarray(length, dtype=dtype))
 
@@ -382,7 +399,7 @@ def solve_sheet_on_spheres(
     u = jnp.asarray(result.x, dtype=dtype)
     x = _positions(u, start, free_rows, data[-1])
     distance = jnp.linalg.norm(x[:, None, :] - spheres[None, :, :], axis=-1)
-    overlap = jnp.max(radii[None, :] + 0.5 * thickness - distance)
+    overlap = jnp.max(radii[None, :] + 0.5 * contact_thickness - distance)
     _, grad = _value_and_grad(u, *data)
     residual = float(jnp.max(jnp.abs(grad))) * modulus * thickness * length
     return IndentationSolution(

@@ -51,7 +51,7 @@ from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 from membrax.neighbors import PairNeighborFn, outside_box, remap_pair_history
 from membrax.packing import moment_of_inertia, particle_mass
 from membrax.vector import safe_norm, select
-from membrax.walls import WallState, advance_walls, compensated_add, servo_velocity
+from membrax.walls import WallState, advance_walls, compensated_add, ramped_velocity, servo_velocity
 
 __all__ = [
     "DEFAULT_SAFETY",
@@ -563,6 +563,8 @@ def dem(
                     walls, dt, params.contact.wall_normal_stiffness, platen_area=platen_area
                 )
             )
+        else:
+            walls = walls.set(velocity=ramped_velocity(walls, dt))
 
         error = state.error
         error = error | jnp.where(neighbors.did_buffer_overflow > 0, ERROR_NEIGHBOR_OVERFLOW, 0)

@@ -33,9 +33,12 @@ ring's vector area, n_out = −e_z at the bottom and +e_z at the top. ``Membrane
 holds R for both platens (N; R_z < 0 on the top platen when the membrane pulls it down). They are
 recorded separately from the sphere–platen forces. The platen servo holds the ram force: the ram
 balances both, F_ram = F_spheres + R_z on the top platen (F_spheres − R_z on the bottom one), so the
-membrane's normal reactions are passed to the DEM step as extra wall loads. The spheres then receive
-F_ram − R_z from the platen: more than the ram when the membrane is in axial tension (the paper's
-internal σ1 above the external one, its Table 3).
+membrane's normal reactions are passed to the DEM step as extra wall loads. Sphere contacts on the
+clamped ring nodes reach the platen through the clamp: ``MembraneState.ring_contact_force`` keeps them
+apart, so that the spheres receive F_spheres + F_ring contacts from the platens (the paper's internal
+axial force "including forces from the membrane that are transmitted through the membrane contact with
+the platen") and the membrane alone pulls R − F_ring contacts: the spheres receive more than the ram
+when the membrane is in axial tension (the paper's internal σ1 above the external one, its Table 3).
 
 Scope: one specimen (``particles.num_members == 1``), the platens being walls 0 and 1 and no lateral
 walls; batches of specimens are the business of :mod:`membrax.sweep`. SI units: m, s, N, Pa, kg.
@@ -106,6 +109,10 @@ class MembraneParams:
       contact: the node–sphere contact law.
       bending_factor: scale of the bending rigidity, dimensionless: 1 the plate's E t³/12(1 − ν²), 0 a pure
         membrane (:func:`membrax.membrane.total_energy`).
+      contact_offset_factor: where nodes touch spheres, dimensionless: at R + f t_m/2 from a sphere's
+        centre (1: the membrane's inner face touches the sphere, its nodes on the mid-surface t_m/2
+        off; 0: the nodes on the sphere surface, as the paper's "constrained to lie on the surface of
+        the respective particle").
     """
 
     modulus: jnp.ndarray
@@ -113,6 +120,12 @@ class MembraneParams:
     cell_pressure: jnp.ndarray
     contact: MembraneContactParams
     bending_factor: jnp.ndarray
+    contact_offset_factor: jnp.ndarray
+
+    @property
+    def contact_thickness(self):
+        """F t_m, m: the thickness the node–sphere contact sees (nodes touch at R + f t_m/2)."""
+        return self.contact_offset_factor * self.thickness
 
     @staticmethod
     def create(
@@ -121,9 +134,17 @@ class MembraneParams:
         cell_pressure_kpa: float = 10.0,
         contact: MembraneContactParams | None = None,
         bending_factor: float = 0.0,
+        contact_offset_factor: float = 1.0,
     ) -> MembraneParams:
         """Parameters from laboratory units (kPa, mm), converted once to SI; defaults are the paper's."""
         check_range("bending_factor", bending_factor, lower=0.0, hint="1: plate bending; 0: none.")
+        check_range(
+            "contact_offset_factor",
+            contact_offset_factor,
+            lower=0.0,
+            upper=1.0,
+            hint="0: nodes on the sphere surface; 1: the inner face on it.",
+        )
         check_range("modulus_kpa", modulus_kpa, lower=0.0, lower_open=True, hint="latex: about 1400 kPa.")
         check_range("thickness_mm", thickness_mm, lower=0.0, lower_open=True, hint="paper: 2.5 to 5 mm.")
         check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, hint="paper: 10 to 100 kPa.")
@@ -133,6 +154,7 @@ class MembraneParams:
             cell_pressure=jnp.asarray(1e3 * cell_pressure_kpa),
             contact=MembraneContactParams.default() if contact is None else contact,
             bending_factor=jnp.asarray(float(bending_factor)),
+            contact_offset_factor=jnp.asarray(float(contact_offset_factor)),
         )
 
 
@@ -159,7 +181,10 @@ class MembraneState:
       clamp_platen_height: (2,) z of the bottom and top platens when clamped, m.
       node_force: (n, 3) total force on each node at the last step (membrane + spheres), N.
       sphere_force: (N, 3) force of the membrane on each sphere at the last step, N.
-      platen_reaction: (2, 3) force of the membrane on the bottom and top platens (module docstring), N.
+      platen_reaction: (2, 3) force on the bottom and top platens through the clamped rings (module
+        docstring), N: the membrane's own pull plus the sphere contacts on the ring nodes.
+      ring_contact_force: (2, 3) force of the spheres on the bottom and top ring nodes, N; the platens
+        take it through the clamp, so it counts as force the spheres receive from the platens.
     """
 
     position: jnp.ndarray
@@ -172,6 +197,7 @@ class MembraneState:
     node_force: jnp.ndarray
     sphere_force: jnp.ndarray
     platen_reaction: jnp.ndarray
+    ring_contact_force: jnp.ndarray
 
 
 @dataclasses.dataclass
@@ -298,7 +324,7 @@ def contact_forces(state: CoupledState, particles: Particles, params: CoupledPar
         nodes.spring,
         dt,
         params.membrane.contact,
-        params.membrane.thickness,
+        params.membrane.contact_thickness,
         sphere_slots=nodes.candidates.sphere_slots,
         sphere_subset=nodes.candidates.sphere_subset,
     )
@@ -351,7 +377,7 @@ def membrane_dem(
         dem_state: DEMState, params: CoupledParams, capacity: int = 3, skin=None, sphere_capacity: int = 64
     ) -> CoupledState:
         position = mesh.reference_position.astype(dem_state.position.dtype)
-        thickness = params.membrane.thickness
+        thickness = params.membrane.contact_thickness
         if skin is None:
             skin = 0.2 * 2.0 * float(jnp.max(particles.radius))
         candidates = build_candidates(
@@ -378,6 +404,7 @@ def membrane_dem(
                 node_force=zeros,
                 sphere_force=jnp.zeros_like(dem_state.position),
                 platen_reaction=jnp.zeros((2, 3), position.dtype),
+                ring_contact_force=jnp.zeros((2, 3), position.dtype),
             ),
         )
 
@@ -432,7 +459,12 @@ def membrane_dem(
         velocity = velocity.at[rings].set(ring_velocity)
 
         candidates, spring = update_candidates(
-            nodes.candidates, contact.spring, position, spheres.position, particles.radius, mp.thickness
+            nodes.candidates,
+            contact.spring,
+            position,
+            spheres.position,
+            particles.radius,
+            mp.contact_thickness,
         )
         finite = jnp.all(jnp.isfinite(position)) & jnp.all(jnp.isfinite(velocity))
         error = spheres.error | candidate_errors(candidates) | jnp.where(finite, 0, ERROR_NOT_FINITE)
@@ -447,6 +479,9 @@ def membrane_dem(
                 node_force=node_force,
                 sphere_force=contact.sphere_force,
                 platen_reaction=reaction,
+                ring_contact_force=jnp.stack(
+                    [jnp.sum(contact.node_force[ring], axis=0) for ring in (mesh.bottom_ring, mesh.top_ring)]
+                ),
             ),
         )
 
@@ -464,7 +499,7 @@ def grow_candidates(
       state: the state to change (its table is rebuilt at its positions).
       particles: sphere properties.
       capacity: the new K (e.g. the overflowing chunk's ``max_count`` plus a margin).
-      thickness: t_m, m.
+      thickness: the contact's thickness f t_m (:attr:`MembraneParams.contact_thickness`), m.
       sphere_capacity: the new M, slots per subset sphere (default: unchanged).
     """
     nodes = state.membrane

@@ -12,9 +12,10 @@ with a leading time axis):
   platens are servo-controlled to a ram force of σc × platen area (the ram balances the spheres and the
   membrane on the platen, :mod:`membrax.membrane_dem`), until the unbalanced-force ratio falls below
   ``tolerance`` and the ram stress is within ``stress_tolerance`` of σc;
-- :meth:`MembraneTest.shear` (stage 2): drained shearing, the bottom platen fixed and the top one moving
-  down at a constant velocity ε̇ H₁ (H₁ the height after consolidation) from an inertial number
-  I = ε̇ d √(ρ/σc) (GDR MiDi 2004), the cell pressure constant, to a target axial strain. Records every
+- :meth:`MembraneTest.shear` (stage 2): drained shearing, both platens closing at ε̇ H₁/2 each (H₁ the
+  height after consolidation; or the top one alone at ε̇ H₁, ``symmetric=False``) from an inertial number
+  I = ε̇ d √(ρ/σc) (GDR MiDi 2004), ramped up from rest until the axial strain reaches ``ramp_strain``
+  (:data:`DEFAULT_RAMP_STRAIN`), the cell pressure constant, to a target axial strain. Records every
   ``record_every_fine`` steps below ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 %
   strain), every ``record_every_coarse`` after. :meth:`MembraneTest.shear_plan` gives the step counts
   (the driver of :mod:`membrax.run` uses it to checkpoint and resume within a phase).
@@ -35,6 +36,7 @@ import numpy as np
 
 from membrax import measure as measure_lib
 from membrax import membrane as membrane_lib
+from membrax.config import TriaxialConfig
 from membrax.contact import ContactParams
 from membrax.driver import ChunkRunner, run_phases, two_rate_plan
 from membrax.integrate import (
@@ -59,10 +61,22 @@ from membrax.neighbors import pair_neighbor_fn
 from membrax.packing import GRANITE_DENSITY, Specimen
 from membrax.triaxial import strain_rate_from_inertial_number
 from membrax.validation import check_range
-from membrax.walls import BOTTOM, TOP, triaxial_walls
+from membrax.walls import BOTTOM, TOP, set_control, triaxial_walls
 
 __all__ = ["MembraneTest", "membrane_test"]
 
+
+#: Axial strain at which the platens reach full speed after a linear ramp from rest (:meth:`start_shear`;
+#: YADE's ``UniaxialStrainer.initAccelTime`` does the same). A step change of platen velocity sends a
+#: compression wave through the specimen, and the dense lattice, whose peak is its elastic limit at
+#: ~0.008 % strain, reports the wave's overshoot as its peak: at paper size, 10 kPa, 5 mm, I = 1e-3, no
+#: ramp gives φ'ext/int 46.9/46.1°. The ramp makes the approach to the peak quasi-static: at the peak the
+#: platens move at √(ε_peak/ε_ramp) of full speed (9 % for 1e-2). Measured at paper size (float32, same
+#: consolidated state): ε_ramp = 1e-3 gives 41.19/40.74° at I = 1e-3 and 40.69/40.30° at I/2 (0.5° apart);
+#: ε_ramp = 1e-2 gives 40.55/40.17° and 40.43/40.06° (0.12° apart), hence the default. The ramp lasts
+#: 2 ε_ramp/ε̇, about 300 wave transit times H/c at paper size (:meth:`MembraneTest.ramp_transit_ratio`),
+#: and delays every later strain by ε_ramp/ε̇ (1 % of strain's worth of steps).
+DEFAULT_RAMP_STRAIN = TriaxialConfig.shear_ramp_strain
 
 #: Largest change of the volumetric strain over the last consolidation chunk (:meth:`is_consolidated`).
 VOLUME_TOLERANCE = 1e-4
@@ -95,16 +109,13 @@ class MembraneTest:
         """σc, Pa."""
         return float(self.params.membrane.cell_pressure)
 
-    def set_platens(self, state: CoupledState, servo, velocity, target) -> CoupledState:
-        """A copy of ``state`` with both platens' mode, velocity (dh/dt, m/s) and target stress (Pa) set."""
-        walls = state.dem.walls
-        walls = walls.set(
-            servo=jnp.broadcast_to(jnp.asarray(servo), walls.servo.shape),
-            velocity=jnp.broadcast_to(jnp.asarray(velocity, walls.velocity.dtype), walls.velocity.shape),
-            target_stress=jnp.broadcast_to(
-                jnp.asarray(target, walls.target_stress.dtype), walls.target_stress.shape
-            ),
-        )
+    def set_platens(self, state: CoupledState, servo, velocity, target, acceleration=np.inf) -> CoupledState:
+        """A copy of ``state`` with the platens' mode, velocity (dh/dt, m/s), target stress (Pa) and ramp set.
+
+        ``acceleration`` (m/s², inf: none) ramps constant-velocity platens up from rest
+        (:func:`membrax.walls.set_control`).
+        """
+        walls = set_control(state.dem.walls, servo, velocity, target, acceleration)
         return state.set(dem=state.dem.set(walls=walls))
 
     def consolidate(
@@ -183,30 +194,69 @@ class MembraneTest:
             inertial_number, self.specimen.particle_diameter, self.density, self.cell_pressure
         )
 
-    def start_shear(self, state: CoupledState, inertial_number: float = 1e-3) -> CoupledState:
-        """Switch ``state`` to stage 2: bottom platen fixed, top platen down at ε̇ H (current height H)."""
+    def start_shear(
+        self,
+        state: CoupledState,
+        inertial_number: float = 1e-3,
+        ramp_strain: float = DEFAULT_RAMP_STRAIN,
+        symmetric: bool = True,
+    ) -> CoupledState:
+        """Switch ``state`` to stage 2: the platens close at ε̇ H (H the current height), ramped up from rest.
+
+        Args:
+          state: the consolidated state.
+          inertial_number: I, setting ε̇ (:meth:`shear_rate`).
+          ramp_strain: axial strain at which the platens reach full speed; the ramp is linear in time and
+            lasts 2 ε_ramp/ε̇ (0: a step change). Its purpose and default: :data:`DEFAULT_RAMP_STRAIN`.
+          symmetric: both platens move, each at ε̇ H/2 (the specimen's mid-height stays put, so the two
+            ends bulge alike); False: the bottom platen fixed and the top one at ε̇ H.
+        """
+        check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
         walls = state.dem.walls
         height = float(walls.position[0, TOP] + walls.position[0, BOTTOM])
+        rate = self.shear_rate(inertial_number)
         velocity = np.zeros(walls.velocity.shape)
-        velocity[0, TOP] = -self.shear_rate(inertial_number) * height
-        return self.set_platens(state, False, velocity, self.cell_pressure)
+        if symmetric:
+            velocity[0, [BOTTOM, TOP]] = -0.5 * rate * height
+        else:
+            velocity[0, TOP] = -rate * height
+        # Full speed at strain ε_ramp: ½ ε̇ t_ramp = ε_ramp, so a = v / t_ramp = v ε̇ / (2 ε_ramp).
+        acceleration = np.abs(velocity) * rate / (2.0 * ramp_strain) if ramp_strain > 0.0 else np.inf
+        acceleration = np.where(velocity != 0.0, acceleration, np.inf)
+        return self.set_platens(state, False, velocity, self.cell_pressure, acceleration)
+
+    def ramp_transit_ratio(
+        self, inertial_number: float = 1e-3, ramp_strain: float = DEFAULT_RAMP_STRAIN
+    ) -> float:
+        """The ramp's duration 2 ε_ramp/ε̇ over the compression wave's transit time H/c, dimensionless.
+
+        c = d √(k_n/m) is the wave speed of a chain of spheres of diameter d, mass m and contact stiffness
+        k_n (the long-wavelength limit of a 1D mass–spring lattice), H the as-built height.
+        """
+        mass = float(self.particles.mass[0])
+        stiffness = float(np.ravel(np.asarray(self.params.dem.contact.normal_stiffness))[0])
+        speed = self.specimen.particle_diameter * np.sqrt(stiffness / mass)
+        ramp_time = 2.0 * ramp_strain / self.shear_rate(inertial_number)
+        return float(ramp_time * speed / self.initial_height)
 
     def shear_plan(
         self,
         target_axial_strain: float = 0.10,
         inertial_number: float = 1e-3,
         fine_until_strain: float = 0.01,
+        ramp_strain: float = DEFAULT_RAMP_STRAIN,
     ) -> tuple[int, int]:
         """Steps of the two recording phases of stage 2: (fine, coarse).
 
-        Axial strain counts from the start of shearing: the top platen moves ε̇ H Δt per step, so
-        ε_a reaches ``fine_until_strain`` after ε/(ε̇ Δt) steps and the target after the rest.
+        Axial strain counts from the start of shearing: at full speed the platens close ε̇ H Δt per step,
+        so ε_a reaches ``fine_until_strain`` after (ε + ε_ramp)/(ε̇ Δt) steps (the ramp delays it by
+        ε_ramp/ε̇, :func:`membrax.driver.two_rate_plan`) and the target after the rest.
         """
         check_range(
             "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
         )
         steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
-        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain)
+        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp_strain)
 
     def shear(
         self,
@@ -218,14 +268,18 @@ class MembraneTest:
         record_every_coarse: int = 250,
         chunk_steps: int = 5000,
         on_chunk=None,
+        ramp_strain: float = DEFAULT_RAMP_STRAIN,
+        symmetric: bool = True,
     ):
         """Stage 2: drained shearing at constant cell pressure and axial strain rate (module docstring).
+
+        ``ramp_strain`` and ``symmetric``: :meth:`start_shear`.
 
         Returns:
           (state, records) with the records of both recording rates joined.
         """
-        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain)
-        state = self.start_shear(state, inertial_number)
+        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp_strain)
+        state = self.start_shear(state, inertial_number, ramp_strain, symmetric)
         phases = [(fine, record_every_fine), (coarse, record_every_coarse)]
         return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)
 
@@ -249,6 +303,7 @@ def membrane_test(
     time_step: float | None = None,
     bending_factor: float = 0.0,
     nodes_around: int | None = None,
+    contact_offset_factor: float = 1.0,
 ) -> MembraneTest:
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
 
@@ -277,18 +332,27 @@ def membrane_test(
         and ends in hoop compression).
       nodes_around: n_θ, membrane nodes per ring (default: perimeter / edge length); a batch over thickness
         fixes it so that all its meshes share one topology (:mod:`membrax.sweep`).
+      contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the membrane's inner face on the
+        sphere; 0: its nodes on the sphere surface, the paper's; :class:`MembraneParams`). The mesh is
+        built f t_m/2 outside the outer spheres, where its nodes would touch them.
     """
     check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, lower_open=True, hint="paper: 10–100 kPa.")
     check_range("edges_per_diameter", edges_per_diameter, lower=0.0, lower_open=True)
     check_range("dt_safety", dt_safety, lower=0.0, upper=1.0, lower_open=True)
     membrane_params = MembraneParams.create(
-        membrane_modulus_kpa, membrane_thickness_mm, cell_pressure_kpa, membrane_contact, bending_factor
+        membrane_modulus_kpa,
+        membrane_thickness_mm,
+        cell_pressure_kpa,
+        membrane_contact,
+        bending_factor,
+        contact_offset_factor,
     )
     contact_params = ContactParams.paper() if contact_params is None else contact_params
     damping = DampingParams.local(0.3) if damping is None else damping
     params = CoupledParams(dem=DEMParams(contact=contact_params, damping=damping), membrane=membrane_params)
     diameter = specimen.particle_diameter
-    thickness = 1e-3 * membrane_thickness_mm
+    # The thickness the node–sphere contact sees: nodes touch spheres at R + contact_thickness/2.
+    contact_thickness = contact_offset_factor * 1e-3 * membrane_thickness_mm
     position = jnp.asarray(specimen.position)
     particles = make_particles(jnp.asarray(specimen.radius), density)
     walls = triaxial_walls(
@@ -302,7 +366,7 @@ def membrane_test(
     neighbors = frame.allocate(position)
     mesh = membrane_lib.prism_mesh(
         np.asarray(specimen.outline_vertices),
-        0.5 * thickness,
+        0.5 * contact_thickness,
         specimen.height,
         diameter / edges_per_diameter,
         dtype=position.dtype,
@@ -342,7 +406,7 @@ def membrane_test(
         dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
     )
     height = float(specimen.height)
-    volume = float(membrane_lib.inner_volume(state.membrane.position, mesh, thickness))
+    volume = float(membrane_lib.inner_volume(state.membrane.position, mesh, contact_thickness))
 
     record = make_record(mesh, volume)
 
@@ -350,7 +414,7 @@ def membrane_test(
         old = s.membrane.candidates
         capacity = max(int(overflowed.max_count) + 2, int(np.ceil(1.5 * old.capacity)))
         sphere_capacity = max(int(overflowed.max_sphere_count) + 8, old.sphere_capacity)
-        return grow_candidates(s, particles, min(capacity, subset.size), thickness, sphere_capacity)
+        return grow_candidates(s, particles, min(capacity, subset.size), contact_thickness, sphere_capacity)
 
     runner = ChunkRunner(step_fn, frame, record, particles.num_particles, grow_membrane=grow)
     return MembraneTest(

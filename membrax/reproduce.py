@@ -15,8 +15,10 @@ writes into ``folder``:
 
 Sizes (:data:`SIZES`). ``small``: 6 spheres across and 10 layers (~330 spheres, a membrane of edge D/3,
 float32, I = 5e-3) — the demo's specimen, within 15 minutes on a 2-core CPU for all nine cases;
-``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), meant for a GPU. Both use the
-paper's materials (25 mm granite spheres, μ = tan 25°, latex 1400 kPa without bending stiffness).
+``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), a CPU command: REPRO_TIME on 2
+cores with the compiled kernels of :mod:`membrax.native`. Both use the paper's materials (25 mm granite
+spheres, μ = tan 25°, latex 1400 kPa without bending stiffness) and protocol (platens ramped to full
+speed at 1 % strain, both moving, :mod:`membrax.membrane_triaxial`).
 """
 
 from __future__ import annotations

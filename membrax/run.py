@@ -42,13 +42,14 @@ import numpy as np
 
 from membrax import __version__, analysis, membrane_measure, plots, theory
 from membrax import io as io_lib
+from membrax import measure as measure_lib
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
 from membrax.contact import ContactParams
 from membrax.driver import SimulationError
 from membrax.membrane_contact import MembraneContactParams
 from membrax.membrane_dem import grow_candidates
 from membrax.membrane_triaxial import MembraneTest, membrane_test
-from membrax.packing import fcc_specimen
+from membrax.packing import fcc_specimen, with_imperfection
 
 __all__ = [
     "RUNAWAY_KINETIC_FRACTION",
@@ -94,6 +95,8 @@ def build_test(
     batch does (:mod:`membrax.sweep`: one Δt and one mesh topology for all its members).
     """
     specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
+    if config.imperfection_fraction > 0.0:
+        specimen = with_imperfection(specimen, config.imperfection_fraction, config.imperfection_seed)
     contact = ContactParams.paper(
         friction_angle_deg=config.friction_angle_deg,
         normal_stiffness=config.particle_stiffness_n_m,
@@ -113,6 +116,7 @@ def build_test(
         bending_factor=config.membrane_bending_factor,
         time_step=time_step,
         nodes_around=nodes_around,
+        contact_offset_factor=config.membrane_contact_offset_factor,
     )
 
 
@@ -166,7 +170,7 @@ def _template(test: MembraneTest, capacities: dict):
         state,
         test.particles,
         capacities["node_candidates"],
-        test.params.membrane.thickness,
+        test.params.membrane.contact_thickness,
         capacities["sphere_slots"],
     )
     extra = capacities["neighbor_pairs"] - int(state.dem.neighbors.idx.shape[1])
@@ -178,13 +182,40 @@ def _template(test: MembraneTest, capacities: dict):
 
 
 def _rebase(records: dict, start: dict) -> dict:
-    """Strains counted from the start of shearing (the paper's figures start at 0 %)."""
+    """Strains, area and stresses counted from the start of shearing (the paper's Table 3 and figures).
+
+    The area A = A₀ (1 − ε_v)/(1 − ε_a) starts from the platen area A₀ at the start of shearing
+    (:func:`membrax.measure.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram servo's
+    σc. The consolidation stage's strains (from the as-built specimen, the membrane's penetration into
+    the voids included) are kept in their own columns, ``consolidation_axial_strain`` and
+    ``consolidation_volumetric_strain``, the same in every row.
+    """
     out = dict(records)
     height, volume = np.asarray(records["height"]), np.asarray(records["volume"])
     height0, volume0 = float(start["height"]), float(start["volume"])
+    out["consolidation_axial_strain"] = np.full_like(height, float(np.ravel(records["axial_strain"])[0]))
+    out["consolidation_volumetric_strain"] = np.full_like(
+        height, float(np.ravel(records["volumetric_strain"])[0])
+    )
     out["axial_strain"] = (height0 - height) / height0
     out["volumetric_strain"] = (volume0 - volume) / volume0
     out["radial_strain"] = 1.0 - np.sqrt((volume / height) / (volume0 / height0))
+    area, external_axial, internal_axial, internal_radial = measure_lib.right_cylinder_stresses(
+        np.asarray(records["ram_force"]),
+        np.asarray(records["received_axial_force"]),
+        np.asarray(records["membrane_radial_force"]) + np.asarray(records["clamp_radial_force"]),
+        height,
+        volume,
+        height0,
+        volume0,
+        float(start["platen_area"]),
+    )
+    out.update(
+        platen_area=area,
+        external_axial_stress=external_axial,
+        internal_axial_stress=internal_axial,
+        internal_radial_stress=internal_radial,
+    )
     return out
 
 
@@ -285,7 +316,7 @@ def _run(
             _vtk_snapshot(series, state, test)
 
     fine, coarse = test.shear_plan(
-        config.target_axial_strain, config.inertial_number, config.fine_until_strain
+        config.target_axial_strain, config.inertial_number, config.fine_until_strain, config.shear_ramp_strain
     )
     plan = {
         "consolidation": (config.consolidation_max_steps, CONSOLIDATION_RECORD_EVERY),
@@ -316,8 +347,14 @@ def _run(
             total, record_every = plan[phase]
             if phase == "shear_fine" and phase_done == 0:
                 last = _join(records["consolidation"])
-                shear_start = {"height": _last(last, "height"), "volume": _last(last, "volume")}
-                state = test.start_shear(state, config.inertial_number)
+                shear_start = {
+                    "height": _last(last, "height"),
+                    "volume": _last(last, "volume"),
+                    "platen_area": test.platen_area,
+                }
+                state = test.start_shear(
+                    state, config.inertial_number, config.shear_ramp_strain, config.symmetric_loading
+                )
             remaining = total - phase_done
             bar = tqdm(
                 total=total, initial=phase_done, desc=phase, unit="step", disable=not progress, leave=False

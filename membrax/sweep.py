@@ -120,6 +120,9 @@ BATCHED_FIELDS = frozenset(
         "inertial_number",
         "target_axial_strain",
         "fine_until_strain",
+        "shear_ramp_strain",
+        "symmetric_loading",
+        "membrane_contact_offset_factor",
         "consolidation_tolerance",
         "consolidation_max_steps",
     }
@@ -216,7 +219,11 @@ def _common_nodes_around(configs: Sequence[TriaxialConfig]) -> int:
     config = configs[0]
     specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
     perimeters = [
-        rounded_offset_path(specimen.outline_vertices, 0.5 * c.membrane_thickness, config.particle_radius)[1]
+        rounded_offset_path(
+            specimen.outline_vertices,
+            0.5 * c.membrane_contact_offset_factor * c.membrane_thickness,
+            config.particle_radius,
+        )[1]
         for c in configs
     ]
     return max(3, round(float(np.mean(perimeters)) / config.membrane_edge_length))
@@ -387,7 +394,7 @@ class BatchedTest:
             sphere_capacity = max(
                 int(np.max(np.asarray(overflowed.max_sphere_count))) + 8, int(old.sphere_slots.shape[-1])
             )
-            thickness = np.asarray(self.params.membrane.thickness)
+            thickness = np.asarray(self.params.membrane.contact_thickness)
             members = [
                 grow_candidates(m, particles, min(capacity, subset), thickness[b], sphere_capacity)
                 for b, m in enumerate(members)
@@ -566,7 +573,11 @@ def build_batch(
         # alike for all members), so every member is charged two chunks of it.
         work = [
             min(c.consolidation_max_steps, 2 * c.chunk_steps)
-            + sum(t.shear_plan(c.target_axial_strain, c.inertial_number, c.fine_until_strain))
+            + sum(
+                t.shear_plan(
+                    c.target_axial_strain, c.inertial_number, c.fine_until_strain, c.shear_ramp_strain
+                )
+            )
             for c, t in zip(configs, tests, strict=True)
         ]
         order = balanced_order(work, num_devices)
@@ -622,7 +633,7 @@ def _template(batch: BatchedTest, capacities: dict):
     if _capacities(states) == capacities:
         return states
     members = [_member(states, b) for b in range(batch.num_padded)]
-    thickness = np.asarray(batch.params.membrane.thickness)
+    thickness = np.asarray(batch.params.membrane.contact_thickness)
     particles = batch.tests[0].particles
     members = [
         grow_candidates(m, particles, capacities["node_candidates"], thickness[b], capacities["sphere_slots"])
@@ -722,10 +733,15 @@ def _run_group(
                     for b, test in enumerate(batch.tests):
                         shear_height[b] = _last_member_value(records["consolidation"], "height", b)
                         shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
-                        members[b] = test.start_shear(members[b], batch.configs[b].inertial_number)
+                        c = batch.configs[b]
+                        members[b] = test.start_shear(
+                            members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
+                        )
                     states = batch.restack(members)
                 plans = [
-                    t.shear_plan(c.target_axial_strain, c.inertial_number, c.fine_until_strain)
+                    t.shear_plan(
+                        c.target_axial_strain, c.inertial_number, c.fine_until_strain, c.shear_ramp_strain
+                    )
                     for t, c in zip(batch.tests, batch.configs, strict=True)
                 ]
                 budgets = np.array([plan[phase_index - 1] for plan in plans], dtype=np.int64)
@@ -781,7 +797,10 @@ def _run_group(
         budgets = None
         save(states, None)
     elapsed += time.perf_counter() - clock
-    shear_start = [{"height": shear_height[b], "volume": shear_volume[b]} for b in range(num)]
+    shear_start = [
+        {"height": shear_height[b], "volume": shear_volume[b], "platen_area": batch.tests[b].platen_area}
+        for b in range(num)
+    ]
     return records, shear_start, elapsed
 
 

@@ -42,7 +42,7 @@ from membrax.integrate import (
 from membrax.neighbors import pair_neighbor_fn
 from membrax.packing import GRANITE_DENSITY, Specimen
 from membrax.validation import check_range
-from membrax.walls import TOP, triaxial_walls
+from membrax.walls import TOP, set_control, triaxial_walls
 
 __all__ = ["RigidWallTest", "peak", "rigid_wall_test", "strain_rate_from_inertial_number"]
 
@@ -73,7 +73,7 @@ class RigidWallTest:
         """B, the number of batch members (folded)."""
         return self.particles.num_members
 
-    def set_walls(self, state: DEMState, servo, velocity, target) -> DEMState:
+    def set_walls(self, state: DEMState, servo, velocity, target, acceleration=np.inf) -> DEMState:
         """A copy of ``state`` with every wall's mode, velocity and target stress set.
 
         Args:
@@ -81,23 +81,10 @@ class RigidWallTest:
           servo: stress-controlled (True) or constant-velocity (False); scalar, (B,) or (B, W).
           velocity: wall velocities dh/dt, m/s (used by constant-velocity walls); scalar, (B,) or (B, W).
           target: servo target stresses, Pa; scalar, (B,) or (B, W).
+          acceleration: the constant-velocity walls' ramp from rest, m/s² (inf: none;
+            :func:`membrax.walls.set_control`).
         """
-        walls = state.walls
-
-        def per_member(value):
-            value = np.asarray(value)
-            return value[:, None] if value.ndim == 1 else value
-
-        servo, velocity, target = per_member(servo), per_member(velocity), per_member(target)
-        return state.set(
-            walls=walls.set(
-                servo=jnp.broadcast_to(jnp.asarray(servo), walls.servo.shape),
-                velocity=jnp.broadcast_to(jnp.asarray(velocity, walls.velocity.dtype), walls.velocity.shape),
-                target_stress=jnp.broadcast_to(
-                    jnp.asarray(target, walls.target_stress.dtype), walls.target_stress.shape
-                ),
-            )
-        )
+        return state.set(walls=set_control(state.walls, servo, velocity, target, acceleration))
 
     def consolidate(
         self,

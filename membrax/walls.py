@@ -15,6 +15,15 @@ error, scaled so that one step closes a fraction α of it,
 F the normal force of the particles on the wall (compression positive), A the wall area, n_c the number of
 particles touching it. A positive v moves the wall outward (unloading).
 
+Ramp (YADE's ``UniaxialStrainer.initAccelTime``): a constant-velocity wall does not jump to its velocity;
+it approaches ``target_velocity`` at a bounded ``acceleration`` (m/s², per wall and member),
+
+    v_{n+1} = v_n + clip(v_target − v_n, −a Δt, a Δt),
+
+so a platen started from rest reaches speed v over v/a. A step change sends a stress wave through the
+specimen whose inertial overshoot is the "peak" a dense lattice shows at ~0.01 % strain; a ramp long
+against the wave transit time removes it. ``acceleration`` = inf (the default) is the step change.
+
 Areas: the lateral planes bound a polygon (the specimen's cross-section, area A_xy); platens have area A_xy
 and lateral face k has area (length of polygon edge k) × (platen separation). Without lateral walls the
 platen area must be given (the membrane test updates it from the membrane).
@@ -36,7 +45,9 @@ __all__ = [
     "compensated_add",
     "cross_section",
     "platen_separation",
+    "ramped_velocity",
     "servo_velocity",
+    "set_control",
     "triaxial_walls",
     "wall_areas",
 ]
@@ -55,6 +66,8 @@ class WallState:
       position_compensation: (B, W) low-order part of h (compensated summation; h + this is exact to
         ~float64 resolution even in float32, see :func:`membrax.integrate.compensated_add`).
       velocity: (B, W) dh/dt, m/s.
+      target_velocity: (B, W) the velocity a constant-velocity wall ramps to, m/s (module docstring).
+      acceleration: (B, W) the largest |dv/dt| of a constant-velocity wall, m/s² (inf: no ramp).
       servo: (B, W) bool, stress-controlled walls.
       target_stress: (B, W) servo target, Pa (compression positive).
       max_speed: (B, W) servo speed limit, m/s.
@@ -67,6 +80,8 @@ class WallState:
     position: jnp.ndarray
     position_compensation: jnp.ndarray
     velocity: jnp.ndarray
+    target_velocity: jnp.ndarray
+    acceleration: jnp.ndarray
     servo: jnp.ndarray
     target_stress: jnp.ndarray
     max_speed: jnp.ndarray
@@ -124,6 +139,8 @@ def triaxial_walls(
         position=jnp.asarray(np.broadcast_to(position, shape), dtype=dtype),
         position_compensation=jnp.zeros(shape, dtype=dtype),
         velocity=jnp.zeros(shape, dtype=dtype),
+        target_velocity=jnp.zeros(shape, dtype=dtype),
+        acceleration=jnp.full(shape, jnp.inf, dtype=dtype),
         servo=jnp.zeros(shape, dtype=bool),
         target_stress=jnp.full(shape, target_stress, dtype=dtype),
         max_speed=jnp.full(shape, max_speed, dtype=dtype),
@@ -185,12 +202,50 @@ def wall_areas(walls: WallState, platen_area=None):
 
 
 def servo_velocity(walls: WallState, dt, normal_stiffness, platen_area=None):
-    """New wall velocities: the servo law for servo walls, unchanged velocity for the others (B, W)."""
+    """New wall velocities (B, W): the servo law for servo walls, the ramp for the others (docstring)."""
     area = wall_areas(walls, platen_area)
     error = walls.force - walls.target_stress * area
     stiffness = jnp.reshape(normal_stiffness, (-1, 1)) * jnp.maximum(walls.contacts, 1).astype(area.dtype)
     servo = jnp.clip(walls.servo_gain * error / (stiffness * dt), -walls.max_speed, walls.max_speed)
-    return jnp.where(walls.servo, servo, walls.velocity)
+    return jnp.where(walls.servo, servo, ramped_velocity(walls, dt))
+
+
+def ramped_velocity(walls: WallState, dt):
+    """V + clip(v_target − v, −a Δt, a Δt) for every wall (B, W): the ramp of the module docstring."""
+    step = walls.acceleration * dt
+    return walls.velocity + jnp.clip(walls.target_velocity - walls.velocity, -step, step)
+
+
+def set_control(walls: WallState, servo, velocity, target_stress, acceleration=np.inf) -> WallState:
+    """A copy of ``walls`` with every wall's mode, velocity, servo target and ramp set (one stage's controls).
+
+    Each argument is a scalar, (B,) (one value per member) or (B, W). Constant-velocity walls start at
+    ``velocity`` at once where ``acceleration`` is inf, and from rest, ramping to it at ``acceleration``
+    (m/s²), elsewhere (module docstring).
+
+    Args:
+      walls: the walls to change.
+      servo: stress-controlled (True) or constant-velocity (False).
+      velocity: the constant-velocity walls' dh/dt, m/s.
+      target_stress: the servo walls' target, Pa.
+      acceleration: the ramp's |dv/dt|, m/s², > 0 (inf: no ramp).
+    """
+
+    def full(value, like):
+        value = jnp.asarray(value, like.dtype)  # traceable: stages may be set inside jit or vmap
+        value = value[:, None] if value.ndim == 1 else value
+        return jnp.broadcast_to(value, like.shape)
+
+    servo = full(servo, walls.servo)
+    target_velocity = full(velocity, walls.velocity)
+    acceleration = full(acceleration, walls.acceleration)
+    return walls.set(
+        servo=servo,
+        velocity=jnp.where(jnp.isinf(acceleration), target_velocity, 0.0).astype(walls.velocity.dtype),
+        target_velocity=target_velocity,
+        acceleration=acceleration,
+        target_stress=full(target_stress, walls.target_stress),
+    )
 
 
 def compensated_add(value, compensation, increment):

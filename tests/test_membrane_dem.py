@@ -32,6 +32,7 @@ def _clamped_cylinder(radius, height, edge, modulus, thickness, cell_pressure, d
             cell_pressure=jnp.asarray(cell_pressure),
             contact=MembraneContactParams.default(),
             bending_factor=jnp.asarray(1.0),
+            contact_offset_factor=jnp.asarray(1.0),
         ),
     )
     dt = 0.5 * membrane_dem.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)["mesh"]

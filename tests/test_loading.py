@@ -1,0 +1,216 @@
+"""Start of shearing, load paths, areas and options of the membrane test (issue 16).
+
+Each test checks a closed form, a hand calculation or a symmetry: the platen ramp's velocity and travel,
+the step counts of a ramped stage, symmetric loading, the seeded imperfection, where nodes touch spheres,
+the hoop strain of a uniformly stretched membrane, and the areas counted from the start of shearing.
+"""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from membrax import measure, packing
+from membrax import membrane as membrane_lib
+from membrax.driver import two_rate_plan
+from membrax.membrane_triaxial import membrane_test
+from membrax.run import _rebase
+from membrax.walls import BOTTOM, TOP, advance_walls, ramped_velocity, set_control, triaxial_walls
+
+
+def _ramp(walls, dt, steps):
+    def step(w, _):
+        w = advance_walls(w, dt)
+        w = w.set(velocity=ramped_velocity(w, dt))
+        return w, (w.velocity, w.position)
+
+    return jax.lax.scan(step, walls, None, length=steps)[1]
+
+
+def test_a_ramped_platen_reaches_its_speed_linearly_and_travels_half_as_far_meanwhile():
+    """v_n = min(n a Δt, v) exactly; over the ramp time t_r = v/a the platen travels v t_r / 2 (a
+    triangle's area), afterwards v per unit time; the step change (a = inf) is v from the first step."""
+    dt, speed, ramp_steps = 1e-5, -2e-3, 400
+    acceleration = abs(speed) / (ramp_steps * dt)
+    walls = set_control(triaxial_walls(np.zeros((0, 2)), np.zeros(0), 0.3), False, speed, 0.0, acceleration)
+    np.testing.assert_array_equal(np.asarray(walls.velocity), 0.0)
+    velocity, position = jax.jit(_ramp, static_argnums=2)(walls, dt, 2 * ramp_steps)
+    n = np.arange(1, 2 * ramp_steps + 1)
+    expected = np.sign(speed) * np.minimum(n * acceleration * dt, abs(speed))
+    np.testing.assert_allclose(np.asarray(velocity)[:, 0, TOP], expected, rtol=1e-12, atol=1e-18)
+    # position after step n uses the velocity of step n − 1 (leapfrog): Σ_{k<n} v_k Δt
+    travelled = np.asarray(position)[:, 0, TOP] - 0.3
+    ramp_travel = float(np.sum(expected[: ramp_steps - 1]) * dt)
+    assert ramp_travel == pytest.approx(0.5 * speed * ramp_steps * dt, rel=5e-3)
+    assert travelled[-1] == pytest.approx(float(np.sum(expected[:-1]) * dt), rel=1e-12)
+    instant = set_control(walls, False, speed, 0.0)
+    assert float(instant.velocity[0, TOP]) == speed and float(instant.acceleration[0, TOP]) == math.inf
+    # vmap over members' speeds equals a loop
+    speeds = jnp.asarray([-1e-3, -2e-3])
+    batched = jax.vmap(lambda v: _ramp(set_control(walls, False, v, 0.0, acceleration), dt, 50)[0])(speeds)
+    for k, v in enumerate(speeds):
+        single = _ramp(set_control(walls, False, v, 0.0, acceleration), dt, 50)[0]
+        np.testing.assert_allclose(np.asarray(batched[k]), np.asarray(single), rtol=1e-15)
+
+
+def test_a_ramp_delays_every_later_strain_by_the_ramp_strain():
+    """Full speed at ε_ramp after t_r = 2 ε_ramp/ε̇: the strain then lags the unramped one by ε̇ t_r/2 =
+    ε_ramp, so the fine phase takes ε_ramp × steps-per-strain more steps and the coarse phase the same."""
+    assert two_rate_plan(1024.0, 0.5, 0.125) == (128, 384)
+    assert two_rate_plan(1024.0, 0.5, 0.125, ramp_strain=0.0625) == (192, 384)
+
+
+@pytest.fixture(scope="module")
+def small_test():
+    specimen = packing.fcc_specimen(0.025, 4, 5)
+    return membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, edges_per_diameter=2.5)
+
+
+def test_symmetric_shearing_moves_both_platens_at_half_the_rate_and_ramps_to_the_strain(small_test):
+    test = small_test
+    state = test.initial_state
+    height = test.initial_height
+    rate = test.shear_rate(1e-3)
+    sheared = test.start_shear(state, 1e-3, ramp_strain=1e-3, symmetric=True)
+    walls = sheared.dem.walls
+    np.testing.assert_allclose(np.asarray(walls.target_velocity)[0], [-0.5 * rate * height] * 2, rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(walls.velocity), 0.0)
+    # full closing speed ε̇ H reached after t_r = 2 ε_ramp / ε̇
+    ramp_time = 2e-3 / rate
+    total = float(walls.acceleration[0, BOTTOM] + walls.acceleration[0, TOP]) * ramp_time
+    assert total == pytest.approx(rate * height, rel=1e-12)
+    top_only = test.start_shear(state, 1e-3, ramp_strain=0.0, symmetric=False).dem.walls
+    np.testing.assert_allclose(np.asarray(top_only.velocity)[0], [0.0, -rate * height], rtol=1e-12)
+    # the wave-transit ratio: t_r c / H with c = d √(k/m)
+    mass = float(test.particles.mass[0])
+    speed = 0.025 * math.sqrt(1e7 / mass)
+    assert test.ramp_transit_ratio(1e-3, 1e-3) == pytest.approx(ramp_time * speed / height, rel=1e-12)
+
+
+def test_the_seeded_imperfection_is_reproducible_and_only_shrinks_spheres():
+    specimen = packing.fcc_specimen(0.025, 4, 5)
+    one = packing.with_imperfection(specimen, 1e-3, seed=7)
+    again = packing.with_imperfection(specimen, 1e-3, seed=7)
+    other = packing.with_imperfection(specimen, 1e-3, seed=8)
+    radius, nominal = np.asarray(one.radius), np.asarray(specimen.radius)
+    np.testing.assert_array_equal(radius, np.asarray(again.radius))
+    assert np.any(radius != np.asarray(other.radius))
+    reduction = (nominal - radius) / 0.025
+    assert reduction.min() >= 0.0 and reduction.max() <= 1e-3
+    # uniform on [0, f D): mean f D / 2 within 4 standard errors (σ = f/√12 per sphere)
+    assert abs(reduction.mean() - 5e-4) < 4 * 1e-3 / math.sqrt(12 * reduction.size)
+    np.testing.assert_array_equal(np.asarray(one.position), np.asarray(specimen.position))
+    np.testing.assert_array_equal(np.asarray(packing.with_imperfection(specimen, 0.0).radius), nominal)
+    with pytest.raises(ValueError, match="fraction"):
+        packing.with_imperfection(specimen, -1e-3)
+
+
+@pytest.mark.parametrize("factor", [0.0, 0.5, 1.0])
+def test_nodes_touch_spheres_at_the_chosen_offset(factor):
+    """The mesh is built f t_m/2 outside the outer spheres: on a flat face of the octagon the rest nodes
+    lie at R + f t_m/2 from the plane of the outer sphere centres, where the contact's overlap is zero."""
+    specimen = packing.fcc_specimen(0.025, 4, 5)
+    thickness = 5e-3
+    test = membrane_test(
+        specimen, membrane_thickness_mm=5.0, edges_per_diameter=2.5, contact_offset_factor=factor
+    )
+    assert float(test.params.membrane.contact_thickness) == pytest.approx(factor * thickness, rel=1e-15)
+    position = np.asarray(test.mesh.reference_position)
+    centres = np.asarray(specimen.position)
+    face = centres[:, 0].max()  # the +x flat face's sphere centres
+    on_face = (position[:, 0] > 0.0) & (np.abs(position[:, 1]) < 0.5 * (centres[:, 1].max() - 0.0125))
+    gap = position[on_face, 0] - face
+    np.testing.assert_allclose(gap, 0.0125 + 0.5 * factor * thickness, rtol=1e-9)
+
+
+def test_hoop_strain_of_a_uniformly_stretched_membrane_is_the_stretch():
+    """ε_θ = λ − 1 for every node scaled radially by λ, whatever the mesh (a ring's length scales by λ)."""
+    mesh = membrane_lib.cylinder_mesh(0.1, 0.3, 0.02)
+    for stretch in (1.0, 1.01, 0.97):
+        position = mesh.reference_position * jnp.asarray([[stretch, stretch, 1.0]])
+        assert float(measure.hoop_strain(position, mesh)) == pytest.approx(stretch - 1.0, abs=1e-14)
+    grad = jax.grad(
+        lambda s: measure.hoop_strain(
+            mesh.reference_position * jnp.stack([s, s, jnp.ones_like(s)])[None], mesh
+        )
+    )
+    assert float(grad(jnp.asarray(1.0))) == pytest.approx(1.0, rel=1e-12)
+
+
+def test_areas_count_from_the_start_of_shearing():
+    """A = A₀ (1 − ε_v)/(1 − ε_a) with strains from the reference state: at the reference itself the
+    external σ1 is ram/A₀ (the servo's σc), internal σ3 = F_r / (2 √(π A₀) H₀); and a right cylinder
+    squeezed by ε_a at constant volume has A = A₀/(1 − ε_a)."""
+    area0, height0, volume0 = 0.05, 0.4, 0.05 * 0.4 * 0.95
+    records = {
+        "height": np.array([height0, 0.9 * height0]),
+        "volume": np.array([volume0, volume0]),
+        "axial_strain": np.array([0.07, 0.16]),
+        "volumetric_strain": np.array([0.05, 0.05]),
+        "ram_force": np.array([500.0, 2000.0]),
+        "received_axial_force": np.array([600.0, 2100.0]),
+        "membrane_radial_force": np.array([900.0, 1000.0]),
+        "clamp_radial_force": np.array([100.0, 100.0]),
+    }
+    out = _rebase(records, {"height": height0, "volume": volume0, "platen_area": area0})
+    np.testing.assert_allclose(out["platen_area"], [area0, area0 / 0.9], rtol=1e-14)
+    np.testing.assert_allclose(out["external_axial_stress"][0], 500.0 / area0, rtol=1e-14)
+    np.testing.assert_allclose(out["internal_axial_stress"][1], 2100.0 * 0.9 / area0, rtol=1e-14)
+    lateral = 2.0 * math.sqrt(math.pi * area0) * height0
+    np.testing.assert_allclose(out["internal_radial_stress"][0], 1000.0 / lateral, rtol=1e-14)
+    np.testing.assert_allclose(out["axial_strain"], [0.0, 0.1], atol=1e-15)
+    np.testing.assert_array_equal(out["consolidation_axial_strain"], 0.07)
+    np.testing.assert_array_equal(out["consolidation_volumetric_strain"], 0.05)
+
+
+def test_right_cylinder_stresses_work_under_jit_and_grad():
+    def external(ram, height):
+        return measure.right_cylinder_stresses(ram, ram, ram, height, 1.0, 1.0, 1.0, 1.0)[1]
+
+    # A = A₀ / (1 − ε_a) at constant volume: σ = F (1 − ε_a)/A₀ = F H/H₀; dσ/dH = F/H₀
+    value = jax.jit(external)(jnp.asarray(3.0), jnp.asarray(0.9))
+    assert float(value) == pytest.approx(2.7, rel=1e-14)
+    assert float(jax.grad(external, argnums=1)(jnp.asarray(3.0), jnp.asarray(0.9))) == pytest.approx(3.0)
+
+
+def _peak_friction_angles(test, state, start, inertial_number):
+    """(external, internal) peak φ' of a short ramped shear from ``state``, degrees."""
+    _, records = test.shear(
+        state,
+        target_axial_strain=0.002,
+        inertial_number=inertial_number,
+        record_every_fine=10,
+        fine_until_strain=0.002,
+        chunk_steps=5000,
+        ramp_strain=1e-2,
+    )
+    rebased = _rebase(
+        {f.name: np.asarray(getattr(records, f.name)) for f in dataclasses.fields(records)}, start
+    )
+
+    def phi(major, minor):
+        return np.degrees(np.arcsin((major - minor) / (major + minor)))
+
+    external = phi(rebased["external_axial_stress"].ravel(), test.cell_pressure)
+    internal = phi(rebased["internal_axial_stress"].ravel(), rebased["internal_radial_stress"].ravel())
+    return float(np.nanmax(external)), float(np.nanmax(internal))
+
+
+def test_the_ramped_peak_is_a_material_number_not_a_rate_effect():
+    """Peak φ' at I = 1e-3 and at I/2 agree within 0.3° (external and internal) with the default ramp:
+    the lattice's peak, its elastic limit at ~0.01 % strain, is approached quasi-statically (4 × 4 × 5
+    specimen, 10 kPa, 5 mm, float64)."""
+    specimen = packing.fcc_specimen(0.025, 4, 5)
+    test = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, edges_per_diameter=2.5)
+    state, records = test.consolidate(max_steps=6000, chunk_steps=1000, record_every=100, tolerance=0.01)
+    start = {
+        "height": float(records.height[-1, 0]),
+        "volume": float(records.volume[-1, 0]),
+        "platen_area": test.platen_area,
+    }
+    fast = _peak_friction_angles(test, state, start, 1e-3)
+    slow = _peak_friction_angles(test, state, start, 5e-4)
+    assert abs(fast[0] - slow[0]) < 0.3 and abs(fast[1] - slow[1]) < 0.3, (fast, slow)
