@@ -327,9 +327,9 @@ def membrane_test(
       time_step: Δt in s, overriding the rule above.
       bending_factor: scale of the membrane's bending rigidity, >= 0: 1 the plate's E t³/12(1 − ν²), 0 (the
         default) a pure membrane, which the paper's mesh appears to have been: at paper size, 10 kPa, 5 mm,
-        it ends consolidation with σ3 ext/int 10/10.7 and σ1 10.5/13.8 kPa (paper: 10/11.8, 10.7/14.6),
-        where plate bending gives 10/9.7 and 10.2/10.2 (the membrane spans the FCC faces' troughs stiffly
-        and ends in hoop compression).
+        it ends consolidation (float64, unbalanced-force ratio 4e-5) with internal σ3 and σ1 of 10.86 and
+        13.12 kPa (paper: 11.8, 14.6); plate bending spans the FCC faces' troughs stiffly and ends
+        consolidation in hoop compression, internal σ3 below σc (9.7 kPa, measured before issue 16).
       nodes_around: n_θ, membrane nodes per ring (default: perimeter / edge length); a batch over thickness
         fixes it so that all its meshes share one topology (:mod:`membrax.sweep`).
       contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the membrane's inner face on the

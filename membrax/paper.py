@@ -68,6 +68,7 @@ __all__ = [
     "paper_key",
     "table_2",
     "table_3",
+    "centre_cylinder_radial_stress",
     "write_tables",
     "fig9_data",
     "paper_fig9_data",
@@ -153,6 +154,8 @@ _TABLE_3_QUANTITIES = (
     ("additional_sigma3_kpa", "Δσ3 = σ3 int − ext", "kPa"),
     ("additional_sigma1_kpa", "Δσ1 = σ1 int − ext", "kPa"),
 )
+#: With the particle radius: the paper's "right cylinder" read through the boundary spheres' centres.
+_CENTRES_QUANTITY = ("additional_sigma3_centres_kpa", "Δσ3, cylinder through boundary sphere centres", "kPa")
 _KEY_COLUMNS = (
     ("cell_pressure_kpa", "Cell pressure σc", "kPa"),
     ("membrane_thickness_mm", "Membrane t_m", "mm"),
@@ -311,11 +314,43 @@ def table_2(results) -> list[dict]:
     ]
 
 
-def table_3(results) -> list[dict]:
+def centre_cylinder_radial_stress(records, particle_radius: float, index: int = 0) -> float:
+    """Internal σ3 over the right cylinder through the boundary spheres' centres, kPa.
+
+    membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area A,
+    2 π r H with r = √(A/π) (:func:`membrax.measure.right_cylinder_stresses`). The paper's "surface area of
+    the right cylinder" (its §4.3) may be that of the cylinder through the centres of the boundary spheres,
+    r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16 found that reading
+    reproduces the paper's Δσ3 ≈ 0.1 σc:
+
+        σ3,c = σ3,int · r / (r − R)
+
+    Args:
+      records: shear records with ``internal_radial_stress`` (Pa) and ``platen_area`` (m²).
+      particle_radius: R, m, > 0 and below r.
+      index: the record (0: the end of consolidation).
+
+    Raises:
+      ValueError: R not in (0, r).
+    """
+    radius = math.sqrt(float(analysis.record(records, "platen_area")[index]) / math.pi)
+    if not 0.0 < particle_radius < radius:
+        raise ValueError(
+            f"particle_radius = {particle_radius!r} m; it must lie in (0, {radius:g}) m, the radius of the "
+            "platen's right cylinder (pass the configuration's particle_radius, in metres)."
+        )
+    sigma3 = float(analysis.record(records, "internal_radial_stress")[index])
+    return analysis.KPA_PER_PA * sigma3 * radius / (radius - particle_radius)
+
+
+def table_3(results, particle_radius: float | None = None) -> list[dict]:
     """The paper's Table 3 for our cases: initial stresses and the additional membrane stresses.
 
     Args:
       results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
+      particle_radius: R (m); when given, a last quantity ``additional_sigma3_centres_kpa``: Δσ3 with
+        internal σ3 over the cylinder through the boundary spheres' centres
+        (:func:`centre_cylinder_radial_stress`, records need ``platen_area``), beside the paper's Δσ3.
 
     Returns:
       One dict of floats per case, sorted by thickness then pressure, with the columns
@@ -329,10 +364,20 @@ def table_3(results) -> list[dict]:
       ValueError: see the module docstring (Checks).
     """
     paper = {key: _with_additional(values) for key, values in PAPER_TABLE_3.items()}
-    return [
-        _row(key, _with_additional(analysis.initial_state(records)), paper, _TABLE_3_QUANTITIES)
-        for key, records in _cases(results)
-    ]
+    quantities = _TABLE_3_QUANTITIES
+    if particle_radius is not None:
+        quantities = quantities + (_CENTRES_QUANTITY,)
+        for values in paper.values():
+            values[_CENTRES_QUANTITY[0]] = values["additional_sigma3_kpa"]
+    rows = []
+    for key, records in _cases(results):
+        ours = _with_additional(analysis.initial_state(records))
+        if particle_radius is not None:
+            ours[_CENTRES_QUANTITY[0]] = (
+                centre_cylinder_radial_stress(records, particle_radius) - ours["sigma3_external_kpa"]
+            )
+        rows.append(_row(key, ours, paper, quantities))
+    return rows
 
 
 def _csv_text(rows: list[dict]) -> str:
@@ -361,7 +406,7 @@ def _markdown_text(rows: list[dict], quantities, title: str, note: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_tables(results, folder) -> dict[str, Path]:
+def write_tables(results, folder, particle_radius: float | None = None) -> dict[str, Path]:
     """Write Tables 2 and 3 as CSV and Markdown into ``folder``, each file atomically.
 
     Files: ``table2.csv`` and ``table3.csv`` (the columns of :func:`table_2` / :func:`table_3`, one line per
@@ -372,6 +417,7 @@ def write_tables(results, folder) -> dict[str, Path]:
     Args:
       results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
       folder: output directory, created (with parents) if missing.
+      particle_radius: R (m), for Table 3's Δσ3 through the boundary spheres' centres (:func:`table_3`).
 
     Returns:
       ``{"table2.csv": path, "table2.md": path, "table3.csv": path, "table3.md": path}``.
@@ -380,7 +426,8 @@ def write_tables(results, folder) -> dict[str, Path]:
       ValueError: for bad ``results`` (see the module docstring), or if ``folder`` exists and is not a
         directory or cannot be created.
     """
-    rows_2, rows_3 = table_2(results), table_3(results)
+    rows_2, rows_3 = table_2(results), table_3(results, particle_radius)
+    quantities_3 = _TABLE_3_QUANTITIES + ((_CENTRES_QUANTITY,) if particle_radius is not None else ())
     folder = io._ensure_folder(folder)
     note = (
         "Ours from membrax; paper from Tables 2 and 3 of the paper (– where it has no such case; its "
@@ -393,7 +440,7 @@ def write_tables(results, folder) -> dict[str, Path]:
         ),
         "table3.csv": _csv_text(rows_3),
         "table3.md": _markdown_text(
-            rows_3, _TABLE_3_QUANTITIES, "Table 3: initial stresses and additional membrane stresses", note
+            rows_3, quantities_3, "Table 3: initial stresses and additional membrane stresses", note
         ),
     }
     paths = {}

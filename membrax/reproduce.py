@@ -95,7 +95,7 @@ def reproduce(
         for thickness in dataset["membrane_thickness_mm"].values
     }
     files = dict(result.files)
-    files.update(paper.write_tables(cases, folder))
+    files.update(paper.write_tables(cases, folder, particle_radius=base.particle_radius))
     files["figures"] = plots.save_test_figures(cases[(10.0, 5.0)], folder)
     diameter_mm = 1e3 * base.particle_diameter
     ours = paper.fig9_data(

@@ -179,6 +179,23 @@ def test_table_3_against_hand_calculation(results):
     )
 
 
+def test_table_3_through_the_boundary_sphere_centres_scales_sigma3_by_r_over_r_minus_R(results):
+    """σ3,c = σ3,int r/(r − R), r = √(A/π): with A = π (0.125 m)² and R = 0.0125 m the factor is 10/9, so
+    Δσ3 = 1.2 p · 10/9 − p = p/3 in every case; the paper's column is its Δσ3."""
+    area = math.pi * 0.125**2
+    with_area = {key: {**records, "platen_area": np.full(AXIAL.shape, area)} for key, records in results.items()}
+    rows = paper.table_3(with_area, particle_radius=0.0125)
+    name = "additional_sigma3_centres_kpa"
+    assert list(rows[0])[-3:] == [name, f"paper_{name}", f"difference_{name}"]
+    for row in rows:
+        assert row[name] == pytest.approx(row["cell_pressure_kpa"] / 3.0, rel=1e-12)
+        assert row[f"paper_{name}"] == row["paper_additional_sigma3_kpa"] or math.isnan(row[f"paper_{name}"])
+    assert rows[2][f"paper_{name}"] == pytest.approx(11.8 - 10.0, abs=1e-12)
+    assert list(paper.table_3(with_area)[0]) == list(paper.table_3(results)[0])  # no radius, no column
+    with pytest.raises(ValueError, match="particle_radius"):
+        paper.table_3(with_area, particle_radius=0.2)
+
+
 def test_tables_read_an_xarray_dataset_like_a_dict(results):
     datasets = {
         key: xr.Dataset({name: ("record", values) for name, values in records.items()})
