@@ -112,4 +112,8 @@ def main(folder: str, small: bool, resume: bool) -> None:
 
 if __name__ == "__main__":
     arguments = [a for a in sys.argv[1:] if not a.startswith("--")]
-    main(arguments[0] if arguments else "results_table3_hypotheses", "--small" in sys.argv, "--resume" in sys.argv)
+    main(
+        arguments[0] if arguments else "results_table3_hypotheses",
+        "--small" in sys.argv,
+        "--resume" in sys.argv,
+    )

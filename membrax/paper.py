@@ -366,7 +366,7 @@ def table_3(results, particle_radius: float | None = None) -> list[dict]:
     paper = {key: _with_additional(values) for key, values in PAPER_TABLE_3.items()}
     quantities = _TABLE_3_QUANTITIES
     if particle_radius is not None:
-        quantities = quantities + (_CENTRES_QUANTITY,)
+        quantities = (*quantities, _CENTRES_QUANTITY)
         for values in paper.values():
             values[_CENTRES_QUANTITY[0]] = values["additional_sigma3_kpa"]
     rows = []
@@ -427,7 +427,7 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
         directory or cannot be created.
     """
     rows_2, rows_3 = table_2(results), table_3(results, particle_radius)
-    quantities_3 = _TABLE_3_QUANTITIES + ((_CENTRES_QUANTITY,) if particle_radius is not None else ())
+    quantities_3 = (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
     folder = io._ensure_folder(folder)
     note = (
         "Ours from membrax; paper from Tables 2 and 3 of the paper (– where it has no such case; its "

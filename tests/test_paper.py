@@ -183,7 +183,9 @@ def test_table_3_through_the_boundary_sphere_centres_scales_sigma3_by_r_over_r_m
     """σ3,c = σ3,int r/(r − R), r = √(A/π): with A = π (0.125 m)² and R = 0.0125 m the factor is 10/9, so
     Δσ3 = 1.2 p · 10/9 − p = p/3 in every case; the paper's column is its Δσ3."""
     area = math.pi * 0.125**2
-    with_area = {key: {**records, "platen_area": np.full(AXIAL.shape, area)} for key, records in results.items()}
+    with_area = {
+        key: {**records, "platen_area": np.full(AXIAL.shape, area)} for key, records in results.items()
+    }
     rows = paper.table_3(with_area, particle_radius=0.0125)
     name = "additional_sigma3_centres_kpa"
     assert list(rows[0])[-3:] == [name, f"paper_{name}", f"difference_{name}"]
