@@ -4,7 +4,7 @@ Contract. :class:`ChunkRunner` advances a state by whole chunks of steps. Each c
 that takes ``chunk_steps`` steps and records ``record_fn(state, params)`` every ``record_every`` steps.
 Between chunks, on the host, it:
 
-- checks the error bits of the state (:mod:`membrax.integrate`);
+- checks the error bits of the state (:mod:`membrax.errors`);
 - on a neighbour-list overflow, reallocates a larger list from the *chunk's starting state*, carries the
   contact history over by partner id, and reruns the chunk — contacts are never silently dropped; the
   same for an overflow of the membrane's node–sphere candidate table (``grow_membrane``);
@@ -23,8 +23,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from membrax.integrate import ERROR_NEIGHBOR_OVERFLOW, describe_errors
-from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
+from membrax.errors import OVERFLOWS, ErrorCode, describe
 from membrax.neighbors import PairNeighborFn, remap_pair_history
 
 __all__ = ["ChunkRunner", "SimulationError", "concatenate_records"]
@@ -139,18 +138,18 @@ class ChunkRunner:
             count = min(records_per_chunk, total_records - done)
             new_state, records = self._chunk(state, params, num_records=count, record_every=record_every)
             error = int(new_state.error)
-            overflow = error & (ERROR_NEIGHBOR_OVERFLOW | ERROR_MEMBRANE_CANDIDATE_OVERFLOW)
-            if overflow and (self.grow_membrane is not None or not error & ERROR_MEMBRANE_CANDIDATE_OVERFLOW):
-                if error & ERROR_NEIGHBOR_OVERFLOW:
+            membrane_overflow = error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
+            if error & OVERFLOWS and (self.grow_membrane is not None or not membrane_overflow):
+                if error & ErrorCode.NEIGHBOR_OVERFLOW:
                     state = self.reallocate(state)
-                if error & ERROR_MEMBRANE_CANDIDATE_OVERFLOW:
+                if membrane_overflow:
                     state = self.grow_membrane(state, new_state.membrane.candidates)
                     self.reallocations += 1
                 continue
             if error:
                 raise SimulationError(
                     f"simulation stopped in the chunk ending at step {int(new_state.step)}: "
-                    + "; ".join(describe_errors(error)),
+                    + "; ".join(describe(error)),
                     state=state,
                     records=concatenate_records(chunks),
                 )

@@ -27,8 +27,8 @@ Damping (``DampingParams``):
   and finite differences disagree and the latter do not converge).
 - viscous: F ← F − γ m v, T ← T − γ I ω, γ in 1/s. Smooth: **use this mode (with α = 0) for jax.grad**.
 
-Errors ride in ``state.error`` as a bitmask (:data:`ERROR_NEIGHBOR_OVERFLOW`, :data:`ERROR_NOT_FINITE`,
-:data:`ERROR_OUTSIDE_BOX`), set inside jit and checked on the host between chunks by the driver.
+Errors ride in ``state.error`` as a bitmask of :class:`membrax.errors.ErrorCode` (neighbour overflow, not
+finite, outside the box), set inside jit and checked on the host between chunks by the driver.
 
 Critical time step: :func:`critical_time_step` estimates ω_max of the linearised contact network including
 rotation (power iteration on M⁻¹K over the 6N translational and rotational degrees of freedom) and returns
@@ -47,7 +47,7 @@ from jax_md import dataclasses
 
 from membrax import contact, native
 from membrax.contact import ContactParams
-from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
+from membrax.errors import ErrorCode, describe
 from membrax.neighbors import PairNeighborFn, outside_box, remap_pair_history
 from membrax.packing import moment_of_inertia, particle_mass
 from membrax.vector import safe_norm, select
@@ -71,24 +71,17 @@ __all__ = [
     "make_particles",
 ]
 
-ERROR_NEIGHBOR_OVERFLOW = 1
-ERROR_NOT_FINITE = 2
-ERROR_OUTSIDE_BOX = 4
+# Aliases of membrax.errors.ErrorCode's bits, kept for code written against this module.
+ERROR_NEIGHBOR_OVERFLOW = ErrorCode.NEIGHBOR_OVERFLOW
+ERROR_NOT_FINITE = ErrorCode.NOT_FINITE
+ERROR_OUTSIDE_BOX = ErrorCode.OUTSIDE_BOX
 
 #: Default fraction of the critical time step.
 DEFAULT_SAFETY = 0.5
 
 
-def describe_errors(error: int) -> list[str]:
-    """Human-readable names of the bits set in an error mask."""
-    names = {
-        ERROR_NEIGHBOR_OVERFLOW: "neighbour list overflow",
-        ERROR_NOT_FINITE: "non-finite position or velocity (reduce the time step or stiffness)",
-        ERROR_OUTSIDE_BOX: "a particle left the neighbour-list box (increase the margin)",
-        ERROR_MEMBRANE_CANDIDATE_OVERFLOW: "membrane node candidate table overflow (give the chunk runner a "
-        "grow_membrane function)",
-    }
-    return [name for bit, name in names.items() if int(error) & bit]
+#: Alias of :func:`membrax.errors.describe`.
+describe_errors = describe
 
 
 @dataclasses.dataclass
@@ -188,7 +181,7 @@ class DEMState:
       walls: the :class:`~membrax.walls.WallState`.
       neighbors: the jax-md neighbour list.
       step: number of steps taken.
-      error: int32 bitmask of ``ERROR_*``.
+      error: int32 bitmask of :class:`membrax.errors.ErrorCode` bits.
     """
 
     position: jnp.ndarray
@@ -567,10 +560,10 @@ def dem(
             walls = walls.set(velocity=ramped_velocity(walls, dt))
 
         error = state.error
-        error = error | jnp.where(neighbors.did_buffer_overflow > 0, ERROR_NEIGHBOR_OVERFLOW, 0)
+        error = error | jnp.where(neighbors.did_buffer_overflow > 0, ErrorCode.NEIGHBOR_OVERFLOW, 0)
         finite = jnp.all(jnp.isfinite(position)) & jnp.all(jnp.isfinite(velocity))
-        error = error | jnp.where(finite, 0, ERROR_NOT_FINITE)
-        error = error | jnp.where(outside_box(position, neighbor_frame), ERROR_OUTSIDE_BOX, 0)
+        error = error | jnp.where(finite, 0, ErrorCode.NOT_FINITE)
+        error = error | jnp.where(outside_box(position, neighbor_frame), ErrorCode.OUTSIDE_BOX, 0)
         return state.set(
             position=position,
             position_compensation=compensation,

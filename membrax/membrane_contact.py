@@ -46,12 +46,12 @@ ones: the subset must not repeat ids); :func:`update_candidates` rebuilds when a
 moved more than skin/2 since the last build (reference positions are kept), so no pair can come into
 contact unseen between rebuilds. A node with more than K candidates sets ``did_overflow`` (its first K in
 subset order are kept, the rest dropped): :func:`candidate_errors` turns it into
-:data:`ERROR_MEMBRANE_CANDIDATE_OVERFLOW` for the state's error bitmask (compatible with
-:mod:`membrax.integrate`'s ``ERROR_*`` bits), so the host driver reallocates with a larger K (``max_count``
-says how large) and reruns: contacts are never silently dropped. The springs, (3, n_nodes, K), follow
-their sphere ids per node through rebuilds (:func:`remap_node_history`, the per-row analogue of
-:func:`membrax.neighbors.remap_pair_history`). Cost: 17,000 nodes × 600 spheres (10.2 M distance checks)
-take about 90 ms per rebuild with K = 8 (150 ms with K = 16) on 2 CPU cores, XLA-CPU, float64.
+``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) for the state's error bitmask, so the
+host driver reallocates with a larger K (``max_count`` says how large) and reruns: contacts are never
+silently dropped. The springs, (3, n_nodes, K), follow their sphere ids per node through rebuilds
+(:func:`remap_node_history`, the per-row analogue of :func:`membrax.neighbors.remap_pair_history`). Cost:
+17,000 nodes × 600 spheres (10.2 M distance checks) take about 90 ms per rebuild with K = 8 (150 ms with K
+= 16) on 2 CPU cores, XLA-CPU, float64.
 
 Layout: nodes and spheres are rows of (n, 3) arrays; per-slot quantities gather rows (``x[idx]``) and are
 then handled component-first (3, n_nodes, K) with :mod:`membrax.vector`; the carried springs stay in that
@@ -72,6 +72,7 @@ from jax_md import dataclasses
 
 from membrax import native
 from membrax.contact import normal_energy, tangential_spring_update
+from membrax.errors import ErrorCode
 from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
@@ -90,8 +91,8 @@ __all__ = [
     "update_candidates",
 ]
 
-# Next free bit after integrate's ERROR_NEIGHBOR_OVERFLOW = 1, ERROR_NOT_FINITE = 2, ERROR_OUTSIDE_BOX = 4.
-ERROR_MEMBRANE_CANDIDATE_OVERFLOW = 8
+# Alias of membrax.errors.ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW, kept for code written against this module.
+ERROR_MEMBRANE_CANDIDATE_OVERFLOW = ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
 
 
 @dataclasses.dataclass
@@ -669,5 +670,5 @@ def update_candidates(
 
 
 def candidate_errors(candidates: NodeCandidates):
-    """int32 error bits for the state's bitmask: :data:`ERROR_MEMBRANE_CANDIDATE_OVERFLOW` on overflow."""
-    return jnp.where(candidates.did_overflow, ERROR_MEMBRANE_CANDIDATE_OVERFLOW, 0).astype(jnp.int32)
+    """int32 error bits for the state's bitmask: ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` on overflow."""
+    return jnp.where(candidates.did_overflow, ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW, 0).astype(jnp.int32)

@@ -22,7 +22,7 @@ One step (explicit central differences, as the DEM; velocities at half steps):
    the O-rings) follow their platen rigidly: y = y_clamp + (z_platen − z_platen,0) e_z;
 5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
    (:func:`membrax.membrane_contact.update_candidates`); an overflow sets
-   :data:`~membrax.membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW` in the DEM state's error bitmask,
+   ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) in the DEM state's error bitmask,
    and the chunk driver reallocates a larger table and reruns the chunk.
 
 Platen reactions. The clamp holds the ring nodes against the forces F_k of the membrane and the spheres
@@ -57,8 +57,8 @@ from jax_md import dataclasses
 
 from membrax import membrane as membrane_lib
 from membrax import native
+from membrax.errors import ErrorCode
 from membrax.integrate import (
-    ERROR_NOT_FINITE,
     DampingParams,
     DEMParams,
     DEMState,
@@ -209,7 +209,7 @@ class CoupledState:
 
     @property
     def error(self):
-        """int32 error bitmask (the ``ERROR_*`` bits of :mod:`membrax.integrate`, membrane_contact)."""
+        """int32 error bitmask (the bits of :class:`membrax.errors.ErrorCode`)."""
         return self.dem.error
 
     @property
@@ -467,7 +467,7 @@ def membrane_dem(
             mp.contact_thickness,
         )
         finite = jnp.all(jnp.isfinite(position)) & jnp.all(jnp.isfinite(velocity))
-        error = spheres.error | candidate_errors(candidates) | jnp.where(finite, 0, ERROR_NOT_FINITE)
+        error = spheres.error | candidate_errors(candidates) | jnp.where(finite, 0, ErrorCode.NOT_FINITE)
         return CoupledState(
             dem=spheres.set(error=error.astype(jnp.int32)),
             membrane=nodes.set(
@@ -493,7 +493,7 @@ def grow_candidates(
 ) -> CoupledState:
     """A copy of ``state`` with a node candidate table of ``capacity`` slots, springs carried by sphere id.
 
-    Used by the chunk driver after :data:`~membrax.membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW`.
+    Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``.
 
     Args:
       state: the state to change (its table is rebuilt at its positions).

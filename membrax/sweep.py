@@ -77,9 +77,8 @@ from membrax.config import (
 )
 from membrax.devices import cpu_cores
 from membrax.driver import SimulationError
-from membrax.integrate import ERROR_NEIGHBOR_OVERFLOW, describe_errors
+from membrax.errors import OVERFLOWS, ErrorCode, describe
 from membrax.membrane import rounded_offset_path
-from membrax.membrane_contact import ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 from membrax.membrane_dem import grow_candidates
 from membrax.neighbors import remap_pair_history
 from membrax.packing import fcc_specimen
@@ -366,7 +365,7 @@ class BatchedTest:
         members = [_member(states, b) for b in range(self.num_padded)]
         frame = self.tests[0].runner.neighbor_frame
         particles = self.tests[0].particles
-        if np.any(error & ERROR_NEIGHBOR_OVERFLOW):
+        if np.any(error & ErrorCode.NEIGHBOR_OVERFLOW):
             old = states.dem.neighbors
             lists = _shared_neighbors(
                 frame,
@@ -385,7 +384,7 @@ class BatchedTest:
                 )
                 for m, nl in zip(members, lists, strict=True)
             ]
-        if np.any(error & ERROR_MEMBRANE_CANDIDATE_OVERFLOW):
+        if np.any(error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW):
             old = states.membrane.candidates
             subset = int(old.sphere_subset.shape[-1])
             capacity = max(
@@ -444,15 +443,14 @@ class BatchedTest:
                 record_every=record_every,
             )
             error = np.asarray(new_states.dem.error)
-            if np.any(error & (ERROR_NEIGHBOR_OVERFLOW | ERROR_MEMBRANE_CANDIDATE_OVERFLOW)):
+            if np.any(error & OVERFLOWS):
                 states = self._grow(states, error, new_states.membrane.candidates)
                 continue
             if np.any(error[: self.num_members]):
                 bad = int(np.flatnonzero(error[: self.num_members])[0])
                 raise SimulationError(
                     f"member {bad} ({self.configs[bad].name}) stopped in the chunk ending at step "
-                    f"{int(np.asarray(new_states.dem.step)[bad])}: "
-                    + "; ".join(describe_errors(int(error[bad]))),
+                    f"{int(np.asarray(new_states.dem.step)[bad])}: " + "; ".join(describe(error[bad])),
                     state=states,
                 )
             states = new_states
