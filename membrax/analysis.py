@@ -28,8 +28,8 @@ Definitions (the paper's §4.3 and §5.2; formulas in ``shared/reference/membran
 - mobilised friction angle sin φ' = (σ1 − σ3)/(σ1 + σ3) with σ1 axial, σ3 radial (Fig. 5, Table 2);
 - change in strain ratio dε_r/dε_a, a local regression slope (Fig. 7), see :func:`strain_ratio_change`.
 
-:data:`PAPER_10KPA_5MM` holds the paper's numbers for the 10 kPa, 5 mm membrane test that Figs 5–8 show,
-with the keys of :func:`initial_state`, :func:`peak` and :func:`largest_overestimate`, for
+:data:`membrax.paper.PAPER_10KPA_5MM` holds the paper's numbers for the 10 kPa, 5 mm membrane test that
+Figs 5–8 show, with the keys of :func:`initial_state`, :func:`peak` and :func:`largest_overestimate`, for
 :func:`summary_table`.
 """
 
@@ -42,7 +42,6 @@ import numpy as np
 from membrax.theory import mobilised_friction_angle_deg
 
 __all__ = [
-    "PAPER_10KPA_5MM",
     "RECORD_NAMES",
     "record",
     "strain_ratio_change",
@@ -69,24 +68,6 @@ RECORD_NAMES = (
     "love_weber_axial_stress",
     "love_weber_radial_stress",
 )
-
-#: The paper's values for 10 kPa cell pressure and a 5 mm membrane (the test of its Figs 5–8), keyed as
-#: the results of :func:`initial_state`, :func:`peak` and :func:`largest_overestimate`. Table 2: peak φ'
-#: external 41.1°, internal 40.2° (§5.2 says only that the peak "occurs almost immediately at close to 0%
-#: axial strain", so the peak strains are left out); Table 3: initial σ3 external 10, internal 11.8 kPa,
-#: σ1 external 10.7, internal 14.6 kPa; Fig. 5 and §5.2: beyond about 3 % axial strain the external φ'
-#: exceeds the internal one "by up to 4°" (the strain of that largest difference is not stated; Fig. 6
-#: puts the second strength peak at 6 %). The Table 2 and 3 numbers are those of
-#: ``membrax.paper.PAPER_TABLE_2`` and ``PAPER_TABLE_3`` at (10.0, 5.0); tests/test_paper.py checks it.
-PAPER_10KPA_5MM = {
-    "sigma3_external_kpa": 10.0,
-    "sigma3_internal_kpa": 11.8,
-    "sigma1_external_kpa": 10.7,
-    "sigma1_internal_kpa": 14.6,
-    "peak_external_friction_angle_deg": 41.1,
-    "peak_internal_friction_angle_deg": 40.2,
-    "overestimate_deg": 4.0,
-}
 
 
 def record(records, name: str) -> np.ndarray:
@@ -357,7 +338,7 @@ def summary_table(records, paper: Mapping | None = None, *, min_strain: float = 
     Args:
       records: the test records (see the module docstring).
       paper: optional values to show beside the run's, keyed like the results (e.g.
-        :data:`PAPER_10KPA_5MM`); a missing key shows "–".
+        :data:`membrax.paper.PAPER_10KPA_5MM`); a missing key shows "–".
       min_strain: passed to :func:`largest_overestimate`.
 
     Returns:

@@ -7,7 +7,7 @@ Sub-commands:
   theory   the closed-form reference table (Rowe, Bolton, Molenkamp & Luger, ASTM shell correction)
   demo     the main job on a small default: the theory table, then a membrane triaxial test of a small
            FCC specimen (6 spheres across, 10 layers) at 10 kPa in a 5 mm membrane to 10 % axial strain
-           (:data:`DEMO_CONFIG`), written to ``results_demo/`` (:mod:`membrax.run`)
+           (:data:`membrax.config.DEMO_CONFIG`), written to ``results_demo/`` (:mod:`membrax.run`)
   run      ``membrax run config.toml [--out DIR] [--set key=value] [--resume]``: the test of a TOML
            configuration (:mod:`membrax.config`) into a results folder
   sweep    ``membrax sweep config.toml --grid cell_pressure_kpa=10,40,100 --grid membrane_thickness_mm=2.5,5
@@ -24,20 +24,8 @@ import sys
 
 import numpy as np
 
-from membrax import __version__, theory
-
-# The paper's Table 1 grid and fixed parameters (the paper, §5.1; reference §12).
-PAPER_CELL_PRESSURES_KPA = (10.0, 40.0, 100.0)
-PAPER_MEMBRANE_THICKNESSES_MM = (2.5, 10.0 / 3.0, 5.0)
-PAPER_PARTICLE_DIAMETER_MM = 25.0
-PAPER_MEMBRANE_MODULUS_KPA = 1400.0
-PAPER_INTERPARTICLE_FRICTION_DEG = 25.0
-PAPER_SPECIMEN_DIAMETER_MM = 250.0
-# The paper's laboratory ballast (its Fig. 1 and Eq. 1).
-BALLAST_CRITICAL_FRICTION_DEG = 36.0
-BALLAST_VOID_RATIO_MIN = 0.71
-BALLAST_VOID_RATIO_MAX = 1.00
-BALLAST_VOID_RATIO = 0.78
+from membrax import __version__, paper, theory
+from membrax.config import DEMO_CONFIG
 
 
 def _rule(title: str) -> str:
@@ -49,47 +37,51 @@ def theory_report() -> str:
     lines = [f"membrax {__version__}: closed-form theory (membrax.theory)"]
 
     lines.append(
-        _rule(f"Rowe (1962), FCC, cube axis vertical, phi_mu = {PAPER_INTERPARTICLE_FRICTION_DEG:g} deg")
+        _rule(f"Rowe (1962), FCC, cube axis vertical, phi_mu = {paper.INTERPARTICLE_FRICTION_DEG:g} deg")
     )
     lines.append(f"{'convention':<34}{'tan(alpha)':>11}{'R':>9}{'phi_peak (deg)':>16}")
     for label, packing in (
         ("exact: tan(alpha) = 2, beta = 45", theory.FCC),
         ("paper: alpha = 63.5, beta = 45", theory.FCC_PAPER),
     ):
-        friction = np.deg2rad(PAPER_INTERPARTICLE_FRICTION_DEG)
+        friction = np.deg2rad(paper.INTERPARTICLE_FRICTION_DEG)
         ratio = float(theory.rowe_stress_ratio(friction, packing))
-        phi = float(theory.rowe_peak_friction_angle_deg(PAPER_INTERPARTICLE_FRICTION_DEG, packing))
+        phi = float(theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, packing))
         lines.append(f"{label:<34}{packing.tan_alpha:>11.4f}{ratio:>9.4f}{phi:>16.2f}")
 
     density = float(
-        theory.relative_density(BALLAST_VOID_RATIO, BALLAST_VOID_RATIO_MIN, BALLAST_VOID_RATIO_MAX)
+        theory.relative_density(
+            paper.BALLAST_VOID_RATIO, paper.BALLAST_VOID_RATIO_MIN, paper.BALLAST_VOID_RATIO_MAX
+        )
     )
     lines.append(
         _rule(
-            f"Bolton (1986) and the paper's Eq. 1: phi_crit = {BALLAST_CRITICAL_FRICTION_DEG:g} deg, "
-            f"e_min = {BALLAST_VOID_RATIO_MIN:g}, e_max = {BALLAST_VOID_RATIO_MAX:g}, "
-            f"e = {BALLAST_VOID_RATIO:g} "
+            f"Bolton (1986) and the paper's Eq. 1: phi_crit = {paper.BALLAST_CRITICAL_FRICTION_DEG:g} deg, "
+            f"e_min = {paper.BALLAST_VOID_RATIO_MIN:g}, e_max = {paper.BALLAST_VOID_RATIO_MAX:g}, "
+            f"e = {paper.BALLAST_VOID_RATIO:g} "
             f"(I_D = {density:.4f})"
         )
     )
     lines.append(
         f"{'p (kPa)':>8}{'I_R':>9}{'Bolton':>9}{'clipped I_R<=4':>16}{'Eq. 1':>9}{'I_R=5I_D-1':>15}   (deg)"
     )
-    for pressure in PAPER_CELL_PRESSURES_KPA:
+    for pressure in paper.PAPER_CELL_PRESSURES_KPA:
         index = float(theory.relative_dilatancy_index(density, pressure))
         bolton = float(
-            theory.bolton_peak_friction_angle_deg(BALLAST_CRITICAL_FRICTION_DEG, density, pressure)
+            theory.bolton_peak_friction_angle_deg(paper.BALLAST_CRITICAL_FRICTION_DEG, density, pressure)
         )
         clipped = float(
-            theory.bolton_peak_friction_angle_deg(BALLAST_CRITICAL_FRICTION_DEG, density, pressure, clip=True)
+            theory.bolton_peak_friction_angle_deg(
+                paper.BALLAST_CRITICAL_FRICTION_DEG, density, pressure, clip=True
+            )
         )
         floored = float(
             theory.bolton_peak_friction_angle_deg(
-                BALLAST_CRITICAL_FRICTION_DEG, density, pressure, low_pressure_rule=True
+                paper.BALLAST_CRITICAL_FRICTION_DEG, density, pressure, low_pressure_rule=True
             )
         )
         eq1 = float(
-            theory.paper_eq1_peak_friction_angle_deg(BALLAST_CRITICAL_FRICTION_DEG, density, pressure)
+            theory.paper_eq1_peak_friction_angle_deg(paper.BALLAST_CRITICAL_FRICTION_DEG, density, pressure)
         )
         lines.append(f"{pressure:>8g}{index:>9.4f}{bolton:>9.2f}{clipped:>16.2f}{eq1:>9.2f}{floored:>15.2f}")
     lines.append("Eq. 1 is Bolton's form + 2 deg (it subtracts 1 where Bolton subtracts 3), with no I_R cap.")
@@ -97,22 +89,22 @@ def theory_report() -> str:
 
     lines.append(
         _rule(
-            f"Molenkamp & Luger indentation ratio alpha/D, C = 0.275, D = {PAPER_PARTICLE_DIAMETER_MM:g} mm, "
-            f"E_m = {PAPER_MEMBRANE_MODULUS_KPA:g} kPa, FCC e = {theory.FCC_VOID_RATIO:.4f}"
+            f"Molenkamp & Luger indentation ratio alpha/D, C = 0.275, D = {paper.PARTICLE_DIAMETER_MM:g} mm, "
+            f"E_m = {paper.MEMBRANE_MODULUS_KPA:g} kPa, FCC e = {theory.FCC_VOID_RATIO:.4f}"
         )
     )
-    header = "".join(f"{f't_m = {t:.2f} mm':>16}" for t in PAPER_MEMBRANE_THICKNESSES_MM)
+    header = "".join(f"{f't_m = {t:.2f} mm':>16}" for t in paper.PAPER_THICKNESSES_MM)
     lines.append(f"{'p (kPa)':>8}{header}")
     any_invalid = False
-    for pressure in PAPER_CELL_PRESSURES_KPA:
+    for pressure in paper.PAPER_CELL_PRESSURES_KPA:
         cells = []
-        for thickness in PAPER_MEMBRANE_THICKNESSES_MM:
+        for thickness in paper.PAPER_THICKNESSES_MM:
             args = (
                 theory.FCC_VOID_RATIO,
-                PAPER_PARTICLE_DIAMETER_MM,
+                paper.PARTICLE_DIAMETER_MM,
                 thickness,
                 pressure,
-                PAPER_MEMBRANE_MODULUS_KPA,
+                paper.MEMBRANE_MODULUS_KPA,
             )
             ratio = float(theory.molenkamp_luger_indentation_ratio(*args))
             valid = bool(theory.molenkamp_luger_validity(*args).valid)
@@ -126,13 +118,13 @@ def theory_report() -> str:
     lines.append(
         _rule(
             f"ASTM D4767/D7181 shell correction 4 E_m t_m eps_a / D at eps_a = {strain:.0%}, "
-            f"D = {PAPER_SPECIMEN_DIAMETER_MM:g} mm, E_m = {PAPER_MEMBRANE_MODULUS_KPA:g} kPa"
+            f"D = {paper.SPECIMEN_DIAMETER_MM:g} mm, E_m = {paper.MEMBRANE_MODULUS_KPA:g} kPa"
         )
     )
     lines.append(f"{'t_m (mm)':>9}{'delta sigma_1 (kPa)':>21}")
-    for thickness in PAPER_MEMBRANE_THICKNESSES_MM:
+    for thickness in paper.PAPER_THICKNESSES_MM:
         correction = theory.astm_shell_correction(
-            PAPER_MEMBRANE_MODULUS_KPA, thickness / 1000.0, PAPER_SPECIMEN_DIAMETER_MM / 1000.0, strain
+            paper.MEMBRANE_MODULUS_KPA, thickness / 1000.0, paper.SPECIMEN_DIAMETER_MM / 1000.0, strain
         )
         lines.append(f"{thickness:>9.2f}{float(correction.axial_stress):>21.4f}")
     return "\n".join(lines)
@@ -150,21 +142,21 @@ def rigid_wall_demo(width_spheres: int = 6, height_layers: int = 8, cell_pressur
     from membrax import packing, triaxial
 
     start = time.perf_counter()
-    specimen = packing.fcc_specimen(PAPER_PARTICLE_DIAMETER_MM / 1000.0, width_spheres, height_layers)
+    specimen = packing.fcc_specimen(paper.PARTICLE_DIAMETER_MM / 1000.0, width_spheres, height_layers)
     test = triaxial.rigid_wall_test(specimen, cell_pressure_kpa * 1e3)
     state, consolidation = test.consolidate()
     consolidation_steps = int(state.step)
     state, shear = test.shear(state, target_axial_strain=0.01, inertial_number=1e-3)
     love_weber, love_weber_strain = triaxial.peak(shear)
     wall, wall_strain = triaxial.peak(shear, "wall_friction_angle")
-    rowe_exact = float(theory.rowe_peak_friction_angle_deg(PAPER_INTERPARTICLE_FRICTION_DEG, theory.FCC))
+    rowe_exact = float(theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, theory.FCC))
     rowe_paper = float(
-        theory.rowe_peak_friction_angle_deg(PAPER_INTERPARTICLE_FRICTION_DEG, theory.FCC_PAPER)
+        theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, theory.FCC_PAPER)
     )
     lines = [
         _rule(
             f"Rigid-wall FCC triaxial test, {cell_pressure_kpa:g} kPa, "
-            f"phi_mu = {PAPER_INTERPARTICLE_FRICTION_DEG:g} deg"
+            f"phi_mu = {paper.INTERPARTICLE_FRICTION_DEG:g} deg"
         ),
         specimen.summary(),
         f"time step {test.dt:.3e} s (critical {test.critical_dt:.3e} s, rotation included)",
@@ -179,22 +171,6 @@ def rigid_wall_demo(width_spheres: int = 6, height_layers: int = 8, cell_pressur
         f"wall time {time.perf_counter() - start:.0f} s",
     ]
     return "\n".join(lines)
-
-
-#: The demo: a small specimen (6 across, 10 layers, a coarser membrane) at 10 kPa in a 5 mm membrane to
-#: 10 % axial strain. I = 5e-3 (5× the paper's 1e-3) keeps it within about 3 minutes on 2 CPU cores.
-DEMO_CONFIG = dict(
-    name="demo",
-    particles_across=6,
-    layers=10,
-    membrane_edges_per_diameter=3.0,
-    cell_pressure_kpa=10.0,
-    membrane_thickness_mm=5.0,
-    target_axial_strain=0.10,
-    inertial_number=5e-3,
-    chunk_steps=5000,
-    checkpoint_every_chunks=5,
-)
 
 
 def _run_config(config, out, resume: bool, progress: bool) -> int:

@@ -57,6 +57,7 @@ from jax_md import dataclasses
 
 from membrax import membrane as membrane_lib
 from membrax import native
+from membrax.config import TriaxialConfig
 from membrax.errors import ErrorCode
 from membrax.integrate import (
     DampingParams,
@@ -129,7 +130,7 @@ class MembraneParams:
 
     @staticmethod
     def create(
-        modulus_kpa: float = 1400.0,
+        modulus_kpa: float = TriaxialConfig.membrane_modulus_kpa,
         thickness_mm: float = 2.5,
         cell_pressure_kpa: float = 10.0,
         contact: MembraneContactParams | None = None,

@@ -288,7 +288,7 @@ def membrane_test(
     specimen: Specimen,
     cell_pressure_kpa: float = 10.0,
     membrane_thickness_mm: float = 2.5,
-    membrane_modulus_kpa: float = 1400.0,
+    membrane_modulus_kpa: float = TriaxialConfig.membrane_modulus_kpa,
     contact_params: ContactParams | None = None,
     membrane_contact: MembraneContactParams | None = None,
     damping: DampingParams | None = None,

@@ -1,4 +1,11 @@
-"""The paper's Tables 2 and 3 and the numbers of its Fig. 9, beside membrax's own results.
+"""The paper's numbers (Table 1 grid, fixed parameters, Tables 2–3, Fig. 9) and membrax's results beside them.
+
+The paper's numbers live here and nowhere else: its Table 1 grid (:data:`TABLE_1_GRID`, the default grid
+of :func:`membrax.sweep.run_sweep`), its fixed parameters (:data:`PARTICLE_DIAMETER_MM`,
+:data:`MEMBRANE_MODULUS_KPA`, :data:`INTERPARTICLE_FRICTION_DEG`; membrax's configuration defaults are these
+values, so they are read from :class:`membrax.config.TriaxialConfig` and checked against the paper in
+``tests/test_paper.py``), its laboratory ballast (``BALLAST_*``), its Tables 2 and 3
+(:data:`PAPER_TABLE_2`, :data:`PAPER_TABLE_3`, :data:`PAPER_10KPA_5MM`) and its Fig. 9.
 
 Contract. Every function takes ``results``, a mapping from a case key ``(cell_pressure_kpa,
 membrane_thickness_mm)`` (two positive finite numbers, kPa and mm) to that case's shear records: the
@@ -58,10 +65,21 @@ from pathlib import Path
 import numpy as np
 
 from membrax import analysis, io, theory
+from membrax.config import TriaxialConfig
 
 __all__ = [
+    "BALLAST_CRITICAL_FRICTION_DEG",
+    "BALLAST_VOID_RATIO",
+    "BALLAST_VOID_RATIO_MAX",
+    "BALLAST_VOID_RATIO_MIN",
+    "INTERPARTICLE_FRICTION_DEG",
+    "MEMBRANE_MODULUS_KPA",
+    "PAPER_10KPA_5MM",
     "PAPER_CELL_PRESSURES_KPA",
     "PAPER_THICKNESSES_MM",
+    "PARTICLE_DIAMETER_MM",
+    "SPECIMEN_DIAMETER_MM",
+    "TABLE_1_GRID",
     "PAPER_TABLE_2",
     "PAPER_TABLE_3",
     "REQUIRED_SERIES",
@@ -78,6 +96,29 @@ __all__ = [
 PAPER_CELL_PRESSURES_KPA = (10.0, 40.0, 100.0)
 #: The paper's membrane thicknesses (mm), its Table 1 (Tables 2 and 3 print 3.33 as "3.3").
 PAPER_THICKNESSES_MM = (2.5, 3.33, 5.0)
+#: The paper's Table 1 as a sweep grid (configuration field → values).
+TABLE_1_GRID = {"cell_pressure_kpa": PAPER_CELL_PRESSURES_KPA, "membrane_thickness_mm": PAPER_THICKNESSES_MM}
+
+# The paper's fixed parameters (its §3, Table 1; reference §12). membrax's defaults are the paper's, so the
+# one source is the configuration's default; tests/test_paper.py checks them against the paper's text.
+#: Sphere diameter D, mm (25 mm granite spheres).
+PARTICLE_DIAMETER_MM = TriaxialConfig.particle_diameter_mm
+#: Latex membrane Young's modulus E_m, kPa (1400 kPa).
+MEMBRANE_MODULUS_KPA = TriaxialConfig.membrane_modulus_kpa
+#: Interparticle friction angle φ_μ, degrees (25°).
+INTERPARTICLE_FRICTION_DEG = TriaxialConfig.friction_angle_deg
+#: Nominal specimen diameter, mm (10 spheres across).
+SPECIMEN_DIAMETER_MM = TriaxialConfig.particles_across * TriaxialConfig.particle_diameter_mm
+
+# The paper's laboratory ballast (its Fig. 1 and Eq. 1).
+#: Critical-state friction angle φ'_crit, degrees.
+BALLAST_CRITICAL_FRICTION_DEG = 36.0
+#: Minimum void ratio e_min.
+BALLAST_VOID_RATIO_MIN = 0.71
+#: Maximum void ratio e_max.
+BALLAST_VOID_RATIO_MAX = 1.00
+#: Void ratio of the tested ballast.
+BALLAST_VOID_RATIO = 0.78
 
 # The paper's Table 2 in its row order: σc (kPa), t_m (mm), peak φ' external, internal (degrees).
 _TABLE_2_ROWS = (
@@ -128,6 +169,14 @@ PAPER_TABLE_3 = {
         _TABLE_3_ROWS
     )
 }
+
+#: The paper's values for 10 kPa cell pressure and a 5 mm membrane (the test of its Figs 5–8), keyed as
+#: the results of :func:`membrax.analysis.initial_state`, :func:`~membrax.analysis.peak` and
+#: :func:`~membrax.analysis.largest_overestimate`, for :func:`membrax.analysis.summary_table`: its Table 2
+#: and 3 rows, and from Fig. 5 and §5.2 that beyond about 3 % axial strain the external φ' exceeds the
+#: internal one "by up to 4°" (§5.2 says only that the peak "occurs almost immediately at close to 0%
+#: axial strain", and not at which strain the largest difference falls, so no strains are given).
+PAPER_10KPA_5MM = {**PAPER_TABLE_3[(10.0, 5.0)], **PAPER_TABLE_2[(10.0, 5.0)], "overestimate_deg": 4.0}
 
 #: Series every case's records must hold (see :mod:`membrax.analysis`).
 REQUIRED_SERIES = (
@@ -456,10 +505,8 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
 
 
 def _paper_parameters() -> tuple[float, float, float]:
-    """The paper's void ratio, sphere diameter (mm) and membrane modulus (kPa), from ``membrax theory``."""
-    from membrax import cli  # imported here: the command layer may import this module
-
-    return theory.FCC_VOID_RATIO, cli.PAPER_PARTICLE_DIAMETER_MM, cli.PAPER_MEMBRANE_MODULUS_KPA
+    """The paper's void ratio, sphere diameter (mm) and membrane modulus (kPa)."""
+    return theory.FCC_VOID_RATIO, PARTICLE_DIAMETER_MM, MEMBRANE_MODULUS_KPA
 
 
 def _negative_relative_ratio(sigma1_internal: float, sigma1_external: float) -> float:
@@ -539,6 +586,6 @@ def paper_fig9_data(c: float = 0.275) -> dict[float, dict[str, np.ndarray]]:
     Returns:
       The structure of :func:`fig9_data` over the paper's grid (thicknesses 2.5, 3.33, 5.0 mm; pressures
       10, 40, 100 kPa), the stress ratio from :data:`PAPER_TABLE_3` (e.g. −(14.6/10.7 − 1) at 10 kPa,
-      5 mm). α/D of the middle membrane is for 3.33 mm (``membrax theory`` uses 10/3 mm: 0.03 % higher).
+      5 mm). α/D of the middle membrane is for 3.33 mm, as ``membrax theory`` prints it.
     """
     return _fig9_series(PAPER_TABLE_3, c)

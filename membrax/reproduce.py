@@ -1,7 +1,7 @@
 """The paper's whole study by one call: Table 1 as one sweep, then Tables 2–3 and Figs 5–9.
 
 Contract. :func:`reproduce` runs the paper's Table 1 grid (10, 40, 100 kPa × 2.5, 3.33, 5 mm,
-:data:`membrax.sweep.DEFAULT_GRID`) with :func:`membrax.sweep.run_sweep` on the specimen of ``size`` and
+:data:`membrax.paper.TABLE_1_GRID`) with :func:`membrax.sweep.run_sweep` on the specimen of ``size`` and
 writes into ``folder``:
 
 - ``sweep.nc``, ``sweep_consolidation.nc``, ``summary.csv`` (the sweep's files);
@@ -31,8 +31,7 @@ from pathlib import Path
 
 from membrax import paper, plots
 from membrax import sweep as sweep_lib
-from membrax.cli import DEMO_CONFIG
-from membrax.config import TriaxialConfig
+from membrax.config import DEMO_CONFIG, TriaxialConfig
 
 __all__ = ["SIZES", "TABLE_3_PRECISION", "reproduce"]
 

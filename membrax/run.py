@@ -43,6 +43,7 @@ import numpy as np
 from membrax import __version__, analysis, membrane_measure, plots, theory
 from membrax import io as io_lib
 from membrax import measure as measure_lib
+from membrax import paper as paper_lib
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
 from membrax.contact import ContactParams
 from membrax.driver import SimulationError
@@ -494,12 +495,8 @@ def _finish(folder, config, test, records, shear_start, build_seconds, elapsed, 
     files["results"] = io_lib.write_results(shear, folder, "results")
     files["figures"] = plots.save_test_figures(shear, folder)
     paper = (
-        analysis.PAPER_10KPA_5MM
-        if (config.cell_pressure_kpa, config.membrane_thickness_mm)
-        == (
-            10.0,
-            5.0,
-        )
+        paper_lib.PAPER_10KPA_5MM
+        if paper_lib.paper_key(config.cell_pressure_kpa, config.membrane_thickness_mm) == (10.0, 5.0)
         else None
     )
     summary = analysis.summary_table(shear, paper=paper)

@@ -64,7 +64,7 @@ import jax.numpy as jnp
 import numpy as np
 import xarray as xr
 
-from membrax import __version__, analysis
+from membrax import __version__, analysis, paper
 from membrax import io as io_lib
 from membrax.batch import stack
 from membrax.config import (
@@ -126,8 +126,8 @@ BATCHED_FIELDS = frozenset(
         "consolidation_max_steps",
     }
 )
-#: The paper's Table 1.
-DEFAULT_GRID = {"cell_pressure_kpa": (10.0, 40.0, 100.0), "membrane_thickness_mm": (2.5, 3.33, 5.0)}
+#: The paper's Table 1 (:data:`membrax.paper.TABLE_1_GRID`).
+DEFAULT_GRID = paper.TABLE_1_GRID
 #: Mesh arrays that depend on the thickness (the rest geometry); the rest of the mesh is shared.
 GEOMETRY_FIELDS = (
     "reference_position",

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from membrax import analysis, plots, theory
+from membrax import analysis, paper, plots, theory
 
 CELL = 10e3  # Pa
 DENSE_STEP = 6e-5  # window/2 = 0.0025 is 41.7 steps: no record sits on a window edge
@@ -267,7 +267,7 @@ def test_largest_overestimate_finds_the_planted_maximum_beyond_min_strain():
 
 def test_summary_table_puts_the_run_beside_the_paper():
     records = make_records()
-    table = analysis.summary_table(records, paper=analysis.PAPER_10KPA_5MM)
+    table = analysis.summary_table(records, paper=paper.PAPER_10KPA_5MM)
     rows = [line.split("|")[1:-1] for line in table.strip().splitlines()]
     assert [cell.strip() for cell in rows[0]] == ["Quantity", "This run", "Paper"]
     assert len(rows) == 2 + 10
@@ -287,7 +287,7 @@ def test_summary_table_puts_the_run_beside_the_paper():
     )
     plain = analysis.summary_table(records)
     assert plain.splitlines()[0] == "| Quantity | This run |"
-    assert analysis.PAPER_10KPA_5MM["sigma1_external_kpa"] == 10.7
+    assert paper.PAPER_10KPA_5MM["sigma1_external_kpa"] == 10.7
 
 
 # ---------------------------------------------------------------------------------------------------------

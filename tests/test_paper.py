@@ -15,7 +15,8 @@ import pytest
 import xarray as xr
 from matplotlib.figure import Figure
 
-from membrax import analysis, paper, plots, theory
+from membrax import paper, plots, sweep, theory
+from membrax.config import TriaxialConfig
 
 AXIAL = np.array([0.0, 0.01, 0.02, 0.03])
 # Stresses over the cell pressure, per record: R_ext = 3, 4, 3.5, 3.2 and R_int = 3, 3.75, 50/13, 40/13.
@@ -90,8 +91,26 @@ def test_paper_tables_cover_the_grid_and_match_the_printed_rows():
 
 def test_paper_10kpa_5mm_agrees_with_the_tables():
     case = {**paper.PAPER_TABLE_2[10.0, 5.0], **paper.PAPER_TABLE_3[10.0, 5.0]}
-    assert case == {key: analysis.PAPER_10KPA_5MM[key] for key in case}
+    assert case == {key: paper.PAPER_10KPA_5MM[key] for key in case}
     assert case["peak_external_friction_angle_deg"] == 41.1 and case["sigma1_internal_kpa"] == 14.6
+    assert paper.PAPER_10KPA_5MM["overestimate_deg"] == 4.0  # §5.2: "by up to 4°"
+
+
+def test_the_papers_fixed_parameters_are_the_configuration_defaults():
+    """The paper's §3 and Table 1: 25 mm spheres, 10 across (a 250 mm specimen) and 25 layers, 25°
+    interparticle friction, a 1400 kPa latex membrane; Table 1's grid is every sweep's default."""
+    assert (paper.PARTICLE_DIAMETER_MM, paper.SPECIMEN_DIAMETER_MM) == (25.0, 250.0)
+    assert (paper.MEMBRANE_MODULUS_KPA, paper.INTERPARTICLE_FRICTION_DEG) == (1400.0, 25.0)
+    config = TriaxialConfig()
+    assert (config.particles_across, config.layers) == (10, 25)
+    assert config.particle_diameter_mm == paper.PARTICLE_DIAMETER_MM
+    assert config.membrane_modulus_kpa == paper.MEMBRANE_MODULUS_KPA
+    assert config.friction_angle_deg == config.membrane_friction_angle_deg == paper.INTERPARTICLE_FRICTION_DEG
+    assert sweep.DEFAULT_GRID is paper.TABLE_1_GRID
+    assert paper.TABLE_1_GRID == {
+        "cell_pressure_kpa": paper.PAPER_CELL_PRESSURES_KPA,
+        "membrane_thickness_mm": paper.PAPER_THICKNESSES_MM,
+    }
 
 
 def test_paper_key_matches_within_half_a_hundredth():
