@@ -1,19 +1,69 @@
 """membrax: a differentiable JAX simulator of triaxial tests on coarse-grained materials.
 
 The package is built to calibrate membrane corrections for large-particle triaxial tests (railway
-ballast, rockfill) at low cell pressures. Modules, one concept each:
+ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user needs (:data:`__all__`):
 
-- :mod:`membrax.theory`: closed forms (Rowe, Bolton, Molenkamp & Luger, classical membrane corrections)
-  that users apply to their tests and that every simulation is checked against.
-- :mod:`membrax.validation`: input checks at the user-facing edge.
-- :mod:`membrax.cli`: the ``membrax`` command.
+- configuration: :class:`TriaxialConfig`, :func:`load_config`, :data:`DEMO_CONFIG`, :class:`ConfigError`;
+- runs: :func:`run_test` (one test into a results folder), :func:`run_sweep` (a grid as one compiled
+  batch), :func:`member_records`, :func:`split_cpu_devices` (one JAX device per core; call it first);
+- results: :func:`read_results`;
+- the factories under them: :func:`fcc_specimen`, :func:`rigid_wall_test`, :func:`membrane_test`,
+  :func:`dem` (the sphere step; the coupled step is :func:`membrax.membrane_dem.membrane_dem`, a module
+  of the same name), :func:`prism_mesh`;
+- errors: :class:`ErrorCode` (a state's error bits), :class:`SimulationError`, :class:`RunError`;
+- modules: :mod:`~membrax.theory` (closed forms), :mod:`~membrax.paper` (the paper's numbers and the
+  comparison tables), :mod:`~membrax.analysis`, :mod:`~membrax.plots`; ``membrax.reproduce.reproduce``
+  is ``membrax reproduce``.
+
+Every name is imported on first use (PEP 562), so ``import membrax`` starts no JAX backend and
+:func:`split_cpu_devices` still works after it. The README's architecture section maps the modules.
 
 Library code never enables ``jax_enable_x64``; set ``JAX_ENABLE_X64=1`` (or
 ``jax.config.update("jax_enable_x64", True)``) yourself for double precision.
 """
 
-from membrax import theory, validation
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
-__all__ = ["__version__", "theory", "validation"]
+# name → the module that defines it; one place, pinned by tests/test_api.py.
+_API = {
+    "ConfigError": "membrax.config",
+    "DEMO_CONFIG": "membrax.config",
+    "TriaxialConfig": "membrax.config",
+    "load_config": "membrax.config",
+    "run_test": "membrax.run",
+    "RunError": "membrax.run",
+    "RunResult": "membrax.run",
+    "run_sweep": "membrax.sweep",
+    "member_records": "membrax.sweep",
+    "split_cpu_devices": "membrax.devices",
+    "read_results": "membrax.io",
+    "fcc_specimen": "membrax.packing",
+    "rigid_wall_test": "membrax.triaxial",
+    "membrane_test": "membrax.membrane_triaxial",
+    "dem": "membrax.integrate",
+    "prism_mesh": "membrax.membrane",
+    "ErrorCode": "membrax.errors",
+    "SimulationError": "membrax.driver",
+}
+_MODULES = ("analysis", "paper", "plots", "theory", "validation")
+
+__all__ = ["__version__", *_API, *_MODULES]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        value = getattr(importlib.import_module(_API[name]), name)
+    elif name in _MODULES:
+        value = importlib.import_module(f"membrax.{name}")
+    else:
+        raise AttributeError(f"module 'membrax' has no attribute {name!r}")
+    globals()[name] = value  # later lookups skip __getattr__
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -26,7 +26,14 @@ import numpy as np
 from membrax.errors import OVERFLOWS, ErrorCode, describe
 from membrax.neighbors import PairNeighborFn, remap_pair_history
 
-__all__ = ["ChunkRunner", "SimulationError", "concatenate_records"]
+__all__ = [
+    "ChunkRunner",
+    "SimulationError",
+    "concatenate_records",
+    "run_phases",
+    "strain_rate_from_inertial_number",
+    "two_rate_plan",
+]
 
 
 class SimulationError(RuntimeError):
@@ -56,8 +63,13 @@ class ChunkRunner:
       capacity_growth: the factor by which the pair capacity grows on each reallocation.
       grow_membrane: for a coupled state (:class:`membrax.membrane_dem.CoupledState`),
         ``grow_membrane(state, overflowed) -> state`` with a node candidate table large enough for the
-        overflowing chunk's table ``overflowed`` (its ``max_count`` per node, ``max_sphere_count`` per
-        sphere; see :func:`membrax.membrane_dem.grow_candidates`).
+        overflowing chunk's end state ``overflowed`` (its table's ``max_count`` per node,
+        ``max_sphere_count`` per sphere; see :func:`membrax.membrane_dem.grow_candidates`).
+      dem_of: ``dem_of(state) -> DEMState``, the sphere state whose neighbour list the runner rebuilds
+        (default: the state itself; a coupled test passes ``lambda s: s.dem``).
+      with_dem: ``with_dem(state, dem) -> state``, the state with that sphere state put back (default: the
+        sphere state itself). The test tells the runner where its spheres are; the runner never inspects
+        the state's type.
     """
 
     def __init__(
@@ -68,6 +80,8 @@ class ChunkRunner:
         num_particles: int,
         capacity_growth: float = 1.5,
         grow_membrane: Callable | None = None,
+        dem_of: Callable | None = None,
+        with_dem: Callable | None = None,
     ):
         self.step_fn = step_fn
         self.neighbor_frame = neighbor_frame
@@ -75,6 +89,8 @@ class ChunkRunner:
         self.num_particles = num_particles
         self.capacity_growth = capacity_growth
         self.grow_membrane = grow_membrane
+        self.dem_of = (lambda state: state) if dem_of is None else dem_of
+        self.with_dem = (lambda state, dem: dem) if with_dem is None else with_dem
         self.reallocations = 0
         self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
 
@@ -92,19 +108,18 @@ class ChunkRunner:
         """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
 
         Args:
-          state: the :class:`DEMState` (or a coupled state holding one as ``.dem``) whose list to rebuild.
+          state: the state whose sphere state (``dem_of``) holds the list to rebuild.
           capacity_growth: spare capacity as a fraction of the old capacity (default: the runner's, for an
             overflow); 1.0 rebuilds without growing, so the compiled chunk is reused.
         """
-        if hasattr(state, "membrane"):
-            return state.set(dem=self.reallocate(state.dem, capacity_growth))
-        old = state.neighbors
+        dem = self.dem_of(state)
+        old = dem.neighbors
         growth = self.capacity_growth if capacity_growth is None else capacity_growth
         extra = int(np.ceil((growth - 1.0) * old.idx.shape[1]))
-        new = self.neighbor_frame.allocate(state.position, extra_capacity=extra)
-        spring = remap_pair_history(old.idx, new.idx, state.pair_spring, self.num_particles)
+        new = self.neighbor_frame.allocate(dem.position, extra_capacity=extra)
+        spring = remap_pair_history(old.idx, new.idx, dem.pair_spring, self.num_particles)
         self.reallocations += 1
-        return state.set(neighbors=new, pair_spring=spring)
+        return self.with_dem(state, dem.set(neighbors=new, pair_spring=spring))
 
     def run(
         self,
@@ -143,7 +158,7 @@ class ChunkRunner:
                 if error & ErrorCode.NEIGHBOR_OVERFLOW:
                     state = self.reallocate(state)
                 if membrane_overflow:
-                    state = self.grow_membrane(state, new_state.membrane.candidates)
+                    state = self.grow_membrane(state, new_state)
                     self.reallocations += 1
                 continue
             if error:
@@ -161,6 +176,11 @@ class ChunkRunner:
             if stop_fn is not None and stop_fn(state, chunks[-1]):
                 break
         return state, concatenate_records(chunks)
+
+
+def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
+    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I (GDR MiDi 2004), 1/s."""
+    return inertial_number / (particle_diameter * math.sqrt(density / confining_stress))
 
 
 def two_rate_plan(

@@ -1,7 +1,8 @@
-"""Membrane measurements: sphere penetration, stretches, radius, indentation and platen loads.
+"""Membrane measurements: penetration, stretches, radius, indentation, platen loads and the test's records.
 
 Contract. Every function here is a pure ``jnp`` function of the current node positions (n_nodes, 3) (and,
-where it applies, the spheres and the node → sphere candidate table of :mod:`membrax.membrane_contact`),
+where it applies, the spheres and the node → sphere candidate table of :mod:`membrax.membrane_contact`,
+or the whole coupled state for :func:`measure_coupled`, the paper's external and internal stresses),
 jittable and vmappable. The geometric quantities (distances, penetrations, stretches, radius, normal
 displacement) are differentiable in the positions; the indentation field is differentiable almost
 everywhere (it is a difference of a windowed maximum). Static arguments (the mesh's row length, the
@@ -24,6 +25,37 @@ Quantities:
   displacement u_n of each node and its local depth below the neighbouring outermost nodes (membrane
   penetration into the voids between particles, ≥ 0).
 - :func:`platen_reaction`: the forces the clamped end rings pass to the bottom and top platens.
+- :func:`hoop_strain`: the mid-height ring's circumferential strain (what a circumference tape measures).
+
+Coupled DEM + membrane (:func:`measure_coupled`, one specimen, the records of a membrane triaxial test):
+the volume is the one enclosed by the membrane's inner face, V = V_mid − ½ t_m A_band (V_mid enclosed by
+the mid-surface and the platens, :func:`membrax.membrane.enclosed_volume`); the radial strain follows from
+volume and height, ε_r = 1 − √((V/H)/(V₀/H₀)) (:func:`membrax.theory.radial_strain`). The stresses follow
+the paper's §4.3, with the platen area updated assuming right-cylinder deformation,
+A = A₀ (1 − ε_v)/(1 − ε_a):
+
+- external axial: the ram force over A. The ram holds each platen against the spheres and the membrane,
+  F_ram = F_spheres + F_ring + F_membrane per platen (compression positive along the platen's outward
+  normal; :func:`right_cylinder_stresses`), averaged over the two platens; external radial: the cell
+  pressure;
+- internal axial: the force the spheres receive from the platens over A, F_spheres + F_ring (mean of
+  both platens): F_spheres their push on the platen faces and F_ring their push on the clamped ring
+  nodes, which the clamp passes to the platen (the paper: "including forces from the membrane that are
+  transmitted through the membrane contact with the platen"). F_membrane, the membrane's own load on the
+  platen (negative in axial tension), is the rest of the ram's. The three are recorded per platen
+  (``platen_ram_force`` = ``platen_received_force`` + ``platen_membrane_force``);
+- internal radial: the inward radial force the membrane exerts on the specimen, over the lateral area
+  of the right cylinder of cross-section A, 2 √(π A) H: on the boundary spheres, F_r = −Σ_i F_i · r̂_i
+  (``membrane_radial_force``; r̂_i the horizontal unit vector from the specimen axis to sphere i, the
+  axis the centroid of the clamped bottom ring), plus what the clamped rings take (``clamp_radial_force``,
+  −Σ F·r̂ over the ring nodes' total forces: the strip between a clamp and the first sphere row passes
+  its share to the platens, 5–11 % of the whole on the paper's and the demo's specimens). The lateral
+  area spans the whole height H, clamp strips included, so the numerator counts their load too: the
+  spheres' load over the spheres' share of the area would give the same σ3. (For a regular octagon under
+  uniform pressure the cylinder of equal area has a lateral area within 0.11 % of ∮ n·r̂ ds H, so the
+  octagonal specimen needs no shape factor.)
+- Love–Weber, with the membrane's node contacts as boundary contacts (force of the sphere on the node,
+  arm b = x_node − x_sphere).
 
 The band functions (:func:`mean_radius`, :func:`normal_displacement`, :func:`indentation_field`,
 :func:`platen_reaction`) assume a band mesh from :func:`membrax.membrane.cylinder_mesh` or
@@ -36,12 +68,27 @@ Layout: per-triangle and per-pair geometry is component-first (3, ...) with :mod
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax_md import dataclasses
 
+from membrax import membrane as membrane_lib
+from membrax import theory
+from membrax.integrate import Particles, compute_forces
+from membrax.measure import (
+    coordination_number,
+    kinetic_energy,
+    love_weber_stress,
+    principal_axisymmetric,
+    unbalanced_force_ratio,
+)
 from membrax.membrane import MembraneMesh, enclosed_volume
+from membrax.membrane_dem import contact_forces
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale
+from membrax.walls import BOTTOM, TOP, platen_separation
 
 __all__ = [
     "closest_point_on_triangle",
@@ -55,6 +102,12 @@ __all__ = [
     "normal_displacement",
     "indentation_field",
     "platen_reaction",
+    "MembraneMeasurements",
+    "hoop_strain",
+    "measure_coupled",
+    "membrane_radial_force",
+    "radial_components",
+    "right_cylinder_stresses",
 ]
 
 
@@ -445,3 +498,247 @@ def platen_reaction(node_force, mesh: MembraneMesh):
       (bottom, top), each (3,), N.
     """
     return jnp.sum(node_force[mesh.bottom_ring], axis=0), jnp.sum(node_force[mesh.top_ring], axis=0)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The records of a membrane triaxial test
+# ----------------------------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class MembraneMeasurements:
+    """Records of a coupled DEM + membrane state, each (1,) (one specimen); module docstring for the terms.
+
+    Stresses in Pa (compression positive), strains as fractions (compression positive), forces in N.
+    ``membrane_platen_force`` is the axial force of the membrane on the top platen minus that on the
+    bottom one, halved: negative when the membrane pulls the platens together (axial tension).
+    """
+
+    step: jnp.ndarray
+    axial_strain: jnp.ndarray
+    volumetric_strain: jnp.ndarray
+    radial_strain: jnp.ndarray
+    height: jnp.ndarray
+    volume: jnp.ndarray
+    platen_axial_stress: jnp.ndarray
+    love_weber_axial_stress: jnp.ndarray
+    love_weber_radial_stress: jnp.ndarray
+    love_weber_friction_angle: jnp.ndarray
+    unbalanced_force_ratio: jnp.ndarray
+    coordination_number: jnp.ndarray
+    kinetic_energy: jnp.ndarray
+    membrane_platen_force: jnp.ndarray
+    membrane_contacts: jnp.ndarray
+    wall_force: jnp.ndarray
+    wall_position: jnp.ndarray
+    time: jnp.ndarray
+    platen_area: jnp.ndarray
+    ram_force: jnp.ndarray
+    received_axial_force: jnp.ndarray
+    platen_ram_force: jnp.ndarray
+    platen_received_force: jnp.ndarray
+    platen_membrane_force: jnp.ndarray
+    membrane_radial_force: jnp.ndarray
+    clamp_radial_force: jnp.ndarray
+    hoop_strain: jnp.ndarray
+    external_axial_stress: jnp.ndarray
+    external_radial_stress: jnp.ndarray
+    internal_axial_stress: jnp.ndarray
+    internal_radial_stress: jnp.ndarray
+
+
+def measure_coupled(
+    state,
+    particles: Particles,
+    mesh,
+    params,
+    dt,
+    initial_height,
+    initial_volume,
+    platen_area,
+    wall_friction: bool = False,
+) -> MembraneMeasurements:
+    """All measurements of a :class:`membrax.membrane_dem.CoupledState` (module docstring).
+
+    Args:
+      state: the coupled state.
+      particles: sphere properties.
+      mesh: the membrane mesh.
+      params: :class:`membrax.membrane_dem.CoupledParams`.
+      dt: time step, s.
+      initial_height: H₀, m.
+      initial_volume: V₀ (inner face), m³.
+      platen_area: m².
+      wall_friction: as in :func:`membrax.integrate.compute_forces`.
+    """
+    spheres, nodes = state.dem, state.membrane
+    mp = params.membrane
+    forces = compute_forces(spheres, particles, params.dem, dt, wall_friction)
+    contact = contact_forces(state, particles, params, dt)
+    pair_member = jnp.zeros(spheres.neighbors.idx.shape[1], dtype=jnp.int32)
+    walls = spheres.walls
+    height = platen_separation(walls)
+    volume = jnp.reshape(membrane_lib.inner_volume(nodes.position, mesh, mp.contact_thickness), (1,))
+    membrane_dyad = jnp.sum(contact.slot_force[:, :, :, None] * contact.branch[:, :, None, :], axis=(0, 1))
+    stress = (
+        love_weber_stress(forces, particles, pair_member, volume)
+        + membrane_dyad[None] / volume[:, None, None]
+    )
+    stress = 0.5 * (stress + jnp.swapaxes(stress, 1, 2))
+    lw_axial, lw_radial = principal_axisymmetric(stress)
+    platen_stress = 0.5 * (forces.wall_total_force[:, TOP] + forces.wall_total_force[:, BOTTOM]) / platen_area
+    major = jnp.maximum(lw_axial, lw_radial)
+    minor = jnp.minimum(lw_axial, lw_radial)
+    positive = minor > 0.0
+    angle = jnp.where(
+        positive,
+        theory.mobilised_friction_angle_deg(jnp.where(positive, major, 2.0), jnp.where(positive, minor, 1.0)),
+        jnp.nan,
+    )
+    net_force = forces.force + contact.sphere_force
+    reaction = nodes.platen_reaction
+    outward = jnp.asarray([-1.0, 1.0], dtype=height.dtype)  # platen normals along z: bottom −, top +
+    sphere_platen = forces.wall_total_force[0, :2]
+    ring_contact = outward * nodes.ring_contact_force[:, 2]
+    membrane_load = outward * reaction[:, 2] - ring_contact
+    # Per platen (bottom, top), compression positive: the ram holds the spheres' push on the platen face,
+    # their push on the clamped ring and the membrane's own load (negative when it pulls the platens
+    # together); the spheres receive the first two.
+    ram = sphere_platen + ring_contact + membrane_load
+    received = sphere_platen + ring_contact
+    radial_force = jnp.reshape(
+        membrane_radial_force(contact.sphere_force, spheres.position, nodes.clamp_position[0]), (1,)
+    )
+    rings = jnp.concatenate([mesh.bottom_ring, mesh.top_ring])
+    # The membrane's radial load that the clamped rings pass to the platens: the strip between a ring and
+    # the first sphere row, carried by the specimen's ends (module docstring).
+    clamp_force = jnp.reshape(
+        -jnp.sum(radial_components(nodes.node_force[rings], nodes.position[rings], nodes.clamp_position[0])),
+        (1,),
+    )
+    area, external_axial, internal_axial, internal_radial = right_cylinder_stresses(
+        jnp.mean(ram)[None],
+        jnp.mean(received)[None],
+        radial_force + clamp_force,
+        height,
+        volume,
+        initial_height,
+        initial_volume,
+        platen_area,
+    )
+    axial_strain = (initial_height - height) / initial_height
+    volumetric_strain = (initial_volume - volume) / initial_volume
+    return MembraneMeasurements(
+        hoop_strain=jnp.reshape(hoop_strain(nodes.position, mesh), (1,)),
+        step=jnp.reshape(spheres.step, (1,)),
+        axial_strain=axial_strain,
+        volumetric_strain=volumetric_strain,
+        radial_strain=theory.radial_strain(axial_strain, volumetric_strain),
+        height=height,
+        volume=volume,
+        platen_axial_stress=platen_stress,
+        love_weber_axial_stress=lw_axial,
+        love_weber_radial_stress=lw_radial,
+        love_weber_friction_angle=angle,
+        unbalanced_force_ratio=unbalanced_force_ratio(net_force, forces, particles, pair_member),
+        coordination_number=coordination_number(forces, particles, pair_member),
+        kinetic_energy=kinetic_energy(spheres, particles),
+        membrane_platen_force=jnp.reshape(jnp.mean(membrane_load), (1,)),
+        membrane_contacts=jnp.reshape(jnp.sum(contact.overlap > 0.0), (1,)),
+        wall_force=forces.wall_total_force,
+        wall_position=walls.position + walls.position_compensation,
+        time=jnp.reshape(spheres.step.astype(height.dtype) * jnp.asarray(dt, height.dtype), (1,)),
+        platen_area=area,
+        ram_force=jnp.mean(ram)[None],
+        received_axial_force=jnp.mean(received)[None],
+        platen_ram_force=ram[None],
+        platen_received_force=received[None],
+        platen_membrane_force=membrane_load[None],
+        membrane_radial_force=radial_force,
+        clamp_radial_force=clamp_force,
+        external_axial_stress=external_axial,
+        external_radial_stress=jnp.reshape(mp.cell_pressure, (1,)).astype(height.dtype),
+        internal_axial_stress=internal_axial,
+        internal_radial_stress=internal_radial,
+    )
+
+
+def right_cylinder_stresses(
+    ram_force,
+    received_axial_force,
+    radial_force,
+    height,
+    volume,
+    reference_height,
+    reference_volume,
+    platen_area,
+):
+    """The paper's §4.3 stresses on a right cylinder: (area, external σ1, internal σ1, internal σ3), Pa.
+
+    The area follows right-cylinder deformation from a reference state (height H₀, volume V₀, platen area
+    A₀): A = A₀ (1 − ε_v)/(1 − ε_a) with ε_a = (H₀ − H)/H₀ and ε_v = (V₀ − V)/V₀ (the paper's §4.3, ASTM
+    D7181's area correction). External σ1 = F_ram / A; internal σ1 = F_received / A; internal σ3 = F_r /
+    (2 √(π A) H), the lateral area of the right cylinder of cross-section A. Works on JAX and numpy arrays
+    alike, so the records can be re-referenced after the run (the start of shearing, :mod:`membrax.run`).
+
+    Args:
+      ram_force: the ram's force, N (mean of the two platens).
+      received_axial_force: the force the spheres receive from the platens and clamped rings, N.
+      radial_force: the membrane's inward radial force on the specimen, N.
+      height: H now, m.
+      volume: V now, m³.
+      reference_height: H₀ of the reference state, m.
+      reference_volume: V₀ of the reference state, m³.
+      platen_area: A₀, m².
+    """
+    axial_strain = (reference_height - height) / reference_height
+    volumetric_strain = (reference_volume - volume) / reference_volume
+    area = platen_area * (1.0 - volumetric_strain) / (1.0 - axial_strain)
+    lateral_area = 2.0 * (area * math.pi) ** 0.5 * height
+    return area, ram_force / area, received_axial_force / area, radial_force / lateral_area
+
+
+def hoop_strain(node_position, mesh):
+    """The membrane's circumferential strain at mid-height, ε_θ = L/L₀ − 1 (tension positive).
+
+    L is the length of the closed polyline through the nodes of the band's middle ring, L₀ its length in
+    the rest mesh (the unstretched membrane). A laboratory measures the same with a circumference tape
+    where the membrane bridges the voids. Hoop theory (Henkel & Gilbert 1952) turns it into the
+    membrane's radial stress, Δσ_r = 2 E_m t_m ε_θ / D₀ (:func:`membrax.theory.hoop_tension_correction`).
+    """
+    around = mesh.bottom_ring.shape[0]
+    rings = (mesh.top_ring[0] - mesh.bottom_ring[0]) // around + 1
+    middle = mesh.bottom_ring + around * (rings // 2)
+
+    def length(position):
+        ring = position[middle]
+        step = jnp.roll(ring, -1, axis=0) - ring
+        return jnp.sum(jnp.sqrt(jnp.sum(step * step, axis=1)))
+
+    return length(node_position) / length(mesh.reference_position.astype(node_position.dtype)) - 1.0
+
+
+def membrane_radial_force(sphere_force, sphere_position, ring_position):
+    """Inward radial force of the membrane on the spheres, F_r = −Σ_i F_i · r̂_i, N (module docstring).
+
+    Args:
+      sphere_force: (N, 3) the membrane's force on each sphere, N.
+      sphere_position: (N, 3), m.
+      ring_position: (n, 3) nodes of a clamped ring, whose centroid fixes the specimen axis.
+
+    Returns:
+      Scalar F_r (positive when the membrane presses the spheres inward).
+    """
+    return -jnp.sum(radial_components(sphere_force, sphere_position, ring_position))
+
+
+def radial_components(force, position, ring_position):
+    """Per-row radial component F · r̂ (outward positive) about the axis through the ring's centroid, N.
+
+    r̂ is the horizontal unit vector from the axis to the row's position (zero on the axis itself).
+    """
+    axis = jnp.mean(ring_position[:, :2], axis=0)
+    offset = position[:, :2] - axis[None, :]
+    distance = jnp.sqrt(jnp.sum(offset * offset, axis=1))
+    safe = jnp.where(distance > 0.0, distance, 1.0)
+    return jnp.where(distance > 0.0, jnp.sum(force[:, :2] * offset, axis=1) / safe, 0.0)

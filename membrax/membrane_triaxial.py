@@ -5,7 +5,7 @@ Contract. :func:`membrane_test` builds the coupled system of :mod:`membrax.membr
 mesh whose mid-surface sits t_m/2 outside the outer particles, its corners rounded about the corner spheres
 (:func:`membrax.membrane.prism_mesh` with ``corner_radius`` = R), with its end rings clamped to the
 platens — and returns a :class:`MembraneTest`. Its methods run the stages with the chunk driver and
-return the state and the records (:class:`membrax.measure.MembraneMeasurements`, numpy arrays
+return the state and the records (:class:`membrax.membrane_measure.MembraneMeasurements`, numpy arrays
 with a leading time axis):
 
 - :meth:`MembraneTest.consolidate` (stage 1): the cell pressure acts on the membrane's outer face; both
@@ -34,11 +34,11 @@ import dataclasses as pydataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import measure as measure_lib
 from membrax import membrane as membrane_lib
+from membrax import membrane_measure
 from membrax.config import TriaxialConfig
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, run_phases, two_rate_plan
+from membrax.driver import ChunkRunner, run_phases, strain_rate_from_inertial_number, two_rate_plan
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -59,7 +59,6 @@ from membrax.membrane_dem import (
 )
 from membrax.neighbors import pair_neighbor_fn
 from membrax.packing import GRANITE_DENSITY, Specimen
-from membrax.triaxial import strain_rate_from_inertial_number
 from membrax.validation import check_range
 from membrax.walls import BOTTOM, TOP, set_control, triaxial_walls
 
@@ -396,7 +395,7 @@ def membrane_test(
 
     def make_record(member_mesh, member_volume):
         def record(s, p):
-            return measure_lib.measure_coupled(
+            return membrane_measure.measure_coupled(
                 s, particles, member_mesh, p, dt, height, member_volume, platen_area
             )
 
@@ -413,13 +412,21 @@ def membrane_test(
 
     record = make_record(mesh, volume)
 
-    def grow(s, overflowed):
-        old = s.membrane.candidates
+    def grow(s, overflowed_state):
+        old, overflowed = s.membrane.candidates, overflowed_state.membrane.candidates
         capacity = max(int(overflowed.max_count) + 2, int(np.ceil(1.5 * old.capacity)))
         sphere_capacity = max(int(overflowed.max_sphere_count) + 8, old.sphere_capacity)
         return grow_candidates(s, particles, min(capacity, subset.size), contact_thickness, sphere_capacity)
 
-    runner = ChunkRunner(step_fn, frame, record, particles.num_particles, grow_membrane=grow)
+    runner = ChunkRunner(
+        step_fn,
+        frame,
+        record,
+        particles.num_particles,
+        grow_membrane=grow,
+        dem_of=lambda s: s.dem,
+        with_dem=lambda s, dem: s.set(dem=dem),
+    )
     return MembraneTest(
         specimen=specimen,
         particles=particles,

@@ -366,11 +366,11 @@ def table_2(results) -> list[dict]:
 def centre_cylinder_radial_stress(records, particle_radius: float, index: int = 0) -> float:
     """Internal σ3 over the right cylinder through the boundary spheres' centres, kPa.
 
-    membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area A,
-    2 π r H with r = √(A/π) (:func:`membrax.measure.right_cylinder_stresses`). The paper's "surface area of
-    the right cylinder" (its §4.3) may be that of the cylinder through the centres of the boundary spheres,
-    r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16 found that reading
-    reproduces the paper's Δσ3 ≈ 0.1 σc:
+    membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area
+    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane_measure.right_cylinder_stresses`). The paper's
+    "surface area of the right cylinder" (its §4.3) may be that of the cylinder through the centres of
+    the boundary spheres, r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16
+    found that reading reproduces the paper's Δσ3 ≈ 0.1 σc:
 
         σ3,c = σ3,int · r / (r − R)
 

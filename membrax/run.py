@@ -6,11 +6,12 @@ unbalanced-force ratio is below the tolerance and the ram stress equals σc; sta
 the strain rate of ``inertial_number`` to ``target_axial_strain``, recorded every ``record_every_fine``
 steps below ``fine_until_strain`` and every ``record_every_coarse`` steps after. The folder receives:
 
-- ``results.nc`` / ``results.csv``: the shearing records (:class:`membrax.measure.MembraneMeasurements`
-  plus the derived quantities of :func:`membrax.analysis.derived_quantities`), the first one being the
-  last consolidation record (the initial state of the paper's Table 3), with axial, radial and
-  volumetric strain counted from the start of shearing (the paper's figures start at 0 %), the
-  configuration, version, N, dt, step counts and timings as attributes;
+- ``results.nc`` / ``results.csv``: the shearing records
+  (:class:`membrax.membrane_measure.MembraneMeasurements` plus the derived quantities of
+  :func:`membrax.analysis.derived_quantities`), the first one being the last consolidation record (the initial
+  state of the paper's Table 3), with axial, radial and volumetric strain counted from the start of shearing
+  (the paper's figures start at 0 %), the configuration, version, N, dt, step counts and timings as
+  attributes;
 - ``consolidation.nc`` / ``consolidation.csv``: the stage-1 records (strains from the built specimen);
 - ``fig5_friction.png`` … ``fig8_radial_ratio.png`` (:func:`membrax.plots.save_test_figures`),
   ``summary.md`` (Table 2/3-style numbers beside the paper's for 10 kPa / 5 mm);
@@ -42,7 +43,6 @@ import numpy as np
 
 from membrax import __version__, analysis, membrane_measure, plots, theory
 from membrax import io as io_lib
-from membrax import measure as measure_lib
 from membrax import paper as paper_lib
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
 from membrax.contact import ContactParams
@@ -186,8 +186,8 @@ def _rebase(records: dict, start: dict) -> dict:
     """Strains, area and stresses counted from the start of shearing (the paper's Table 3 and figures).
 
     The area A = A₀ (1 − ε_v)/(1 − ε_a) starts from the platen area A₀ at the start of shearing
-    (:func:`membrax.measure.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram servo's
-    σc. The consolidation stage's strains (from the as-built specimen, the membrane's penetration into
+    (:func:`membrax.membrane_measure.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram
+    servo's σc. The consolidation stage's strains (from the as-built specimen, the membrane's penetration into
     the voids included) are kept in their own columns, ``consolidation_axial_strain`` and
     ``consolidation_volumetric_strain``, the same in every row.
     """
@@ -201,7 +201,7 @@ def _rebase(records: dict, start: dict) -> dict:
     out["axial_strain"] = (height0 - height) / height0
     out["volumetric_strain"] = (volume0 - volume) / volume0
     out["radial_strain"] = 1.0 - np.sqrt((volume / height) / (volume0 / height0))
-    area, external_axial, internal_axial, internal_radial = measure_lib.right_cylinder_stresses(
+    area, external_axial, internal_axial, internal_radial = membrane_measure.right_cylinder_stresses(
         np.asarray(records["ram_force"]),
         np.asarray(records["received_axial_force"]),
         np.asarray(records["membrane_radial_force"]) + np.asarray(records["clamp_radial_force"]),

@@ -21,7 +21,6 @@ the reference every membrane result is compared with.
 from __future__ import annotations
 
 import dataclasses as pydataclasses
-import math
 
 import jax.numpy as jnp
 import numpy as np
@@ -29,7 +28,7 @@ import numpy as np
 from membrax import batch
 from membrax import measure as measure_lib
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, run_phases, two_rate_plan
+from membrax.driver import ChunkRunner, run_phases, strain_rate_from_inertial_number, two_rate_plan
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -45,11 +44,6 @@ from membrax.validation import check_range
 from membrax.walls import TOP, set_control, triaxial_walls
 
 __all__ = ["RigidWallTest", "peak", "rigid_wall_test", "strain_rate_from_inertial_number"]
-
-
-def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
-    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I (GDR MiDi 2004), 1/s."""
-    return inertial_number / (particle_diameter * math.sqrt(density / confining_stress))
 
 
 @pydataclasses.dataclass

@@ -1,0 +1,99 @@
+"""The public API of ``import membrax`` (optax's ``optax_test.py`` is the model): the names, where they
+come from, and that importing the package starts no JAX backend."""
+
+import subprocess
+import sys
+
+import membrax
+
+EXPECTED = {
+    "__version__",
+    # configuration
+    "ConfigError",
+    "DEMO_CONFIG",
+    "TriaxialConfig",
+    "load_config",
+    # runs and results
+    "run_test",
+    "RunError",
+    "RunResult",
+    "run_sweep",
+    "member_records",
+    "split_cpu_devices",
+    "read_results",
+    # factories
+    "fcc_specimen",
+    "rigid_wall_test",
+    "membrane_test",
+    "dem",
+    "prism_mesh",
+    # errors
+    "ErrorCode",
+    "SimulationError",
+    # modules
+    "analysis",
+    "paper",
+    "plots",
+    "theory",
+    "validation",
+}
+
+
+def test_the_api_is_exactly_the_curated_names():
+    assert set(membrax.__all__) == EXPECTED
+    assert len(membrax.__all__) == len(EXPECTED)  # no duplicates
+
+
+def test_every_name_resolves_to_its_defining_module():
+    from membrax import (
+        config,
+        devices,
+        driver,
+        errors,
+        integrate,
+        io,
+        membrane,
+        membrane_triaxial,
+        packing,
+        run,
+        sweep,
+        triaxial,
+    )
+
+    homes = {
+        "TriaxialConfig": config,
+        "load_config": config,
+        "run_test": run,
+        "run_sweep": sweep,
+        "member_records": sweep,
+        "split_cpu_devices": devices,
+        "read_results": io,
+        "fcc_specimen": packing,
+        "rigid_wall_test": triaxial,
+        "membrane_test": membrane_triaxial,
+        "dem": integrate,
+        "prism_mesh": membrane,
+        "ErrorCode": errors,
+        "SimulationError": driver,
+    }
+    for name, module in homes.items():
+        assert getattr(membrax, name) is getattr(module, name), name
+    assert membrax.paper.__name__ == "membrax.paper" and membrax.theory.__name__ == "membrax.theory"
+    assert membrax.DEMO_CONFIG["particles_across"] == 6
+    assert set(dir(membrax)) >= EXPECTED
+
+
+def test_an_unknown_name_is_an_attribute_error():
+    try:
+        membrax.run_tests  # noqa: B018
+    except AttributeError as error:
+        assert "run_tests" in str(error)
+    else:
+        raise AssertionError("membrax.run_tests resolved")
+
+
+def test_importing_membrax_imports_no_jax():
+    """So split_cpu_devices() can still set the device count after ``import membrax``."""
+    code = "import sys, membrax; print(membrax.__version__); print('jax' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == [membrax.__version__, "False"]
