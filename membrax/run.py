@@ -269,16 +269,12 @@ def run_test(
     """
     from tqdm.auto import tqdm
 
-    previous_x64 = jax.config.jax_enable_x64
-    if config.float64 != previous_x64:
-        jax.config.update("jax_enable_x64", config.float64)
-    try:
+    # The configuration's precision, scoped to this call (thread-local): the process's global setting,
+    # the entry point's (membrax.cli) or the user's, is never changed.
+    with jax.enable_x64(config.float64):
         return _run(
             config, Path(folder), resume, progress, interrupt_after_chunks, tqdm, time_step, nodes_around
         )
-    finally:
-        if config.float64 != previous_x64:
-            jax.config.update("jax_enable_x64", previous_x64)
 
 
 def _run(

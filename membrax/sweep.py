@@ -950,10 +950,8 @@ def run_sweep(
     groups: dict[tuple, list] = {}
     for index, config in members:
         groups.setdefault(_structure_key(config), []).append((index, config))
-    previous_x64 = jax.config.jax_enable_x64
-    if base.float64 != previous_x64:
-        jax.config.update("jax_enable_x64", base.float64)
-    try:
+    # The base configuration's precision, scoped to this call (thread-local), as in run_test.
+    with jax.enable_x64(base.float64):
         shear_sets, consolidation_sets, indices, extra = [], [], [], {}
         chunk_counter = [0]
         for g, group in enumerate(groups.values()):
@@ -1010,9 +1008,6 @@ def run_sweep(
                 extra.setdefault("nodes_around", []).append(attrs["nodes_around"])
                 for name, value in _member_scalars(shear).items():
                     extra.setdefault(name, []).append(value)
-    finally:
-        if base.float64 != previous_x64:
-            jax.config.update("jax_enable_x64", previous_x64)
     attrs = {
         "membrax_version": __version__,
         "base_config": config_to_dict(base),

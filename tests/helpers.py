@@ -1,6 +1,16 @@
-"""Shared test utilities: central finite differences for gradient checks."""
+"""Shared test utilities: per-dtype tolerances, central finite differences for gradient checks."""
 
 import numpy as np
+
+#: Round-off tolerances per dtype (jax-md's ``test_util`` is the model): ``ROUNDOFF`` for a few operations
+#: (a sum of forces, a ratio), ``ACCUMULATED`` for quantities through thousands of explicit steps.
+ROUNDOFF = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-12}
+ACCUMULATED = {np.dtype(np.float32): 1e-3, np.dtype(np.float64): 1e-9}
+
+
+def tolerance(dtype, table=ROUNDOFF) -> float:
+    """The relative tolerance of ``table`` for ``dtype`` (an array's dtype or a dtype name)."""
+    return table[np.dtype(dtype)]
 
 
 def central_difference(function, args, index, relative_step=1e-6):

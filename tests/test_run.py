@@ -6,6 +6,7 @@ import math
 import jax
 import numpy as np
 import pytest
+from helpers import tolerance
 
 from membrax import cli, packing
 from membrax import membrane as membrane_lib
@@ -234,6 +235,24 @@ def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
     expected = rate * dt * (fine + coarse) - config.shear_ramp_strain
     assert strain[0] == 0.0 and strain[-1] == pytest.approx(expected, abs=3.0 / per_strain)
     assert math.isfinite(float(whole.results["external_friction_angle_deg"][-1]))
+
+
+def test_a_float32_run_balances_its_forces_to_float32_round_off_and_leaves_the_process_precision(tmp_path):
+    """What users run by default: ``float64 = false``. The run takes its precision from the
+    configuration inside its own scope (the suite itself runs with x64 on, which stays on); its records are
+    float32, and the ram balance holds to float32 round-off on each platen in every record."""
+    assert jax.config.jax_enable_x64  # conftest
+    result = run_test(TriaxialConfig(**{**SMALL, "float64": False}), tmp_path, progress=False)
+    assert jax.config.jax_enable_x64
+    assert result.results["internal_axial_stress"].dtype == np.float32
+    ram = np.asarray(result.results["platen_ram_force"])
+    parts = np.asarray(result.results["platen_received_force"]) + np.asarray(
+        result.results["platen_membrane_force"]
+    )
+    np.testing.assert_allclose(ram, parts, rtol=0, atol=tolerance(ram.dtype) * np.abs(ram).max())
+    # Stresses counted from the start of shearing: external σ1 is the servo's σc at ε_a = 0 (the servo's
+    # 1 % band), as in float64.
+    assert float(result.results["external_axial_stress"][0].squeeze()) == pytest.approx(1e4, rel=0.01)
 
 
 def test_cli_run_reports_bad_configuration_fields(tmp_path, capsys):

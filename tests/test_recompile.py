@@ -1,0 +1,74 @@
+"""The steps compile once: traced parameters and stage controls change without a new trace.
+
+The promises of :mod:`membrax.integrate` (``params`` traced), :mod:`membrax.membrane_dem` (coupled
+parameters traced) and :mod:`membrax.walls` (switching a stage never recompiles). A jitted function is
+traced once per compilation, so a Python counter inside it counts compilations (optax's
+``log_compilations`` test helper works the same way). The changed values must also change the numbers:
+from rest, the first step moves a free membrane node by Δt² F/m with F ∝ p (Newton; no elastic or contact
+force yet, and local damping needs a velocity), so ×4 on the cell pressure is ×4 on that displacement.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from membrax import packing
+from membrax.membrane_triaxial import membrane_test
+from membrax.triaxial import rigid_wall_test
+from membrax.walls import set_control
+
+
+def _counted(step_fn):
+    traces = []
+
+    def step(state, params):
+        traces.append(1)
+        return step_fn(state, params)
+
+    return jax.jit(step), traces
+
+
+def test_the_coupled_step_compiles_once_for_new_parameters_and_stages():
+    test = membrane_test(
+        packing.fcc_specimen(0.025, 4, 5),
+        cell_pressure_kpa=10.0,
+        membrane_thickness_mm=5.0,
+        edges_per_diameter=2.5,
+    )
+    step, traces = _counted(test.runner.step_fn)
+    state, params = test.initial_state, test.params
+    base = step(state, params)
+    membrane = params.membrane.set(
+        cell_pressure=4.0 * params.membrane.cell_pressure, modulus=2.0 * params.membrane.modulus
+    )
+    contact = params.dem.contact.set(friction_coefficient=0.5 * params.dem.contact.friction_coefficient)
+    harder = step(state, params.set(membrane=membrane, dem=params.dem.set(contact=contact)))
+    walls = set_control(state.dem.walls, servo=False, velocity=-1e-3, target_stress=0.0, acceleration=1.0)
+    step(state.set(dem=state.dem.set(walls=walls)), params)
+    assert len(traces) == 1
+
+    rings = np.concatenate([np.asarray(test.mesh.bottom_ring), np.asarray(test.mesh.top_ring)])
+    free = np.setdiff1d(np.arange(state.membrane.position.shape[0]), rings)
+    moved = [
+        np.linalg.norm(np.asarray(s.membrane.position - state.membrane.position)[free], axis=1)
+        for s in (base, harder)
+    ]
+    assert np.all(moved[0] > 0.0)
+    tolerance = 1e-9 if moved[0].dtype == np.float64 else 1e-4
+    np.testing.assert_allclose(moved[1], 4.0 * moved[0], rtol=tolerance)
+
+
+@pytest.mark.parametrize("members", [1, 3])
+def test_the_rigid_wall_step_compiles_once_for_new_parameters_and_stages(members):
+    pressure = 40e3 if members == 1 else jnp.asarray([10e3, 40e3, 100e3])
+    test = rigid_wall_test(packing.fcc_specimen(0.025, 3, 4), pressure, time_step=1e-5)
+    step, traces = _counted(test.runner.step_fn)
+    state, params = test.initial_state, test.params
+    step(state, params)
+    contact = params.contact.set(friction_coefficient=0.5 * params.contact.friction_coefficient)
+    damping = jax.tree_util.tree_map(lambda x: 0.5 * x, params.damping)
+    step(state, params.set(contact=contact, damping=damping))
+    walls = set_control(state.walls, servo=True, velocity=0.0, target_stress=2.0 * test.cell_pressure)
+    step(state.set(walls=walls), params)
+    assert len(traces) == 1
