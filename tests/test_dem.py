@@ -258,6 +258,7 @@ def count_rebuilds(test, state, num_steps):
     return int(np.sum(np.asarray(rebuilt)))
 
 
+@pytest.mark.slow
 def test_rebuilding_every_step_equals_every_fifty_steps():
     # Every step: a skin of 1e-6 D makes jax-md rebuild at every step (history remapped inside jit).
     # Every 50 steps: a skin so large that jax-md never rebuilds, and the driver reallocates between chunks.

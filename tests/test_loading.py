@@ -203,6 +203,7 @@ def _peak_friction_angles(test, state, start, inertial_number):
     return float(np.nanmax(external)), float(np.nanmax(internal))
 
 
+@pytest.mark.slow
 def test_the_ramped_peak_is_a_material_number_not_a_rate_effect():
     """Peak φ' at I = 1e-3 and at I/2 agree within 0.3° (external and internal) with the default ramp:
     the lattice's peak, its elastic limit at ~0.01 % strain, is approached quasi-statically (4 × 4 × 5
@@ -220,6 +221,7 @@ def test_the_ramped_peak_is_a_material_number_not_a_rate_effect():
     assert abs(fast[0] - slow[0]) < 0.3 and abs(fast[1] - slow[1]) < 0.3, (fast, slow)
 
 
+@pytest.mark.slow
 def test_the_membranes_radial_stress_grows_with_the_hoop_strain_below_henkel_and_gilberts_bound():
     """During shearing the membrane's extra radial stress Δσ_r (internal σ3 from the start of shearing)
     grows with the mid-height hoop strain ε_θ and stays at or below Henkel & Gilbert's 2 E_m t_m Δε_θ / D₀

@@ -4,6 +4,7 @@ checked against equilibrium, Newton's third law, the no-penetration requirement 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from membrax import membrane, membrane_dem, membrane_measure, packing
 from membrax.contact import ContactParams
@@ -85,6 +86,7 @@ def test_clamped_cylinder_under_internal_pressure_matches_thin_shell_theory():
     np.testing.assert_allclose(np.asarray(state.membrane.sphere_force), 0.0, atol=0.0)
 
 
+@pytest.mark.slow
 def test_gradient_and_vmap_of_coupled_steps_match_finite_differences_and_a_loop():
     """d(mean node radius after 100 steps)/d(E_m, p) by jax.grad equals central differences (viscous damping,
     smooth), and a vmap over the cell pressure equals a Python loop."""
@@ -117,6 +119,7 @@ def test_gradient_and_vmap_of_coupled_steps_match_finite_differences_and_a_loop(
     np.testing.assert_allclose(np.asarray(batched), [float(f(modulus, p)) for p in pressures], rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_membrane():
     """A 4 × 4 × 5-layer FCC specimen in a 5 mm membrane, consolidated at 10 kPa (f64).
 

@@ -87,6 +87,7 @@ def test_membrane_forces_kernel_float32_as_accurate_as_jax():
     assert error_kernel < 3.0 * error_jax
 
 
+@pytest.mark.slow
 def test_membrane_forces_kernel_gradients_and_vmap():
     mesh, position = _deformed_cylinder(seed=1)
     direction = jnp.asarray(np.random.default_rng(2).normal(size=position.shape))

@@ -30,6 +30,7 @@ def _counted(step_fn):
     return jax.jit(step), traces
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("float64", [True, False])
 def test_the_coupled_step_compiles_once_for_new_parameters_and_stages(float64):
     with jax.enable_x64(float64):

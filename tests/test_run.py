@@ -116,6 +116,7 @@ def _radial_balance(test, state, records):
     return float(records.membrane_radial_force[-1, 0]), clamps, pressure
 
 
+@pytest.mark.slow
 def test_a_vanishing_membrane_passes_the_cell_pressure_through_unchanged():
     """E_m → 0: the membrane adds nothing, so internal and external stresses agree (4 × 4 × 5, 10 kPa, 5 mm).
 
@@ -161,6 +162,7 @@ def _table_3_excesses(thickness_mm, bending_factor):
     return radial, axial
 
 
+@pytest.mark.slow
 def test_the_default_membrane_without_bending_gives_the_signs_and_thickness_trend_of_table_3():
     """Paper Table 3 (10 kPa): internal σ3 > σc and internal σ1 > external σ1, both excesses larger at 5 mm
     than at 2.5 mm (paper: +1.2 → +1.8 kPa radial, +2.9 → +3.9 kPa axial).
@@ -194,6 +196,7 @@ def _compare(a, b):
         np.testing.assert_array_equal(np.asarray(a[name]), np.asarray(b[name]), err_msg=name)
 
 
+@pytest.mark.slow
 def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
     config = TriaxialConfig(**SMALL)
     whole = run_test(config, tmp_path / "whole", progress=False)
@@ -237,6 +240,7 @@ def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
     assert math.isfinite(float(whole.results["external_friction_angle_deg"][-1]))
 
 
+@pytest.mark.slow
 def test_a_float32_run_balances_its_forces_to_float32_round_off_and_leaves_the_process_precision(tmp_path):
     """What users run by default: ``float64 = false``. The run takes its precision from the
     configuration inside its own scope (the suite itself runs with x64 on, which stays on); its records are

@@ -16,6 +16,9 @@ from membrax.config import ConfigError, TriaxialConfig
 from membrax.packing import GRANITE_DENSITY
 from membrax.run import run_test
 
+# Every test here runs a batched simulation (the module fixture alone takes about a minute).
+pytestmark = pytest.mark.slow
+
 BASE = dict(
     name="sw",
     particles_across=4,
