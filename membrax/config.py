@@ -57,6 +57,8 @@ __all__ = [
     "parse_overrides",
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
+    "DEFAULT_CONSOLIDATION_TOLERANCE",
+    "default_consolidation_tolerance",
 ]
 
 #: The demo preset (``membrax demo``; ``membrax reproduce --size small`` takes its specimen, membrane and
@@ -74,6 +76,35 @@ DEMO_CONFIG = dict(
     chunk_steps=5000,
     checkpoint_every_chunks=5,
 )
+
+
+#: The unbalanced-force ratio that ends consolidation when none is given, by cell (``"rigid"`` walls or a
+#: ``"membrane"``) and precision (float64 or not): the one rule of ``RigidWallTest.consolidate``,
+#: ``MembraneTest.consolidate`` and :func:`membrax.run.consolidation_tolerance` (``consolidation_tolerance =
+#: 0``). float32's force round-off floors the ratio at ~2e-3 in a rigid cell (a 25 mm branch vector resolves
+#: 2e-9 m, 0.1 % of a contact overlap at 40 kPa, summed over 12 contacts) and at 1.1e-2 / 3e-3 / 1.2e-3 with
+#: the membrane at 10 / 40 / 100 kPa (paper size, issue 16), hence the looser float32 values.
+DEFAULT_CONSOLIDATION_TOLERANCE = {
+    ("rigid", True): 1e-3,
+    ("rigid", False): 5e-3,
+    ("membrane", True): 2e-3,
+    ("membrane", False): 2e-2,
+}
+
+
+def default_consolidation_tolerance(cell: str, float64: bool) -> float:
+    """The default unbalanced-force ratio ending consolidation (:data:`DEFAULT_CONSOLIDATION_TOLERANCE`).
+
+    Args:
+      cell: ``"rigid"`` or ``"membrane"``.
+      float64: whether the simulation runs in float64.
+
+    Raises:
+      ValueError: an unknown cell.
+    """
+    if cell not in ("rigid", "membrane"):
+        raise ValueError(f"cell = {cell!r}; it must be 'rigid' or 'membrane'.")
+    return DEFAULT_CONSOLIDATION_TOLERANCE[cell, bool(float64)]
 
 
 #: The unit suffixes of the field names and the units they stand for.

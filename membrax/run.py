@@ -44,7 +44,7 @@ import numpy as np
 from membrax import __version__, analysis, membrane_measure, plots, theory
 from membrax import io as io_lib
 from membrax import paper as paper_lib
-from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
+from membrax.config import TriaxialConfig, config_to_dict, default_consolidation_tolerance, dump_config_toml
 from membrax.contact import ContactParams
 from membrax.driver import SimulationError
 from membrax.membrane_contact import MembraneContactParams
@@ -124,11 +124,12 @@ def build_test(
 def consolidation_tolerance(config: TriaxialConfig) -> float:
     """The unbalanced-force ratio that ends consolidation.
 
-    The configuration's, else 2e-3 in float64 or 2e-2 in float32 (whose floor with the membrane is ~1e-2).
+    The configuration's, else the membrane cell's default for its precision
+    (:func:`membrax.config.default_consolidation_tolerance`).
     """
     tolerance = config.consolidation_tolerance_or_none
     if tolerance is None:
-        tolerance = 2e-3 if config.float64 else 2e-2
+        tolerance = default_consolidation_tolerance("membrane", config.float64)
     return tolerance
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from membrax import batch
 from membrax import measure as measure_lib
+from membrax.config import default_consolidation_tolerance
 from membrax.contact import ContactParams
 from membrax.driver import ChunkRunner, run_phases, strain_rate_from_inertial_number, two_rate_plan
 from membrax.integrate import (
@@ -94,9 +95,9 @@ class RigidWallTest:
 
         Args:
           state: starting state (default: the as-built specimen).
-          tolerance: unbalanced-force ratio to reach. Default 1e-3 in float64 and 5e-3 in float32, whose
-            round-off floor is ~2e-3 (a 25 mm branch vector resolves 2e-9 m, 0.1 % of a contact overlap at
-            40 kPa, and a sphere sums 12 such contact forces).
+          tolerance: unbalanced-force ratio to reach; default
+            :func:`membrax.config.default_consolidation_tolerance` (rigid: 1e-3 in float64, 5e-3 in
+            float32, whose round-off floor is ~2e-3).
           stress_tolerance: relative tolerance on every wall stress.
           max_steps: give up after this many steps (the records show how far it got).
           chunk_steps: steps per compiled chunk.
@@ -108,7 +109,7 @@ class RigidWallTest:
         """
         state = self.initial_state if state is None else state
         if tolerance is None:
-            tolerance = 1e-3 if state.position.dtype == jnp.float64 else 5e-3
+            tolerance = default_consolidation_tolerance("rigid", state.position.dtype == jnp.float64)
         state = self.set_walls(state, True, 0.0, self.cell_pressure)
 
         def stop(_, records):

@@ -375,3 +375,22 @@ def test_triaxial_table_must_hold_everything(tmp_path):
         load_config(_write(tmp_path, "[triaxial]\ncell_pressure_pa = 1e4\n"))
     with pytest.raises(ConfigError, match="unknown key `other`"):
         load_config(_write(tmp_path, "[other]\nx = 1\n"))
+
+
+def test_one_consolidation_tolerance_rule_for_every_stage():
+    """One table: rigid 1e-3 / 5e-3 and membrane 2e-3 / 2e-2 (float64 / float32), the float32 values above
+    the round-off floors the table's comment cites (~2e-3 rigid; 1.1e-2 with the membrane at 10 kPa); runs
+    take the membrane's for their precision unless the configuration gives one."""
+    from membrax.config import default_consolidation_tolerance
+    from membrax.run import consolidation_tolerance
+
+    assert default_consolidation_tolerance("rigid", True) == 1e-3
+    assert default_consolidation_tolerance("rigid", False) == 5e-3 > 2e-3
+    assert default_consolidation_tolerance("membrane", True) == 2e-3
+    assert default_consolidation_tolerance("membrane", False) == 2e-2 > 1.1e-2
+    for float64 in (True, False):
+        config = TriaxialConfig(float64=float64)
+        assert consolidation_tolerance(config) == default_consolidation_tolerance("membrane", float64)
+    assert consolidation_tolerance(TriaxialConfig(consolidation_tolerance=1e-4)) == 1e-4
+    with pytest.raises(ValueError, match="'rigid' or 'membrane'"):
+        default_consolidation_tolerance("membran", True)
