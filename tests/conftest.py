@@ -21,3 +21,16 @@ import jax_md  # noqa: E402,F401  (imported before strict promotion, see above)
 
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+
+@pytest.fixture(params=["float64", "float32"])
+def precision(request):
+    """Runs a test in float64 and in float32, what users run by default (``TriaxialConfig.float64 =
+    False``): inside, JAX's default float is that dtype (``jax.enable_x64``, thread-local). Tolerances come
+    from ``helpers.tolerance(precision)``."""
+    with jax.enable_x64(request.param == "float64"):
+        yield np.dtype(request.param)

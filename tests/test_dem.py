@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import ACCUMULATED, tolerance
 
 from membrax import batch, contact, integrate, neighbors, packing, theory, triaxial
 from membrax import walls as walls_lib
@@ -19,8 +20,8 @@ def free_system(
     position, radius=R, skin=0.2, margin=1.0, params=None, wall_friction=True, dt=None, inertia=None
 ):
     """Spheres in free space, platens far below and above (z = 0 and z = 1 m)."""
-    position = jnp.asarray(position, dtype=jnp.float64)
-    radius = jnp.broadcast_to(jnp.asarray(radius, jnp.float64), position.shape[:1])
+    position = jnp.asarray(position, dtype=float)  # JAX's default float: float64 under x64, else float32
+    radius = jnp.broadcast_to(jnp.asarray(radius, position.dtype), position.shape[:1])
     particles = integrate.make_particles(radius, packing.GRANITE_DENSITY)
     if inertia is not None:
         particles = particles.set(inertia=jnp.full_like(particles.inertia, inertia))
@@ -47,7 +48,7 @@ def run_steps(step_fn, state, params, num_steps):
 # ------------------------------------------------------------------------------------------------------
 
 
-def test_head_on_collision_duration_and_restitution():
+def test_head_on_collision_duration_and_restitution(precision):
     # Undamped linear spring: contact lasts π √(m*/k_n), m* = m/2, and the rebound speed equals the approach.
     position = [[0.0, 0.0, 0.5], [D + 1e-5, 0.0, 0.5]]
     particles, frame, walls, init_fn, step_fn, dt = free_system(position)
@@ -173,18 +174,23 @@ def sphere_on_plane(
     return run_steps(step_fn, state, params, num_steps), dt, particles
 
 
-def test_sphere_on_plane_sticks_below_coulomb_limit():
+def test_sphere_on_plane_sticks_below_coulomb_limit(precision):
     normal_force, mu = 20.0, math.tan(math.radians(30.0))
     tangential = 0.8 * mu * normal_force
-    state, _, _ = sphere_on_plane(tangential)
+    state, _, particles = sphere_on_plane(tangential)
     spring = np.asarray(state.wall_spring[0, walls_lib.BOTTOM])
     # Static: the tangential spring balances T, and the sphere has moved T / k_s.
-    assert spring[0] == pytest.approx(-tangential, rel=1e-6)
-    assert float(state.position[0, 0]) == pytest.approx(tangential / 5e6, rel=1e-4)
-    assert abs(float(state.velocity[0, 0])) < 1e-9
+    # float32: the damped approach to rest leaves ~10 ulp of force imbalance.
+    assert spring[0] == pytest.approx(-tangential, rel=max(1e-6, 10 * tolerance(precision)))
+    # The spring is summed from 20,000 increments k_s v Δt: float32 keeps it within ACCUMULATED (1e-3).
+    displacement_tolerance = max(1e-4, tolerance(precision, ACCUMULATED))
+    assert float(state.position[0, 0]) == pytest.approx(tangential / 5e6, rel=displacement_tolerance)
+    # At rest: against the transient's speed scale ω x = √(k_s/m) T/k_s (~0.03 m/s), round-off only.
+    speed_scale = math.sqrt(5e6 / float(particles.mass[0])) * tangential / 5e6
+    assert abs(float(state.velocity[0, 0])) < max(1e-9, 10 * tolerance(precision) * speed_scale)
 
 
-def test_sphere_on_plane_slides_at_coulomb_limit():
+def test_sphere_on_plane_slides_at_coulomb_limit(precision):
     normal_force, mu = 20.0, math.tan(math.radians(30.0))
     tangential = 1.2 * mu * normal_force
     state, dt, particles = sphere_on_plane(tangential, damping=integrate.DampingParams.none(), num_steps=5000)
@@ -203,7 +209,7 @@ def random_cluster(num=40, seed=0):
     return jnp.asarray(position)
 
 
-def test_internal_forces_conserve_momentum_and_angular_momentum():
+def test_internal_forces_conserve_momentum_and_angular_momentum(precision):
     position = random_cluster()
     particles, frame, walls, init_fn, step_fn, dt = free_system(position)
     params = integrate.DEMParams(contact.ContactParams.paper(), integrate.DampingParams.none())
@@ -219,10 +225,12 @@ def test_internal_forces_conserve_momentum_and_angular_momentum():
     forces = integrate.compute_forces(state, particles, params, dt)
     assert int(jnp.sum(forces.pair_normal_force > 0)) > 20
     scale = float(jnp.max(jnp.abs(forces.force)))
-    assert np.max(np.abs(np.asarray(jnp.sum(forces.force, axis=0)))) < 1e-12 * scale * particles.num_particles
+    assert forces.force.dtype == precision
+    bound = tolerance(precision) * scale * particles.num_particles
+    assert np.max(np.abs(np.asarray(jnp.sum(forces.force, axis=0)))) < bound
     # Σ (x × F + T) = 0: each pair's forces act at one contact point.
     angular = jnp.sum(jnp.cross(state.position, forces.force) + forces.torque, axis=0)
-    assert np.max(np.abs(np.asarray(angular))) < 1e-12 * scale * particles.num_particles
+    assert np.max(np.abs(np.asarray(angular))) < bound
 
 
 # ------------------------------------------------------------------------------------------------------
