@@ -34,8 +34,8 @@ import math
 
 import jax
 import jax.numpy as jnp
-from jax_md import dataclasses
 
+from membrax import pytree
 from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
@@ -50,7 +50,7 @@ __all__ = [
 ]
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class ContactParams:
     """Parameters of the linear contact law (SI). Each field is a scalar or an array over batch members.
 
@@ -127,7 +127,7 @@ def tangential_spring_update(
     return select(active, scale(slip_scale, trial))
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class PairContact:
     """Result of one sphere–sphere contact: forces/torques on j (on i: −force, own torque)."""
 
@@ -216,7 +216,7 @@ def pair_contact(
     )
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class WallContact:
     """Result of one sphere–plane contact: force and torque on the sphere."""
 

@@ -1,9 +1,9 @@
 """CPU devices for batched sweeps: one JAX device per core.
 
 Contract. :func:`split_cpu_devices` sets ``jax_num_cpu_devices`` so the host CPU appears as several JAX
-devices; :class:`membrax.sweep.BatchedTest` then shards a batch's member axis over them and each core
+devices; :class:`membrax.stages.BatchedTest` then shards a batch's member axis over them and each core
 advances its own members. It must run before JAX starts its backend, i.e. before the first JAX operation
-and before importing ``membrax`` modules that import ``jax_md`` (which builds arrays on import), so this
+and before importing :mod:`membrax.neighbors` (it imports ``jax_md``, which builds arrays on import), so this
 module imports nothing but ``jax``. A GPU backend keeps its own devices; only the CPU platform is split.
 
 Why: XLA runs one CPU device's operations on all cores, but a membrane test's arrays (a few thousand

@@ -1,18 +1,23 @@
-"""The chunk driver: a Python loop over jitted ``lax.scan`` chunks.
+"""The chunk driver: a Python loop over jitted ``lax.scan`` chunks, and the two stages of a triaxial test.
 
-Contract. :class:`ChunkRunner` advances a state by whole chunks of steps. Each chunk is one compiled call
-that takes ``chunk_steps`` steps and records ``record_fn(state, params)`` every ``record_every`` steps.
-Between chunks, on the host, it:
+Contract. :func:`drive` is the one long-run loop of membrax. It advances a state (one specimen, or a
+stack of batch members each with its own step budget) by whole compiled chunks and, between chunks, on
+the host:
 
 - checks the error bits of the state (:mod:`membrax.errors`);
-- on a neighbour-list overflow, reallocates a larger list from the *chunk's starting state*, carries the
-  contact history over by partner id, and reruns the chunk — contacts are never silently dropped; the
-  same for an overflow of the membrane's node–sphere candidate table (``grow_membrane``);
+- on a neighbour-list or candidate-table overflow, grows the tables from the *chunk's starting state*
+  (the neighbour list reallocated, contact history carried over by partner id) and reruns the chunk —
+  contacts are never silently dropped;
 - on any other error raises :class:`SimulationError` naming the step and a hint, with the state and the
   records of the completed chunks attached so nothing computed so far is lost;
-- calls ``on_chunk(state, records)`` (progress bars, checkpoints) and stops early when ``stop_fn`` says so.
+- hands each accepted chunk to a hook (records, progress bars, checkpoints, VTK) that may end members'
+  budgets early (a consolidation stop test).
 
-This loop is the one place where lists are reallocated, errors checked and progress reported.
+Its users: :class:`ChunkRunner` (one state: :class:`StagedTest`'s stages, interactive use) and
+:class:`membrax.stages.BatchedTest` (stacked members: every run of :mod:`membrax.run` and
+:mod:`membrax.sweep`). :class:`StagedTest` is the stage protocol shared by the rigid-wall test
+(:mod:`membrax.triaxial`) and the membrane test (:mod:`membrax.membrane_triaxial`): consolidation until
+the test's own stop criterion holds, then strain-controlled shearing recorded at two rates.
 """
 
 from __future__ import annotations
@@ -23,11 +28,14 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
+from membrax.config import default_consolidation_tolerance
 from membrax.errors import OVERFLOWS, ErrorCode, describe
 from membrax.neighbors import PairNeighborFn, remap_pair_history
 
 __all__ = [
     "ChunkRunner",
+    "StagedTest",
+    "drive",
     "SimulationError",
     "concatenate_records",
     "run_phases",
@@ -131,7 +139,7 @@ class ChunkRunner:
         stop_fn: Callable | None = None,
         on_chunk: Callable | None = None,
     ):
-        """Advance ``state`` by up to ``num_steps`` steps (rounded up to whole records).
+        """Advance ``state`` by up to ``num_steps`` steps (whole records), through :func:`drive`.
 
         Args:
           state: the starting state.
@@ -145,37 +153,99 @@ class ChunkRunner:
         Returns:
           (final state, records: pytree of numpy arrays with a leading time axis, or None).
         """
-        records_per_chunk = max(1, chunk_steps // record_every)
-        total_records = int(np.ceil(num_steps / record_every))
         chunks = []
-        done = 0
-        while done < total_records:
-            count = min(records_per_chunk, total_records - done)
-            new_state, records = self._chunk(state, params, num_records=count, record_every=record_every)
-            error = int(new_state.error)
-            membrane_overflow = error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
-            if error & OVERFLOWS and (self.grow_membrane is not None or not membrane_overflow):
-                if error & ErrorCode.NEIGHBOR_OVERFLOW:
-                    state = self.reallocate(state)
-                if membrane_overflow:
-                    state = self.grow_membrane(state, new_state)
-                    self.reallocations += 1
-                continue
-            if error:
-                raise SimulationError(
-                    f"simulation stopped in the chunk ending at step {int(new_state.step)}: "
-                    + "; ".join(describe(error)),
-                    state=state,
-                    records=concatenate_records(chunks),
-                )
-            state = new_state
+
+        def chunk(current, left, num_records):
+            new, records = self._chunk(current, params, num_records=num_records, record_every=record_every)
+            return new, left - num_records * record_every, records, None
+
+        def grow(current, error, overflowed):
+            membrane_overflow = error[0] & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
+            if membrane_overflow and self.grow_membrane is None:
+                return None
+            if error[0] & ErrorCode.NEIGHBOR_OVERFLOW:
+                current = self.reallocate(current)
+            if membrane_overflow:
+                current = self.grow_membrane(current, overflowed)
+                self.reallocations += 1
+            return current
+
+        def fail(error, new, current):
+            return SimulationError(
+                f"simulation stopped in the chunk ending at step {int(new.step)}: "
+                + "; ".join(describe(error[0])),
+                state=current,
+                records=concatenate_records(chunks),
+            )
+
+        def accept(new, records, _valid, _left):
             chunks.append(jax.device_get(records))
-            done += count
             if on_chunk is not None:
-                on_chunk(state, chunks[-1])
-            if stop_fn is not None and stop_fn(state, chunks[-1]):
-                break
+                on_chunk(new, chunks[-1])
+            return [0] if stop_fn is not None and stop_fn(new, chunks[-1]) else []
+
+        state, _ = drive(
+            chunk,
+            state,
+            [num_steps],
+            record_every,
+            chunk_steps,
+            errors=lambda s: np.atleast_1d(np.asarray(s.error)),
+            grow=grow,
+            fail=fail,
+            accept=accept,
+        )
         return state, concatenate_records(chunks)
+
+
+def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors, grow, fail, accept):
+    """The chunk loop: every long run of membrax (a test's stage, a batch's phase) goes through it.
+
+    Each pass launches one compiled chunk of up to ``chunk_steps`` steps (whole records of
+    ``record_every`` steps) for every member that still has steps in its budget, then on the host:
+
+    1. reads the error bits; on a table overflow (:data:`membrax.errors.OVERFLOWS`) grows the tables from
+       the chunk's *starting* state and reruns the chunk, so contacts are never dropped;
+    2. on any other error raises what ``fail`` builds (the state before the chunk is attached there);
+    3. accepts the chunk: ``accept`` stores its records, reports progress, writes checkpoints and names the
+       members that stop early (their budgets end).
+
+    Args:
+      chunk: ``chunk(state, left, num_records) -> (state, left, records, valid)``: advances the members
+        by ``num_records`` record blocks at most, ``left`` (B,) the steps each still takes; ``valid`` (B, T)
+        marks the blocks each member ran (None: all).
+      state: the starting state.
+      budgets: (B,) steps for each member, rounded up to whole records.
+      record_every: steps between records.
+      chunk_steps: steps per compiled chunk (rounded to whole records, at least one).
+      errors: ``errors(state) -> (B,) int`` error bits per member.
+      grow: ``grow(state, error, overflowed) -> state`` with larger tables (``overflowed`` the chunk's end
+        state, whose tables say how large), or None if it cannot grow them (then ``fail``).
+      fail: ``fail(error, new_state, state) -> Exception`` for error bits that growing does not clear.
+      accept: ``accept(state, records, valid, left) -> members`` after each good chunk: the members
+        (indices) whose budgets end now.
+
+    Returns:
+      (state, left): the final state and the steps each member had left (0 unless stopped by errors).
+    """
+    left = np.ceil(np.asarray(budgets, dtype=np.float64) / record_every).astype(np.int64) * record_every
+    records_per_chunk = max(1, chunk_steps // record_every)
+    while left.max(initial=0) > 0:
+        count = min(records_per_chunk, math.ceil(left.max() / record_every))
+        new_state, new_left, records, valid = chunk(state, left, count)
+        error = errors(new_state)
+        if np.any(error & OVERFLOWS):
+            grown = grow(state, error, new_state)
+            if grown is not None:
+                state = grown
+                continue
+        if np.any(error):
+            raise fail(error, new_state, state)
+        state = new_state
+        left = np.asarray(new_left, dtype=np.int64).copy()
+        for member in accept(state, records, valid, left):
+            left[member] = 0
+    return state, left
 
 
 def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
@@ -211,3 +281,97 @@ def run_phases(runner: ChunkRunner, state, params, phases, chunk_steps: int, on_
             state, records = runner.run(state, params, steps, chunk_steps, record_every, on_chunk=on_chunk)
             parts.append(records)
     return state, concatenate_records([part for part in parts if part is not None])
+
+
+class StagedTest:
+    """The two stages of a triaxial test, shared by the rigid-wall and the membrane test.
+
+    A subclass (a dataclass with ``initial_state``, ``params`` and ``runner``, a :class:`ChunkRunner`)
+    says what its cell does at each stage:
+
+    - ``cell``: ``"rigid"`` or ``"membrane"``, the default consolidation tolerance's row
+      (:func:`membrax.config.default_consolidation_tolerance`);
+    - ``default_ramp_strain``: the shearing's default start-up ramp (axial strain at full speed);
+    - ``start_consolidation(state)``: the servos on, at rest;
+    - ``is_consolidated(records, tolerance, **criteria)``: the stop test on a chunk's records;
+    - ``start_shear(state, inertial_number, ramp_strain, **loading)``: the strain-controlled platens;
+    - ``shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp_strain)``: the steps of the
+      two recording phases, (fine, coarse).
+    """
+
+    cell = "rigid"
+    default_ramp_strain = 0.0
+
+    def consolidate(
+        self,
+        state=None,
+        tolerance: float | None = None,
+        max_steps: int = 200_000,
+        chunk_steps: int = 2000,
+        record_every: int = 100,
+        on_chunk=None,
+        **criteria,
+    ):
+        """Stage 1: isotropic consolidation until ``is_consolidated`` holds (or ``max_steps``).
+
+        Args:
+          state: starting state (default: the as-built specimen).
+          tolerance: unbalanced-force ratio to reach; default
+            :func:`membrax.config.default_consolidation_tolerance` for the cell and the state's precision.
+          max_steps: give up after this many steps (the records show how far it got).
+          chunk_steps: steps per compiled chunk.
+          record_every: steps between records.
+          on_chunk: progress callback ``on_chunk(state, records)``.
+          **criteria: the cell's further stop criteria (``stress_tolerance``, ...; ``is_consolidated``).
+
+        Returns:
+          (state, records); ``records.step`` counts from the start of the test.
+        """
+        state = self.initial_state if state is None else state
+        if tolerance is None:
+            dtype = self.runner.dem_of(state).position.dtype
+            tolerance = default_consolidation_tolerance(self.cell, dtype == np.float64)
+        state = self.start_consolidation(state)
+
+        def stop(_, records):
+            return self.is_consolidated(records, tolerance, **criteria)
+
+        return self.runner.run(
+            state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
+        )
+
+    def shear(
+        self,
+        state,
+        target_axial_strain: float = 0.10,
+        inertial_number: float = 1e-3,
+        record_every_fine: int = 25,
+        fine_until_strain: float = 0.01,
+        record_every_coarse: int = 250,
+        chunk_steps: int = 5000,
+        on_chunk=None,
+        ramp_strain: float | None = None,
+        **loading,
+    ):
+        """Stage 2: strain-controlled drained shearing, recorded at two rates (module docstring).
+
+        Args:
+          state: the consolidated state.
+          target_axial_strain: axial strain to reach, counted from the start of shearing.
+          inertial_number: I, setting the strain rate.
+          record_every_fine: steps between records below ``fine_until_strain``.
+          fine_until_strain: the end of the fine recording.
+          record_every_coarse: steps between records after it.
+          chunk_steps: steps per compiled chunk.
+          on_chunk: progress callback ``on_chunk(state, records)``.
+          ramp_strain: axial strain at which the platens reach full speed (default the cell's).
+          **loading: the cell's further loading options (``symmetric`` for the membrane test).
+
+        Returns:
+          (state, records) with the records of both recording rates joined.
+        """
+        ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
+        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp)
+        state = self.start_shear(state, inertial_number, ramp, **loading)
+        phases = [(fine, record_every_fine), (coarse, record_every_coarse)]
+        return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)

@@ -43,9 +43,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
-from jax_md import dataclasses
 
-from membrax import contact, native
+from membrax import contact, native, pytree
 from membrax.contact import ContactParams
 from membrax.errors import ErrorCode, describe
 from membrax.neighbors import PairNeighborFn, outside_box, remap_pair_history
@@ -84,7 +83,7 @@ DEFAULT_SAFETY = 0.5
 describe_errors = describe
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class Particles:
     """Fixed properties of the spheres (SI).
 
@@ -100,7 +99,7 @@ class Particles:
     mass: jnp.ndarray
     inertia: jnp.ndarray
     member: jnp.ndarray
-    num_members: int = dataclasses.static_field()
+    num_members: int = pytree.static_field()
 
     @property
     def num_particles(self) -> int:
@@ -129,7 +128,7 @@ def make_particles(radius, density, member=None, num_members: int = 1) -> Partic
     )
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class DampingParams:
     """Damping (see the module docstring).
 
@@ -157,7 +156,7 @@ class DampingParams:
         return DampingParams(local_coefficient=jnp.asarray(0.0), viscous_rate=jnp.asarray(0.0))
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class DEMParams:
     """The traced parameters of a step: contact law and damping. Fields may be arrays over batch members."""
 
@@ -165,7 +164,7 @@ class DEMParams:
     damping: DampingParams
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class DEMState:
     """Everything that evolves.
 
@@ -197,7 +196,7 @@ class DEMState:
     error: jnp.ndarray
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class Forces:
     """Output of :func:`compute_forces` (contact forces at x_n)."""
 

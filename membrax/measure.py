@@ -23,9 +23,8 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jax_md import dataclasses
 
-from membrax import theory
+from membrax import pytree, theory
 from membrax.integrate import DEMParams, DEMState, Forces, Particles, compute_forces
 from membrax.walls import BOTTOM, TOP, cross_section, platen_separation, wall_areas
 
@@ -104,7 +103,7 @@ def kinetic_energy(state: DEMState, particles: Particles):
     return _per_member(translational + rotational, particles.member, particles.num_members)
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class Measurements:
     """Per-member (B,) records of one state (stresses in Pa, strains as fractions, angles in degrees).
 

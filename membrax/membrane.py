@@ -32,9 +32,8 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax_md import dataclasses
 
-from membrax import native
+from membrax import native, pytree
 from membrax.fusion import materialize
 from membrax.validation import check_range
 from membrax.vector import cross, dot, scale
@@ -63,7 +62,7 @@ __all__ = [
 STRETCHING_MODELS = ("neo_hookean", "svk")
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class MembraneMesh:
     """A triangulated membrane and its rest state (see the module docstring).
 

@@ -68,9 +68,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax_md import dataclasses
 
-from membrax import native
+from membrax import native, pytree
 from membrax.contact import normal_energy, tangential_spring_update
 from membrax.errors import ErrorCode
 from membrax.fusion import materialize
@@ -95,7 +94,7 @@ __all__ = [
 ERROR_MEMBRANE_CANDIDATE_OVERFLOW = ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class MembraneContactParams:
     """Parameters of the node–sphere contact law (SI). Each field is a scalar or an array over batch members.
 
@@ -125,7 +124,7 @@ class MembraneContactParams:
         )
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class NodeCandidates:
     """Dense node → sphere candidate table and the state that decides when to rebuild it.
 

@@ -53,10 +53,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
-from jax_md import dataclasses
 
 from membrax import membrane as membrane_lib
-from membrax import native
+from membrax import native, pytree
 from membrax.config import TriaxialConfig
 from membrax.errors import ErrorCode
 from membrax.integrate import (
@@ -93,13 +92,14 @@ __all__ = [
     "membrane_critical_time_step",
     "membrane_dem",
     "platen_heights",
+    "platen_reaction",
 ]
 
 #: Latex density, kg/m³ (920–1000; the issue's "about 1000").
 LATEX_DENSITY = 1000.0
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class MembraneParams:
     """Traced membrane parameters (SI).
 
@@ -159,7 +159,7 @@ class MembraneParams:
         )
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class CoupledParams:
     """The traced parameters of a coupled step: the DEM's (contacts, damping) and the membrane's."""
 
@@ -167,7 +167,7 @@ class CoupledParams:
     membrane: MembraneParams
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class MembraneState:
     """Everything of the membrane that evolves.
 
@@ -201,7 +201,7 @@ class MembraneState:
     ring_contact_force: jnp.ndarray
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class CoupledState:
     """The DEM state and the membrane state; errors and the step count live in the DEM state."""
 
@@ -239,15 +239,40 @@ def _ring_vector_area(ring_position):
     )
 
 
-def _platen_reaction(node_force, position, mesh: MembraneMesh, cell_pressure):
-    """Force of the membrane on the bottom and top platens, (2, 3), N (module docstring)."""
-    sign = jnp.asarray([-1.0, 1.0], dtype=position.dtype)  # n_out = ∓e_z: A n_out = ∓ vector area
-    return jnp.stack(
-        [
-            jnp.sum(node_force[ring], axis=0) + sign[k] * cell_pressure * _ring_vector_area(position[ring])
-            for k, ring in enumerate((mesh.bottom_ring, mesh.top_ring))
-        ]
-    )
+def platen_reaction(node_force, mesh: MembraneMesh, position=None, cell_pressure=0.0):
+    """Forces the membrane's clamped end rings exert on the bottom and top platens, (2, 3), N.
+
+    F_k is the force on node k from everything except its clamp (stretching, bending, the pressure load,
+    which on the end rings includes the share of the cap that closes the volume over the platen face; add
+    node–sphere contact forces if wanted). A clamped ring node is held by the clamp force −F_k, so it
+    pushes its platen with +F_k, and (module docstring, Platen reactions)
+
+        R_bottom = Σ_{k ∈ bottom ring} F_k − p A_b e_z,   R_top = Σ_{k ∈ top ring} F_k + p A_t e_z,
+
+    A the ring's polygon area (½ Σ_k y_k × y_{k+1}): the second term removes the cell pressure p on the
+    cap, which acts on the platen, not on the membrane (give ``position`` and ``cell_pressure``; with
+    p = 0 the cap's share stays in). Sign: ``R_top[2] < 0`` pushes the top platen down, ``> 0`` pulls it
+    up; likewise ``R_bottom[2] > 0`` pushes the bottom platen up. Example: a closed membrane under internal
+    pressure p at its rest shape gives R_top = −R_bottom = p A e_z with p = 0 here, the thin-shell end load
+    (for the faceted mesh A is the mean cross-section of the end layer, see the tests).
+
+    Args:
+      node_force: (n_nodes, 3) force on each node except the clamp, N.
+      mesh: a band membrane.
+      position: (n_nodes, 3) node positions, m (needed when ``cell_pressure`` is not 0).
+      cell_pressure: p, Pa.
+
+    Returns:
+      (2, 3): the bottom and top platens' forces, N.
+    """
+    sign = (-1.0, 1.0)  # n_out = ∓e_z: A n_out = ∓ vector area
+    reactions = []
+    for k, ring in enumerate((mesh.bottom_ring, mesh.top_ring)):
+        reaction = jnp.sum(node_force[ring], axis=0)
+        if position is not None:
+            reaction = reaction + sign[k] * cell_pressure * _ring_vector_area(position[ring])
+        reactions.append(reaction)
+    return jnp.stack(reactions)
 
 
 def advance_nodes(
@@ -434,7 +459,7 @@ def membrane_dem(
             dt,
             params.dem.damping,
         )
-        reaction = _platen_reaction(node_force, nodes.position, mesh, mp.cell_pressure)
+        reaction = platen_reaction(node_force, mesh, nodes.position, mp.cell_pressure)
         # The ram holds the platen against the spheres and the membrane: the servo sees both.
         membrane_load = jnp.stack([-reaction[0, 2], reaction[1, 2]])[None, :]
         spheres = dem_step(

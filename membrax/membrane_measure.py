@@ -24,7 +24,6 @@ Quantities:
 - :func:`rest_outward_normal`, :func:`normal_displacement`, :func:`indentation_field`: outward normal
   displacement u_n of each node and its local depth below the neighbouring outermost nodes (membrane
   penetration into the voids between particles, ≥ 0).
-- :func:`platen_reaction`: the forces the clamped end rings pass to the bottom and top platens.
 - :func:`hoop_strain`: the mid-height ring's circumferential strain (what a circumference tape measures).
 
 Coupled DEM + membrane (:func:`measure_coupled`, one specimen, the records of a membrane triaxial test):
@@ -57,10 +56,9 @@ A = A₀ (1 − ε_v)/(1 − ε_a):
 - Love–Weber, with the membrane's node contacts as boundary contacts (force of the sphere on the node,
   arm b = x_node − x_sphere).
 
-The band functions (:func:`mean_radius`, :func:`normal_displacement`, :func:`indentation_field`,
-:func:`platen_reaction`) assume a band mesh from :func:`membrax.membrane.cylinder_mesh` or
-:func:`membrax.membrane.prism_mesh`: rows of n_θ = len(bottom_ring) nodes stacked in z, node index
-row · n_θ + column, the column periodic.
+The band functions (:func:`mean_radius`, :func:`normal_displacement`, :func:`indentation_field`) assume a
+band mesh from :func:`membrax.membrane.cylinder_mesh` or :func:`membrax.membrane.prism_mesh`: rows of
+n_θ = len(bottom_ring) nodes stacked in z, node index row · n_θ + column, the column periodic.
 
 Layout: per-triangle and per-pair geometry is component-first (3, ...) with :mod:`membrax.vector`
 (XLA's CPU backend reduces over a trailing size-3 axis slowly); node arrays are rows (n_nodes, 3).
@@ -73,10 +71,9 @@ import math
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax_md import dataclasses
 
 from membrax import membrane as membrane_lib
-from membrax import theory
+from membrax import pytree, theory
 from membrax.integrate import Particles, compute_forces
 from membrax.measure import (
     coordination_number,
@@ -101,7 +98,6 @@ __all__ = [
     "rest_outward_normal",
     "normal_displacement",
     "indentation_field",
-    "platen_reaction",
     "MembraneMeasurements",
     "hoop_strain",
     "measure_coupled",
@@ -473,39 +469,12 @@ def indentation_field(node_position, mesh: MembraneMesh, window: int):
 # ----------------------------------------------------------------------------------------------------------
 
 
-def platen_reaction(node_force, mesh: MembraneMesh):
-    """Forces the membrane's clamped end rings exert on the bottom and top platens, N.
-
-    Input: F_k, the force on each node from everything except its clamp (e.g.
-    :func:`membrax.membrane.nodal_forces`: stretching, bending and the pressure load, which on the end rings
-    includes the share of the cap that stands for the platen face; add node–sphere contact forces if
-    wanted). A clamped ring node is held in place by the clamp force −F_k, so it pushes the platen with
-    +F_k, and
-
-        F_bottom = Σ_{k ∈ bottom ring} F_k,   F_top = Σ_{k ∈ top ring} F_k,
-
-    the forces ON the platens. Sign: ``top[2] < 0`` pushes the top platen down (e.g. a cell pressure p > 0
-    acting on the cap area, −p A e_z), ``top[2] > 0`` pulls it up (membrane tension or internal pressure);
-    likewise ``bottom[2] > 0`` pushes the bottom platen up. Example: a closed membrane under internal pressure
-    p at its rest shape gives F_top = −F_bottom = p A e_z, the thin-shell end load, with A ≈ π R² (for the
-    faceted mesh, exactly the mean cross-section of the end layer, see the tests).
-
-    Args:
-      node_force: (n_nodes, 3) force on each node except the clamp, N.
-      mesh: a band membrane.
-
-    Returns:
-      (bottom, top), each (3,), N.
-    """
-    return jnp.sum(node_force[mesh.bottom_ring], axis=0), jnp.sum(node_force[mesh.top_ring], axis=0)
-
-
 # ----------------------------------------------------------------------------------------------------------
 # The records of a membrane triaxial test
 # ----------------------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class MembraneMeasurements:
     """Records of a coupled DEM + membrane state, each (1,) (one specimen); module docstring for the terms.
 

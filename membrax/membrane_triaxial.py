@@ -36,9 +36,9 @@ import numpy as np
 
 from membrax import membrane as membrane_lib
 from membrax import membrane_measure
-from membrax.config import TriaxialConfig, default_consolidation_tolerance
+from membrax.config import TriaxialConfig
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, run_phases, strain_rate_from_inertial_number, two_rate_plan
+from membrax.driver import ChunkRunner, StagedTest, strain_rate_from_inertial_number, two_rate_plan
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -82,8 +82,16 @@ VOLUME_TOLERANCE = 1e-4
 
 
 @pydataclasses.dataclass
-class MembraneTest:
-    """A specimen in a membrane, ready to run (built by :func:`membrane_test`)."""
+class MembraneTest(StagedTest):
+    """A specimen in a membrane, ready to run (built by :func:`membrane_test`).
+
+    Its stages, :meth:`consolidate` (stop criteria ``stress_tolerance``, ``volume_tolerance``:
+    :meth:`is_consolidated`) and :meth:`shear` (``ramp_strain``, ``symmetric``: :meth:`start_shear`), are
+    :class:`membrax.driver.StagedTest`'s.
+    """
+
+    cell = "membrane"
+    default_ramp_strain = DEFAULT_RAMP_STRAIN
 
     specimen: Specimen
     particles: object
@@ -116,46 +124,6 @@ class MembraneTest:
         """
         walls = set_control(state.dem.walls, servo, velocity, target, acceleration)
         return state.set(dem=state.dem.set(walls=walls))
-
-    def consolidate(
-        self,
-        state: CoupledState | None = None,
-        tolerance: float | None = None,
-        stress_tolerance: float = 0.01,
-        max_steps: int = 200_000,
-        chunk_steps: int = 2000,
-        record_every: int = 100,
-        on_chunk=None,
-        volume_tolerance: float = VOLUME_TOLERANCE,
-    ):
-        """Isotropic consolidation under the cell pressure (module docstring).
-
-        Args:
-          state: starting state (default: the as-built specimen).
-          tolerance: unbalanced-force ratio to reach; default
-            :func:`membrax.config.default_consolidation_tolerance` (membrane: 2e-3 in float64, 2e-2 in
-            float32, whose round-off floor with the membrane is ~1e-2).
-          stress_tolerance: relative tolerance of the platen stress against the cell pressure.
-          max_steps: give up after this many steps (the records show how far it got).
-          chunk_steps: steps per compiled chunk.
-          record_every: steps between records.
-          on_chunk: progress callback ``on_chunk(state, records)``.
-          volume_tolerance: largest change of ε_v over the last chunk (:meth:`is_consolidated`).
-
-        Returns:
-          (state, records).
-        """
-        state = self.initial_state if state is None else state
-        if tolerance is None:
-            tolerance = default_consolidation_tolerance("membrane", state.dem.position.dtype == jnp.float64)
-        state = self.start_consolidation(state)
-
-        def stop(_, records):
-            return self.is_consolidated(records, tolerance, stress_tolerance, volume_tolerance)
-
-        return self.runner.run(
-            state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
-        )
 
     def start_consolidation(self, state: CoupledState) -> CoupledState:
         """Switch ``state`` to stage 1: both platens servo-controlled to the ram force σc × A₀, at rest."""
@@ -258,31 +226,6 @@ class MembraneTest:
         )
         steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
         return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp_strain)
-
-    def shear(
-        self,
-        state: CoupledState,
-        target_axial_strain: float = 0.10,
-        inertial_number: float = 1e-3,
-        record_every_fine: int = 25,
-        fine_until_strain: float = 0.01,
-        record_every_coarse: int = 250,
-        chunk_steps: int = 5000,
-        on_chunk=None,
-        ramp_strain: float = DEFAULT_RAMP_STRAIN,
-        symmetric: bool = True,
-    ):
-        """Stage 2: drained shearing at constant cell pressure and axial strain rate (module docstring).
-
-        ``ramp_strain`` and ``symmetric``: :meth:`start_shear`.
-
-        Returns:
-          (state, records) with the records of both recording rates joined.
-        """
-        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp_strain)
-        state = self.start_shear(state, inertial_number, ramp_strain, symmetric)
-        phases = [(fine, record_every_fine), (coarse, record_every_coarse)]
-        return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)
 
 
 def membrane_test(

@@ -30,7 +30,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax_md import partition, space
+
+# jax_md runs array code when imported (rigid_body mixes float32 and int64), which fails under a caller's
+# strict dtype or rank promotion (the test suite's setting); import it under the standard rules. This is
+# membrax's only import of jax-md (its dataclasses are membrax.pytree's).
+with jax.numpy_dtype_promotion("standard"), jax.numpy_rank_promotion("allow"):
+    from jax_md import partition, space
 
 __all__ = ["PairNeighborFn", "outside_box", "pair_neighbor_fn", "remap_pair_history"]
 

@@ -1,6 +1,6 @@
 """Face-centred cubic (FCC) specimens of equal spheres, and the mass properties of a sphere.
 
-Contract: :func:`fcc_specimen` returns a :class:`Specimen`, a frozen pytree (``jax_md.dataclasses``) whose
+Contract: :func:`fcc_specimen` returns a :class:`Specimen`, a frozen pytree (:mod:`membrax.pytree`) whose
 array fields are the sphere centres ``position`` (N, 3) in metres, the radii (N,) in metres, the 0-based
 ``layer`` index (N,) and boolean flags (N,) for the lateral boundary, the bottom and the top layer. Float
 arrays come in JAX's default float dtype (float32, or float64 when the user enabled x64); this module
@@ -32,16 +32,11 @@ from __future__ import annotations
 import math
 import operator
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
+from membrax import pytree
 from membrax.validation import check_range
-
-# jax_md runs array code when imported (rigid_body mixes float32 and int64), which fails under a caller's
-# strict dtype or rank promotion (the test suite's setting); import it under the standard rules.
-with jax.numpy_dtype_promotion("standard"), jax.numpy_rank_promotion("allow"):
-    from jax_md import dataclasses
 
 __all__ = [
     "CROSS_SECTIONS",
@@ -122,7 +117,7 @@ def moment_of_inertia(mass, radius):
 # ---------------------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class Specimen:
     """An FCC specimen of equal spheres; built by :func:`fcc_specimen`, which states the geometry.
 
@@ -147,10 +142,10 @@ class Specimen:
     is_lateral_boundary: jnp.ndarray
     is_bottom: jnp.ndarray
     is_top: jnp.ndarray
-    particle_diameter: float = dataclasses.static_field()
-    width_spheres: int = dataclasses.static_field()
-    height_layers: int = dataclasses.static_field()
-    cross_section: str = dataclasses.static_field()
+    particle_diameter: float = pytree.static_field()
+    width_spheres: int = pytree.static_field()
+    height_layers: int = pytree.static_field()
+    cross_section: str = pytree.static_field()
 
     # --- sizes ------------------------------------------------------------------------------------------
 

@@ -27,9 +27,8 @@ import numpy as np
 
 from membrax import batch
 from membrax import measure as measure_lib
-from membrax.config import default_consolidation_tolerance
 from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, run_phases, strain_rate_from_inertial_number, two_rate_plan
+from membrax.driver import ChunkRunner, StagedTest, strain_rate_from_inertial_number, two_rate_plan
 from membrax.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -48,8 +47,13 @@ __all__ = ["RigidWallTest", "peak", "rigid_wall_test", "strain_rate_from_inertia
 
 
 @pydataclasses.dataclass
-class RigidWallTest:
-    """A specimen in a rigid-wall cell, ready to run (built by :func:`rigid_wall_test`)."""
+class RigidWallTest(StagedTest):
+    """A specimen in a rigid-wall cell, ready to run (built by :func:`rigid_wall_test`).
+
+    Its stages, :meth:`consolidate` and :meth:`shear`, are :class:`membrax.driver.StagedTest`'s.
+    """
+
+    cell = "rigid"
 
     specimen: Specimen
     particles: object
@@ -81,90 +85,68 @@ class RigidWallTest:
         """
         return state.set(walls=set_control(state.walls, servo, velocity, target, acceleration))
 
-    def consolidate(
-        self,
-        state: DEMState | None = None,
-        tolerance: float | None = None,
-        stress_tolerance: float = 0.01,
-        max_steps: int = 200_000,
-        chunk_steps: int = 2000,
-        record_every: int = 100,
-        on_chunk=None,
-    ):
-        """Stage 1: isotropic consolidation to the cell pressure (module docstring).
+    def start_consolidation(self, state: DEMState) -> DEMState:
+        """Switch ``state`` to stage 1: every wall servo-controlled to σc, at rest."""
+        return self.set_walls(state, True, 0.0, self.cell_pressure)
 
-        Args:
-          state: starting state (default: the as-built specimen).
-          tolerance: unbalanced-force ratio to reach; default
-            :func:`membrax.config.default_consolidation_tolerance` (rigid: 1e-3 in float64, 5e-3 in
-            float32, whose round-off floor is ~2e-3).
-          stress_tolerance: relative tolerance on every wall stress.
-          max_steps: give up after this many steps (the records show how far it got).
-          chunk_steps: steps per compiled chunk.
-          record_every: steps between records.
-          on_chunk: progress callback ``on_chunk(state, records)``.
+    def is_consolidated(self, records, tolerance: float, stress_tolerance: float = 0.01) -> bool:
+        """The consolidation stop test on a chunk's records (module docstring, stage 1).
 
-        Returns:
-          (state, records); ``records.step`` counts from the start of the stage.
+        Every member must be in equilibrium (members that are already there just wait): the last
+        unbalanced-force ratio below ``tolerance`` and every wall stress within ``stress_tolerance`` of σc.
         """
-        state = self.initial_state if state is None else state
-        if tolerance is None:
-            tolerance = default_consolidation_tolerance("rigid", state.position.dtype == jnp.float64)
-        state = self.set_walls(state, True, 0.0, self.cell_pressure)
+        last_ufr = records.unbalanced_force_ratio[-1]
+        wall = np.asarray(records.wall_axial_stress[-1]), np.asarray(records.wall_radial_stress[-1])
+        close = all(np.all(np.abs(w / self.cell_pressure - 1.0) < stress_tolerance) for w in wall)
+        return bool(np.all(last_ufr < tolerance) and close)
 
-        def stop(_, records):
-            last_ufr = records.unbalanced_force_ratio[-1]
-            wall = np.asarray(records.wall_axial_stress[-1]), np.asarray(records.wall_radial_stress[-1])
-            close = all(np.all(np.abs(w / self.cell_pressure - 1.0) < stress_tolerance) for w in wall)
-            # Every member must be in equilibrium (members that are already there just wait).
-            return bool(np.all(last_ufr < tolerance) and close)
+    def shear_rate(self, inertial_number: float) -> float:
+        """ε̇ = I / (d √(ρ/σc)) at the lowest cell pressure of the batch, 1/s (module docstring).
 
-        return self.runner.run(
-            state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
-        )
-
-    def shear(
-        self,
-        state: DEMState,
-        target_axial_strain: float = 0.10,
-        inertial_number: float = 1e-3,
-        record_every_fine: int = 25,
-        fine_until_strain: float = 0.01,
-        record_every_coarse: int = 250,
-        chunk_steps: int = 5000,
-        on_chunk=None,
-    ):
-        """Stage 2: strain-controlled drained shearing (module docstring).
-
-        In a batch, every member shears at the same strain rate, the one that gives ``inertial_number`` at
-        the lowest cell pressure (members at higher pressure shear at a smaller inertial number).
-
-        Returns:
-          (state, records) with the records of both recording rates joined.
+        In a batch every member shears at this one rate (members at higher pressure shear at a smaller
+        inertial number).
         """
-        check_range(
-            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
-        )
         check_range("inertial_number", inertial_number, lower=0.0, lower_open=True)
-        rate = strain_rate_from_inertial_number(
+        return strain_rate_from_inertial_number(
             inertial_number, self.specimen.particle_diameter, self.density, float(np.min(self.cell_pressure))
         )
+
+    def start_shear(
+        self, state: DEMState, inertial_number: float = 1e-3, ramp_strain: float = 0.0
+    ) -> DEMState:
+        """Switch ``state`` to stage 2: the top platen closes at ε̇ H, the lateral walls servo-held at σc.
+
+        ``ramp_strain`` > 0 ramps the platen up from rest, reaching full speed at that axial strain
+        (:func:`membrax.walls.set_control`'s acceleration; the rigid-wall default is a step change).
+        """
+        check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
+        rate = self.shear_rate(inertial_number)
         heights = np.asarray(state.walls.position[:, TOP] + state.walls.position[:, 0])
         velocity = np.zeros(state.walls.velocity.shape)
         velocity[:, TOP] = -rate * heights
         servo = np.ones(state.walls.servo.shape, dtype=bool)
         servo[:, :2] = False
-        state = self.set_walls(state, servo, velocity, self.cell_pressure)
-        # Strain counts from the start of the test; the stage adds target_axial_strain of the current height.
-        fine, coarse = two_rate_plan(1.0 / (rate * self.dt), target_axial_strain, fine_until_strain)
-        return run_phases(
-            self.runner,
-            state,
-            self.params,
-            [(fine, record_every_fine), (coarse, record_every_coarse)],
-            chunk_steps,
-            on_chunk,
+        # Full speed at strain ε_ramp: ½ ε̇ t_ramp = ε_ramp, so a = v ε̇ / (2 ε_ramp).
+        acceleration = np.abs(velocity) * rate / (2.0 * ramp_strain) if ramp_strain > 0.0 else np.inf
+        acceleration = np.where(velocity != 0.0, acceleration, np.inf)
+        return self.set_walls(state, servo, velocity, self.cell_pressure, acceleration)
+
+    def shear_plan(
+        self,
+        target_axial_strain: float = 0.10,
+        inertial_number: float = 1e-3,
+        fine_until_strain: float = 0.01,
+        ramp_strain: float = 0.0,
+    ) -> tuple[int, int]:
+        """Steps of the two recording phases of stage 2: (fine, coarse), :func:`membrax.driver.two_rate_plan`.
+
+        Strain counts from the start of shearing: the platen closes ε̇ H Δt per step at full speed.
+        """
+        check_range(
+            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
         )
+        steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
+        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp_strain)
 
 
 def rigid_wall_test(

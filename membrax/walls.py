@@ -33,8 +33,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
-from jax_md import dataclasses
 
+from membrax import pytree
 from membrax.validation import check_range
 
 __all__ = [
@@ -56,7 +56,7 @@ BOTTOM = 0
 TOP = 1
 
 
-@dataclasses.dataclass
+@pytree.dataclass
 class WallState:
     """Planes of a triaxial cell for B batch members (see the module docstring).
 

@@ -18,7 +18,7 @@ PACKAGE = Path(membrax.__file__).parent
 
 LAYERS = (
     # foundations: no simulation state, import nothing above
-    ("validation", "vector", "fusion", "native", "errors", "batch", "devices", "theory"),
+    ("validation", "vector", "fusion", "native", "errors", "batch", "devices", "theory", "pytree"),
     ("config",),
     # specimen + membrane: geometry
     ("packing", "neighbors", "membrane"),
@@ -33,6 +33,8 @@ LAYERS = (
     ("triaxial", "membrane_triaxial"),
     # results
     ("analysis", "io", "plots", "paper"),
+    # runs: the stage loop every run and sweep shares, then one test, a grid, the paper
+    ("stages",),
     ("run",),
     ("sweep",),
     ("reproduce",),

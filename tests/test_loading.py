@@ -17,7 +17,7 @@ from membrax import membrane as membrane_lib
 from membrax import membrane_measure, packing
 from membrax.driver import two_rate_plan
 from membrax.membrane_triaxial import membrane_test
-from membrax.run import _rebase
+from membrax.stages import rebase_to_shear_start
 from membrax.walls import BOTTOM, TOP, advance_walls, ramped_velocity, set_control, triaxial_walls
 
 
@@ -159,7 +159,7 @@ def test_areas_count_from_the_start_of_shearing():
         "membrane_radial_force": np.array([900.0, 1000.0]),
         "clamp_radial_force": np.array([100.0, 100.0]),
     }
-    out = _rebase(records, {"height": height0, "volume": volume0, "platen_area": area0})
+    out = rebase_to_shear_start(records, {"height": height0, "volume": volume0, "platen_area": area0})
     np.testing.assert_allclose(out["platen_area"], [area0, area0 / 0.9], rtol=1e-14)
     np.testing.assert_allclose(out["external_axial_stress"][0], 500.0 / area0, rtol=1e-14)
     np.testing.assert_allclose(out["internal_axial_stress"][1], 2100.0 * 0.9 / area0, rtol=1e-14)
@@ -191,7 +191,7 @@ def _peak_friction_angles(test, state, start, inertial_number):
         chunk_steps=5000,
         ramp_strain=1e-2,
     )
-    rebased = _rebase(
+    rebased = rebase_to_shear_start(
         {f.name: np.asarray(getattr(records, f.name)) for f in dataclasses.fields(records)}, start
     )
 
@@ -245,7 +245,9 @@ def test_the_membranes_radial_stress_grows_with_the_hoop_strain_below_henkel_and
         record_every_coarse=500,
         ramp_strain=1e-3,
     )
-    rebased = _rebase({f.name: np.asarray(getattr(shear, f.name)) for f in dataclasses.fields(shear)}, start)
+    rebased = rebase_to_shear_start(
+        {f.name: np.asarray(getattr(shear, f.name)) for f in dataclasses.fields(shear)}, start
+    )
     axial = rebased["axial_strain"].ravel()
     radial_excess = rebased["internal_radial_stress"].ravel() - rebased["internal_radial_stress"].ravel()[0]
     hoop = rebased["hoop_strain"].ravel() - rebased["hoop_strain"].ravel()[0]
