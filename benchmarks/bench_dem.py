@@ -30,7 +30,9 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from membrax import batch, contact, integrate, packing, triaxial
+    from membrax import batch
+    from membrax.spheres import contact, integrate, packing
+    from membrax.triaxial import rigid as triaxial
 
     specimen = packing.fcc_specimen(0.025, width, layers)
     single = triaxial.rigid_wall_test(specimen, 40e3)

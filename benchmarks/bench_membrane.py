@@ -8,7 +8,7 @@ triangles) wraps the specimen at t_m/2 outside the outline. For each dtype, in a
   sums over the slot incidence): evaluations/s;
 - one candidate-list rebuild (nodes × boundary spheres, brute force): ms;
 - the full coupled step (DEM + membrane + node–sphere contacts + candidate updates,
-  :mod:`membrax.membrane_dem`) of the paper-size specimen consolidating at 10 kPa in a 5 mm membrane:
+  :mod:`membrax.membrane.coupled`) of the paper-size specimen consolidating at 10 kPa in a 5 mm membrane:
   steps/s and particle-steps/s (spheres + nodes);
 - peak resident memory.
 
@@ -39,7 +39,11 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from membrax import membrane, membrane_contact, membrane_triaxial, native, packing
+    from membrax import native
+    from membrax.membrane import contact as membrane_contact
+    from membrax.membrane import mesh as membrane
+    from membrax.spheres import packing
+    from membrax.triaxial import membrane_cell as membrane_triaxial
 
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
     specimen = packing.fcc_specimen(diameter, 10, 25)

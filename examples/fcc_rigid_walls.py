@@ -38,7 +38,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-from membrax import packing, theory, triaxial  # noqa: E402
+from membrax import theory  # noqa: E402
+from membrax.spheres import packing  # noqa: E402
+from membrax.triaxial import rigid as triaxial  # noqa: E402
 
 out = pathlib.Path(args.out)
 out.mkdir(parents=True, exist_ok=True)

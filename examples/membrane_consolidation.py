@@ -30,7 +30,10 @@ def render(state_file: pathlib.Path, out: pathlib.Path, thickness: float, cell_p
     """Draw the section and write the VTK files from a saved state."""
     import jax.numpy as jnp
 
-    from membrax import io, membrane, membrane_measure, packing, plots
+    from membrax import io, plots
+    from membrax.membrane import measure as membrane_measure
+    from membrax.membrane import mesh as membrane
+    from membrax.spheres import packing
 
     data = np.load(state_file)
     specimen = packing.fcc_specimen(0.025, 10, 25)
@@ -98,7 +101,9 @@ def main():
     if not args.redraw:
         from tqdm import tqdm
 
-        from membrax import membrane_measure, membrane_triaxial, packing
+        from membrax.membrane import measure as membrane_measure
+        from membrax.spheres import packing
+        from membrax.triaxial import membrane_cell as membrane_triaxial
 
         specimen = packing.fcc_specimen(0.025, 10, 25)
         start = time.time()

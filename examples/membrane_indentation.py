@@ -4,15 +4,17 @@ A flat latex sheet (E_m = 1400 kPa, t_m = 2.5 and 5 mm) rests on a fixed array o
 (D = 25 mm), its mid-surface initially on the sphere tops (z = R + t_m/2 above the centres). Two arrays:
 
 - square: the sheet covers n × n cells (n = 3 by default: 4 × 4 spheres), α measured in the central
-  void of four spheres (:func:`membrax.indentation.sheet_on_square_array`);
+  void of four spheres (:func:`membrax.membrane.indentation.sheet_on_square_array`);
 - triangular (a hexagonal close-packed layer, the {111} face of an FCC packing): the sheet is n·D by
   2k·(√3/2)D, k = round(n/√3) (3D × 2√3 D for n = 3, 22 spheres), α measured in the triangular void
-  of three touching spheres nearest its centre (:func:`membrax.indentation.sheet_on_triangular_array`).
+  of three touching spheres nearest its centre
+  (:func:`membrax.membrane.indentation.sheet_on_triangular_array`).
 
 The sheet's outline is pinned at the initial position; a cell pressure p pushes it down into the voids.
 Static equilibrium of neo-Hookean stretching + Discrete-Shells bending + the pressure potential p V + a
 frictionless node–sphere penalty (k_n = 1e6 N/m) is found with L-BFGS-B
-(:func:`membrax.indentation.solve_sheet_on_spheres`), each pressure starting from the previous solution.
+(:func:`membrax.membrane.indentation.solve_sheet_on_spheres`), each pressure starting from the previous
+solution.
 
 Reported: α/D, α the largest downward deflection of the mid-surface in the measured void below the
 plane of the sphere tops, beside Molenkamp & Luger's
@@ -43,7 +45,8 @@ import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
-from membrax import indentation, theory  # noqa: E402
+from membrax import theory  # noqa: E402
+from membrax.membrane import indentation  # noqa: E402
 
 DIAMETER = 0.025
 MODULUS = 1.4e6

@@ -8,12 +8,12 @@ ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user n
   batch), :func:`member_records`, :func:`split_cpu_devices` (one JAX device per core; call it first);
 - results: :func:`read_results`;
 - the factories under them: :func:`fcc_specimen`, :func:`rigid_wall_test`, :func:`membrane_test`,
-  :func:`dem` (the sphere step; the coupled step is :func:`membrax.membrane_dem.membrane_dem`, a module
-  of the same name), :func:`prism_mesh`;
+  :func:`dem` (the sphere step; the coupled step is :func:`membrax.membrane.coupled.membrane_dem`),
+  :func:`prism_mesh`;
 - errors: :class:`ErrorCode` (a state's error bits), :class:`SimulationError`, :class:`RunError`;
 - modules: :mod:`~membrax.theory` (closed forms), :mod:`~membrax.paper` (the paper's numbers and the
-  comparison tables), :mod:`~membrax.analysis`, :mod:`~membrax.plots`; ``membrax.reproduce.reproduce``
-  is ``membrax reproduce``.
+  comparison tables), ``analysis`` (:mod:`membrax.triaxial.analysis`), :mod:`~membrax.plots`;
+  ``membrax.reproduce.reproduce`` is ``membrax reproduce``.
 
 Every name is imported on first use (PEP 562), so ``import membrax`` starts no JAX backend and
 :func:`split_cpu_devices` still works after it. The README's architecture section maps the modules.
@@ -41,15 +41,21 @@ _API = {
     "member_records": "membrax.sweep",
     "split_cpu_devices": "membrax.devices",
     "read_results": "membrax.io",
-    "fcc_specimen": "membrax.packing",
-    "rigid_wall_test": "membrax.triaxial",
-    "membrane_test": "membrax.membrane_triaxial",
-    "dem": "membrax.integrate",
-    "prism_mesh": "membrax.membrane",
+    "fcc_specimen": "membrax.spheres.packing",
+    "rigid_wall_test": "membrax.triaxial.rigid",
+    "membrane_test": "membrax.triaxial.membrane_cell",
+    "dem": "membrax.spheres.integrate",
+    "prism_mesh": "membrax.membrane.mesh",
     "ErrorCode": "membrax.errors",
     "SimulationError": "membrax.driver",
 }
-_MODULES = ("analysis", "paper", "plots", "theory", "validation")
+_MODULES = {
+    "analysis": "membrax.triaxial.analysis",
+    "paper": "membrax.paper",
+    "plots": "membrax.plots",
+    "theory": "membrax.theory",
+    "validation": "membrax.validation",
+}
 
 __all__ = ["__version__", *_API, *_MODULES]
 
@@ -58,7 +64,7 @@ def __getattr__(name: str):
     if name in _API:
         value = getattr(importlib.import_module(_API[name]), name)
     elif name in _MODULES:
-        value = importlib.import_module(f"membrax.{name}")
+        value = importlib.import_module(_MODULES[name])
     else:
         raise AttributeError(f"module 'membrax' has no attribute {name!r}")
     globals()[name] = value  # later lookups skip __getattr__

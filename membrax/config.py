@@ -275,7 +275,7 @@ class TriaxialConfig:
         (0, 0.1]. Default 1e-3.
       shear_ramp_strain (float): axial strain (dimensionless) at which the platens reach full speed after
         a linear ramp from rest, in [0, 0.1]; 0 starts them at full speed (a step change, whose stress
-        wave shows as a spurious peak). Default 1e-2 (see membrax.membrane_triaxial.DEFAULT_RAMP_STRAIN).
+        wave shows as a spurious peak). Default 1e-2 (see membrax.triaxial.membrane_cell.DEFAULT_RAMP_STRAIN).
       symmetric_loading (bool): both platens close at half the rate each (true), or the bottom one
         stays and the top one closes at the full rate. Default true.
       membrane_contact_offset_factor (float): where membrane nodes touch spheres, as a fraction of

@@ -3,8 +3,9 @@
 Contract. :func:`split_cpu_devices` sets ``jax_num_cpu_devices`` so the host CPU appears as several JAX
 devices; :class:`membrax.stages.BatchedTest` then shards a batch's member axis over them and each core
 advances its own members. It must run before JAX starts its backend, i.e. before the first JAX operation
-and before importing :mod:`membrax.neighbors` (it imports ``jax_md``, which builds arrays on import), so this
-module imports nothing but ``jax``. A GPU backend keeps its own devices; only the CPU platform is split.
+and before importing :mod:`membrax.spheres.neighbors` (it imports ``jax_md``, which builds arrays on import),
+so this module imports nothing but ``jax``. A GPU backend keeps its own devices; only the CPU platform is
+split.
 
 Why: XLA runs one CPU device's operations on all cores, but a membrane test's arrays (a few thousand
 nodes) are too small to split well across threads, so whole members side by side use the cores better:

@@ -1,4 +1,4 @@
-"""The chunk driver: a Python loop over jitted ``lax.scan`` chunks, and the two stages of a triaxial test.
+"""The chunk driver: a Python loop over jitted ``lax.scan`` chunks, the one long-run loop of membrax.
 
 Contract. :func:`drive` is the one long-run loop of membrax. It advances a state (one specimen, or a
 stack of batch members each with its own step budget) by whole compiled chunks and, between chunks, on
@@ -13,11 +13,9 @@ the host:
 - hands each accepted chunk to a hook (records, progress bars, checkpoints, VTK) that may end members'
   budgets early (a consolidation stop test).
 
-Its users: :class:`ChunkRunner` (one state: :class:`StagedTest`'s stages, interactive use) and
-:class:`membrax.stages.BatchedTest` (stacked members: every run of :mod:`membrax.run` and
-:mod:`membrax.sweep`). :class:`StagedTest` is the stage protocol shared by the rigid-wall test
-(:mod:`membrax.triaxial`) and the membrane test (:mod:`membrax.membrane_triaxial`): consolidation until
-the test's own stop criterion holds, then strain-controlled shearing recorded at two rates.
+Its users: :class:`ChunkRunner` (one state: the stages of :class:`membrax.triaxial.protocol.StagedTest`,
+interactive use) and :class:`membrax.stages.BatchedTest` (stacked members: every run of
+:mod:`membrax.run` and :mod:`membrax.sweep`).
 """
 
 from __future__ import annotations
@@ -28,13 +26,11 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
-from membrax.config import default_consolidation_tolerance
 from membrax.errors import OVERFLOWS, ErrorCode, describe
-from membrax.neighbors import PairNeighborFn, remap_pair_history
+from membrax.spheres.neighbors import PairNeighborFn, remap_pair_history
 
 __all__ = [
     "ChunkRunner",
-    "StagedTest",
     "drive",
     "SimulationError",
     "concatenate_records",
@@ -69,10 +65,10 @@ class ChunkRunner:
       record_fn: ``record_fn(state, params) -> pytree`` recorded every ``record_every`` steps.
       num_particles: N (for the history remap).
       capacity_growth: the factor by which the pair capacity grows on each reallocation.
-      grow_membrane: for a coupled state (:class:`membrax.membrane_dem.CoupledState`),
+      grow_membrane: for a coupled state (:class:`membrax.membrane.coupled.CoupledState`),
         ``grow_membrane(state, overflowed) -> state`` with a node candidate table large enough for the
         overflowing chunk's end state ``overflowed`` (its table's ``max_count`` per node,
-        ``max_sphere_count`` per sphere; see :func:`membrax.membrane_dem.grow_candidates`).
+        ``max_sphere_count`` per sphere; see :func:`membrax.membrane.coupled.grow_candidates`).
       dem_of: ``dem_of(state) -> DEMState``, the sphere state whose neighbour list the runner rebuilds
         (default: the state itself; a coupled test passes ``lambda s: s.dem``).
       with_dem: ``with_dem(state, dem) -> state``, the state with that sphere state put back (default: the
@@ -260,7 +256,7 @@ def two_rate_plan(
 
     The strain grows by 1/``steps_per_strain`` per step once the platens are at speed: the fine phase runs
     to ``fine_until_strain`` (capped at the target), the coarse phase to ``target_strain``. A linear ramp
-    from rest that ends at strain ``ramp_strain`` (:func:`membrax.walls.set_control`) lasts 2 ε_ramp/ε̇
+    from rest that ends at strain ``ramp_strain`` (:func:`membrax.spheres.walls.set_control`) lasts 2 ε_ramp/ε̇
     and so delays every later strain by ε_ramp/ε̇: the fine phase takes that many steps more.
     """
     fine_strain = min(fine_until_strain, target_strain)
@@ -281,97 +277,3 @@ def run_phases(runner: ChunkRunner, state, params, phases, chunk_steps: int, on_
             state, records = runner.run(state, params, steps, chunk_steps, record_every, on_chunk=on_chunk)
             parts.append(records)
     return state, concatenate_records([part for part in parts if part is not None])
-
-
-class StagedTest:
-    """The two stages of a triaxial test, shared by the rigid-wall and the membrane test.
-
-    A subclass (a dataclass with ``initial_state``, ``params`` and ``runner``, a :class:`ChunkRunner`)
-    says what its cell does at each stage:
-
-    - ``cell``: ``"rigid"`` or ``"membrane"``, the default consolidation tolerance's row
-      (:func:`membrax.config.default_consolidation_tolerance`);
-    - ``default_ramp_strain``: the shearing's default start-up ramp (axial strain at full speed);
-    - ``start_consolidation(state)``: the servos on, at rest;
-    - ``is_consolidated(records, tolerance, **criteria)``: the stop test on a chunk's records;
-    - ``start_shear(state, inertial_number, ramp_strain, **loading)``: the strain-controlled platens;
-    - ``shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp_strain)``: the steps of the
-      two recording phases, (fine, coarse).
-    """
-
-    cell = "rigid"
-    default_ramp_strain = 0.0
-
-    def consolidate(
-        self,
-        state=None,
-        tolerance: float | None = None,
-        max_steps: int = 200_000,
-        chunk_steps: int = 2000,
-        record_every: int = 100,
-        on_chunk=None,
-        **criteria,
-    ):
-        """Stage 1: isotropic consolidation until ``is_consolidated`` holds (or ``max_steps``).
-
-        Args:
-          state: starting state (default: the as-built specimen).
-          tolerance: unbalanced-force ratio to reach; default
-            :func:`membrax.config.default_consolidation_tolerance` for the cell and the state's precision.
-          max_steps: give up after this many steps (the records show how far it got).
-          chunk_steps: steps per compiled chunk.
-          record_every: steps between records.
-          on_chunk: progress callback ``on_chunk(state, records)``.
-          **criteria: the cell's further stop criteria (``stress_tolerance``, ...; ``is_consolidated``).
-
-        Returns:
-          (state, records); ``records.step`` counts from the start of the test.
-        """
-        state = self.initial_state if state is None else state
-        if tolerance is None:
-            dtype = self.runner.dem_of(state).position.dtype
-            tolerance = default_consolidation_tolerance(self.cell, dtype == np.float64)
-        state = self.start_consolidation(state)
-
-        def stop(_, records):
-            return self.is_consolidated(records, tolerance, **criteria)
-
-        return self.runner.run(
-            state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop, on_chunk=on_chunk
-        )
-
-    def shear(
-        self,
-        state,
-        target_axial_strain: float = 0.10,
-        inertial_number: float = 1e-3,
-        record_every_fine: int = 25,
-        fine_until_strain: float = 0.01,
-        record_every_coarse: int = 250,
-        chunk_steps: int = 5000,
-        on_chunk=None,
-        ramp_strain: float | None = None,
-        **loading,
-    ):
-        """Stage 2: strain-controlled drained shearing, recorded at two rates (module docstring).
-
-        Args:
-          state: the consolidated state.
-          target_axial_strain: axial strain to reach, counted from the start of shearing.
-          inertial_number: I, setting the strain rate.
-          record_every_fine: steps between records below ``fine_until_strain``.
-          fine_until_strain: the end of the fine recording.
-          record_every_coarse: steps between records after it.
-          chunk_steps: steps per compiled chunk.
-          on_chunk: progress callback ``on_chunk(state, records)``.
-          ramp_strain: axial strain at which the platens reach full speed (default the cell's).
-          **loading: the cell's further loading options (``symmetric`` for the membrane test).
-
-        Returns:
-          (state, records) with the records of both recording rates joined.
-        """
-        ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
-        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp)
-        state = self.start_shear(state, inertial_number, ramp, **loading)
-        phases = [(fine, record_every_fine), (coarse, record_every_coarse)]
-        return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)

@@ -9,17 +9,17 @@ values, so they are read from :class:`membrax.config.TriaxialConfig` and checked
 
 Contract. Every function takes ``results``, a mapping from a case key ``(cell_pressure_kpa,
 membrane_thickness_mm)`` (two positive finite numbers, kPa and mm) to that case's shear records: the
-mapping described in :mod:`membrax.analysis` (a ``dict`` of arrays or an ``xarray.Dataset``, the first
-record being the end of consolidation). Each case needs the series ``axial_strain``,
+mapping described in :mod:`membrax.triaxial.analysis` (a ``dict`` of arrays or an ``xarray.Dataset``, the
+first record being the end of consolidation). Each case needs the series ``axial_strain``,
 ``external_axial_stress``, ``external_radial_stress``, ``internal_axial_stress`` and
 ``internal_radial_stress`` (:data:`REQUIRED_SERIES`). Everything runs on the host in numpy float64.
 
 - :func:`table_2` and :func:`table_3` return one row (a ``dict`` of floats) per case, sorted by thickness
   then pressure as in the paper; for each quantity the row holds ours (``{quantity}``), the paper's
   (``paper_{quantity}``, NaN when the case is not in the paper's grid) and ``difference_{quantity}`` =
-  ours − paper. Table 2 is the peak mobilised φ' (:func:`membrax.analysis.peak`), Table 3 the initial
-  stresses (:func:`membrax.analysis.initial_state`, first record) and the additional (membrane) stresses
-  internal − external.
+  ours − paper. Table 2 is the peak mobilised φ' (:func:`membrax.triaxial.analysis.peak`), Table 3 the initial
+  stresses (:func:`membrax.triaxial.analysis.initial_state`, first record) and the additional (membrane)
+  stresses internal − external.
 - :func:`write_tables` writes both as CSV (exact floats) and Markdown (2 decimals, "–" for NaN).
 - :func:`fig9_data` and :func:`paper_fig9_data` give, per thickness, the numbers of the paper's Fig. 9:
   the Molenkamp & Luger indentation ratio and the negative of the relative initial axial stress ratio
@@ -64,8 +64,10 @@ from pathlib import Path
 
 import numpy as np
 
-from membrax import analysis, io, theory
+from membrax import theory
 from membrax.config import TriaxialConfig
+from membrax.io import files as io_files
+from membrax.triaxial import analysis
 
 __all__ = [
     "BALLAST_CRITICAL_FRICTION_DEG",
@@ -147,7 +149,7 @@ _TABLE_3_ROWS = (
 
 #: The paper's Table 2 (peak mobilised friction angles, degrees, external and internal stresses as in its
 #: §4.3), keyed by ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of
-#: :func:`membrax.analysis.peak`.
+#: :func:`membrax.triaxial.analysis.peak`.
 PAPER_TABLE_2 = {
     (pressure, thickness): {
         "peak_external_friction_angle_deg": external,
@@ -157,7 +159,8 @@ PAPER_TABLE_2 = {
 }
 
 #: The paper's Table 3 (initial external and internal principal stresses, kPa), keyed by
-#: ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of :func:`membrax.analysis.initial_state`.
+#: ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of
+#: :func:`membrax.triaxial.analysis.initial_state`.
 PAPER_TABLE_3 = {
     (pressure, thickness): {
         "sigma3_external_kpa": sigma3_external,
@@ -171,14 +174,15 @@ PAPER_TABLE_3 = {
 }
 
 #: The paper's values for 10 kPa cell pressure and a 5 mm membrane (the test of its Figs 5–8), keyed as
-#: the results of :func:`membrax.analysis.initial_state`, :func:`~membrax.analysis.peak` and
-#: :func:`~membrax.analysis.largest_overestimate`, for :func:`membrax.analysis.summary_table`: its Table 2
-#: and 3 rows, and from Fig. 5 and §5.2 that beyond about 3 % axial strain the external φ' exceeds the
-#: internal one "by up to 4°" (§5.2 says only that the peak "occurs almost immediately at close to 0%
-#: axial strain", and not at which strain the largest difference falls, so no strains are given).
+#: the results of :func:`membrax.triaxial.analysis.initial_state`, :func:`~membrax.triaxial.analysis.peak` and
+#: :func:`~membrax.triaxial.analysis.largest_overestimate`, for
+#: :func:`membrax.triaxial.analysis.summary_table`: its Table 2 and 3 rows, and from Fig. 5 and §5.2 that
+#: beyond about 3 % axial strain the external φ' exceeds the internal one "by up to 4°" (§5.2 says only that
+#: the peak "occurs almost immediately at close to 0% axial strain", and not at which strain the largest
+#: difference falls, so no strains are given).
 PAPER_10KPA_5MM = {**PAPER_TABLE_3[(10.0, 5.0)], **PAPER_TABLE_2[(10.0, 5.0)], "overestimate_deg": 4.0}
 
-#: Series every case's records must hold (see :mod:`membrax.analysis`).
+#: Series every case's records must hold (see :mod:`membrax.triaxial.analysis`).
 REQUIRED_SERIES = (
     "axial_strain",
     "external_axial_stress",
@@ -250,13 +254,13 @@ def _check_records(key: tuple[float, float], records) -> None:
     if not isinstance(records, Mapping):
         raise ValueError(
             f"{case} is a {type(records).__name__}; pass the case's shear records, a mapping "
-            "name -> 1-D series (dict or xarray.Dataset, see membrax.analysis)."
+            "name -> 1-D series (dict or xarray.Dataset, see membrax.triaxial.analysis)."
         )
     missing = [name for name in REQUIRED_SERIES if name not in records]
     if missing:
         raise ValueError(
             f"{case} has no series {', '.join(map(repr, missing))}; pass the shear records of a "
-            f"membrane triaxial test, which hold {', '.join(REQUIRED_SERIES)} (membrax.analysis)."
+            f"membrane triaxial test, which hold {', '.join(REQUIRED_SERIES)} (membrax.triaxial.analysis)."
         )
     sizes = {name: np.size(records[name]) for name in REQUIRED_SERIES}
     if 0 in sizes.values() or len(set(sizes.values())) != 1:
@@ -322,7 +326,7 @@ def _row(key: tuple[float, float], ours: Mapping, paper_table: Mapping, quantiti
 
 
 def _peak_angles(records) -> dict:
-    """:func:`membrax.analysis.peak` from the four stresses and the axial strain only."""
+    """:func:`membrax.triaxial.analysis.peak` from the four stresses and the axial strain only."""
     derived = {
         f"{side}_friction_angle_deg": analysis._friction_angle_deg(
             analysis.record(records, f"{side}_axial_stress"),
@@ -351,8 +355,8 @@ def table_2(results) -> list[dict]:
     Returns:
       One dict of floats per case, sorted by thickness then pressure, with the columns
       ``cell_pressure_kpa, membrane_thickness_mm`` and, for ``q`` in ``peak_external_friction_angle_deg,
-      peak_internal_friction_angle_deg`` (degrees, :func:`membrax.analysis.peak`): ``q``, ``paper_q`` (NaN
-      outside the paper's grid) and ``difference_q`` = ours − paper.
+      peak_internal_friction_angle_deg`` (degrees, :func:`membrax.triaxial.analysis.peak`): ``q``,
+      ``paper_q`` (NaN outside the paper's grid) and ``difference_q`` = ours − paper.
 
     Raises:
       ValueError: see the module docstring (Checks).
@@ -367,7 +371,7 @@ def centre_cylinder_radial_stress(records, particle_radius: float, index: int = 
     """Internal σ3 over the right cylinder through the boundary spheres' centres, kPa.
 
     membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area
-    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane_measure.right_cylinder_stresses`). The paper's
+    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane.measure.right_cylinder_stresses`). The paper's
     "surface area of the right cylinder" (its §4.3) may be that of the cylinder through the centres of
     the boundary spheres, r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16
     found that reading reproduces the paper's Δσ3 ≈ 0.1 σc:
@@ -405,9 +409,9 @@ def table_3(results, particle_radius: float | None = None) -> list[dict]:
       One dict of floats per case, sorted by thickness then pressure, with the columns
       ``cell_pressure_kpa, membrane_thickness_mm`` and, for ``q`` in ``sigma3_external_kpa,
       sigma3_internal_kpa, sigma1_external_kpa, sigma1_internal_kpa`` (the first record,
-      :func:`membrax.analysis.initial_state`) and ``additional_sigma3_kpa, additional_sigma1_kpa`` (internal
-      − external), all kPa: ``q``, ``paper_q`` (NaN outside the paper's grid) and ``difference_q`` = ours −
-      paper.
+      :func:`membrax.triaxial.analysis.initial_state`) and ``additional_sigma3_kpa, additional_sigma1_kpa``
+      (internal − external), all kPa: ``q``, ``paper_q`` (NaN outside the paper's grid) and ``difference_q``
+      = ours − paper.
 
     Raises:
       ValueError: see the module docstring (Checks).
@@ -477,7 +481,7 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
     """
     rows_2, rows_3 = table_2(results), table_3(results, particle_radius)
     quantities_3 = (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
-    folder = io._ensure_folder(folder)
+    folder = io_files.ensure_folder(folder)
     note = (
         "Ours from membrax; paper from Tables 2 and 3 of the paper (– where it has no such case; its "
         "3.3 mm is the 3.33 mm membrane)."
@@ -495,7 +499,7 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
     paths = {}
     for name, text in texts.items():
         paths[name] = folder / name
-        io._atomic_write_bytes(paths[name], text.encode("utf-8"))
+        io_files.atomic_write_bytes(paths[name], text.encode("utf-8"))
     return paths
 
 

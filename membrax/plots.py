@@ -24,10 +24,10 @@ Consecutive coincident points (from nodes lying on the plane) are merged into on
 
 Test figures (the paper's Figs 5–8). :func:`plot_friction_angles`, :func:`plot_additional_stresses`,
 :func:`plot_axial_ratio_and_strain_ratio` and :func:`plot_radial_ratio_and_radial_strain` take the records
-of a membrane triaxial test (the mapping described in :mod:`membrax.analysis`) and optionally its
-:func:`membrax.analysis.derived_quantities`, and return a new matplotlib ``Figure`` made without pyplot
-(nothing to close, no global state). The x axis is the axial strain in %, stresses are shown in kPa, angles
-in degrees; each data series is one line, in the order the docstring lists. :func:`save_test_figures`
+of a membrane triaxial test (the mapping described in :mod:`membrax.triaxial.analysis`) and optionally its
+:func:`membrax.triaxial.analysis.derived_quantities`, and return a new matplotlib ``Figure`` made without
+pyplot (nothing to close, no global state). The x axis is the axial strain in %, stresses are shown in kPa,
+angles in degrees; each data series is one line, in the order the docstring lists. :func:`save_test_figures`
 writes all four as PNG files.
 
 Fig. 9 of the paper. :func:`plot_fig9` draws the per-thickness numbers of
@@ -47,7 +47,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 from matplotlib.ticker import NullFormatter
 
-from membrax import analysis
+from membrax.triaxial import analysis
 
 __all__ = [
     "membrane_section",
@@ -320,11 +320,11 @@ def plot_friction_angles(records, derived=None) -> Figure:
 
     Lines, in order: ``ax.lines[0]`` external φ', ``ax.lines[1]`` internal φ' and, when the records have
     the Love–Weber series, ``ax.lines[2]`` Love–Weber φ' (thin); degrees, from
-    sin φ' = (σ1 − σ3)/(σ1 + σ3) (:func:`membrax.analysis.derived_quantities`).
+    sin φ' = (σ1 − σ3)/(σ1 + σ3) (:func:`membrax.triaxial.analysis.derived_quantities`).
 
     Args:
-      records: the test records (see :mod:`membrax.analysis`).
-      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+      records: the test records (see :mod:`membrax.triaxial.analysis`).
+      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
 
     Returns:
       The Figure.
@@ -353,8 +353,8 @@ def plot_additional_stresses(records, derived=None) -> Figure:
     stress Δσ_a, both in kPa.
 
     Args:
-      records: the test records (see :mod:`membrax.analysis`).
-      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+      records: the test records (see :mod:`membrax.triaxial.analysis`).
+      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
 
     Returns:
       The Figure.
@@ -398,12 +398,12 @@ def plot_axial_ratio_and_strain_ratio(records, derived=None) -> Figure:
     """Axial stress ratio internal/external and change in strain ratio dε_r/dε_a (paper's Fig. 7).
 
     ``figure.axes[0].lines[0]`` is the axial stress ratio (left axis); ``figure.axes[1].lines[0]`` the
-    change in strain ratio from :func:`membrax.analysis.strain_ratio_change` (twin right axis), both
+    change in strain ratio from :func:`membrax.triaxial.analysis.strain_ratio_change` (twin right axis), both
     dimensionless.
 
     Args:
-      records: the test records (see :mod:`membrax.analysis`).
-      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+      records: the test records (see :mod:`membrax.triaxial.analysis`).
+      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
 
     Returns:
       The Figure.
@@ -427,8 +427,8 @@ def plot_radial_ratio_and_radial_strain(records, derived=None) -> Figure:
     radial strain ε_r in % as recorded, compression positive, so bulging is negative (twin right axis).
 
     Args:
-      records: the test records (see :mod:`membrax.analysis`).
-      derived: :func:`membrax.analysis.derived_quantities` of the records, computed when not given.
+      records: the test records (see :mod:`membrax.triaxial.analysis`).
+      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
 
     Returns:
       The Figure.
@@ -464,10 +464,11 @@ def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> lis
     saved (cleared; nothing stays registered).
 
     Args:
-      records: the test records (see :mod:`membrax.analysis`).
+      records: the test records (see :mod:`membrax.triaxial.analysis`).
       folder: output directory.
       stem: file-name prefix.
-      derived: :func:`membrax.analysis.derived_quantities` of the records, computed once when not given.
+      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed once when
+        not given.
       dpi: resolution of the PNG files.
 
     Returns:

@@ -7,7 +7,7 @@ jax-md idiom the step functions use). Fields made with :func:`static_field` are 
 the tree's structure (compile-time constants such as a member count), so changing one recompiles.
 
 This is the few lines of ``jax_md.dataclasses`` that membrax uses, kept here so that only the neighbour
-lists (:mod:`membrax.neighbors`) import jax-md, whose import runs array code.
+lists (:mod:`membrax.spheres.neighbors`) import jax-md, whose import runs array code.
 """
 
 from __future__ import annotations

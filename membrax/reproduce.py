@@ -15,12 +15,12 @@ writes into ``folder``:
 
 Sizes (:data:`SIZES`). ``small``: 6 spheres across and 10 layers (~330 spheres, a membrane of edge D/3,
 I = 5e-3) — the demo's specimen, 2 min 52 s on 2 CPU cores for all nine cases;
-``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), a CPU command: 57 min on 2
-cores with the compiled kernels of :mod:`membrax.native` (float64, peak RSS 3.7 GB; a 2-core machine on
-which ``benchmarks/bench_membrane.py`` gives 321 coupled steps/s in float32).
+``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), a CPU command: 2,445
+CPU-seconds, about 20 min on 2 cores with the compiled kernels of :mod:`membrax.native` (float64, peak RSS
+3.8 GB; 27 min 46 s wall when the test suite shared the cores).
 Both use the paper's materials (25 mm granite spheres, μ = tan 25°, latex 1400 kPa without bending
 stiffness) and protocol (platens ramped to full speed at 1 % strain, both moving,
-:mod:`membrax.membrane_triaxial`). Both run in float64 and end consolidation at an unbalanced-force
+:mod:`membrax.triaxial.membrane_cell`). Both run in float64 and end consolidation at an unbalanced-force
 ratio of 1e-3 (:data:`TABLE_3_PRECISION`).
 """
 

@@ -1,17 +1,17 @@
 """One membrane triaxial test from a configuration to a results folder, with checkpoints and resume.
 
 Contract. :func:`run_test` takes a :class:`membrax.config.TriaxialConfig` and a folder and runs the paper's
-protocol (:mod:`membrax.membrane_triaxial`): stage 1, consolidation under the cell pressure until the
+protocol (:mod:`membrax.triaxial.membrane_cell`): stage 1, consolidation under the cell pressure until the
 unbalanced-force ratio is below the tolerance and the ram stress equals σc; stage 2, drained shearing at
 the strain rate of ``inertial_number`` to ``target_axial_strain``, recorded every ``record_every_fine``
 steps below ``fine_until_strain`` and every ``record_every_coarse`` steps after. The folder receives:
 
 - ``results.nc`` / ``results.csv``: the shearing records
-  (:class:`membrax.membrane_measure.MembraneMeasurements` plus the derived quantities of
-  :func:`membrax.analysis.derived_quantities`), the first one being the last consolidation record (the initial
-  state of the paper's Table 3), with axial, radial and volumetric strain counted from the start of shearing
-  (the paper's figures start at 0 %), the configuration, version, N, dt, step counts and timings as
-  attributes;
+  (:class:`membrax.membrane.measure.MembraneMeasurements` plus the derived quantities of
+  :func:`membrax.triaxial.analysis.derived_quantities`), the first one being the last consolidation record
+  (the initial state of the paper's Table 3), with axial, radial and volumetric strain counted from the start
+  of shearing (the paper's figures start at 0 %), the configuration, version, N, dt, step counts and timings
+  as attributes;
 - ``consolidation.nc`` / ``consolidation.csv``: the stage-1 records (strains from the built specimen);
 - ``fig5_friction.png`` … ``fig8_radial_ratio.png`` (:func:`membrax.plots.save_test_figures`),
   ``summary.md`` (Table 2/3-style numbers beside the paper's for 10 kPa / 5 mm);
@@ -38,11 +38,11 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from membrax import __version__, analysis, membrane_measure, plots
+from membrax import __version__, plots
 from membrax import io as io_lib
 from membrax import paper as paper_lib
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
-from membrax.membrane_triaxial import MembraneTest
+from membrax.membrane import measure as membrane_measure
 from membrax.stages import (
     CHECKPOINT_NAME,
     RunError,
@@ -55,6 +55,8 @@ from membrax.stages import (
     run_group,
     run_metadata,
 )
+from membrax.triaxial import analysis
+from membrax.triaxial.membrane_cell import MembraneTest
 
 __all__ = [
     "CHECKPOINT_NAME",

@@ -4,10 +4,10 @@ Contract. Every membrane test that runs to a results folder goes through here, a
 test (:func:`membrax.run.run_test`) is a batch of one, a sweep (:func:`membrax.sweep.run_sweep`) runs its
 grid as batches. :func:`build_batch` builds the members of one compiled batch (:class:`BatchedTest`:
 states stacked on a member axis, one Δt, one mesh topology) and :func:`run_group` takes them through the
-paper's protocol (:mod:`membrax.membrane_triaxial`):
+paper's protocol (:mod:`membrax.triaxial.membrane_cell`):
 
 - ``consolidation``: the ram servo on, until each member's own stop test holds
-  (:meth:`membrax.membrane_triaxial.MembraneTest.is_consolidated`) or it reaches
+  (:meth:`membrax.triaxial.membrane_cell.MembraneTest.is_consolidated`) or it reaches
   ``consolidation_max_steps``;
 - ``shear_fine`` and ``shear_coarse``: drained shearing at the strain rate of ``inertial_number``
   (ramped from rest), recorded every ``record_every_fine`` steps below ``fine_until_strain`` and every
@@ -44,19 +44,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import __version__, analysis, membrane_measure, theory
+from membrax import __version__, theory
 from membrax import io as io_lib
 from membrax.batch import stack
 from membrax.config import TriaxialConfig, config_to_dict, default_consolidation_tolerance
-from membrax.contact import ContactParams
 from membrax.driver import SimulationError, drive
 from membrax.errors import OVERFLOWS, ErrorCode, describe
-from membrax.membrane import rounded_offset_path
-from membrax.membrane_contact import MembraneContactParams
-from membrax.membrane_dem import grow_candidates
-from membrax.membrane_triaxial import MembraneTest, membrane_test
-from membrax.neighbors import remap_pair_history
-from membrax.packing import fcc_specimen, with_imperfection
+from membrax.membrane import measure as membrane_measure
+from membrax.membrane.contact import MembraneContactParams
+from membrax.membrane.coupled import grow_candidates
+from membrax.membrane.mesh import rounded_offset_path
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.neighbors import remap_pair_history
+from membrax.spheres.packing import fcc_specimen, with_imperfection
+from membrax.triaxial import analysis
+from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
 
 __all__ = [
     "BATCHED_FIELDS",
@@ -189,7 +191,7 @@ def rebase_to_shear_start(records: dict, start: dict) -> dict:
     """Strains, area and stresses counted from the start of shearing (the paper's Table 3 and figures).
 
     The area A = A₀ (1 − ε_v)/(1 − ε_a) starts from the platen area A₀ at the start of shearing
-    (:func:`membrax.membrane_measure.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram
+    (:func:`membrax.membrane.measure.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram
     servo's σc. The consolidation stage's strains (from the as-built specimen, the membrane's penetration into
     the voids included) are kept in their own columns, ``consolidation_axial_strain`` and
     ``consolidation_volumetric_strain``, the same in every row.
@@ -279,6 +281,7 @@ def _shared_neighbors(frame, positions: Sequence, capacity: int = 0, cell_capaci
 # ----------------------------------------------------------------------------------------------------------
 
 
+@pydataclasses.dataclass
 class BatchedTest:
     """Members of one compiled batch (built by :func:`build_batch`); arrays stacked on a member axis.
 
@@ -290,9 +293,9 @@ class BatchedTest:
       nodes_around: the common n_θ.
       num_devices: devices the member axis is sharded over.
       mode: ``"map"`` (``lax.map``, CPU) or ``"vmap"`` (GPU).
-      params: stacked :class:`membrax.membrane_dem.CoupledParams`, padded to a multiple of ``num_devices``.
-      members: stacked per-member constants: the mesh's rest geometry and the initial inner volume.
-      initial_state: stacked states at the start of consolidation (servo on).
+      params: stacked :class:`membrax.membrane.coupled.CoupledParams`, padded to a multiple of
+      ``num_devices``. members: stacked per-member constants: the mesh's rest geometry and the initial inner
+      volume. initial_state: stacked states at the start of consolidation (servo on).
       order: member b of the batch is ``configs[order[b]]`` of :func:`build_batch`'s argument.
     """
 
@@ -447,7 +450,7 @@ class BatchedTest:
         num = self.num_members
 
         def chunk(states, left, num_records):
-            new, left, records, valid = self._chunk(
+            return self._chunk(
                 states,
                 self.params,
                 self.members,
@@ -455,7 +458,6 @@ class BatchedTest:
                 num_records=num_records,
                 record_every=record_every,
             )
-            return new, left, records, valid
 
         def fail(error, new, states):
             bad = int(np.flatnonzero(error[:num])[0])

@@ -6,7 +6,7 @@ member's test (:mod:`membrax.run`'s protocol: consolidation, then drained sheari
 :class:`xarray.Dataset` whose dimensions are the grid's fields plus ``record``:
 
 - ``sweep.nc``: the shearing records of every member (the first record the end of consolidation, strains
-  from the start of shearing, the derived quantities of :func:`membrax.analysis.derived_quantities`),
+  from the start of shearing, the derived quantities of :func:`membrax.triaxial.analysis.derived_quantities`),
   NaN-padded along ``record`` to the longest member (``num_records`` says how many are real), with the
   per-member scalars ``consolidation_steps``, ``shear_steps`` and the Table 2/3 numbers
   (``sigma3_internal_kpa``, ``peak_external_friction_angle_deg``, …);
@@ -52,7 +52,7 @@ import jax
 import numpy as np
 import xarray as xr
 
-from membrax import __version__, analysis, paper
+from membrax import __version__, paper
 from membrax import io as io_lib
 from membrax.config import (
     ConfigError,
@@ -73,6 +73,7 @@ from membrax.stages import (
     run_metadata,
     structure_key,
 )
+from membrax.triaxial import analysis
 
 __all__ = [
     "DEFAULT_GRID",

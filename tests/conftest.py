@@ -6,8 +6,8 @@ Library code never enables x64 on import; the tests do it here, before any array
 
 jax-md fights strict promotion: importing it runs array code that mixes float32 and int64, and its cell
 list mixes dtypes and ranks when it builds. So jax-md is imported here before the strict settings, and
-membrax's neighbour-list wrapper (membrax.neighbors) calls jax-md under local standard promotion. All of
-membrax's own code runs strict.
+membrax's neighbour-list wrapper (membrax.spheres.neighbors) calls jax-md under local standard promotion. All
+of membrax's own code runs strict.
 """
 
 import os

@@ -1,4 +1,5 @@
-"""membrax.analysis and the test figures of membrax.plots against hand calculations on synthetic records.
+"""membrax.triaxial.analysis and the test figures of membrax.plots against hand calculations on synthetic
+records.
 
 No simulation: the records are numpy series shaped like a membrane triaxial test at 10 kPa (SI units,
 compression positive), dense below 1 % axial strain and coarser after, as the drivers record them.
@@ -14,7 +15,8 @@ import numpy as np
 import pytest
 from matplotlib.figure import Figure
 
-from membrax import analysis, paper, plots, theory
+from membrax import paper, plots, theory
+from membrax.triaxial import analysis
 
 CELL = 10e3  # Pa
 DENSE_STEP = 6e-5  # window/2 = 0.0025 is 41.7 steps: no record sits on a window edge

@@ -45,20 +45,10 @@ def test_the_api_is_exactly_the_curated_names():
 
 
 def test_every_name_resolves_to_its_defining_module():
-    from membrax import (
-        config,
-        devices,
-        driver,
-        errors,
-        integrate,
-        io,
-        membrane,
-        membrane_triaxial,
-        packing,
-        run,
-        sweep,
-        triaxial,
-    )
+    from membrax import config, devices, driver, errors, io, run, sweep
+    from membrax.membrane import mesh
+    from membrax.spheres import integrate, packing
+    from membrax.triaxial import membrane_cell, rigid
 
     homes = {
         "TriaxialConfig": config,
@@ -69,16 +59,17 @@ def test_every_name_resolves_to_its_defining_module():
         "split_cpu_devices": devices,
         "read_results": io,
         "fcc_specimen": packing,
-        "rigid_wall_test": triaxial,
-        "membrane_test": membrane_triaxial,
+        "rigid_wall_test": rigid,
+        "membrane_test": membrane_cell,
         "dem": integrate,
-        "prism_mesh": membrane,
+        "prism_mesh": mesh,
         "ErrorCode": errors,
         "SimulationError": driver,
     }
     for name, module in homes.items():
         assert getattr(membrax, name) is getattr(module, name), name
     assert membrax.paper.__name__ == "membrax.paper" and membrax.theory.__name__ == "membrax.theory"
+    assert membrax.analysis.__name__ == "membrax.triaxial.analysis"
     assert membrax.DEMO_CONFIG["particles_across"] == 6
     assert set(dir(membrax)) >= EXPECTED
 

@@ -21,18 +21,19 @@ LAYERS = (
     ("validation", "vector", "fusion", "native", "errors", "batch", "devices", "theory", "pytree"),
     ("config",),
     # specimen + membrane: geometry
-    ("packing", "neighbors", "membrane"),
+    ("spheres.packing", "spheres.neighbors", "membrane.mesh"),
     # laws: contacts, walls and platens
-    ("contact", "walls", "membrane_contact"),
+    ("spheres.contact", "spheres.walls", "membrane.contact"),
     # step
-    ("integrate", "membrane_dem", "indentation"),
+    ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
     ("driver",),
     # measurements
-    ("measure", "membrane_measure"),
+    ("spheres.measure", "membrane.measure"),
     # protocol: consolidation and shearing
-    ("triaxial", "membrane_triaxial"),
+    ("triaxial.protocol",),
+    ("triaxial.rigid", "triaxial.membrane_cell"),
     # results
-    ("analysis", "io", "plots", "paper"),
+    ("triaxial.analysis", "io.files", "io.vtk", "io.results", "io.checkpoint", "io", "plots", "paper"),
     # runs: the stage loop every run and sweep shares, then one test, a grid, the paper
     ("stages",),
     ("run",),
@@ -41,49 +42,61 @@ LAYERS = (
     # commands: nothing imports them
     ("cli",),
 )
-DEM = {"packing", "neighbors", "contact", "walls", "integrate", "measure", "triaxial"}
-MEMBRANE = {
-    "membrane",
-    "membrane_contact",
-    "membrane_dem",
-    "membrane_measure",
-    "membrane_triaxial",
-    "indentation",
+#: Subpackages that are namespaces only: their __init__ imports nothing, so importing them is free.
+NAMESPACES = ("spheres", "membrane", "triaxial")
+DEM = {name for names in LAYERS for name in names if name.startswith("spheres.")} | {"triaxial.rigid"}
+MEMBRANE = {name for names in LAYERS for name in names if name.startswith("membrane.")} | {
+    "triaxial.membrane_cell"
 }
 LAYER = {name: level for level, names in enumerate(LAYERS) for name in names}
 
 
 def _membrax_imports(path: Path) -> set[str]:
-    """The membrax modules that ``path`` imports (``from membrax import x``, ``from membrax.x import y``,
-    ``import membrax.x``), anywhere in the file."""
+    """The membrax modules that ``path`` imports, as dotted names below ``membrax`` (``from membrax import
+    x``, ``from membrax.x import y``, ``from membrax.pkg import module``, ``import membrax.x``), anywhere in
+    the file."""
     found = set()
     for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.ImportFrom) and node.module:
             parts = node.module.split(".")
             if parts[0] != "membrax":
                 continue
-            if len(parts) > 1:
-                found.add(parts[1])
+            below = ".".join(parts[1:])
+            if below and below not in NAMESPACES:
+                found.add(below)
             else:
-                found.update(alias.name for alias in node.names if alias.name in LAYER)
+                prefix = f"{below}." if below else ""
+                found.update(
+                    f"{prefix}{alias.name}" for alias in node.names if f"{prefix}{alias.name}" in LAYER
+                )
         elif isinstance(node, ast.Import):
             for alias in node.names:
                 parts = alias.name.split(".")
                 if parts[0] == "membrax" and len(parts) > 1:
-                    found.add(parts[1])
+                    found.add(".".join(parts[1:]))
     return found
 
 
-MODULES = sorted(p.stem for p in PACKAGE.glob("*.py") if p.stem != "__init__")
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def test_every_module_has_a_layer():
+FILES = {_module_name(p): p for p in sorted(PACKAGE.rglob("*.py")) if p != PACKAGE / "__init__.py"}
+MODULES = sorted(name for name in FILES if name not in NAMESPACES)
+
+
+def test_every_module_has_a_layer_and_namespaces_import_nothing():
     assert set(MODULES) == set(LAYER), set(MODULES) ^ set(LAYER)
+    for namespace in NAMESPACES:
+        assert _membrax_imports(FILES[namespace]) == set(), namespace
 
 
 @pytest.mark.parametrize("module", MODULES)
 def test_imports_run_along_the_data_flow(module):
-    imports = _membrax_imports(PACKAGE / f"{module}.py") - {module}
+    imports = _membrax_imports(FILES[module]) - {module}
+    unknown = sorted(imports - set(LAYER))
+    assert not unknown, f"membrax.{module} imports {unknown}, which are not modules of a layer"
     above = sorted(name for name in imports if LAYER[name] > LAYER[module])
     assert not above, f"membrax.{module} (layer {LAYER[module]}) imports {above}, which come after it"
     if module in DEM:
@@ -96,8 +109,18 @@ def test_the_checker_sees_every_kind_of_import(tmp_path):
     sample.write_text(
         "from membrax import io as io_lib, theory\n"
         "import membrax.sweep\n"
+        "from membrax.spheres import integrate, packing as specimen\n"
+        "from membrax.membrane.coupled import membrane_dem\n"
         "def f():\n"
         "    from membrax.run import run_test\n"
         "    from membrax import __version__\n"
     )
-    assert _membrax_imports(sample) == {"io", "theory", "sweep", "run"}
+    assert _membrax_imports(sample) == {
+        "io",
+        "theory",
+        "sweep",
+        "run",
+        "spheres.integrate",
+        "spheres.packing",
+        "membrane.coupled",
+    }

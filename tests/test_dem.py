@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 from helpers import ACCUMULATED, tolerance
 
-from membrax import batch, contact, integrate, neighbors, packing, theory, triaxial
-from membrax import walls as walls_lib
+from membrax import batch, theory
+from membrax.spheres import contact, integrate, neighbors, packing
+from membrax.spheres import walls as walls_lib
+from membrax.triaxial import rigid as triaxial
 
 R = 0.0125
 D = 2 * R

@@ -4,8 +4,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import errors, integrate, membrane_contact
+from membrax import errors
 from membrax.errors import ErrorCode
+from membrax.membrane import contact as membrane_contact
+from membrax.spheres import integrate
 
 
 def test_every_error_is_its_own_bit_with_a_message():

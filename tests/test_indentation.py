@@ -1,4 +1,4 @@
-"""Membrane indentation into a square and a triangular array of spheres (membrax.indentation).
+"""Membrane indentation into a square and a triangular array of spheres (membrax.membrane.indentation).
 
 The issue's test: a sheet pressed by pressure onto a fixed array of spheres (square, or triangular: a
 hexagonal close-packed layer) indents deeper with pressure and less with thickness. Asserted: the
@@ -17,7 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from membrax import indentation, membrane, theory
+from membrax import theory
+from membrax.membrane import indentation
+from membrax.membrane import mesh as membrane
 
 DIAMETER = 0.025
 RADIUS = 0.5 * DIAMETER
@@ -41,7 +43,7 @@ def test_pressure_potential_gives_p_times_projected_area_and_consistent_nodal_lo
     With the outline moved only vertically, the projected area of the sheet is that of the flat patch
     (the sum of the rest areas), so the pressure's resultant is exactly −p A ẑ: positive p pushes down.
     On interior nodes the force equals the consistent load of the cone volume (1/6) Σ x₁·(x₂ × x₃)
-    (:func:`membrax.membrane.band_volume`) and does not depend on the reference plane.
+    (:func:`membrax.membrane.mesh.band_volume`) and does not depend on the reference plane.
     """
     mesh, position = _perturbed_sheet(0)
     pressure = 70e3

@@ -11,7 +11,9 @@ import meshio
 import numpy as np
 import pytest
 
-from membrax import io, membrane, packing
+from membrax import io
+from membrax.membrane import mesh as membrane
+from membrax.spheres import packing
 
 RADIUS = 0.13
 HEIGHT = 0.2

@@ -13,12 +13,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from membrax import membrane as membrane_lib
-from membrax import membrane_measure, packing
 from membrax.driver import two_rate_plan
-from membrax.membrane_triaxial import membrane_test
+from membrax.membrane import measure as membrane_measure
+from membrax.membrane import mesh as membrane_lib
+from membrax.spheres import packing
+from membrax.spheres.walls import BOTTOM, TOP, advance_walls, ramped_velocity, set_control, triaxial_walls
 from membrax.stages import rebase_to_shear_start
-from membrax.walls import BOTTOM, TOP, advance_walls, ramped_velocity, set_control, triaxial_walls
+from membrax.triaxial.membrane_cell import membrane_test
 
 
 def _ramp(walls, dt, steps):

@@ -1,4 +1,4 @@
-"""Membrane mesh and energies (membrax.membrane): each test checks a number against theory."""
+"""Membrane mesh and energies (membrax.membrane.mesh): each test checks a number against theory."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +7,7 @@ import pytest
 from helpers import central_difference, tolerance
 from scipy.optimize import minimize
 
-from membrax import membrane
+from membrax.membrane import mesh as membrane
 
 
 def _stretched(mesh, stretch_x, stretch_y):

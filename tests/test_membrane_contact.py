@@ -9,7 +9,7 @@ import pytest
 from helpers import tolerance
 from jax_md import dataclasses
 
-from membrax.membrane_contact import (
+from membrax.membrane.contact import (
     ERROR_MEMBRANE_CANDIDATE_OVERFLOW,
     MembraneContactParams,
     build_candidates,

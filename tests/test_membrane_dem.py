@@ -6,13 +6,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from membrax import membrane, membrane_dem, membrane_measure, packing
-from membrax.contact import ContactParams
-from membrax.integrate import DampingParams, DEMParams, dem, make_particles
-from membrax.membrane_contact import MembraneContactParams
-from membrax.membrane_triaxial import membrane_test
-from membrax.neighbors import pair_neighbor_fn
-from membrax.walls import triaxial_walls
+from membrax.membrane import coupled as membrane_dem
+from membrax.membrane import measure as membrane_measure
+from membrax.membrane import mesh as membrane
+from membrax.membrane.contact import MembraneContactParams
+from membrax.spheres import packing
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.integrate import DampingParams, DEMParams, dem, make_particles
+from membrax.spheres.neighbors import pair_neighbor_fn
+from membrax.spheres.walls import triaxial_walls
+from membrax.triaxial.membrane_cell import membrane_test
 
 
 def _clamped_cylinder(radius, height, edge, modulus, thickness, cell_pressure, damping):

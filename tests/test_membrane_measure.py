@@ -1,13 +1,13 @@
-"""Membrane measurements (membrax.membrane_measure): each test checks numbers against a hand calculation."""
+"""Membrane measurements (membrax.membrane.measure): each test checks numbers against a hand calculation."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from membrax import membrane
-from membrax import membrane_measure as mm
-from membrax.membrane_dem import platen_reaction
+from membrax.membrane import measure as mm
+from membrax.membrane import mesh as membrane
+from membrax.membrane.coupled import platen_reaction
 
 # jitted once: eager dispatch of these many small ops is slower than one compilation
 distance_to_triangle = jax.jit(mm.point_triangle_distance)

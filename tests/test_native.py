@@ -19,8 +19,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from membrax import membrane, native
-from membrax.membrane_contact import (
+from membrax import native
+from membrax.membrane import mesh as membrane
+from membrax.membrane.contact import (
     MembraneContactParams,
     _reference_node_sphere_forces,
     node_sphere_forces,
@@ -199,7 +200,8 @@ def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
         import warnings
         import jax
         jax.config.update("jax_enable_x64", True)
-        from membrax import membrane, native
+        from membrax import native
+        from membrax.membrane import mesh as membrane
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             ok = native.available()
@@ -247,7 +249,7 @@ def _dem_case(seed=9, num_spheres=150, num_slots=900):
 
 
 def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
-    from membrax import integrate
+    from membrax.spheres import integrate
 
     args = _dem_case()
     compiled = jax.jit(integrate._compiled_pair_totals)(*args)
@@ -281,7 +283,8 @@ def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
 
 
 def test_node_update_kernel_matches_jax_and_keeps_the_compensated_sum():
-    from membrax import integrate, membrane_dem
+    from membrax.membrane import coupled as membrane_dem
+    from membrax.spheres import integrate
 
     rng = np.random.default_rng(11)
     n = 500

@@ -1,4 +1,4 @@
-"""membrax.packing against hand counts, FCC lattice geometry and closed-form porosities.
+"""membrax.spheres.packing against hand counts, FCC lattice geometry and closed-form porosities.
 
 Units: m, kg. D = 25 mm spheres as in the paper unless stated. Neighbour searches use scipy's KD-tree on
 the built positions, independently of the integer-lattice arithmetic inside the builder.
@@ -13,7 +13,8 @@ import pytest
 from helpers import assert_close
 from scipy.spatial import cKDTree
 
-from membrax import packing, theory
+from membrax import theory
+from membrax.spheres import packing
 
 D = 0.025
 R = D / 2

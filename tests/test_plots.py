@@ -26,7 +26,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from membrax import membrane, packing, plots
+from membrax import plots
+from membrax.membrane import mesh as membrane
+from membrax.spheres import packing
 
 R = 0.13
 HEIGHT = 0.2

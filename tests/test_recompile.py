@@ -1,7 +1,7 @@
 """The steps compile once: traced parameters and stage controls change without a new trace.
 
-The promises of :mod:`membrax.integrate` (``params`` traced), :mod:`membrax.membrane_dem` (coupled
-parameters traced) and :mod:`membrax.walls` (switching a stage never recompiles). A jitted function is
+The promises of :mod:`membrax.spheres.integrate` (``params`` traced), :mod:`membrax.membrane.coupled` (coupled
+parameters traced) and :mod:`membrax.spheres.walls` (switching a stage never recompiles). A jitted function is
 traced once per compilation, so a Python counter inside it counts compilations (optax's
 ``log_compilations`` test helper works the same way). The changed values must also change the numbers:
 from rest, the first step gives a free membrane node the velocity Δt F/m with F ∝ p (Newton; no elastic or
@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 from helpers import tolerance
 
-from membrax import packing
-from membrax.membrane_triaxial import membrane_test
-from membrax.triaxial import rigid_wall_test
-from membrax.walls import set_control
+from membrax.spheres import packing
+from membrax.spheres.walls import set_control
+from membrax.triaxial.membrane_cell import membrane_test
+from membrax.triaxial.rigid import rigid_wall_test
 
 
 def _counted(step_fn):

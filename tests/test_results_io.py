@@ -357,7 +357,7 @@ def test_interrupted_checkpoint_write_keeps_previous(tmp_path, monkeypatch):
         assert os.path.getsize(src) > 0  # the temporary file was fully written next to the target
         raise OSError("simulated crash before the rename")
 
-    monkeypatch.setattr(io.os, "replace", crash)
+    monkeypatch.setattr(io.files.os, "replace", crash)
     with pytest.raises(OSError, match="simulated crash"):
         io.save_checkpoint(path, {"x": jnp.asarray(np.array([3.0, 4.0]))}, {"step": 2})
     with pytest.raises(OSError, match="simulated crash"):

@@ -8,11 +8,12 @@ import numpy as np
 import pytest
 from helpers import tolerance
 
-from membrax import cli, packing
-from membrax import membrane as membrane_lib
+from membrax import cli
 from membrax.config import TriaxialConfig
-from membrax.membrane_triaxial import membrane_test
+from membrax.membrane import mesh as membrane_lib
 from membrax.run import CHECKPOINT_NAME, run_test
+from membrax.spheres import packing
+from membrax.triaxial.membrane_cell import membrane_test
 
 SMALL = dict(
     name="small",

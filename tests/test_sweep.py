@@ -13,8 +13,8 @@ import pytest
 
 from membrax import paper, stages, sweep
 from membrax.config import ConfigError, TriaxialConfig
-from membrax.packing import GRANITE_DENSITY
 from membrax.run import run_test
+from membrax.spheres.packing import GRANITE_DENSITY
 
 # Every test here runs a batched simulation (the module fixture alone takes about a minute).
 pytestmark = pytest.mark.slow

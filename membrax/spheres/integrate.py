@@ -11,7 +11,8 @@ in the jax-md style:
 One step (explicit central differences / leapfrog, velocities at half steps):
 
 1. update the neighbour list at x_n; if it was rebuilt, remap the contact history (by partner id);
-2. contact forces and torques at x_n from the velocities v_{n−1/2} (Cundall–Strack, :mod:`membrax.contact`),
+2. contact forces and torques at x_n from the velocities v_{n−1/2} (Cundall–Strack,
+   :mod:`membrax.spheres.contact`),
    plus wall contacts and any external force;
 3. damping (below);
 4. v_{n+1/2} = v_{n−1/2} + Δt F/m,  ω_{n+1/2} = ω_{n−1/2} + Δt T/I  (I = 2/5 m R² for a solid sphere);
@@ -44,13 +45,14 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
-from membrax import contact, native, pytree
-from membrax.contact import ContactParams
+from membrax import native, pytree
 from membrax.errors import ErrorCode, describe
-from membrax.neighbors import PairNeighborFn, outside_box, remap_pair_history
-from membrax.packing import moment_of_inertia, particle_mass
+from membrax.spheres import contact
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.neighbors import PairNeighborFn, outside_box, remap_pair_history
+from membrax.spheres.packing import moment_of_inertia, particle_mass
+from membrax.spheres.walls import WallState, advance_walls, compensated_add, ramped_velocity, servo_velocity
 from membrax.vector import safe_norm, select
-from membrax.walls import WallState, advance_walls, compensated_add, ramped_velocity, servo_velocity
 
 __all__ = [
     "DEFAULT_SAFETY",
@@ -177,7 +179,7 @@ class DEMState:
       external_force: (N, 3) applied body force (gravity, tests), N.
       pair_spring: (C, 3) tangential spring of each pair slot of ``neighbors`` (force on the higher id).
       wall_spring: (N, W, 3) tangential spring of each sphere–wall contact (force on the sphere).
-      walls: the :class:`~membrax.walls.WallState`.
+      walls: the :class:`~membrax.spheres.walls.WallState`.
       neighbors: the jax-md neighbour list.
       step: number of steps taken.
       error: int32 bitmask of :class:`membrax.errors.ErrorCode` bits.
@@ -490,7 +492,7 @@ def dem(
 
     Args:
       particles: sphere properties.
-      neighbor_frame: the neighbour-list factory (:func:`membrax.neighbors.pair_neighbor_fn`).
+      neighbor_frame: the neighbour-list factory (:func:`membrax.spheres.neighbors.pair_neighbor_fn`).
       dt: time step, s (see :func:`critical_time_step`).
       platen_area: platen area for the servo when there are no lateral walls (m², scalar or (B,)).
       wall_friction: False skips the tangential springs of sphere–wall contacts (static; exact when

@@ -1,11 +1,11 @@
 """Membrane node–sphere contacts: penalty normal spring, Coulomb-capped tangential spring, candidate lists.
 
-Contract. The membrane's nodes (rows of an (n_nodes, 3) array, see :mod:`membrax.membrane`) touch the
+Contract. The membrane's nodes (rows of an (n_nodes, 3) array, see :mod:`membrax.membrane.mesh`) touch the
 spheres through a node–sphere contact law that is a pure function of the kinematics, a dense candidate
 table and the carried tangential springs; it returns the forces on the nodes, the forces and torques on
 the spheres, the updated springs and the normal forces (:func:`node_sphere_forces`). The conservative
 part (the normal spring) is ``-jax.grad`` of :func:`node_sphere_normal_energy`; the non-conservative part
-(the tangential spring with Coulomb slip) is an explicit force function, as in :mod:`membrax.contact`.
+(the tangential spring with Coulomb slip) is an explicit force function, as in :mod:`membrax.spheres.contact`.
 Everything is jittable and vmappable; the normal energy is differentiable in the positions, radii and
 thickness.
 
@@ -17,8 +17,8 @@ model, with the membrane's half thickness added to the sphere radius):
   force on the node F_n = −∂U_n/∂x_node = k_n δ n, n = (x_node − x_i)/|x_node − x_i| (outward from the
   sphere centre); the opposite force on the sphere. No force at or beyond the threshold (δ <= 0).
 - tangential: an incremental spring s (force on the node) carried per (node, candidate) slot, advanced by
-  :func:`membrax.contact.tangential_spring_update` (rotated into the current tangent plane, incremented
-  by −k_t v_t Δt, capped by |s| <= μ |F_n|, cleared when the contact opens). "A node stays on the
+  :func:`membrax.spheres.contact.tangential_spring_update` (rotated into the current tangent plane,
+  incremented by −k_t v_t Δt, capped by |s| <= μ |F_n|, cleared when the contact opens). "A node stays on the
   particle until the frictional limit is exceeded or it is pulled away" is exactly this spring: it
   sticks (elastically, displacement s/k_t) below μ F_n, slides at μ F_n above, and is reset when δ <= 0.
 - slip velocity and torque: the node carries no rotation, so its force acts at x_node. The sphere's
@@ -33,7 +33,7 @@ model, with the membrane's half thickness added to the sphere radius):
 Defaults (:meth:`MembraneContactParams.default`): k_n = 1e5 N/m, k_t = k_n, μ = tan 25°. Why 1e5 N/m: a
 membrane node's lumped mass is (area share) × t_m × ρ; for near-equilateral triangles of edge a each
 interior node gets (√3/2) a², so a = 5 mm, t_m = 5 mm, ρ = 1000 kg/m³ give m = 1.08e-4 kg (measured on
-:func:`membrax.membrane.cylinder_mesh`; 5.4e-5 kg on the clamped end rings). Then √(m/k_n) = 3.3e-5 s
+:func:`membrax.membrane.mesh.cylinder_mesh`; 5.4e-5 kg on the clamped end rings). Then √(m/k_n) = 3.3e-5 s
 (2.3e-5 s on the end rings), so the explicit stable step 2√(m/k) stays above the ~1e-5 s that the
 prototype found usable; the sphere–sphere k_n = 1e7 N/m would give √(m/k) = 3.3e-6 s (2.3e-6 s), forcing
 a step near 5e-6 s or density scaling of the membrane. The penalty only has to keep δ small against the
@@ -49,9 +49,9 @@ subset order are kept, the rest dropped): :func:`candidate_errors` turns it into
 ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) for the state's error bitmask, so the
 host driver reallocates with a larger K (``max_count`` says how large) and reruns: contacts are never
 silently dropped. The springs, (3, n_nodes, K), follow their sphere ids per node through rebuilds
-(:func:`remap_node_history`, the per-row analogue of :func:`membrax.neighbors.remap_pair_history`). Cost:
-17,000 nodes × 600 spheres (10.2 M distance checks) take about 90 ms per rebuild with K = 8 (150 ms with K
-= 16) on 2 CPU cores, XLA-CPU, float64.
+(:func:`remap_node_history`, the per-row analogue of :func:`membrax.spheres.neighbors.remap_pair_history`).
+Cost: 17,000 nodes × 600 spheres (10.2 M distance checks) take about 90 ms per rebuild with K = 8 (150 ms
+with K = 16) on 2 CPU cores, XLA-CPU, float64.
 
 Layout: nodes and spheres are rows of (n, 3) arrays; per-slot quantities gather rows (``x[idx]``) and are
 then handled component-first (3, n_nodes, K) with :mod:`membrax.vector`; the carried springs stay in that
@@ -70,9 +70,9 @@ import jax
 import jax.numpy as jnp
 
 from membrax import native, pytree
-from membrax.contact import normal_energy, tangential_spring_update
 from membrax.errors import ErrorCode
 from membrax.fusion import materialize
+from membrax.spheres.contact import normal_energy, tangential_spring_update
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
 __all__ = [

@@ -7,11 +7,11 @@ with a C++17 compiler (``$CXX``, else ``g++``) against XLA's FFI headers, into a
 the sources' hash and the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/membrax``), and loaded with
 ``ctypes``. ``MEMBRAX_NATIVE=0`` turns them off. A failed build warns once and falls back to JAX.
 
-Kernels: the membrane's nodal forces (:func:`membrax.membrane.nodal_forces`), its node update
-(:func:`membrax.membrane_dem.advance_nodes`), the node–sphere law
-(:func:`membrax.membrane_contact.node_sphere_forces`) and the DEM's sphere–sphere contacts summed per
-sphere (:func:`membrax.integrate.compute_forces`, with the law of :func:`membrax.contact.pair_contact`).
-Each caller wraps its kernel with :func:`with_reference`.
+Kernels: the membrane's nodal forces (:func:`membrax.membrane.mesh.nodal_forces`), its node update
+(:func:`membrax.membrane.coupled.advance_nodes`), the node–sphere law
+(:func:`membrax.membrane.contact.node_sphere_forces`) and the DEM's sphere–sphere contacts summed per
+sphere (:func:`membrax.spheres.integrate.compute_forces`, with the law of
+:func:`membrax.spheres.contact.pair_contact`). Each caller wraps its kernel with :func:`with_reference`.
 
 Why. XLA-CPU has no multi-output loop fusion and turns each per-element formula into several passes
 over memory (see :mod:`membrax.fusion`); a membrane force is a short formula over 34,000 triangles, and
@@ -57,7 +57,7 @@ def cache_dir() -> Path:
 
 
 def _source_dir() -> Path:
-    return Path(__file__).parent / "native"
+    return Path(__file__).parent
 
 
 def _cpu_signature() -> str:

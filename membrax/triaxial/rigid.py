@@ -3,7 +3,7 @@
 Contract. :func:`rigid_wall_test` builds a cell around a specimen — platens plus one servo wall per face of
 the specimen's outline, as in YADE's ``TriaxialStressController`` — and returns a :class:`RigidWallTest`
 whose methods run the two stages with the chunk driver and return the state and the records
-(:class:`membrax.measure.Measurements`, numpy arrays with a leading time axis):
+(:class:`membrax.spheres.measure.Measurements`, numpy arrays with a leading time axis):
 
 1. :meth:`RigidWallTest.consolidate`: every wall servo-controlled to the cell pressure σc until the
    unbalanced-force ratio falls below ``tolerance`` and every wall stress is within ``stress_tolerance``
@@ -26,10 +26,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import batch
-from membrax import measure as measure_lib
-from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, StagedTest, strain_rate_from_inertial_number, two_rate_plan
-from membrax.integrate import (
+from membrax.driver import ChunkRunner, strain_rate_from_inertial_number
+from membrax.spheres import measure as measure_lib
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
     DEMParams,
@@ -38,10 +38,11 @@ from membrax.integrate import (
     dem,
     make_particles,
 )
-from membrax.neighbors import pair_neighbor_fn
-from membrax.packing import GRANITE_DENSITY, Specimen
+from membrax.spheres.neighbors import pair_neighbor_fn
+from membrax.spheres.packing import GRANITE_DENSITY, Specimen
+from membrax.spheres.walls import TOP, ramp_acceleration, set_control, triaxial_walls
+from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
-from membrax.walls import TOP, set_control, triaxial_walls
 
 __all__ = ["RigidWallTest", "peak", "rigid_wall_test", "strain_rate_from_inertial_number"]
 
@@ -50,7 +51,7 @@ __all__ = ["RigidWallTest", "peak", "rigid_wall_test", "strain_rate_from_inertia
 class RigidWallTest(StagedTest):
     """A specimen in a rigid-wall cell, ready to run (built by :func:`rigid_wall_test`).
 
-    Its stages, :meth:`consolidate` and :meth:`shear`, are :class:`membrax.driver.StagedTest`'s.
+    Its stages, :meth:`consolidate` and :meth:`shear`, are :class:`membrax.triaxial.protocol.StagedTest`'s.
     """
 
     cell = "rigid"
@@ -81,7 +82,7 @@ class RigidWallTest(StagedTest):
           velocity: wall velocities dh/dt, m/s (used by constant-velocity walls); scalar, (B,) or (B, W).
           target: servo target stresses, Pa; scalar, (B,) or (B, W).
           acceleration: the constant-velocity walls' ramp from rest, m/s² (inf: none;
-            :func:`membrax.walls.set_control`).
+            :func:`membrax.spheres.walls.set_control`).
         """
         return state.set(walls=set_control(state.walls, servo, velocity, target, acceleration))
 
@@ -117,7 +118,7 @@ class RigidWallTest(StagedTest):
         """Switch ``state`` to stage 2: the top platen closes at ε̇ H, the lateral walls servo-held at σc.
 
         ``ramp_strain`` > 0 ramps the platen up from rest, reaching full speed at that axial strain
-        (:func:`membrax.walls.set_control`'s acceleration; the rigid-wall default is a step change).
+        (:func:`membrax.spheres.walls.set_control`'s acceleration; the rigid-wall default is a step change).
         """
         check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
         rate = self.shear_rate(inertial_number)
@@ -126,27 +127,8 @@ class RigidWallTest(StagedTest):
         velocity[:, TOP] = -rate * heights
         servo = np.ones(state.walls.servo.shape, dtype=bool)
         servo[:, :2] = False
-        # Full speed at strain ε_ramp: ½ ε̇ t_ramp = ε_ramp, so a = v ε̇ / (2 ε_ramp).
-        acceleration = np.abs(velocity) * rate / (2.0 * ramp_strain) if ramp_strain > 0.0 else np.inf
-        acceleration = np.where(velocity != 0.0, acceleration, np.inf)
+        acceleration = ramp_acceleration(velocity, rate, ramp_strain)
         return self.set_walls(state, servo, velocity, self.cell_pressure, acceleration)
-
-    def shear_plan(
-        self,
-        target_axial_strain: float = 0.10,
-        inertial_number: float = 1e-3,
-        fine_until_strain: float = 0.01,
-        ramp_strain: float = 0.0,
-    ) -> tuple[int, int]:
-        """Steps of the two recording phases of stage 2: (fine, coarse), :func:`membrax.driver.two_rate_plan`.
-
-        Strain counts from the start of shearing: the platen closes ε̇ H Δt per step at full speed.
-        """
-        check_range(
-            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
-        )
-        steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
-        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp_strain)
 
 
 def rigid_wall_test(
@@ -164,7 +146,7 @@ def rigid_wall_test(
     """Build a rigid-wall triaxial test (module docstring) on a specimen, or on a folded batch of copies.
 
     Args:
-      specimen: from :func:`membrax.packing.fcc_specimen`.
+      specimen: from :func:`membrax.spheres.packing.fcc_specimen`.
       cell_pressure: σc, Pa, > 0: a scalar, or one value per batch member (B,), which folds B copies of
         the specimen into one system (:mod:`membrax.batch`).
       contact_params: contact law (default: the paper's, :meth:`ContactParams.paper`); fields may be

@@ -1,7 +1,7 @@
 """Membrane measurements: penetration, stretches, radius, indentation, platen loads and the test's records.
 
 Contract. Every function here is a pure ``jnp`` function of the current node positions (n_nodes, 3) (and,
-where it applies, the spheres and the node → sphere candidate table of :mod:`membrax.membrane_contact`,
+where it applies, the spheres and the node → sphere candidate table of :mod:`membrax.membrane.contact`,
 or the whole coupled state for :func:`measure_coupled`, the paper's external and internal stresses),
 jittable and vmappable. The geometric quantities (distances, penetrations, stretches, radius, normal
 displacement) are differentiable in the positions; the indentation field is differentiable almost
@@ -28,8 +28,8 @@ Quantities:
 
 Coupled DEM + membrane (:func:`measure_coupled`, one specimen, the records of a membrane triaxial test):
 the volume is the one enclosed by the membrane's inner face, V = V_mid − ½ t_m A_band (V_mid enclosed by
-the mid-surface and the platens, :func:`membrax.membrane.enclosed_volume`); the radial strain follows from
-volume and height, ε_r = 1 − √((V/H)/(V₀/H₀)) (:func:`membrax.theory.radial_strain`). The stresses follow
+the mid-surface and the platens, :func:`membrax.membrane.mesh.enclosed_volume`); the radial strain follows
+from volume and height, ε_r = 1 − √((V/H)/(V₀/H₀)) (:func:`membrax.theory.radial_strain`). The stresses follow
 the paper's §4.3, with the platen area updated assuming right-cylinder deformation,
 A = A₀ (1 − ε_v)/(1 − ε_a):
 
@@ -57,8 +57,8 @@ A = A₀ (1 − ε_v)/(1 − ε_a):
   arm b = x_node − x_sphere).
 
 The band functions (:func:`mean_radius`, :func:`normal_displacement`, :func:`indentation_field`) assume a
-band mesh from :func:`membrax.membrane.cylinder_mesh` or :func:`membrax.membrane.prism_mesh`: rows of
-n_θ = len(bottom_ring) nodes stacked in z, node index row · n_θ + column, the column periodic.
+band mesh from :func:`membrax.membrane.mesh.cylinder_mesh` or :func:`membrax.membrane.mesh.prism_mesh`: rows
+of n_θ = len(bottom_ring) nodes stacked in z, node index row · n_θ + column, the column periodic.
 
 Layout: per-triangle and per-pair geometry is component-first (3, ...) with :mod:`membrax.vector`
 (XLA's CPU backend reduces over a trailing size-3 axis slowly); node arrays are rows (n_nodes, 3).
@@ -72,20 +72,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import membrane as membrane_lib
 from membrax import pytree, theory
-from membrax.integrate import Particles, compute_forces
-from membrax.measure import (
+from membrax.membrane import mesh as membrane_lib
+from membrax.membrane.coupled import contact_forces
+from membrax.membrane.mesh import MembraneMesh, enclosed_volume
+from membrax.spheres.integrate import Particles, compute_forces
+from membrax.spheres.measure import (
     coordination_number,
     kinetic_energy,
     love_weber_stress,
     principal_axisymmetric,
     unbalanced_force_ratio,
 )
-from membrax.membrane import MembraneMesh, enclosed_volume
-from membrax.membrane_dem import contact_forces
+from membrax.spheres.walls import BOTTOM, TOP, platen_separation
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale
-from membrax.walls import BOTTOM, TOP, platen_separation
 
 __all__ = [
     "closest_point_on_triangle",
@@ -307,7 +307,7 @@ def triangle_stretches(node_position, mesh: MembraneMesh):
 
     F = D_s D_m⁻¹ (3 × 2) with D_s = [x₂ − x₁, x₃ − x₁] and D_m⁻¹ = ``mesh.reference_inverse`` (rest edge
     matrix in the triangle's own frame), so its columns are f_j = (x₂ − x₁)(D_m⁻¹)₁ⱼ + (x₃ − x₁)(D_m⁻¹)₂ⱼ
-    (as in :mod:`membrax.membrane`). The right Cauchy–Green tensor C = FᵀF = [[f₁·f₁, f₁·f₂], [f₁·f₂,
+    (as in :mod:`membrax.membrane.mesh`). The right Cauchy–Green tensor C = FᵀF = [[f₁·f₁, f₁·f₂], [f₁·f₂,
     f₂·f₂]] has the eigenvalues
 
         λ₁² = m + r,   λ₂² = det C / λ₁²,   m = (C₁₁ + C₂₂)/2,   r = √(((C₁₁ − C₂₂)/2)² + C₁₂²),
@@ -349,9 +349,9 @@ def _band_height(node_position, mesh: MembraneMesh):
 def mean_radius(node_position, mesh: MembraneMesh):
     """Equivalent radius of the membrane, r = √(V / (π H)), m.
 
-    V is :func:`membrax.membrane.enclosed_volume` (band closed by the two flat end caps, the platens) and
+    V is :func:`membrax.membrane.mesh.enclosed_volume` (band closed by the two flat end caps, the platens) and
     H the mean height of the top ring minus that of the bottom ring: r is the radius of the circular
-    cylinder of the same height and volume. For the rest :func:`membrax.membrane.cylinder_mesh` it is a
+    cylinder of the same height and volume. For the rest :func:`membrax.membrane.mesh.cylinder_mesh` it is a
     little below the mid-surface radius R (the rings are inscribed n_θ-gons).
 
     Args:
@@ -527,18 +527,18 @@ def measure_coupled(
     platen_area,
     wall_friction: bool = False,
 ) -> MembraneMeasurements:
-    """All measurements of a :class:`membrax.membrane_dem.CoupledState` (module docstring).
+    """All measurements of a :class:`membrax.membrane.coupled.CoupledState` (module docstring).
 
     Args:
       state: the coupled state.
       particles: sphere properties.
       mesh: the membrane mesh.
-      params: :class:`membrax.membrane_dem.CoupledParams`.
+      params: :class:`membrax.membrane.coupled.CoupledParams`.
       dt: time step, s.
       initial_height: H₀, m.
       initial_volume: V₀ (inner face), m³.
       platen_area: m².
-      wall_friction: as in :func:`membrax.integrate.compute_forces`.
+      wall_friction: as in :func:`membrax.spheres.integrate.compute_forces`.
     """
     spheres, nodes = state.dem, state.membrane
     mp = params.membrane

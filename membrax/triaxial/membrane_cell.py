@@ -1,16 +1,16 @@
 """The triaxial test with a latex membrane: a specimen between two platens, wrapped in a clamped membrane.
 
-Contract. :func:`membrane_test` builds the coupled system of :mod:`membrax.membrane_dem` around a specimen
+Contract. :func:`membrane_test` builds the coupled system of :mod:`membrax.membrane.coupled` around a specimen
 — the two platens (servo or strain controlled, frictionless by default), no lateral walls, and a membrane
 mesh whose mid-surface sits t_m/2 outside the outer particles, its corners rounded about the corner spheres
-(:func:`membrax.membrane.prism_mesh` with ``corner_radius`` = R), with its end rings clamped to the
+(:func:`membrax.membrane.mesh.prism_mesh` with ``corner_radius`` = R), with its end rings clamped to the
 platens — and returns a :class:`MembraneTest`. Its methods run the stages with the chunk driver and
-return the state and the records (:class:`membrax.membrane_measure.MembraneMeasurements`, numpy arrays
+return the state and the records (:class:`membrax.membrane.measure.MembraneMeasurements`, numpy arrays
 with a leading time axis):
 
 - :meth:`MembraneTest.consolidate` (stage 1): the cell pressure acts on the membrane's outer face; both
   platens are servo-controlled to a ram force of σc × platen area (the ram balances the spheres and the
-  membrane on the platen, :mod:`membrax.membrane_dem`), until the unbalanced-force ratio falls below
+  membrane on the platen, :mod:`membrax.membrane.coupled`), until the unbalanced-force ratio falls below
   ``tolerance`` and the ram stress is within ``stress_tolerance`` of σc;
 - :meth:`MembraneTest.shear` (stage 2): drained shearing, both platens closing at ε̇ H₁/2 each (H₁ the
   height after consolidation; or the top one alone at ε̇ H₁, ``symmetric=False``) from an inertial number
@@ -21,7 +21,7 @@ with a leading time axis):
   (the driver of :mod:`membrax.run` uses it to checkpoint and resume within a phase).
 
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
-:func:`membrax.membrane_dem.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
+:func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
 touches only the specimen's lateral-boundary spheres (the candidate subset), which holds for FCC
 specimens, whose outer spheres stay outermost. Units: the builder takes laboratory units (kPa, mm),
 named in the arguments; everything inside is SI.
@@ -34,21 +34,12 @@ import dataclasses as pydataclasses
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import membrane as membrane_lib
-from membrax import membrane_measure
 from membrax.config import TriaxialConfig
-from membrax.contact import ContactParams
-from membrax.driver import ChunkRunner, StagedTest, strain_rate_from_inertial_number, two_rate_plan
-from membrax.integrate import (
-    DEFAULT_SAFETY,
-    DampingParams,
-    DEMParams,
-    critical_time_step,
-    dem,
-    make_particles,
-)
-from membrax.membrane_contact import MembraneContactParams
-from membrax.membrane_dem import (
+from membrax.driver import ChunkRunner, strain_rate_from_inertial_number
+from membrax.membrane import measure as membrane_measure
+from membrax.membrane import mesh as membrane_lib
+from membrax.membrane.contact import MembraneContactParams
+from membrax.membrane.coupled import (
     LATEX_DENSITY,
     CoupledParams,
     CoupledState,
@@ -57,10 +48,20 @@ from membrax.membrane_dem import (
     membrane_critical_time_step,
     membrane_dem,
 )
-from membrax.neighbors import pair_neighbor_fn
-from membrax.packing import GRANITE_DENSITY, Specimen
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.integrate import (
+    DEFAULT_SAFETY,
+    DampingParams,
+    DEMParams,
+    critical_time_step,
+    dem,
+    make_particles,
+)
+from membrax.spheres.neighbors import pair_neighbor_fn
+from membrax.spheres.packing import GRANITE_DENSITY, Specimen
+from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
+from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
-from membrax.walls import BOTTOM, TOP, set_control, triaxial_walls
 
 __all__ = ["MembraneTest", "membrane_test"]
 
@@ -87,7 +88,7 @@ class MembraneTest(StagedTest):
 
     Its stages, :meth:`consolidate` (stop criteria ``stress_tolerance``, ``volume_tolerance``:
     :meth:`is_consolidated`) and :meth:`shear` (``ramp_strain``, ``symmetric``: :meth:`start_shear`), are
-    :class:`membrax.driver.StagedTest`'s.
+    :class:`membrax.triaxial.protocol.StagedTest`'s.
     """
 
     cell = "membrane"
@@ -120,7 +121,7 @@ class MembraneTest(StagedTest):
         """A copy of ``state`` with the platens' mode, velocity (dh/dt, m/s), target stress (Pa) and ramp set.
 
         ``acceleration`` (m/s², inf: none) ramps constant-velocity platens up from rest
-        (:func:`membrax.walls.set_control`).
+        (:func:`membrax.spheres.walls.set_control`).
         """
         walls = set_control(state.dem.walls, servo, velocity, target, acceleration)
         return state.set(dem=state.dem.set(walls=walls))
@@ -189,9 +190,7 @@ class MembraneTest(StagedTest):
             velocity[0, [BOTTOM, TOP]] = -0.5 * rate * height
         else:
             velocity[0, TOP] = -rate * height
-        # Full speed at strain ε_ramp: ½ ε̇ t_ramp = ε_ramp, so a = v / t_ramp = v ε̇ / (2 ε_ramp).
-        acceleration = np.abs(velocity) * rate / (2.0 * ramp_strain) if ramp_strain > 0.0 else np.inf
-        acceleration = np.where(velocity != 0.0, acceleration, np.inf)
+        acceleration = ramp_acceleration(velocity, rate, ramp_strain)
         return self.set_platens(state, False, velocity, self.cell_pressure, acceleration)
 
     def ramp_transit_ratio(
@@ -207,25 +206,6 @@ class MembraneTest(StagedTest):
         speed = self.specimen.particle_diameter * np.sqrt(stiffness / mass)
         ramp_time = 2.0 * ramp_strain / self.shear_rate(inertial_number)
         return float(ramp_time * speed / self.initial_height)
-
-    def shear_plan(
-        self,
-        target_axial_strain: float = 0.10,
-        inertial_number: float = 1e-3,
-        fine_until_strain: float = 0.01,
-        ramp_strain: float = DEFAULT_RAMP_STRAIN,
-    ) -> tuple[int, int]:
-        """Steps of the two recording phases of stage 2: (fine, coarse).
-
-        Axial strain counts from the start of shearing: at full speed the platens close ε̇ H Δt per step,
-        so ε_a reaches ``fine_until_strain`` after (ε + ε_ramp)/(ε̇ Δt) steps (the ramp delays it by
-        ε_ramp/ε̇, :func:`membrax.driver.two_rate_plan`) and the target after the rest.
-        """
-        check_range(
-            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
-        )
-        steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
-        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp_strain)
 
 
 def membrane_test(
@@ -252,7 +232,7 @@ def membrane_test(
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
 
     Args:
-      specimen: from :func:`membrax.packing.fcc_specimen`.
+      specimen: from :func:`membrax.spheres.packing.fcc_specimen`.
       cell_pressure_kpa: σc, kPa, > 0 (paper: 10, 40, 100).
       membrane_thickness_mm: t_m, mm, > 0 (paper: 2.5, 3.33, 5).
       membrane_modulus_kpa: E_m, kPa, > 0 (paper: 1400).

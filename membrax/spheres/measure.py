@@ -16,7 +16,7 @@ Definitions (reference §9):
 - Strains from the walls: ε_a = (H0 − H)/H0 and ε_v = (V0 − V)/V0, V = A H.
 
 The measurements of a DEM specimen inside a membrane (the paper's §4.3 external and internal stresses)
-are :func:`membrax.membrane_measure.measure_coupled`'s.
+are :func:`membrax.membrane.measure.measure_coupled`'s.
 """
 
 from __future__ import annotations
@@ -25,8 +25,8 @@ import jax
 import jax.numpy as jnp
 
 from membrax import pytree, theory
-from membrax.integrate import DEMParams, DEMState, Forces, Particles, compute_forces
-from membrax.walls import BOTTOM, TOP, cross_section, platen_separation, wall_areas
+from membrax.spheres.integrate import DEMParams, DEMState, Forces, Particles, compute_forces
+from membrax.spheres.walls import BOTTOM, TOP, cross_section, platen_separation, wall_areas
 
 __all__ = [
     "Measurements",
@@ -47,7 +47,7 @@ def love_weber_stress(forces: Forces, particles: Particles, pair_member, volume)
     """Love–Weber stress tensor (B, 3, 3), compression positive.
 
     Args:
-      forces: contact forces from :func:`membrax.integrate.compute_forces`.
+      forces: contact forces from :func:`membrax.spheres.integrate.compute_forces`.
       particles: sphere properties (for batch members).
       pair_member: (C,) member of each pair slot.
       volume: (B,) specimen volume, m³.
@@ -108,7 +108,7 @@ class Measurements:
     """Per-member (B,) records of one state (stresses in Pa, strains as fractions, angles in degrees).
 
     ``wall_force`` and ``wall_position`` are (B, W): the normal force of the particles on every wall (N)
-    and every wall's plane position h (m), in the wall order of :mod:`membrax.walls`.
+    and every wall's plane position h (m), in the wall order of :mod:`membrax.spheres.walls`.
     """
 
     step: jnp.ndarray
@@ -151,7 +151,7 @@ def measure(
       initial_height: (B,) H0, m.
       initial_volume: (B,) V0, m³.
       platen_area: required when there are no lateral walls.
-      wall_friction: as in :func:`membrax.integrate.compute_forces`.
+      wall_friction: as in :func:`membrax.spheres.integrate.compute_forces`.
     """
     forces = compute_forces(state, particles, params, dt, wall_friction)
     n = particles.num_particles

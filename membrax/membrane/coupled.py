@@ -1,7 +1,7 @@
 """DEM + membrane: spheres, platens and a latex membrane whose end rings are clamped to the platens.
 
 Contract. ``membrane_dem(particles, neighbor_frame, mesh, dt)`` returns ``(init_fn, step_fn)`` in the
-jax-md style, composed from :func:`membrax.integrate.dem` and the membrane modules:
+jax-md style, composed from :func:`membrax.spheres.integrate.dem` and the membrane modules:
 
 - ``init_fn(dem_state, params, capacity=3, skin=..., sphere_capacity=64) -> CoupledState`` (host side:
   builds the node–sphere candidate table, K per node and M per sphere, both grown by the chunk driver
@@ -14,20 +14,20 @@ jax-md style, composed from :func:`membrax.integrate.dem` and the membrane modul
 One step (explicit central differences, as the DEM; velocities at half steps):
 
 1. node–sphere contacts at (y_n, x_n) with the velocities of the previous half step
-   (:func:`membrax.membrane_contact.node_sphere_forces`);
-2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.nodal_forces`);
+   (:func:`membrax.membrane.contact.node_sphere_forces`);
+2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.mesh.nodal_forces`);
 3. the DEM step with the contacts' reactions added to the spheres (forces and torques);
 4. free nodes: damped leapfrog with the lumped masses (area × t_m × ρ_latex / 3 per triangle corner) and
-   the DEM's damping law (:func:`membrax.integrate.apply_damping`); clamped nodes (the two end rings,
+   the DEM's damping law (:func:`membrax.spheres.integrate.apply_damping`); clamped nodes (the two end rings,
    the O-rings) follow their platen rigidly: y = y_clamp + (z_platen − z_platen,0) e_z;
 5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
-   (:func:`membrax.membrane_contact.update_candidates`); an overflow sets
+   (:func:`membrax.membrane.contact.update_candidates`); an overflow sets
    ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) in the DEM state's error bitmask,
    and the chunk driver reallocates a larger table and reruns the chunk.
 
 Platen reactions. The clamp holds the ring nodes against the forces F_k of the membrane and the spheres
 on them, so the membrane loads each platen with R = Σ_ring F_k + p A n_out: the second term removes the
-cell pressure on the cap, which :func:`membrax.membrane.enclosed_volume` closes over the platen face (the
+cell pressure on the cap, which :func:`membrax.membrane.mesh.enclosed_volume` closes over the platen face (the
 cell pressure there acts on the platen, not on the membrane); A n_out = ±½ Σ_k y_k × y_{k+1} is the
 ring's vector area, n_out = −e_z at the bottom and +e_z at the top. ``MembraneState.platen_reaction``
 holds R for both platens (N; R_z < 0 on the top platen when the membrane pulls it down). They are
@@ -54,20 +54,11 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse.linalg
 
-from membrax import membrane as membrane_lib
 from membrax import native, pytree
 from membrax.config import TriaxialConfig
 from membrax.errors import ErrorCode
-from membrax.integrate import (
-    DampingParams,
-    DEMParams,
-    DEMState,
-    Particles,
-    apply_damping,
-    dem,
-)
-from membrax.membrane import MembraneMesh
-from membrax.membrane_contact import (
+from membrax.membrane import mesh as membrane_lib
+from membrax.membrane.contact import (
     MembraneContactParams,
     NodeCandidates,
     build_candidates,
@@ -76,9 +67,18 @@ from membrax.membrane_contact import (
     remap_node_history,
     update_candidates,
 )
-from membrax.neighbors import PairNeighborFn
+from membrax.membrane.mesh import MembraneMesh
+from membrax.spheres.integrate import (
+    DampingParams,
+    DEMParams,
+    DEMState,
+    Particles,
+    apply_damping,
+    dem,
+)
+from membrax.spheres.neighbors import PairNeighborFn
+from membrax.spheres.walls import BOTTOM, TOP, compensated_add
 from membrax.validation import check_range
-from membrax.walls import BOTTOM, TOP, compensated_add
 
 __all__ = [
     "LATEX_DENSITY",
@@ -109,7 +109,7 @@ class MembraneParams:
       cell_pressure: p, Pa, on the membrane's outer face.
       contact: the node–sphere contact law.
       bending_factor: scale of the bending rigidity, dimensionless: 1 the plate's E t³/12(1 − ν²), 0 a pure
-        membrane (:func:`membrax.membrane.total_energy`).
+        membrane (:func:`membrax.membrane.mesh.total_energy`).
       contact_offset_factor: where nodes touch spheres, dimensionless: at R + f t_m/2 from a sphere's
         centre (1: the membrane's inner face touches the sphere, its nodes on the mid-surface t_m/2
         off; 0: the nodes on the sphere surface, as the paper's "constrained to lie on the surface of
@@ -280,11 +280,12 @@ def advance_nodes(
 ):
     """Step 4 of the module docstring for every node: (total force, velocity, position, compensation).
 
-    F = F_membrane + F_contact; F_d = F − α|F| sign(v) − γ m v (:func:`membrax.integrate.apply_damping`);
-    v' = v + Δt F_d/m on the free nodes and 0 on the others (``free``, (n,) bool); x' + c' = x + c + Δt v'
-    (:func:`membrax.walls.compensated_add`). On the CPU, in float32 or float64, one pass of a compiled
-    kernel (:mod:`membrax.native`, ``membrane_nodes.cc``) does it; derivatives are those of this JAX code.
-    The damping coefficients are one specimen's (scalars, or arrays of one member).
+    F = F_membrane + F_contact; F_d = F − α|F| sign(v) − γ m v
+    (:func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and 0 on the
+    others (``free``, (n,) bool); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`). On
+    the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
+    ``membrane_nodes.cc``) does it; derivatives are those of this JAX code. The damping coefficients are one
+    specimen's (scalars, or arrays of one member).
     """
     args = (membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping)
     if native.enabled_for(position.dtype):
@@ -336,7 +337,7 @@ _compiled_advance_nodes = native.with_reference(_advance_nodes_kernel, _advance_
 def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):
     """The node–sphere contacts of a coupled state at its positions (step 1 of the module docstring).
 
-    Returns the :class:`~membrax.membrane_contact.NodeSphereForces` (the springs advanced by one step).
+    Returns the :class:`~membrax.membrane.contact.NodeSphereForces` (the springs advanced by one step).
     """
     spheres, nodes = state.dem, state.membrane
     return node_sphere_forces(
@@ -372,12 +373,12 @@ def membrane_dem(
     Args:
       particles: sphere properties (one specimen).
       neighbor_frame: the sphere neighbour-list factory.
-      mesh: the membrane (:func:`membrax.membrane.prism_mesh` around the specimen at t_m/2).
+      mesh: the membrane (:func:`membrax.membrane.mesh.prism_mesh` around the specimen at t_m/2).
       dt: time step, s (the smaller of the DEM's and :func:`membrane_critical_time_step`'s, with a safety).
       platen_area: the platen area for the servo, m².
       sphere_subset: ids of the spheres that may touch the membrane (default: all).
       latex_density: ρ of the membrane, kg/m³, for the lumped node masses.
-      stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.stretching_energy`).
+      stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.mesh.stretching_energy`).
       wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
     """
     if particles.num_members != 1:

@@ -45,6 +45,7 @@ __all__ = [
     "compensated_add",
     "cross_section",
     "platen_separation",
+    "ramp_acceleration",
     "ramped_velocity",
     "servo_velocity",
     "set_control",
@@ -64,7 +65,7 @@ class WallState:
       normal: (W, 3) outward unit normals, shared by all members.
       position: (B, W) plane positions h, m.
       position_compensation: (B, W) low-order part of h (compensated summation; h + this is exact to
-        ~float64 resolution even in float32, see :func:`membrax.integrate.compensated_add`).
+        ~float64 resolution even in float32, see :func:`membrax.spheres.integrate.compensated_add`).
       velocity: (B, W) dh/dt, m/s.
       target_velocity: (B, W) the velocity a constant-velocity wall ramps to, m/s (module docstring).
       acceleration: (B, W) the largest |dv/dt| of a constant-velocity wall, m/s² (inf: no ramp).
@@ -214,6 +215,24 @@ def ramped_velocity(walls: WallState, dt):
     """V + clip(v_target − v, −a Δt, a Δt) for every wall (B, W): the ramp of the module docstring."""
     step = walls.acceleration * dt
     return walls.velocity + jnp.clip(walls.target_velocity - walls.velocity, -step, step)
+
+
+def ramp_acceleration(velocity, strain_rate: float, ramp_strain: float):
+    """|dv/dt| of a linear ramp from rest that reaches ``velocity`` at axial strain ``ramp_strain``, m/s².
+
+    Under a ramp of duration t_r the strain grows as ½ ε̇ t_r by full speed, so ½ ε̇ t_r = ε_r gives
+    a = |v| / t_r = |v| ε̇ / (2 ε_r) (YADE's ``UniaxialStrainer.initAccelTime`` idea). inf (no ramp, for
+    :func:`set_control`) where ``ramp_strain`` is 0 or the velocity is 0. Host-side numpy.
+
+    Args:
+      velocity: target wall velocities, m/s (any shape).
+      strain_rate: ε̇ at full speed, 1/s.
+      ramp_strain: ε_r, the axial strain at full speed, >= 0.
+    """
+    velocity = np.asarray(velocity, dtype=float)
+    if ramp_strain <= 0.0:
+        return np.full(velocity.shape, np.inf)
+    return np.where(velocity != 0.0, np.abs(velocity) * strain_rate / (2.0 * ramp_strain), np.inf)
 
 
 def set_control(walls: WallState, servo, velocity, target_stress, acceleration=np.inf) -> WallState:

@@ -1,6 +1,6 @@
 """Membrane indentation: a flat latex sheet pressed by a uniform pressure onto a fixed array of spheres.
 
-Contract. Static equilibrium of an open sheet (:func:`membrax.membrane.flat_mesh`) lying on a fixed array
+Contract. Static equilibrium of an open sheet (:func:`membrax.membrane.mesh.flat_mesh`) lying on a fixed array
 of equal touching spheres, square (:func:`sheet_on_square_array`) or triangular, i.e. a hexagonal
 close-packed layer like an FCC {111} face (:func:`sheet_on_triangular_array`), loaded by a uniform
 pressure p on its upper face (positive p pushes the sheet down, −z). The total potential energy
@@ -10,8 +10,8 @@ pressure p on its upper face (positive p pushes the sheet down, −z). The total
 is minimised over the free node coordinates with scipy's L-BFGS-B on jax gradients (float64 is up to the
 caller: enable x64 first). The pieces:
 
-- W_stretch, W_bend: :func:`membrax.membrane.stretching_energy` (incompressible neo-Hookean) and
-  :func:`membrax.membrane.bending_energy`;
+- W_stretch, W_bend: :func:`membrax.membrane.mesh.stretching_energy` (incompressible neo-Hookean) and
+  :func:`membrax.membrane.mesh.bending_energy`;
 - p V: the load potential of the pressure, V the volume between the sheet and a horizontal reference
   plane z = z_ref below it (:func:`projected_volume`). For a piecewise-linear sheet this is exact per
   triangle: V_T = A_T^xy (z̄_T − z_ref), A_T^xy the signed area of the triangle's projection on the plane
@@ -21,7 +21,7 @@ caller: enable x64 first). The pieces:
   translations), and on nodes not on the boundary −p ∂V/∂x_i = −p Σ_{T ∋ i} A_T n_T / 3, the usual
   consistent pressure load, because V differs from the cone volume (1/6) Σ x₁·(x₂ × x₃) only by terms in
   the boundary nodes (both close the same open surface);
-- U_contact: :func:`membrax.membrane_contact.node_sphere_normal_energy` (frictionless penalty, the node a
+- U_contact: :func:`membrax.membrane.contact.node_sphere_normal_energy` (frictionless penalty, the node a
   point on the mid-surface touching when |x − x_i| < R + t_m/2).
 
 Boundary condition: the nodes on the sheet's outline (edges that belong to one triangle) are pinned at
@@ -55,8 +55,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import minimize
 
-from membrax import membrane
-from membrax.membrane_contact import node_sphere_normal_energy
+from membrax.membrane import mesh as membrane
+from membrax.membrane.contact import node_sphere_normal_energy
 
 __all__ = [
     "IndentationSolution",
@@ -168,7 +168,7 @@ def _sheet_on_sphere_tops(
 ):
     """A flat sheet resting on the tops of spheres of diameter D centred at z = 0, and its (x, y) centre.
 
-    :func:`membrax.membrane.flat_mesh` of ``width`` × ``length`` lifted to z = R + f t_m/2 (f the
+    :func:`membrax.membrane.mesh.flat_mesh` of ``width`` × ``length`` lifted to z = R + f t_m/2 (f the
     ``contact_offset_factor`` of :func:`solve_sheet_on_spheres`; a rigid shift:
     the rest quantities are unchanged). The centre is that of its (x, y) bounding box
     [0, width + a/2] × [0, length], m, a the mesh's column spacing (flat_mesh shifts odd rows by a/2);
@@ -186,7 +186,7 @@ def sheet_on_square_array(
 ):
     """A flat sheet over cells × cells of a touching square sphere array, resting on the sphere tops.
 
-    The sheet is :func:`membrax.membrane.flat_mesh` of side cells·D lifted to z = R + t_m/2 (a rigid
+    The sheet is :func:`membrax.membrane.mesh.flat_mesh` of side cells·D lifted to z = R + t_m/2 (a rigid
     shift: the rest quantities are unchanged); the (cells + 1)² sphere centres lie at z = 0, centred under
     the sheet's bounding box, so the sheet's outline runs along the outer rows of spheres.
 
@@ -225,7 +225,7 @@ def sheet_on_triangular_array(
 ):
     """A flat sheet over a touching triangular sphere array (:func:`triangular_sphere_array`), on the tops.
 
-    The sheet is :func:`membrax.membrane.flat_mesh` of cells·D along x by 2k·h along y (h = D√3/2 the row
+    The sheet is :func:`membrax.membrane.mesh.flat_mesh` of cells·D along x by 2k·h along y (h = D√3/2 the row
     spacing, k = max(1, round(cells/√3)), so that the sheet is nearly square: k rectangular lattice cells
     D × √3 D of two rows each), lifted to z = R + t_m/2. The 2k + 1 rows of spheres (cells + 1 centres in
     the even rows, cells + 2 in the odd ones) lie at z = 0, centred under the sheet's bounding box as in
@@ -348,7 +348,7 @@ def solve_sheet_on_spheres(
     a contact candidate of every node (dense, exact for the small arrays this is meant for).
 
     Args:
-      mesh: the sheet (e.g. :func:`membrax.membrane.flat_mesh` lifted onto the sphere tops).
+      mesh: the sheet (e.g. :func:`membrax.membrane.mesh.flat_mesh` lifted onto the sphere tops).
       sphere_position: (S, 3) fixed sphere centres, m.
       sphere_radius: (S,) radii, m.
       pressure: p, Pa (positive pushes down).
@@ -361,7 +361,7 @@ def solve_sheet_on_spheres(
       max_iterations: L-BFGS-B iteration cap.
       tolerance: L-BFGS-B ``ftol`` on the scaled energy (``gtol`` is 100 × smaller).
       contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the sheet's lower face on the sphere;
-        0: its nodes, the mid-surface, on the sphere surface; as in :mod:`membrax.membrane_dem`).
+        0: its nodes, the mid-surface, on the sphere surface; as in :mod:`membrax.membrane.coupled`).
     """
     reference = jnp.asarray(mesh.reference_position)
     dtype = reference.dtype
