@@ -43,7 +43,7 @@ def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int, cpu_
     from membrax.config import TriaxialConfig
     from membrax.reproduce import SIZES
 
-    base = TriaxialConfig(**SIZES[size], float64=dtype == "float64")
+    base = TriaxialConfig(**{**SIZES[size], "float64": dtype == "float64"})
     _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
     batch = stages.build_batch([config for _, config in members], mode=mode or None)

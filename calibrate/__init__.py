@@ -1,15 +1,18 @@
-"""calibrate: gradient-based fitting of membrane stress corrections.
+"""calibrate: membrane stress corrections fitted on membrax simulations (issue 18, in progress).
 
-What it will hold (the data flow is one way: simulator results in, corrections out):
+The data flow is one way, simulator results in and corrections out; nothing in :mod:`membrax` imports this
+package.
 
-- datasets: membrax sweep results (xarray/NetCDF) turned into training pairs of strain measures
-  (strain ratio dε_r/dε_a, radial strain ε_r, indentation ratio α/D) and additional membrane stresses
-  (internal − external, axial and radial);
-- correction models: parametric maps from those strain measures to the additional stresses, seeded by
-  the closed forms of :mod:`membrax.theory` (the paper's Figs 7–9 correlations);
-- fitting: optax optimisers on the models' parameters, with uncertainty from the residuals;
-- application: the fitted corrections applied to a laboratory test record (CSV of axial force, cell
-  pressure, axial and volumetric strain) to give corrected σ1, σ3 and φ'.
+- :mod:`calibrate.datasets`: a sweep's records (``sweep.nc``) as a fitting table. The inputs are the
+  quantities a laboratory measures (ε_a, ε_r, dε_r/dε_a, the hoop strain) and their dimensionless groups
+  (t_m/D, E_m t_m/(σc D), D/D_s, Molenkamp & Luger's α/D, the hoop stress ratio). The targets are
+  Δσ_a/σc and Δσ_r/σc.
+- :mod:`calibrate.models`: correction models as pure JAX functions. :data:`~calibrate.models.PAPER` is
+  the paper's correlations, physically scaled; :data:`~calibrate.models.RICH` is a richer comparison.
+- :mod:`calibrate.fit`: optax fitting (Adam, then L-BFGS; float64 weighted least squares) with the
+  Gauss–Newton covariance, leave-one-case-out cross-validation, and a scipy Nelder–Mead baseline.
+- :mod:`calibrate.persistence`: fitted corrections as JSON with provenance.
 
-Nothing here is implemented yet; the simulator it depends on is built first.
+Still to come (issue 18): the calibration grid, the ``membrax fit`` and ``membrax correct`` commands,
+laboratory records, a shipped default model, and the held-out comparison with the classical corrections.
 """

@@ -124,3 +124,17 @@ def test_the_checker_sees_every_kind_of_import(tmp_path):
         "spheres.packing",
         "membrane.coupled",
     }
+
+
+def test_membrax_never_imports_calibrate():
+    """calibrate sits after every layer of membrax (README: … → commands → calibrate)."""
+    for name, path in FILES.items():
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            modules = []
+            if isinstance(node, ast.ImportFrom) and node.module:
+                modules = [node.module]
+            elif isinstance(node, ast.Import):
+                modules = [alias.name for alias in node.names]
+            assert not any(m.split(".")[0] == "calibrate" for m in modules), (
+                f"membrax.{name} imports calibrate"
+            )

@@ -1,0 +1,133 @@
+"""Fitted corrections saved and loaded as JSON, with provenance.
+
+Contract. :func:`save_corrections` writes one JSON object:
+
+- ``model``: the model's name (:data:`calibrate.models.MODELS`);
+- ``params`` and ``std``: the fitted parameters and their standard errors (:class:`calibrate.fit.FitResult`);
+- ``covariance`` with ``names`` (its order), ``rms`` and ``evaluations`` of the fit;
+- ``input_ranges``: for each input column the model reads, [min, max] over the rows the fit used, so a
+  user's record can be checked against the fitted range;
+- ``provenance``: the membrax version, the SHA-256 of the sweep's base configuration and grid (the
+  ``base_config`` and ``grid`` attributes of ``sweep.nc``, canonical JSON), and the number of cases and rows.
+
+:func:`load_corrections` reads it back into a :class:`Corrections` (the model looked up by name), refusing a
+file that is not JSON, names an unknown model, or lacks a field, with a message naming the field and the
+fix. The write is atomic (a temporary file then ``os.replace``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from calibrate.models import MODELS
+
+__all__ = ["Corrections", "load_corrections", "save_corrections", "sweep_hash"]
+
+FORMAT = "membrax-corrections"
+FIELDS = ("format", "model", "params", "std", "names", "covariance", "rms", "input_ranges", "provenance")
+
+
+class Corrections(NamedTuple):
+    """A loaded correction: the model and what was fitted (module docstring)."""
+
+    model: object
+    params: dict
+    std: dict
+    covariance: np.ndarray
+    names: tuple
+    rms: float
+    input_ranges: dict
+    provenance: dict
+
+
+def sweep_hash(dataset) -> str:
+    """SHA-256 of a sweep's ``base_config`` and ``grid`` attributes (canonical JSON), hex."""
+    parts = {}
+    for name in ("base_config", "grid"):
+        value = dataset.attrs.get(name)
+        parts[name] = json.loads(value) if isinstance(value, str) else value
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def save_corrections(path, model, result, table, provenance: dict | None = None) -> Path:
+    """Write a fitted correction to ``path`` (module docstring).
+
+    Args:
+      path: the JSON file to write.
+      model: the :class:`calibrate.models.CorrectionModel` fitted.
+      result: its :class:`calibrate.fit.FitResult`.
+      table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges).
+      provenance: further provenance (e.g. ``{"sweep_sha256": sweep_hash(dataset)}``).
+    """
+    from membrax import __version__
+
+    ranges = {}
+    for name in model.inputs:
+        values = np.asarray(table.inputs[name], dtype=np.float64)
+        values = values[np.isfinite(values)]
+        ranges[name] = [float(values.min()), float(values.max())] if values.size else [None, None]
+    content = {
+        "format": FORMAT,
+        "model": model.name,
+        "params": dict(result.params),
+        "std": dict(result.std),
+        "names": list(result.names),
+        "covariance": np.asarray(result.covariance).tolist(),
+        "rms": float(result.rms),
+        "evaluations": dict(result.evaluations),
+        "input_ranges": ranges,
+        "provenance": {
+            "membrax_version": __version__,
+            "cases": int(table.num_cases),
+            "rows": int(table.num_rows),
+            **(provenance or {}),
+        },
+    }
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(f".{path.name}.tmp")
+    partial.write_text(json.dumps(content, indent=2, sort_keys=True) + "\n")
+    os.replace(partial, path)
+    return path
+
+
+def load_corrections(path) -> Corrections:
+    """Read a correction written by :func:`save_corrections`.
+
+    Raises:
+      FileNotFoundError: no such file. ValueError: not JSON, not a corrections file, an unknown model or a
+      missing field (named, with the fix).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no corrections file at '{path}'; write one with `membrax fit`.")
+    try:
+        content = json.loads(path.read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(
+            f"'{path}' is not JSON (line {error.lineno}, column {error.colno}: {error.msg}); give a file "
+            "written by `membrax fit`."
+        ) from error
+    missing = [name for name in FIELDS if name not in content]
+    if missing:
+        raise ValueError(f"'{path}' lacks {missing}: it was not written by `membrax fit`; fit again.")
+    if content["format"] != FORMAT:
+        raise ValueError(f"'{path}' has format {content['format']!r}, not {FORMAT!r}.")
+    if content["model"] not in MODELS:
+        raise ValueError(f"'{path}' names model {content['model']!r}; known models: {sorted(MODELS)}.")
+    return Corrections(
+        MODELS[content["model"]],
+        {name: float(value) for name, value in content["params"].items()},
+        {name: float(value) for name, value in content["std"].items()},
+        np.asarray(content["covariance"], dtype=np.float64),
+        tuple(content["names"]),
+        float(content["rms"]),
+        {name: tuple(value) for name, value in content["input_ranges"].items()},
+        dict(content["provenance"]),
+    )
