@@ -37,7 +37,7 @@ import numpy as np
 
 from membrax import theory
 
-__all__ = ["FittingTable", "fitting_table"]
+__all__ = ["FittingTable", "concatenate", "fitting_table"]
 
 #: Names of the input columns, in order.
 INPUTS = (
@@ -154,7 +154,7 @@ def fitting_table(dataset) -> FittingTable:
             columns[name].append(values[name])
         axial.append(np.asarray(rows["additional_axial_stress"], dtype=np.float64) / cell_pressure)
         radial.append(np.asarray(rows["additional_radial_stress"], dtype=np.float64) / cell_pressure)
-        cases.append(np.full(count, case, dtype=np.int64))
+        cases.append(np.full(count, len(cases), dtype=np.int64))  # members with records, 0, 1, ...
         first = np.zeros(count, dtype=bool)
         first[0] = True
         initial.append(first)
@@ -166,4 +166,19 @@ def fitting_table(dataset) -> FittingTable:
         np.concatenate(radial),
         np.concatenate(cases),
         np.concatenate(initial),
+    )
+
+
+def concatenate(tables) -> FittingTable:
+    """One table of several (e.g. of several sweep files), their cases renumbered to stay distinct."""
+    tables = list(tables)
+    if not tables:
+        raise ValueError("no tables to join; give at least one sweep.")
+    offsets = np.cumsum([0] + [int(t.case.max()) + 1 for t in tables[:-1]])
+    return FittingTable(
+        {name: np.concatenate([t.inputs[name] for t in tables]) for name in INPUTS},
+        np.concatenate([t.axial_target for t in tables]),
+        np.concatenate([t.radial_target for t in tables]),
+        np.concatenate([t.case + offset for t, offset in zip(tables, offsets, strict=True)]),
+        np.concatenate([t.initial for t in tables]),
     )

@@ -150,7 +150,14 @@ def fit(
         rss = float(jnp.sum(r * r))
         jacobian = jax.jacfwd(residuals)(flat)
         dof = max(2 * rows - num_params, 1)
-        covariance = rss / dof * np.linalg.inv(np.asarray(jacobian.T @ jacobian))
+        normal = np.asarray(jacobian.T @ jacobian)
+        if np.linalg.matrix_rank(normal) < num_params:
+            raise ValueError(
+                f"the {num_params} parameters of model {model.name!r} are not all identifiable from these "
+                f"records (JᵀJ has rank {np.linalg.matrix_rank(normal)}): give cases that differ in "
+                f"{', '.join(model.inputs)}, or choose a model with fewer terms."
+            )
+        covariance = rss / dof * np.linalg.inv(normal)
         names = tuple(sorted(start))
         # ravel_pytree flattens a dict in sorted-key order, as ``names``.
         params = {name: float(value) for name, value in zip(names, np.asarray(flat), strict=True)}

@@ -126,9 +126,12 @@ def test_the_checker_sees_every_kind_of_import(tmp_path):
     }
 
 
-def test_membrax_never_imports_calibrate():
-    """calibrate sits after every layer of membrax (README: … → commands → calibrate)."""
+def test_membrax_never_imports_calibrate_except_the_command_line():
+    """calibrate sits after every layer of membrax but the commands (README: … → runs → calibrate →
+    commands): only ``cli``, the leaf nothing imports, reaches it (``membrax fit``)."""
     for name, path in FILES.items():
+        if name == "cli":
+            continue
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             modules = []
             if isinstance(node, ast.ImportFrom) and node.module:

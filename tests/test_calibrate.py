@@ -162,7 +162,7 @@ def _sweep_like(tmp_cases=((10.0, 2.5), (40.0, 5.0))):
         counts[i, j] = records
         variables["axial_strain"][i, j] = strain
         variables["radial_strain"][i, j] = -0.3 * strain
-        variables["strain_ratio_change"][i, j] = -0.3
+        variables["strain_ratio_change"][i, j] = -0.3 - 2.0 * strain
         variables["hoop_strain"][i, j] = 0.001 + 0.3 * strain  # 0.001 left from consolidation
         variables["platen_area"][i, j] = math.pi * 0.125**2
         variables["additional_axial_stress"][i, j] = 1e3 * p * (0.2 - strain)
@@ -239,3 +239,29 @@ def test_corrections_round_trip_through_json_with_provenance(tmp_path):
         persistence.load_corrections(tmp_path / "short.json")
     with pytest.raises(FileNotFoundError, match="membrax fit"):
         persistence.load_corrections(tmp_path / "none.json")
+
+
+def test_membrax_fit_writes_the_fit_of_the_sweep_files_and_names_a_bad_file(tmp_path, capsys):
+    from membrax import cli, io
+
+    first = io.write_netcdf(_sweep_like(), tmp_path / "a.nc")
+    second = io.write_netcdf(_sweep_like(((100.0, 2.5),)), tmp_path / "b.nc")
+    out = tmp_path / "corrections.json"
+    assert cli.main(["fit", str(first), str(second), "--out", str(out)]) == 0
+    report = capsys.readouterr().out
+    assert "3 cases, 15 records from 2 sweep(s)" in report and "leave-one-case-out" in report
+    loaded = persistence.load_corrections(out)
+    table = datasets.concatenate(
+        [datasets.fitting_table(io.read_results(first)), datasets.fitting_table(io.read_results(second))]
+    )
+    assert sorted(set(table.case.tolist())) == [0, 1, 2]
+    expected = fit.fit(models.PAPER, table)
+    for name, value in expected.params.items():
+        assert loaded.params[name] == pytest.approx(value, abs=1e-9)
+    assert len(loaded.provenance["sweep_sha256"]) == 2
+    # a file that is not a sweep's: exit 2, the file named
+    other = io.write_netcdf(xr.Dataset({"x": ("record", np.arange(3.0))}), tmp_path / "other.nc")
+    assert cli.main(["fit", str(other), "--out", str(tmp_path / "x.json")]) == 2
+    error = capsys.readouterr().err
+    assert "other.nc" in error and "base_config" in error
+    assert not (tmp_path / "x.json").exists()
