@@ -11,8 +11,11 @@ package.
   the paper's correlations, physically scaled; :data:`~calibrate.models.RICH` is a richer comparison.
 - :mod:`calibrate.fit`: optax fitting (Adam, then L-BFGS; float64 weighted least squares) with the
   Gauss–Newton covariance, leave-one-case-out cross-validation, and a scipy Nelder–Mead baseline.
-- :mod:`calibrate.persistence`: fitted corrections as JSON with provenance.
+- :mod:`calibrate.persistence`: fitted corrections as JSON with provenance;
+  :mod:`calibrate.workflow`: ``membrax fit``.
+- :mod:`calibrate.lab`: a laboratory record (CSV, units in the header) read into SI units. Every bad file
+  is refused with its line, column and fix.
 
-Still to come (issue 18): the calibration grid, the ``membrax fit`` and ``membrax correct`` commands,
-laboratory records, a shipped default model, and the held-out comparison with the classical corrections.
+Still to come (issue 18): the calibration grid, the ``membrax correct`` command, the example record, a
+shipped default model, and the held-out comparison with the classical corrections.
 """
