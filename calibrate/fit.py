@@ -29,7 +29,7 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
-__all__ = ["FitResult", "cross_validate", "fit", "nelder_mead_baseline"]
+__all__ = ["FitResult", "cross_validate", "fit", "nelder_mead_baseline", "predict"]
 
 
 class FitResult(NamedTuple):

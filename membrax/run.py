@@ -20,7 +20,8 @@ steps below ``fine_until_strain`` and every ``record_every_coarse`` steps after.
   ``.pvd`` indexes for ParaView.
 
 Long runs. The test is a batch of one of :mod:`membrax.stages` (the loop every run and sweep shares): the
-simulation advances in jitted chunks of ``chunk_steps``; a tqdm bar shows the phase and the steps. Every
+simulation advances in jitted chunks of ``chunk_steps``; a tqdm bar shows the phase, the axial strain and
+the external and internal φ'. Every
 ``checkpoint_every_chunks`` chunks the state, the records so far and the position in the protocol are
 written atomically (:func:`membrax.io.save_checkpoint`). ``resume=True`` continues from the checkpoint:
 the remaining steps of the interrupted phase run in the same chunks as they would have uninterrupted, so
@@ -160,10 +161,9 @@ def run_test(
             last_step = [start]
 
             def after_chunk(states, _phase):
-                member = batch.unstack(states)[0]
-                step = int(member.step)
+                step = int(np.asarray(states.dem.step)[0])
                 if step // config.vtk_every_steps > last_step[0] // config.vtk_every_steps:
-                    _vtk_snapshot(series, member, test)
+                    _vtk_snapshot(series, batch.unstack(states)[0], test)
                 last_step[0] = step
 
         try:

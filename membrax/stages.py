@@ -52,7 +52,7 @@ from membrax.driver import SimulationError, drive
 from membrax.errors import OVERFLOWS, ErrorCode, describe
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.contact import MembraneContactParams
-from membrax.membrane.coupled import grow_candidates
+from membrax.membrane.coupled import grow_candidates, grown_candidate_capacities
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.neighbors import remap_pair_history
@@ -129,6 +129,14 @@ GEOMETRY_FIELDS = (
     "reference_area",
     "rest_dihedral",
     "edge_weight",
+)
+#: Records a single test's progress bar reads (axial strain and the paper's §4.3 stresses).
+_PROGRESS = (
+    "axial_strain",
+    "external_axial_stress",
+    "external_radial_stress",
+    "internal_axial_stress",
+    "internal_radial_stress",
 )
 #: Fields that do not enter the simulation (never split a batch, never gridded).
 BOOKKEEPING_FIELDS = frozenset({"name", "checkpoint_every_chunks", "vtk_every_steps"})
@@ -401,17 +409,10 @@ class BatchedTest:
                 for m, nl in zip(members, lists, strict=True)
             ]
         if np.any(error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW):
-            old = states.membrane.candidates
-            subset = int(old.sphere_subset.shape[-1])
-            capacity = max(
-                int(np.max(np.asarray(overflowed.max_count))) + 2, math.ceil(1.5 * old.idx.shape[-1])
-            )
-            sphere_capacity = max(
-                int(np.max(np.asarray(overflowed.max_sphere_count))) + 8, int(old.sphere_slots.shape[-1])
-            )
+            capacity, sphere_capacity = grown_candidate_capacities(states.membrane.candidates, overflowed)
             thickness = np.asarray(self.params.membrane.contact_thickness)
             members = [
-                grow_candidates(m, particles, min(capacity, subset), thickness[b], sphere_capacity)
+                grow_candidates(m, particles, capacity, thickness[b], sphere_capacity)
                 for b, m in enumerate(members)
             ]
         self.reallocations += 1
@@ -448,6 +449,8 @@ class BatchedTest:
         padded = np.zeros(self.num_padded, dtype=np.int64)
         padded[: self.num_members] = np.asarray(budgets)
         num = self.num_members
+        # Every error bit of the real members; only the overflows of the padding copies (they grow too).
+        real_bits = np.where(np.arange(self.num_padded) < num, -1, int(OVERFLOWS))
 
         def chunk(states, left, num_records):
             return self._chunk(
@@ -495,11 +498,7 @@ class BatchedTest:
             record_every,
             chunk_steps,
             # Overflows anywhere (padding included) grow every member's tables; other errors of real members.
-            errors=lambda s: np.where(
-                np.arange(self.num_padded) < num,
-                np.asarray(s.dem.error),
-                np.asarray(s.dem.error) & OVERFLOWS,
-            ),
+            errors=lambda s: np.asarray(s.dem.error) & real_bits,
             grow=lambda s, error, overflowed: self._grow(s, error, overflowed.membrane.candidates),
             fail=fail,
             accept=accept,
@@ -827,7 +826,20 @@ def run_group(
                     f"the run is unstable. Lower dt_safety (now {config.dt_safety}) or the stiffness."
                 )
             bar.update(chunk["valid"].shape[1] * record_every)
-            bar.set_postfix(active=int(np.sum(left > 0)), step=int(np.max(np.asarray(current.dem.step))))
+            postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}
+            if num == 1:
+                # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
+                last = {name: float(chunk[name][0][chunk["valid"][0]][-1].ravel()[0]) for name in _PROGRESS}
+                external, internal = analysis.friction_angle_deg(
+                    [last["external_axial_stress"], last["internal_axial_stress"]],
+                    [last["external_radial_stress"], last["internal_radial_stress"]],
+                )
+                postfix = {
+                    "strain": f"{100 * last['axial_strain']:.3f}%",
+                    "phi_ext": f"{external:.1f}",
+                    "phi_int": f"{internal:.1f}",
+                }
+            bar.set_postfix(**postfix)
             if after_chunk is not None:
                 after_chunk(current, phase)
             chunk_counter[0] += 1

@@ -17,7 +17,15 @@ from membrax.driver import two_rate_plan
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane import mesh as membrane_lib
 from membrax.spheres import packing
-from membrax.spheres.walls import BOTTOM, TOP, advance_walls, ramped_velocity, set_control, triaxial_walls
+from membrax.spheres.walls import (
+    BOTTOM,
+    TOP,
+    advance_walls,
+    ramp_acceleration,
+    ramped_velocity,
+    set_control,
+    triaxial_walls,
+)
 from membrax.stages import rebase_to_shear_start
 from membrax.triaxial.membrane_cell import membrane_test
 
@@ -258,3 +266,32 @@ def test_the_membranes_radial_stress_grows_with_the_hoop_strain_below_henkel_and
     ratio = radial_excess[picks] / henkel_gilbert[picks]
     assert np.all(np.diff(radial_excess[picks]) > 0.0) and np.all(np.diff(hoop[picks]) > 0.0), ratio
     assert np.all(ratio > 0.0) and np.all(ratio <= 1.0), ratio
+
+
+def test_the_ramp_acceleration_reaches_full_speed_at_the_ramp_strain():
+    """a = |v| ε̇/(2 ε_r): from rest the platen travels v²/(2a) = |v| ε_r/ε̇ before full speed, i.e. the
+    axial strain ε_r of a specimen of height H = |v|/ε̇ (by hand); no ramp and still walls give inf."""
+    rate, height, ramp = 0.08, 0.45, 0.01
+    velocity = np.array([[-0.5 * rate * height, -0.5 * rate * height, 0.0]])
+    acceleration = ramp_acceleration(velocity, rate, ramp)
+    travel = velocity[0, :2] ** 2 / (2.0 * acceleration[0, :2])
+    np.testing.assert_allclose(2.0 * travel / height, ramp, rtol=1e-15)  # both platens: the total strain
+    assert np.isinf(acceleration[0, 2])
+    assert np.all(np.isinf(ramp_acceleration(velocity, rate, 0.0)))
+
+
+def test_a_ramped_rigid_wall_test_sets_the_platen_acceleration_of_its_ramp():
+    """The rigid-wall cell ramps like the membrane cell: top platen at ε̇ H with a = ε̇² H/(2 ε_r), the
+    lateral walls servo-held (infinite acceleration: no ramp), by hand."""
+    from membrax.triaxial.rigid import rigid_wall_test
+
+    test = rigid_wall_test(packing.fcc_specimen(0.025, 3, 4), cell_pressure=1e4)
+    state = test.start_shear(test.initial_state, inertial_number=1e-3, ramp_strain=0.01)
+    rate = test.shear_rate(1e-3)
+    height = float(state.walls.position[0, TOP] + state.walls.position[0, BOTTOM])
+    walls = state.walls
+    assert float(walls.acceleration[0, TOP]) == pytest.approx(rate**2 * height / 0.02, rel=1e-6)
+    assert np.all(np.isinf(np.asarray(walls.acceleration[0, 2:])))
+    fine, _ = test.shear_plan(0.02, 1e-3, 0.01, ramp_strain=0.01)
+    # the ramp delays every later strain by ε_r/ε̇: (ε_fine + ε_r)/(ε̇ Δt) steps (two_rate_plan)
+    assert fine == math.ceil((0.01 + 0.01) / (rate * test.dt))

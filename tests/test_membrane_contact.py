@@ -485,3 +485,26 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
         sphere_capacity=2,
     )
     assert int(candidate_errors(tight)) == ERROR_MEMBRANE_CANDIDATE_OVERFLOW
+
+
+def test_grown_candidate_capacities_follow_the_rule_by_hand():
+    """K = min(max(largest count + 2, ⌈1.5 K_old⌉), subset size), M = max(largest sphere count + 8, M_old);
+    stacked tables take the largest over members."""
+    import types
+
+    from membrax.membrane.coupled import grown_candidate_capacities
+
+    old = types.SimpleNamespace(
+        sphere_subset=np.zeros(50), idx=np.zeros((100, 4)), sphere_slots=np.zeros((50, 10))
+    )
+    assert grown_candidate_capacities(old, types.SimpleNamespace(max_count=9, max_sphere_count=15)) == (
+        11,
+        23,
+    )
+    assert grown_candidate_capacities(old, types.SimpleNamespace(max_count=3, max_sphere_count=1)) == (6, 10)
+    assert grown_candidate_capacities(old, types.SimpleNamespace(max_count=70, max_sphere_count=1)) == (
+        50,
+        10,
+    )
+    stacked = types.SimpleNamespace(max_count=np.array([3, 9]), max_sphere_count=np.array([15, 2]))
+    assert grown_candidate_capacities(old, stacked) == (11, 23)

@@ -89,6 +89,7 @@ __all__ = [
     "MembraneParams",
     "MembraneState",
     "grow_candidates",
+    "grown_candidate_capacities",
     "membrane_critical_time_step",
     "membrane_dem",
     "platen_heights",
@@ -513,6 +514,21 @@ def membrane_dem(
         )
 
     return init_fn, step_fn
+
+
+def grown_candidate_capacities(old, overflowed) -> tuple[int, int]:
+    """(K, M) after a candidate-table overflow, slots per node and per subset sphere (grow_candidates).
+
+    K = max(the overflowing chunk's largest count + 2, 1.5 × the old K), at most the subset's size; M =
+    max(its largest per-sphere count + 8, the old M). ``old`` and ``overflowed`` are candidate tables (of
+    one state, or stacked: the largest over the members).
+    """
+    subset = int(np.shape(old.sphere_subset)[-1])
+    capacity = max(int(np.max(np.asarray(overflowed.max_count))) + 2, math.ceil(1.5 * np.shape(old.idx)[-1]))
+    sphere_capacity = max(
+        int(np.max(np.asarray(overflowed.max_sphere_count))) + 8, int(np.shape(old.sphere_slots)[-1])
+    )
+    return min(capacity, subset), sphere_capacity
 
 
 def grow_candidates(

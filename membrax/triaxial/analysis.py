@@ -45,6 +45,7 @@ __all__ = [
     "RECORD_NAMES",
     "record",
     "strain_ratio_change",
+    "friction_angle_deg",
     "derived_quantities",
     "initial_state",
     "peak",
@@ -103,7 +104,7 @@ def _ratio(numerator: np.ndarray, denominator: np.ndarray) -> np.ndarray:
     return out
 
 
-def _friction_angle_deg(major: np.ndarray, minor: np.ndarray) -> np.ndarray:
+def friction_angle_deg(major: np.ndarray, minor: np.ndarray) -> np.ndarray:
     """Mobilised φ' (degrees) from :func:`membrax.theory.mobilised_friction_angle_deg`, NaN where undefined.
 
     sin φ' = (σ1 − σ3)/(σ1 + σ3)   [C, standard; reference §9]. Records where σ1 or σ3 is not a positive
@@ -211,11 +212,11 @@ def derived_quantities(records, window: float = 0.005) -> dict[str, np.ndarray]:
         "additional_radial_stress": internal_radial - external_radial,
         "axial_stress_ratio": _ratio(internal_axial, external_axial),
         "radial_stress_ratio": _ratio(internal_radial, external_radial),
-        "external_friction_angle_deg": _friction_angle_deg(external_axial, external_radial),
-        "internal_friction_angle_deg": _friction_angle_deg(internal_axial, internal_radial),
+        "external_friction_angle_deg": friction_angle_deg(external_axial, external_radial),
+        "internal_friction_angle_deg": friction_angle_deg(internal_axial, internal_radial),
     }
     if "love_weber_axial_stress" in records and "love_weber_radial_stress" in records:
-        derived["love_weber_friction_angle_deg"] = _friction_angle_deg(
+        derived["love_weber_friction_angle_deg"] = friction_angle_deg(
             record(records, "love_weber_axial_stress"), record(records, "love_weber_radial_stress")
         )
     derived["strain_ratio_change"] = strain_ratio_change(

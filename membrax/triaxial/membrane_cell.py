@@ -45,6 +45,7 @@ from membrax.membrane.coupled import (
     CoupledState,
     MembraneParams,
     grow_candidates,
+    grown_candidate_capacities,
     membrane_critical_time_step,
     membrane_dem,
 )
@@ -338,10 +339,10 @@ def membrane_test(
     record = make_record(mesh, volume)
 
     def grow(s, overflowed_state):
-        old, overflowed = s.membrane.candidates, overflowed_state.membrane.candidates
-        capacity = max(int(overflowed.max_count) + 2, int(np.ceil(1.5 * old.capacity)))
-        sphere_capacity = max(int(overflowed.max_sphere_count) + 8, old.sphere_capacity)
-        return grow_candidates(s, particles, min(capacity, subset.size), contact_thickness, sphere_capacity)
+        capacity, sphere_capacity = grown_candidate_capacities(
+            s.membrane.candidates, overflowed_state.membrane.candidates
+        )
+        return grow_candidates(s, particles, capacity, contact_thickness, sphere_capacity)
 
     runner = ChunkRunner(
         step_fn,
