@@ -328,7 +328,7 @@ def _row(key: tuple[float, float], ours: Mapping, paper_table: Mapping, quantiti
 def _peak_angles(records) -> dict:
     """:func:`membrax.triaxial.analysis.peak` from the four stresses and the axial strain only."""
     derived = {
-        f"{side}_friction_angle_deg": analysis._friction_angle_deg(
+        f"{side}_friction_angle_deg": analysis.friction_angle_deg(
             analysis.record(records, f"{side}_axial_stress"),
             analysis.record(records, f"{side}_radial_stress"),
         )
