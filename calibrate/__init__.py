@@ -1,7 +1,7 @@
-"""calibrate: membrane stress corrections fitted on membrax simulations (issue 18, in progress).
+"""calibrate: membrane stress corrections fitted on membrax simulations and applied to laboratory records.
 
 The data flow is one way, simulator results in and corrections out; nothing in :mod:`membrax` imports this
-package.
+package but its command line (``membrax fit``, ``membrax correct``).
 
 - :mod:`calibrate.datasets`: a sweep's records (``sweep.nc``) as a fitting table. The inputs are the
   quantities a laboratory measures (ε_a, ε_r, dε_r/dε_a, the hoop strain) and their dimensionless groups
@@ -15,7 +15,10 @@ package.
   :mod:`calibrate.workflow`: ``membrax fit``.
 - :mod:`calibrate.lab`: a laboratory record (CSV, units in the header) read into SI units. Every bad file
   is refused with its line, column and fix.
-
-Still to come (issue 18): the calibration grid, the ``membrax correct`` command, the example record, a
-shipped default model, and the held-out comparison with the classical corrections.
+- :mod:`calibrate.correct`: ``membrax correct``, a record corrected by none, the ASTM, Henkel & Gilbert
+  and Kuerbis & Vaid corrections and the fitted one (with its uncertainty band), as a CSV and a plot;
+  the shipped default correction (``data/default_corrections.json``).
+- :mod:`calibrate.grid`: the calibration and held-out sweeps (``python -m calibrate.grid OUT``);
+  :mod:`calibrate.evaluate`: simulated tests as laboratory records, and each correction's φ' error
+  against the internal φ'.
 """

@@ -18,8 +18,14 @@ and the dimensionless groups the models use:
 - ``thickness_ratio`` t_m/D, ``stiffness_ratio`` E_m t_m/(σc D), ``size_ratio`` D/D_s;
 - ``indentation_ratio`` α/D of Molenkamp & Luger (the paper's Eq. 2, C = 0.275, FCC void ratio;
   :func:`membrax.theory.molenkamp_luger_indentation_ratio`);
-- ``hoop_ratio`` 2 E_m t_m ε_θ/(D_s σc): Henkel & Gilbert's hoop stress over σc (positive when the
-  membrane is stretched round the specimen).
+- ``hoop_ratio`` 2 E_m t_m (−ε_r)/(D_s σc): Henkel & Gilbert's hoop stress over σc with the hoop strain
+  of the right cylinder, −ε_r (positive when the specimen bulges and stretches the membrane). Every
+  laboratory record has it (from ε_v or ε_r);
+- ``tape_hoop_ratio`` 2 E_m t_m ε_θ/(D_s σc), the same with the mid-height circumferential strain, where
+  recorded (NaN otherwise).
+
+:func:`measured_inputs` computes these columns from one test's strains and properties; the fitting table
+of a sweep and the correction of a laboratory record (:mod:`calibrate.correct`) both use it.
 
 Targets: ``axial_target`` Δσ_a/σc and ``radial_target`` Δσ_r/σc, internal − external (the paper's §4.3
 stresses; Δσ > 0 when the specimen carries more than the cell and ram apply). ``case`` numbers the
@@ -31,13 +37,23 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from membrax import theory
 
-__all__ = ["FittingTable", "concatenate", "fitting_table"]
+__all__ = [
+    "INPUTS",
+    "FittingTable",
+    "concatenate",
+    "fitting_table",
+    "load_table",
+    "measured_inputs",
+    "save_table",
+    "sweep_members",
+]
 
 #: Names of the input columns, in order.
 INPUTS = (
@@ -55,6 +71,7 @@ INPUTS = (
     "size_ratio",
     "indentation_ratio",
     "hoop_ratio",
+    "tape_hoop_ratio",
 )
 
 
@@ -93,6 +110,102 @@ def _attr(dataset, name):
     return json.loads(value) if isinstance(value, str) else value
 
 
+def measured_inputs(
+    axial_strain,
+    radial_strain,
+    strain_ratio_change,
+    cell_pressure,
+    membrane_thickness,
+    membrane_modulus,
+    particle_diameter,
+    specimen_diameter,
+    hoop_strain=None,
+) -> dict:
+    """The input columns (:data:`INPUTS`) of one test's records: the one rule for sweeps and lab records.
+
+    Args:
+      axial_strain: ε_a per record from the start of shearing (compression positive).
+      radial_strain: ε_r per record, likewise (a bulging specimen has ε_r < 0).
+      strain_ratio_change: dε_r/dε_a per record
+        (:func:`membrax.triaxial.analysis.strain_ratio_change`).
+      cell_pressure: σc (Pa), a scalar or per record.
+      membrane_thickness: t_m (m).
+      membrane_modulus: E_m (Pa).
+      particle_diameter: D (m).
+      specimen_diameter: D_s (m).
+      hoop_strain: the mid-height circumferential strain per record, counted here from the first record;
+        ``None`` when not recorded (``hoop_strain`` and ``tape_hoop_ratio`` are then NaN).
+
+    Returns:
+      {name: float64 array over the records} for every name of :data:`INPUTS` (module docstring).
+    """
+    axial = np.asarray(axial_strain, dtype=np.float64)
+    count = axial.shape[0]
+    pressure = np.broadcast_to(np.asarray(cell_pressure, dtype=np.float64), (count,)).copy()
+    thickness, modulus = float(membrane_thickness), float(membrane_modulus)
+    particle, specimen = float(particle_diameter), float(specimen_diameter)
+    radial = np.asarray(radial_strain, dtype=np.float64)
+    if hoop_strain is None:
+        hoop = np.full(count, np.nan)
+    else:
+        hoop = np.asarray(hoop_strain, dtype=np.float64)
+        hoop = hoop - hoop[0]
+    # Henkel & Gilbert's hoop stress 2 E_m t_m ε_θ / D over σc, with ε_θ = −ε_r (extension positive).
+    hoop_scale = 2.0 * modulus * thickness / (specimen * pressure)
+    indentation = np.asarray(
+        theory.molenkamp_luger_indentation_ratio(
+            theory.FCC_VOID_RATIO, particle, thickness, np.maximum(pressure, 0.0), modulus
+        ),
+        dtype=np.float64,
+    )
+    return {
+        "axial_strain": axial,
+        "radial_strain": radial,
+        "strain_ratio_change": np.asarray(strain_ratio_change, dtype=np.float64),
+        "hoop_strain": hoop,
+        "cell_pressure": pressure,
+        "membrane_thickness": np.full(count, thickness),
+        "membrane_modulus": np.full(count, modulus),
+        "particle_diameter": np.full(count, particle),
+        "specimen_diameter": np.full(count, specimen),
+        "thickness_ratio": np.full(count, thickness / particle),
+        "stiffness_ratio": modulus * thickness / (pressure * particle),
+        "size_ratio": np.full(count, particle / specimen),
+        "indentation_ratio": np.broadcast_to(indentation, (count,)).copy(),
+        "hoop_ratio": -hoop_scale * radial,
+        "tape_hoop_ratio": hoop_scale * hoop,
+    }
+
+
+def sweep_members(dataset):
+    """Each member of a sweep dataset with records: (its configuration fields, its records).
+
+    Yields:
+      (dict of the base configuration with the member's grid values, the member's records without the NaN
+      padding, an :class:`xarray.Dataset` along ``record``).
+
+    Raises:
+      ValueError: a dataset that is not a sweep's (no ``base_config``/``grid_fields`` attribute).
+    """
+    for name in ("base_config", "grid_fields"):
+        if name not in dataset.attrs:
+            raise ValueError(
+                f"the dataset has no {name!r} attribute: give the sweep.nc that membrax sweep wrote."
+            )
+    base = _attr(dataset, "base_config")
+    fields = [f for f in dataset.attrs["grid_fields"].split(",") if f]
+    stacked = dataset.stack(member=fields) if fields else dataset.expand_dims(member=[0])
+    for index in range(stacked.sizes["member"]):
+        member = stacked.isel(member=index)
+        count = int(member["num_records"])
+        if count == 0:
+            continue
+        config = dict(base)
+        for field in fields:
+            config[field] = float(member[field])
+        yield config, member.isel(record=slice(0, count))
+
+
 def fitting_table(dataset) -> FittingTable:
     """The fitting table of a sweep dataset (module docstring).
 
@@ -103,53 +216,22 @@ def fitting_table(dataset) -> FittingTable:
       ValueError: a dataset that is not a sweep's (no ``base_config``/``grid_fields`` attributes or no
         records), naming what is missing.
     """
-    for name in ("base_config", "grid_fields"):
-        if name not in dataset.attrs:
-            raise ValueError(
-                f"the dataset has no {name!r} attribute: give the sweep.nc that membrax sweep wrote."
-            )
-    base = _attr(dataset, "base_config")
-    fields = [f for f in dataset.attrs["grid_fields"].split(",") if f]
-    stacked = dataset.stack(member=fields) if fields else dataset.expand_dims(member=[0])
     columns = {name: [] for name in INPUTS}
     axial, radial, cases, initial = [], [], [], []
-    for case in range(stacked.sizes["member"]):
-        member = stacked.isel(member=case)
-        count = int(member["num_records"])
-        if count == 0:
-            continue
-        config = dict(base)
-        for field in fields:
-            config[field] = float(member[field])
-        rows = member.isel(record=slice(0, count))
-        cell_pressure = 1e3 * config["cell_pressure_kpa"]
-        thickness = 1e-3 * config["membrane_thickness_mm"]
-        modulus = 1e3 * config["membrane_modulus_kpa"]
-        particle = 1e-3 * config["particle_diameter_mm"]
-        specimen = math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi)
-        hoop = np.asarray(rows["hoop_strain"], dtype=np.float64)
-        hoop = hoop - hoop[0]
-        indentation = float(
-            theory.molenkamp_luger_indentation_ratio(
-                theory.FCC_VOID_RATIO, particle, thickness, cell_pressure, modulus
-            )
+    for config, rows in sweep_members(dataset):
+        count = rows.sizes["record"]
+        values = measured_inputs(
+            axial_strain=np.asarray(rows["axial_strain"], dtype=np.float64),
+            radial_strain=np.asarray(rows["radial_strain"], dtype=np.float64),
+            strain_ratio_change=np.asarray(rows["strain_ratio_change"], dtype=np.float64),
+            cell_pressure=1e3 * config["cell_pressure_kpa"],
+            membrane_thickness=1e-3 * config["membrane_thickness_mm"],
+            membrane_modulus=1e3 * config["membrane_modulus_kpa"],
+            particle_diameter=1e-3 * config["particle_diameter_mm"],
+            specimen_diameter=math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi),
+            hoop_strain=np.asarray(rows["hoop_strain"], dtype=np.float64),
         )
-        values = {
-            "axial_strain": np.asarray(rows["axial_strain"], dtype=np.float64),
-            "radial_strain": np.asarray(rows["radial_strain"], dtype=np.float64),
-            "strain_ratio_change": np.asarray(rows["strain_ratio_change"], dtype=np.float64),
-            "hoop_strain": hoop,
-            "cell_pressure": np.full(count, cell_pressure),
-            "membrane_thickness": np.full(count, thickness),
-            "membrane_modulus": np.full(count, modulus),
-            "particle_diameter": np.full(count, particle),
-            "specimen_diameter": np.full(count, specimen),
-            "thickness_ratio": np.full(count, thickness / particle),
-            "stiffness_ratio": np.full(count, modulus * thickness / (cell_pressure * particle)),
-            "size_ratio": np.full(count, particle / specimen),
-            "indentation_ratio": np.full(count, indentation),
-            "hoop_ratio": 2.0 * modulus * thickness * hoop / (specimen * cell_pressure),
-        }
+        cell_pressure = values["cell_pressure"]
         for name in INPUTS:
             columns[name].append(values[name])
         axial.append(np.asarray(rows["additional_axial_stress"], dtype=np.float64) / cell_pressure)
@@ -182,3 +264,34 @@ def concatenate(tables) -> FittingTable:
         np.concatenate([t.case + offset for t, offset in zip(tables, offsets, strict=True)]),
         np.concatenate([t.initial for t in tables]),
     )
+
+
+def save_table(table: FittingTable, path) -> None:
+    """Write ``table`` to ``path`` as a compressed ``.npz`` (atomically), readable by :func:`load_table`."""
+    import io
+
+    from membrax.io.files import atomic_write_bytes
+
+    buffer = io.BytesIO()
+    np.savez_compressed(
+        buffer,
+        **{f"input_{name}": value for name, value in table.inputs.items()},
+        axial_target=table.axial_target,
+        radial_target=table.radial_target,
+        case=table.case,
+        initial=table.initial,
+    )
+    atomic_write_bytes(Path(path), buffer.getvalue())
+
+
+def load_table(path) -> FittingTable:
+    """The :class:`FittingTable` written by :func:`save_table`."""
+    with np.load(path) as content:
+        inputs = {name: np.asarray(content[f"input_{name}"]) for name in INPUTS}
+        return FittingTable(
+            inputs,
+            np.asarray(content["axial_target"]),
+            np.asarray(content["radial_target"]),
+            np.asarray(content["case"]),
+            np.asarray(content["initial"]),
+        )

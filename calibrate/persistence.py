@@ -5,8 +5,8 @@ Contract. :func:`save_corrections` writes one JSON object:
 - ``model``: the model's name (:data:`calibrate.models.MODELS`);
 - ``params`` and ``std``: the fitted parameters and their standard errors (:class:`calibrate.fit.FitResult`);
 - ``covariance`` with ``names`` (its order), ``rms`` and ``evaluations`` of the fit;
-- ``input_ranges``: for each input column the model reads, [min, max] over the rows the fit used, so a
-  user's record can be checked against the fitted range;
+- ``input_ranges``: for each input column the model reads and each of :data:`RANGE_INPUTS`, [min, max]
+  over the rows of the table, so a user's record can be checked against the fitted range;
 - ``provenance``: the membrax version, the SHA-256 of the sweep's base configuration and grid (the
   ``base_config`` and ``grid`` attributes of ``sweep.nc``, canonical JSON), and the number of cases and rows.
 
@@ -30,6 +30,17 @@ from calibrate.models import MODELS
 __all__ = ["Corrections", "load_corrections", "save_corrections", "sweep_hash"]
 
 FORMAT = "membrax-corrections"
+#: Inputs whose fitted range is saved besides the model's own: the dimensionless groups and strains a
+#: laboratory record is checked against (:mod:`calibrate.correct`).
+RANGE_INPUTS = (
+    "axial_strain",
+    "thickness_ratio",
+    "stiffness_ratio",
+    "size_ratio",
+    "indentation_ratio",
+    "hoop_ratio",
+    "strain_ratio_change",
+)
 FIELDS = ("format", "model", "params", "std", "names", "covariance", "rms", "input_ranges", "provenance")
 
 
@@ -68,7 +79,7 @@ def save_corrections(path, model, result, table, provenance: dict | None = None)
     from membrax import __version__
 
     ranges = {}
-    for name in model.inputs:
+    for name in sorted(set(model.inputs) | set(RANGE_INPUTS)):
         values = np.asarray(table.inputs[name], dtype=np.float64)
         values = values[np.isfinite(values)]
         ranges[name] = [float(values.min()), float(values.max())] if values.size else [None, None]

@@ -18,8 +18,17 @@ from calibrate import datasets, fit, models, persistence
 __all__ = ["fit_sweeps"]
 
 
-def fit_sweeps(paths, out, model: str = "paper", cross_validation: bool = True) -> tuple[str, Path]:
+def fit_sweeps(
+    paths, out, model: str = "paper", cross_validation: bool = True, table_out=None
+) -> tuple[str, Path]:
     """Fit ``model`` on the sweeps at ``paths`` and write it to ``out`` (module docstring).
+
+    Args:
+      paths: the ``sweep.nc`` files.
+      out: the JSON to write.
+      model: a name of :data:`calibrate.models.MODELS`.
+      cross_validation: score by leave-one-case-out (at least three cases).
+      table_out: also write the joined fitting table there (``.npz``, :func:`calibrate.datasets.save_table`).
 
     Returns:
       (the report text, the path written).
@@ -63,4 +72,7 @@ def fit_sweeps(paths, out, model: str = "paper", cross_validation: bool = True) 
         )
     written = persistence.save_corrections(out, chosen, result, table, provenance)
     lines.append(f"written to {written}")
+    if table_out is not None:
+        datasets.save_table(table, table_out)
+        lines.append(f"fitting table written to {table_out}")
     return "\n".join(lines), written

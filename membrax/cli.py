@@ -16,7 +16,13 @@ Sub-commands:
   reproduce ``membrax reproduce [--size small|paper]``: the paper's Table 1, then its Tables 2–3 and
            Figs 5–9 (:mod:`membrax.reproduce`)
   fit      ``membrax fit sweep.nc [more.nc] [--out corrections.json] [--model paper|rich]``: a membrane
-           correction fitted on sweeps (:mod:`calibrate.workflow`; the one place membrax reaches calibrate)
+           correction fitted on sweeps (:mod:`calibrate.workflow`)
+  correct  ``membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20
+           --membrane-thickness-mm 2 --membrane-modulus-kpa 1400 [--model corrections.json] [--out X.csv]``:
+           a laboratory record corrected by none, the classical three and the fitted correction, as a CSV
+           and a plot (:mod:`calibrate.correct`)
+
+``fit`` and ``correct`` are the one place membrax reaches :mod:`calibrate`.
 """
 
 from __future__ import annotations
@@ -265,11 +271,45 @@ def _fit(args: argparse.Namespace) -> int:
     from calibrate.workflow import fit_sweeps
 
     try:
-        report, _ = fit_sweeps(args.sweeps, args.out, args.model, not args.no_cross_validation)
+        report, _ = fit_sweeps(args.sweeps, args.out, args.model, not args.no_cross_validation, args.table)
     except (FileNotFoundError, ValueError) as error:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
     print(report)
+    return 0
+
+
+#: Axial strains (fractions) at which ``membrax correct`` prints φ' by method.
+CORRECT_REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
+
+
+def _correct(args: argparse.Namespace) -> int:
+    from calibrate.correct import METHODS, Specimen, correct_file
+
+    try:
+        specimen = Specimen.from_mm_kpa(
+            args.specimen_diameter_mm,
+            args.particle_size_mm,
+            args.membrane_thickness_mm,
+            args.membrane_modulus_kpa,
+        )
+        result, paths = correct_file(args.record, specimen, args.model, args.out, not args.no_plot)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"membrax: {error}", file=sys.stderr)
+        return 2
+    for message in result.warnings:
+        print(f"membrax: warning: {message}", file=sys.stderr)
+    strain = result.record.axial_strain
+    lines = ["mobilised φ' (°) by method", f"{'ε_a %':>6} " + " ".join(f"{m:>15}" for m in METHODS)]
+    for target in CORRECT_REPORT_STRAINS:
+        if target > strain[-1] + 1e-12:
+            continue
+        i = int(np.argmin(np.abs(strain - target)))
+        cells = [f"{result.friction_angle[m][i]:15.2f}" for m in METHODS[:-1]]
+        cells.append(f"{result.friction_angle['fitted'][i]:9.2f} ±{result.std['friction_angle'][i]:4.2f}")
+        lines.append(f"{100 * strain[i]:6.2f} " + " ".join(cells))
+    lines.append("written: " + ", ".join(str(p) for p in paths))
+    print("\n".join(lines))
     return 0
 
 
@@ -342,7 +382,27 @@ def build_parser() -> argparse.ArgumentParser:
     )
     fit.add_argument("--model", default="paper", choices=("paper", "rich"), help="correction model")
     fit.add_argument("--no-cross-validation", action="store_true", help="skip leave-one-case-out")
+    fit.add_argument("--table", default=None, help="also write the fitting table (.npz)")
     fit.set_defaults(func=_fit)
+    correct = commands.add_parser(
+        "correct", help="correct a laboratory record for the membrane (classical and fitted corrections)"
+    )
+    correct.add_argument(
+        "record",
+        help="CSV: axial_strain, volumetric_ or radial_strain, deviator_ or "
+        "axial_stress, cell_pressure, each 'name [unit]' in the header",
+    )
+    for name, unit, what in (
+        ("specimen-diameter-mm", "mm", "specimen diameter after consolidation"),
+        ("particle-size-mm", "mm", "characteristic particle size (e.g. d50)"),
+        ("membrane-thickness-mm", "mm", "membrane thickness"),
+        ("membrane-modulus-kpa", "kPa", "membrane Young's modulus (latex ≈ 1400 kPa)"),
+    ):
+        correct.add_argument(f"--{name}", type=float, required=True, help=f"{what} ({unit})")
+    correct.add_argument("--model", default=None, help="corrections.json of membrax fit (default: shipped)")
+    correct.add_argument("--out", default=None, help="CSV to write (default <record>_corrected.csv)")
+    correct.add_argument("--no-plot", action="store_true", help="write the CSV only")
+    correct.set_defaults(func=_correct)
     demo.set_defaults(func=_demo)
     run.set_defaults(func=_run)
     sweep.set_defaults(func=_sweep)

@@ -206,6 +206,10 @@ def test_a_sweep_becomes_a_fitting_table_of_dimensionless_groups():
     strain = np.linspace(0.0, 0.04, 5)
     np.testing.assert_allclose(rows.inputs["hoop_strain"], 0.3 * strain, atol=1e-15)
     np.testing.assert_allclose(
+        rows.inputs["tape_hoop_ratio"], 2 * 1.4e6 * 2.5e-3 * 0.3 * strain / (0.25 * 1e4), atol=1e-12
+    )
+    # the hoop ratio every laboratory has: the right cylinder's hoop strain −ε_r = 0.3 ε_a here
+    np.testing.assert_allclose(
         rows.inputs["hoop_ratio"], 2 * 1.4e6 * 2.5e-3 * 0.3 * strain / (0.25 * 1e4), atol=1e-12
     )
     np.testing.assert_allclose(rows.axial_target, 0.2 - strain, rtol=1e-12)

@@ -48,43 +48,43 @@ def test_radial_strain_and_axial_stress_columns_are_the_same_record(tmp_path):
     np.testing.assert_allclose(second.axial_stress, first.axial_stress, rtol=1e-15)
 
 
-@pytest.mark.parametrize(
-    ("text", "message"),
-    [
-        # a missing column
-        (
-            GOOD.replace(",cell_pressure [kPa]", ",confining [kPa]"),
-            r"line 3 \(header\): no column 'cell_pressure'",
-        ),
-        # an unknown unit, and a unit left out
-        (
-            GOOD.replace("deviator_stress [kPa]", "deviator_stress [psi]"),
-            r"line 3, column 3 \(deviator_stress\): unknown unit 'psi'.*kPa",
-        ),
-        (
-            GOOD.replace("cell_pressure [kPa]", "cell_pressure"),
-            r"column 4 \(cell_pressure\): unknown unit None",
-        ),
-        # NaN and text
-        (
-            GOOD.replace("0.5,0.002,20.0", "0.5,nan,20.0"),
-            r"line 5, column 2 \(volumetric_strain\): 'nan' is not a finite number",
-        ),
-        (GOOD.replace("1.0,0.003,30.5", "1.0,0.003,abc"), r"line 6, column 3 \(deviator_stress\): 'abc'"),
-        # percent written as a fraction
-        (
-            GOOD.replace("axial_strain [%]", "axial_strain [-]").replace("0.5,0.002", "5.0,0.002"),
-            r"line 5, column 1 \(axial_strain\): 5 as a fraction.*axial_strain \[%\]",
-        ),
-        # unsorted or unloading
-        (
-            GOOD.replace("1.0,0.003", "0.4,0.003"),
-            r"line 6, column 1 \(axial_strain\): 0.4 after 0.5.*must increase",
-        ),
-        # a negative pressure
-        (GOOD.replace("30.5,10,", "30.5,-10,"), r"line 6, column 4 \(cell_pressure\): -10 kPa"),
-    ],
-)
+BAD_FILES = [
+    # a missing column
+    (
+        GOOD.replace(",cell_pressure [kPa]", ",confining [kPa]"),
+        r"line 3 \(header\): no column 'cell_pressure'",
+    ),
+    # an unknown unit, and a unit left out
+    (
+        GOOD.replace("deviator_stress [kPa]", "deviator_stress [psi]"),
+        r"line 3, column 3 \(deviator_stress\): unknown unit 'psi'.*kPa",
+    ),
+    (
+        GOOD.replace("cell_pressure [kPa]", "cell_pressure"),
+        r"column 4 \(cell_pressure\): unknown unit None",
+    ),
+    # NaN and text
+    (
+        GOOD.replace("0.5,0.002,20.0", "0.5,nan,20.0"),
+        r"line 5, column 2 \(volumetric_strain\): 'nan' is not a finite number",
+    ),
+    (GOOD.replace("1.0,0.003,30.5", "1.0,0.003,abc"), r"line 6, column 3 \(deviator_stress\): 'abc'"),
+    # percent written as a fraction
+    (
+        GOOD.replace("axial_strain [%]", "axial_strain [-]").replace("0.5,0.002", "5.0,0.002"),
+        r"line 5, column 1 \(axial_strain\): 5 as a fraction.*axial_strain \[%\]",
+    ),
+    # unsorted or unloading
+    (
+        GOOD.replace("1.0,0.003", "0.4,0.003"),
+        r"line 6, column 1 \(axial_strain\): 0.4 after 0.5.*must increase",
+    ),
+    # a negative pressure
+    (GOOD.replace("30.5,10,", "30.5,-10,"), r"line 6, column 4 \(cell_pressure\): -10 kPa"),
+]
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_FILES)
 def test_each_bad_file_names_the_line_the_column_and_the_fix(tmp_path, text, message):
     with pytest.raises(LabRecordError, match=message):
         read_lab_record(_write(tmp_path, text))
@@ -97,3 +97,17 @@ def test_an_empty_or_missing_file_is_refused(tmp_path):
         read_lab_record(_write(tmp_path, GOOD.split("\n0.5")[0] + "\n"))
     with pytest.raises(FileNotFoundError):
         read_lab_record(tmp_path / "none.csv")
+
+
+@pytest.mark.parametrize(("text", "message"), BAD_FILES)
+def test_membrax_correct_names_each_bad_file_and_writes_nothing(tmp_path, capsys, text, message):
+    import re
+
+    from membrax import cli
+
+    path = _write(tmp_path, text)
+    argv = ["correct", str(path), "--specimen-diameter-mm", "150", "--particle-size-mm", "20"]
+    argv += ["--membrane-thickness-mm", "2", "--membrane-modulus-kpa", "1400"]
+    assert cli.main(argv) == 2
+    assert re.search(message, capsys.readouterr().err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lab.csv"]  # nothing written, not even half

@@ -44,6 +44,7 @@ from membrax.theory import mobilised_friction_angle_deg
 __all__ = [
     "RECORD_NAMES",
     "record",
+    "STRAIN_RATIO_WINDOW",
     "strain_ratio_change",
     "friction_angle_deg",
     "derived_quantities",
@@ -119,7 +120,11 @@ def friction_angle_deg(major: np.ndarray, minor: np.ndarray) -> np.ndarray:
     return angle
 
 
-def strain_ratio_change(axial_strain, radial_strain, window: float = 0.005) -> np.ndarray:
+#: The strain window (0.5 % axial strain) of :func:`strain_ratio_change` in every record membrax writes.
+STRAIN_RATIO_WINDOW = 0.005
+
+
+def strain_ratio_change(axial_strain, radial_strain, window: float = STRAIN_RATIO_WINDOW) -> np.ndarray:
     """The change in strain ratio dε_r/dε_a (the paper's Fig. 7), as a moving local linear regression.
 
     For each record i the slope of the least-squares line of ε_r against ε_a through the records j whose
@@ -181,7 +186,7 @@ def strain_ratio_change(axial_strain, radial_strain, window: float = 0.005) -> n
     return slope
 
 
-def derived_quantities(records, window: float = 0.005) -> dict[str, np.ndarray]:
+def derived_quantities(records, window: float = STRAIN_RATIO_WINDOW) -> dict[str, np.ndarray]:
     """The derived series of the paper's Figs 5–8, one value per record.
 
     Keys (Pa, fractions, degrees):

@@ -1,0 +1,97 @@
+"""Speed of the calibration half: the default fit, cross-validation, and ``membrax correct`` on 1,000 rows.
+
+Prints one row per dtype the step runs in (the fit and the corrections run in float64, scoped to their
+call; there is no float32 path), with:
+
+- ``fit (s)``: the shipped default model (``calibrate/data/default_corrections.json``) fitted on the
+  shipped calibration table (``calibrate/data/calibration_table.npz``, the fitting table of
+  ``calibrate.grid.CALIBRATION``), first call including compilation; ``warm (s)``, the second call;
+- ``loo (s)``: the leave-one-case-out cross-validation (one fit per case);
+- ``nm evals`` / ``optax evals``: loss evaluations of scipy's Nelder–Mead and of Adam + L-BFGS;
+- ``correct (s)``: ``calibrate.correct.correct_file`` on a 1,000-row record (the shipped example record
+  interpolated), CSV and plot written, in-process and first call; ``command (s)``: the whole
+  ``membrax correct`` command in a fresh process (interpreter, imports, compilation, files).
+
+Run: ``python benchmarks/bench_calibrate.py``.
+"""
+
+import subprocess
+import sys
+import tempfile
+import time
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from calibrate import correct, datasets, evaluate, fit, lab
+
+SPECIMEN_ARGS = (
+    "--specimen-diameter-mm",
+    "--particle-size-mm",
+    "--membrane-thickness-mm",
+    "--membrane-modulus-kpa",
+)
+
+
+def _thousand_rows(folder: Path) -> tuple[Path, list[str]]:
+    """The example record interpolated onto 1,000 axial strains, and its specimen's arguments."""
+    with correct.example_record_path() as source:
+        record = lab.read_lab_record(source)
+    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], 1000)
+    columns = [
+        100 * strain,
+        100 * np.interp(strain, record.axial_strain, record.volumetric_strain),
+        1e-3 * np.interp(strain, record.axial_strain, record.axial_stress - record.cell_pressure),
+        1e-3 * np.interp(strain, record.axial_strain, record.cell_pressure),
+    ]
+    path = folder / "thousand.csv"
+    header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
+    np.savetxt(path, np.stack(columns, axis=1), delimiter=",", header=header, comments="", fmt="%.8g")
+    values = evaluate.example_arguments(record.comments)
+    return path, values
+
+
+def main() -> None:
+    table = datasets.load_table(resources.files("calibrate") / "data" / "calibration_table.npz")
+    start = time.perf_counter()
+    model = correct.default_corrections().model
+    result = fit.fit(model, table)
+    fit_s = time.perf_counter() - start
+    start = time.perf_counter()
+    fit.fit(model, table)
+    warm_s = time.perf_counter() - start
+    start = time.perf_counter()
+    fit.cross_validate(model, table)
+    loo_s = time.perf_counter() - start
+    baseline = fit.nelder_mead_baseline(model, table)
+    optax_evals = result.evaluations["adam"] + result.evaluations["lbfgs"]
+    with tempfile.TemporaryDirectory() as folder:
+        record_path, values = _thousand_rows(Path(folder))
+        specimen = correct.Specimen.from_mm_kpa(*values)
+        specimen_args = [
+            item for name, value in zip(SPECIMEN_ARGS, values, strict=True) for item in (name, f"{value:g}")
+        ]
+        start = time.perf_counter()
+        correct.correct_file(record_path, specimen, out=Path(folder) / "out.csv")
+        correct_s = time.perf_counter() - start
+        start = time.perf_counter()
+        subprocess.run(
+            [sys.executable, "-m", "membrax.cli", "correct", str(record_path), *specimen_args],
+            check=True,
+            capture_output=True,
+        )
+        command_s = time.perf_counter() - start
+    print(f"calibration benchmark: {table.num_cases} cases, {table.num_rows} records; correct on 1,000 rows")
+    print(
+        f"{'dtype':<8}{'fit (s)':>9}{'warm (s)':>10}{'loo (s)':>9}{'nm evals':>10}{'optax evals':>13}"
+        f"{'correct (s)':>13}{'command (s)':>13}"
+    )
+    print(
+        f"{'float64':<8}{fit_s:>9.2f}{warm_s:>10.2f}{loo_s:>9.1f}{baseline['evaluations']:>10d}{optax_evals:>13d}"
+        f"{correct_s:>13.2f}{command_s:>13.2f}"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,419 @@
+"""Membrane corrections applied to a laboratory record: none, the classical three and the fitted one.
+
+Contract. :func:`correct_record` takes a :class:`calibrate.lab.LabRecord` (SI), the :class:`Specimen`
+(diameter after consolidation D_s, particle size D, membrane thickness t_m and modulus E_m) and a fitted
+correction (:class:`calibrate.persistence.Corrections`; default :func:`default_corrections`, shipped with
+the package) and returns a :class:`CorrectedRecord`: σ1, σ3 and the mobilised φ' by each method, with the
+fitted method's standard deviation, and the warnings for inputs outside the fitted range. Methods
+(:data:`METHODS`):
+
+- ``uncorrected``: σ1 the measured axial stress, σ3 the cell pressure;
+- ``astm``: ASTM D4767/D7181, σ1 − 4 E_m t_m ε_a/D_s (:func:`membrax.theory.astm_shell_correction`);
+- ``henkel_gilbert``: Henkel & Gilbert's hoop tension, σ3 + 2 E_m t_m ε_θ/D with ε_θ from ε_v
+  (:func:`membrax.theory.hoop_tension_correction`, clipped at 0 where the hoop would buckle);
+- ``kuerbis_vaid``: a thin elastic shell bonded to the right cylinder, ν = 0.5 (Kuerbis & Vaid 1990;
+  :func:`membrax.theory.right_cylinder_shell_correction`);
+- ``fitted``: the DEM-based correction, σ1 + σc·Δσ_a/σc and σc + σc·Δσ_r/σc with the fitted model
+  (:mod:`calibrate.models`) on the record's inputs (:func:`calibrate.datasets.measured_inputs`). The
+  classical corrections say what the membrane *takes* from the measured stresses; membrax's extra
+  stresses are internal − external (the specimen carries more than the cell and ram apply), hence the
+  opposite signs of the two families.
+
+Uncertainty of the fitted method (one standard deviation), per record: the parameters' covariance
+propagated by the delta method, var = g C gᵀ with g = ∂prediction/∂θ (``jax.jacfwd``), plus the model's
+prediction error on cases it was not fitted on, the leave-one-case-out RMS of ``membrax fit`` (stored in
+the JSON; the fit's RMS residual if there was no cross-validation), added in quadrature. For φ' it is
+propagated through sin φ' = (σ1 − σ3)/(σ1 + σ3), the axial and radial errors taken as independent.
+
+:func:`write_correction` writes the CSV and the plot (σ1, σ3, φ' side by side) atomically: a failure
+leaves no file half-written. ``membrax correct`` is :func:`correct_file`.
+"""
+
+from __future__ import annotations
+
+import functools
+import io
+import warnings
+from importlib import resources
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from calibrate import datasets, lab, models, persistence
+
+__all__ = [
+    "METHODS",
+    "CorrectedRecord",
+    "Specimen",
+    "correct_file",
+    "correct_record",
+    "default_corrections",
+    "example_record_path",
+    "write_correction",
+]
+
+#: The methods, in the order of the CSV's columns and the plot's legend.
+METHODS = ("uncorrected", "astm", "henkel_gilbert", "kuerbis_vaid", "fitted")
+LABELS = {
+    "uncorrected": "uncorrected",
+    "astm": "ASTM D4767/D7181 shell",
+    "henkel_gilbert": "Henkel & Gilbert hoop",
+    "kuerbis_vaid": "Kuerbis & Vaid shell",
+    "fitted": "fitted (membrax DEM)",
+}
+#: Inputs whose fitted range a record is checked against (the dimensionless groups and the strains).
+CHECKED_INPUTS = persistence.RANGE_INPUTS
+DEFAULT_MODEL_FILE = "default_corrections.json"
+EXAMPLE_RECORD_FILE = "example_record.csv"
+
+
+class Specimen(NamedTuple):
+    """What a laboratory knows of its test, in SI units (m, Pa).
+
+    Attributes:
+      specimen_diameter: D_s after consolidation, > 0.
+      particle_diameter: D, the characteristic particle size (e.g. d50), > 0.
+      membrane_thickness: t_m, > 0.
+      membrane_modulus: E_m, > 0.
+    """
+
+    specimen_diameter: float
+    particle_diameter: float
+    membrane_thickness: float
+    membrane_modulus: float
+
+    @classmethod
+    def from_mm_kpa(cls, specimen_diameter_mm, particle_size_mm, membrane_thickness_mm, membrane_modulus_kpa):
+        """A specimen from the user-facing units, each checked to be a positive finite number."""
+        values = {
+            "specimen_diameter_mm": specimen_diameter_mm,
+            "particle_size_mm": particle_size_mm,
+            "membrane_thickness_mm": membrane_thickness_mm,
+            "membrane_modulus_kpa": membrane_modulus_kpa,
+        }
+        for name, value in values.items():
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                raise ValueError(
+                    f"{name} = {value!r}; give a positive number (e.g. --{name.replace('_', '-')} 2)."
+                )
+        return cls(
+            1e-3 * specimen_diameter_mm,
+            1e-3 * particle_size_mm,
+            1e-3 * membrane_thickness_mm,
+            1e3 * membrane_modulus_kpa,
+        )
+
+
+class CorrectedRecord(NamedTuple):
+    """σ1, σ3 (Pa) and φ' (degrees) by each method of :data:`METHODS` (module docstring).
+
+    Attributes:
+      record: the :class:`calibrate.lab.LabRecord` corrected.
+      sigma_1, sigma_3, friction_angle: {method: array over the rows}.
+      std: {"sigma_1", "sigma_3", "friction_angle": array}, the fitted method's standard deviation.
+      inputs: the fitted model's input columns (:func:`calibrate.datasets.measured_inputs`).
+      warnings: messages for inputs outside the fitted range.
+    """
+
+    record: object
+    sigma_1: dict
+    sigma_3: dict
+    friction_angle: dict
+    std: dict
+    inputs: dict
+    warnings: tuple
+
+
+def default_corrections() -> persistence.Corrections:
+    """The correction shipped with the package (fitted on :data:`calibrate.grid.CALIBRATION`)."""
+    with resources.as_file(resources.files("calibrate") / "data" / DEFAULT_MODEL_FILE) as path:
+        return persistence.load_corrections(path)
+
+
+def example_record_path():
+    """A context manager giving the shipped synthetic example record's path (``importlib.resources``)."""
+    return resources.as_file(resources.files("calibrate") / "data" / EXAMPLE_RECORD_FILE)
+
+
+def _prediction_rms(corrections) -> tuple[float, float]:
+    """The model's RMS error on unseen cases (axial, radial), in Δσ/σc (module docstring)."""
+    scores = corrections.provenance.get("cross_validation")
+    if scores:
+        axial = np.asarray(scores["axial_rms"], dtype=np.float64)
+        radial = np.asarray(scores["radial_rms"], dtype=np.float64)
+        return float(np.sqrt(np.mean(axial**2))), float(np.sqrt(np.mean(radial**2)))
+    return corrections.rms, corrections.rms
+
+
+def range_warnings(inputs: dict, input_ranges: dict) -> list[str]:
+    """A message for each checked input of the record that leaves the range the correction was fitted on."""
+    messages = []
+    for name in CHECKED_INPUTS:
+        if name not in input_ranges or None in input_ranges[name]:
+            continue
+        low, high = input_ranges[name]
+        values = np.asarray(inputs[name], dtype=np.float64)
+        values = values[np.isfinite(values)]
+        if values.size and (values.min() < low - 1e-12 * abs(low) or values.max() > high + 1e-12 * abs(high)):
+            messages.append(
+                f"{name} of the record spans {values.min():.4g} to {values.max():.4g}, outside the fitted "
+                f"{low:.4g} to {high:.4g}: the fitted correction extrapolates there."
+            )
+    return messages
+
+
+def strain_ratio_window(axial_strain) -> float:
+    """The strain window of dε_r/dε_a for a record: the sweeps' 0.5 %, or 4 readings where they are sparser.
+
+    :func:`membrax.triaxial.analysis.strain_ratio_change` needs 3 records in the window; a laboratory
+    logging every 0.25 % or more would leave most windows of 0.5 % with 2 and the correction undefined.
+    Four median spacings put 3 records in the window at the record's ends and 5 inside.
+    """
+    from membrax.triaxial.analysis import STRAIN_RATIO_WINDOW
+
+    spacing = np.diff(np.asarray(axial_strain, dtype=np.float64))
+    return max(STRAIN_RATIO_WINDOW, 4.0 * float(np.median(spacing)) if spacing.size else 0.0)
+
+
+@functools.lru_cache(maxsize=8)
+def _corrections_fn(model_name: str, names: tuple):
+    """The jitted corrections of a model of :data:`calibrate.models.MODELS`: σ1, σ3, φ' by method, std."""
+    from membrax import theory
+
+    model = models.MODELS[model_name]
+
+    def angle(sigma_1, sigma_3):
+        return jnp.rad2deg(jnp.arcsin((sigma_1 - sigma_3) / (sigma_1 + sigma_3)))
+
+    def corrections(theta, covariance, inputs, axial, volumetric, measured, cell, membrane, rms):
+        modulus, thickness, diameter = membrane[0], membrane[1], membrane[2]
+        classical = {
+            "astm": theory.astm_shell_correction(modulus, thickness, diameter, axial),
+            "henkel_gilbert": theory.hoop_tension_correction(modulus, thickness, diameter, axial, volumetric),
+            "kuerbis_vaid": theory.right_cylinder_shell_correction(
+                modulus, thickness, diameter, axial, volumetric
+            ),
+        }
+        sigma_1 = {"uncorrected": measured}
+        sigma_3 = {"uncorrected": cell}
+        for name, correction in classical.items():
+            sigma_1[name], sigma_3[name] = theory.apply_membrane_correction(measured, cell, correction)
+
+        def predict(flat):
+            return jnp.stack(model.predict(dict(zip(names, flat, strict=True)), inputs))
+
+        prediction = predict(theta)  # (2, rows): Δσ_a/σc, Δσ_r/σc
+        jacobian = jax.jacfwd(predict)(theta)  # (2, rows, p)
+        parameter_var = jnp.einsum("krp,pq,krq->kr", jacobian, covariance, jacobian)
+        std_axial = cell * jnp.sqrt(parameter_var[0] + rms[0] ** 2)
+        std_radial = cell * jnp.sqrt(parameter_var[1] + rms[1] ** 2)
+        sigma_1["fitted"] = measured + cell * prediction[0]
+        sigma_3["fitted"] = cell + cell * prediction[1]
+        friction = {m: angle(sigma_1[m], sigma_3[m]) for m in METHODS}
+        d1, d3 = jax.vmap(jax.grad(angle, argnums=(0, 1)))(sigma_1["fitted"], sigma_3["fitted"])
+        std = {
+            "sigma_1": std_axial,
+            "sigma_3": std_radial,
+            "friction_angle": jnp.sqrt((d1 * std_axial) ** 2 + (d3 * std_radial) ** 2),
+        }
+        return sigma_1, sigma_3, friction, std
+
+    return jax.jit(corrections)
+
+
+def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRecord:
+    """Apply every method of :data:`METHODS` to ``record`` (module docstring).
+
+    Args:
+      record: a :class:`calibrate.lab.LabRecord`.
+      specimen: the :class:`Specimen`.
+      corrections: a :class:`calibrate.persistence.Corrections` (default :func:`default_corrections`).
+    """
+    from membrax.triaxial.analysis import strain_ratio_change
+
+    corrections = default_corrections() if corrections is None else corrections
+    cell = np.asarray(record.cell_pressure, dtype=np.float64)
+    measured = np.asarray(record.axial_stress, dtype=np.float64)
+    inputs = datasets.measured_inputs(
+        axial_strain=record.axial_strain,
+        radial_strain=record.radial_strain,
+        strain_ratio_change=strain_ratio_change(
+            record.axial_strain, record.radial_strain, strain_ratio_window(record.axial_strain)
+        ),
+        cell_pressure=cell,
+        membrane_thickness=specimen.membrane_thickness,
+        membrane_modulus=specimen.membrane_modulus,
+        particle_diameter=specimen.particle_diameter,
+        specimen_diameter=specimen.specimen_diameter,
+    )
+    model = corrections.model
+    # Where the record's own strain-ratio change is undefined (NaN), so is the fitted correction.
+    undefined = ~np.all([np.isfinite(inputs[name]) for name in model.inputs], axis=0)
+    axial_rms, radial_rms = _prediction_rms(corrections)
+    # Thread-local float64 for the corrections (the process's setting is left alone); one compiled call.
+    with jax.enable_x64(True), jax.numpy_dtype_promotion("standard"):
+        arrays = _corrections_fn(model.name, tuple(corrections.names))(
+            jnp.asarray([corrections.params[name] for name in corrections.names]),
+            jnp.asarray(corrections.covariance),
+            {name: jnp.asarray(np.nan_to_num(inputs[name])) for name in model.inputs},
+            jnp.asarray(record.axial_strain),
+            jnp.asarray(record.volumetric_strain),
+            jnp.asarray(measured),
+            jnp.asarray(cell),
+            jnp.asarray([specimen.membrane_modulus, specimen.membrane_thickness, specimen.specimen_diameter]),
+            jnp.asarray([axial_rms, radial_rms]),
+        )
+    arrays = jax.tree_util.tree_map(lambda a: np.asarray(a, dtype=np.float64), arrays)
+    sigma_1, sigma_3, friction, std = arrays
+    for values in (sigma_1, sigma_3, friction):
+        values["fitted"] = np.where(undefined, np.nan, values["fitted"])
+    std = {name: np.where(undefined, np.nan, value) for name, value in std.items()}
+    messages = range_warnings(inputs, corrections.input_ranges)
+    for message in messages:
+        warnings.warn(message, stacklevel=2)
+    return CorrectedRecord(record, sigma_1, sigma_3, friction, std, inputs, tuple(messages))
+
+
+def _csv_text(result: CorrectedRecord, header_lines) -> str:
+    record = result.record
+    columns = {
+        "axial_strain [%]": 100.0 * record.axial_strain,
+        "volumetric_strain [%]": 100.0 * record.volumetric_strain,
+        "radial_strain [%]": 100.0 * record.radial_strain,
+        "cell_pressure [kPa]": 1e-3 * record.cell_pressure,
+    }
+    for method in METHODS:
+        columns[f"sigma_1_{method} [kPa]"] = 1e-3 * result.sigma_1[method]
+        columns[f"sigma_3_{method} [kPa]"] = 1e-3 * result.sigma_3[method]
+        columns[f"friction_angle_{method} [deg]"] = result.friction_angle[method]
+    columns["sigma_1_fitted_std [kPa]"] = 1e-3 * result.std["sigma_1"]
+    columns["sigma_3_fitted_std [kPa]"] = 1e-3 * result.std["sigma_3"]
+    columns["friction_angle_fitted_std [deg]"] = result.std["friction_angle"]
+    out = io.StringIO()
+    for line in header_lines:
+        out.write(f"# {line}\n")
+    out.write(",".join(columns) + "\n")
+    table = np.stack(list(columns.values()), axis=1)
+    np.savetxt(out, table, delimiter=",", fmt="%.8g")
+    return out.getvalue()
+
+
+def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
+    """σ1, σ3 and φ' against axial strain by every method, the fitted one with its ±1 s.d. band.
+
+    Args:
+      result: the :class:`CorrectedRecord`.
+      title: the figure's title.
+      reference: optional (σ1, σ3) in Pa the specimen really carried (a simulation's internal stresses),
+        drawn in grey.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    strain = 100.0 * result.record.axial_strain
+    figure, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
+    quantities = (
+        (result.sigma_1, 1e-3, "σ1 (kPa)", result.std["sigma_1"]),
+        (result.sigma_3, 1e-3, "σ3 (kPa)", result.std["sigma_3"]),
+        (result.friction_angle, 1.0, "mobilised φ' (°)", result.std["friction_angle"]),
+    )
+    styles = {
+        "uncorrected": "k-",
+        "astm": "C0--",
+        "henkel_gilbert": "C1-.",
+        "kuerbis_vaid": "C2:",
+        "fitted": "C3-",
+    }
+    truth = None
+    if reference is not None:
+        s1, s3 = (np.asarray(v, dtype=np.float64) for v in reference)
+        truth = (s1, s3, np.degrees(np.arcsin((s1 - s3) / (s1 + s3))))
+    for k, (axis, (values, scale, label, spread)) in enumerate(zip(axes, quantities, strict=True)):
+        if truth is not None:
+            axis.plot(strain, scale * truth[k], color="0.6", lw=4, alpha=0.6, label="internal (simulated)")
+        for method in METHODS:
+            axis.plot(strain, scale * values[method], styles[method], label=LABELS[method])
+        fitted = scale * values["fitted"]
+        axis.fill_between(
+            strain, fitted - scale * spread, fitted + scale * spread, color="C3", alpha=0.25, lw=0
+        )
+        axis.set(xlabel="axial strain (%)", ylabel=label)
+    # The first records (ε_a → 0, σ1 → σc) have φ' → 0; scale the φ' axis to the rest of the test.
+    later = strain >= 0.5
+    if np.any(later):
+        lowest = np.nanmin([np.nanmin(result.friction_angle[m][later]) for m in METHODS])
+        axes[2].set_ylim(bottom=lowest - 2.0)
+    axes[2].legend(fontsize=8, loc="lower right")
+    if title:
+        figure.suptitle(title)
+    return figure
+
+
+def write_correction(result: CorrectedRecord, csv_path, plot_path=None, header_lines=()) -> list[Path]:
+    """Write the CSV (and the plot, PNG) of a corrected record atomically; return the paths written."""
+    from membrax.io.files import atomic_write_bytes
+
+    written = []
+    csv_path = Path(csv_path)
+    text = _csv_text(result, header_lines)  # built first: nothing is written if this fails
+    figure = None
+    if plot_path is not None:
+        figure = plot_correction(result, title=str(csv_path.stem))
+        image = io.BytesIO()
+        figure.savefig(image, format="png", dpi=120)
+        import matplotlib.pyplot as plt
+
+        plt.close(figure)
+    csv_path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(csv_path, text.encode())
+    written.append(csv_path)
+    if figure is not None:
+        plot_path = Path(plot_path)
+        plot_path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(plot_path, image.getvalue())
+        written.append(plot_path)
+    return written
+
+
+def correct_file(record_path, specimen: Specimen, model_path=None, out=None, plot: bool = True):
+    """``membrax correct``: read ``record_path``, correct it, write ``out`` (CSV) and its plot.
+
+    Args:
+      record_path: the laboratory CSV (:func:`calibrate.lab.read_lab_record`).
+      specimen: the :class:`Specimen`.
+      model_path: a ``corrections.json`` of ``membrax fit`` (default the shipped correction).
+      out: the CSV to write (default ``<record>_corrected.csv`` beside the record); the plot is the same
+        name with ``.png``.
+      plot: write the plot.
+
+    Returns:
+      (the :class:`CorrectedRecord`, the paths written).
+
+    Raises:
+      FileNotFoundError, calibrate.lab.LabRecordError, ValueError: a missing or bad record or model file,
+        named with the fix; nothing is written.
+    """
+    record = lab.read_lab_record(record_path)
+    corrections = default_corrections() if model_path is None else persistence.load_corrections(model_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # returned in the result; the caller reports them once
+        result = correct_record(record, specimen, corrections)
+    record_path = Path(record_path)
+    out = Path(out) if out is not None else record_path.with_name(f"{record_path.stem}_corrected.csv")
+    header = [
+        f"membrane corrections of {record_path.name} by membrax correct",
+        f"specimen diameter {1e3 * specimen.specimen_diameter:g} mm, particle size "
+        f"{1e3 * specimen.particle_diameter:g} mm, membrane {1e3 * specimen.membrane_thickness:g} mm of "
+        f"{1e-3 * specimen.membrane_modulus:g} kPa",
+        f"fitted model {corrections.model.name!r} from {model_path or 'the shipped default'} "
+        f"(membrax {corrections.provenance.get('membrax_version', '?')}); std: one standard deviation",
+        *(f"source: {line}" for line in record.comments),
+        *(f"warning: {message}" for message in result.warnings),
+    ]
+    paths = write_correction(result, out, out.with_suffix(".png") if plot else None, header)
+    return result, paths

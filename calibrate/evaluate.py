@@ -1,0 +1,198 @@
+"""Simulated tests as laboratory records, and how close each correction brings φ' to the internal φ'.
+
+Contract. :func:`lab_record_of` turns one member of a sweep (``sweep.nc``) into what a laboratory would
+have measured, a :class:`calibrate.lab.LabRecord` (external stresses: the ram's σ1 and the cell pressure;
+ε_a and ε_v from the start of shearing), together with its :class:`calibrate.correct.Specimen` and the
+internal stresses the specimen carried (the paper's §4.3), which a laboratory cannot measure.
+:func:`friction_angle_errors` corrects it by every method (:func:`calibrate.correct.correct_record`) and
+returns, per method, the mean and the worst |φ'_method − φ'_internal| over the records with
+0 < ε_a ≤ 10 % (``max_strain``). :func:`held_out_errors` does this for every member of a sweep and pools
+them. :func:`write_example_record` writes a member as the shipped example record (CSV, labelled synthetic,
+the internal stresses in columns ``membrax correct`` does not read).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from calibrate import correct, datasets, lab
+
+__all__ = [
+    "EXAMPLE_ARGUMENTS_PREFIX",
+    "example_arguments",
+    "read_example_record",
+    "friction_angle_errors",
+    "held_out_errors",
+    "lab_record_of",
+    "write_example_record",
+]
+
+#: The comment of the example record that carries its ``membrax correct`` arguments.
+EXAMPLE_ARGUMENTS_PREFIX = "membrax correct arguments:"
+
+
+def read_example_record():
+    """The shipped example record: (LabRecord, Specimen, internal σ1, internal σ3), stresses in Pa."""
+    with correct.example_record_path() as path:
+        record = lab.read_lab_record(path)
+        lines = path.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    names = [cell.split("[")[0].strip() for cell in lines[header].split(",")]
+    table = np.loadtxt(lines[header + 1 :], delimiter=",", ndmin=2)
+    specimen = correct.Specimen.from_mm_kpa(*example_arguments(record.comments))
+    internal_1 = 1e3 * table[:, names.index("internal_sigma_1")]
+    internal_3 = 1e3 * table[:, names.index("internal_sigma_3")]
+    return record, specimen, internal_1, internal_3
+
+
+def example_arguments(comments) -> tuple[float, float, float, float]:
+    """(specimen diameter mm, particle size mm, membrane thickness mm, modulus kPa) from a record's comments.
+
+    Raises:
+      ValueError: no comment starting with :data:`EXAMPLE_ARGUMENTS_PREFIX`.
+    """
+    for line in comments:
+        if line.startswith(EXAMPLE_ARGUMENTS_PREFIX):
+            words = line[len(EXAMPLE_ARGUMENTS_PREFIX) :].split()
+            values = dict(zip(words[::2], words[1::2], strict=True))
+            return tuple(
+                float(values[key])
+                for key in (
+                    "--specimen-diameter-mm",
+                    "--particle-size-mm",
+                    "--membrane-thickness-mm",
+                    "--membrane-modulus-kpa",
+                )
+            )
+    raise ValueError(f"no '# {EXAMPLE_ARGUMENTS_PREFIX} ...' comment in the record.")
+
+
+def lab_record_of(config: dict, rows):
+    """(LabRecord, Specimen, internal σ1, internal σ3) of one sweep member (module docstring).
+
+    Records whose axial strain does not exceed the previous one's (the platens start from rest) are
+    dropped, as a laboratory's logger would.
+    """
+    axial = np.asarray(rows["axial_strain"], dtype=np.float64)
+    keep = np.concatenate([[True], np.diff(axial) > 0.0])
+    keep &= np.maximum.accumulate(axial) == axial
+    volumetric = np.asarray(rows["volumetric_strain"], dtype=np.float64)[keep]
+    axial = axial[keep]
+    radial = 1.0 - np.sqrt((1.0 - volumetric) / (1.0 - axial))
+    cell = np.full(axial.shape, 1e3 * config["cell_pressure_kpa"])
+    record = lab.LabRecord(
+        axial,
+        volumetric,
+        radial,
+        np.asarray(rows["external_axial_stress"], dtype=np.float64)[keep],
+        cell,
+        ("synthetic: a membrax simulation",),
+    )
+    specimen = correct.Specimen(
+        math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi),
+        1e-3 * config["particle_diameter_mm"],
+        1e-3 * config["membrane_thickness_mm"],
+        1e3 * config["membrane_modulus_kpa"],
+    )
+    internal_1 = np.asarray(rows["internal_axial_stress"], dtype=np.float64)[keep]
+    internal_3 = np.asarray(rows["internal_radial_stress"], dtype=np.float64)[keep]
+    return record, specimen, internal_1, internal_3
+
+
+def friction_angle_errors(record, specimen, internal_1, internal_3, corrections=None, max_strain=0.10):
+    """{method: (mean, worst) |φ' − φ'_internal|} in degrees over 0 < ε_a ≤ ``max_strain`` (module docstring).
+
+    Records where the fitted correction is undefined (its strain-ratio window is short) are left out of
+    every method, so all are scored on the same records.
+    """
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = correct.correct_record(record, specimen, corrections)
+    internal = np.degrees(np.arcsin((internal_1 - internal_3) / (internal_1 + internal_3)))
+    strain = record.axial_strain
+    rows = (strain > 0.0) & (strain <= max_strain + 1e-12) & np.isfinite(result.friction_angle["fitted"])
+    errors = {}
+    for method in correct.METHODS:
+        error = np.abs(result.friction_angle[method][rows] - internal[rows])
+        errors[method] = (float(np.mean(error)), float(np.max(error)))
+    return errors
+
+
+def held_out_errors(dataset, corrections=None, max_strain=0.10) -> dict:
+    """Per member and pooled, the φ' errors of :func:`friction_angle_errors` for every member of a sweep.
+
+    Returns:
+      {"members": [(config fields, errors)], "pooled": {method: (mean of means, worst of worsts)}}.
+    """
+    members = []
+    for config, rows in datasets.sweep_members(dataset):
+        record, specimen, internal_1, internal_3 = lab_record_of(config, rows)
+        errors = friction_angle_errors(record, specimen, internal_1, internal_3, corrections, max_strain)
+        fields = {
+            k: config[k] for k in ("cell_pressure_kpa", "membrane_thickness_mm", "membrane_modulus_kpa")
+        }
+        fields["particles_across"] = config["particles_across"]
+        members.append((fields, errors))
+    pooled = {
+        method: (
+            float(np.mean([e[method][0] for _, e in members])),
+            float(np.max([e[method][1] for _, e in members])),
+        )
+        for method in correct.METHODS
+    }
+    return {"members": members, "pooled": pooled}
+
+
+def write_example_record(dataset, path, version: str, **coordinates) -> Path:
+    """Write the member of ``dataset`` at ``coordinates`` as a laboratory-style CSV (module docstring)."""
+    from membrax.io.files import atomic_write_bytes
+
+    chosen = [
+        (config, rows)
+        for config, rows in datasets.sweep_members(dataset)
+        if all(math.isclose(config[k], v) for k, v in coordinates.items())
+    ]
+    if not chosen:
+        raise ValueError(f"no member of the sweep at {coordinates}.")
+    config, rows = chosen[0]
+    record, specimen, internal_1, internal_3 = lab_record_of(config, rows)
+    particle = config["particle_diameter_mm"]
+    out = io.StringIO()
+    out.write(
+        f"# synthetic: produced by a membrax {version} simulation (calibrate.grid.HELD_OUT), not a laboratory"
+        " test\n"
+        f"# FCC specimen of {config['particles_across']} spheres across, {config['layers']} layers: specimen "
+        f"diameter {1e3 * specimen.specimen_diameter:.1f} mm, particle size {particle:g} mm;"
+        f" membrane {config['membrane_thickness_mm']:g} mm of {config['membrane_modulus_kpa']:g} kPa\n"
+        "# internal_sigma_1/internal_sigma_3: the stresses the specimen carried (membrax's internal stresses,"
+        " the paper's 4.3); membrax correct does not read them\n"
+        f"# {EXAMPLE_ARGUMENTS_PREFIX} --specimen-diameter-mm {1e3 * specimen.specimen_diameter:.1f} "
+        f"--particle-size-mm {particle:g} --membrane-thickness-mm {config['membrane_thickness_mm']:g} "
+        f"--membrane-modulus-kpa {config['membrane_modulus_kpa']:g}\n"
+    )
+    out.write(
+        "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa],"
+        "internal_sigma_1 [kPa],internal_sigma_3 [kPa]\n"
+    )
+    table = np.stack(
+        [
+            100.0 * record.axial_strain,
+            100.0 * record.volumetric_strain,
+            1e-3 * (record.axial_stress - record.cell_pressure),
+            1e-3 * record.cell_pressure,
+            1e-3 * internal_1,
+            1e-3 * internal_3,
+        ],
+        axis=1,
+    )
+    np.savetxt(out, table, delimiter=",", fmt="%.7g")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, out.getvalue().encode())
+    return path

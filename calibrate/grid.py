@@ -1,0 +1,152 @@
+"""The calibration grid: the membrax sweeps the shipped correction is fitted on, and the held-out tests.
+
+Contract. :data:`CALIBRATION` and :data:`HELD_OUT` are the designs (one source for both): each maps a group
+name to ``(specimen, grid)``, the specimen fields over :func:`base_fields` and the ``membrax sweep`` grid
+of that specimen. :func:`run_grid` runs each group with :func:`membrax.sweep.run_sweep` (exactly what
+``membrax sweep`` runs) into ``folder/<group>/sweep.nc``, resuming a group interrupted part-way and
+skipping one that is done; :func:`sweep_commands` prints the equivalent ``membrax sweep`` command lines.
+
+Why these sizes. The particle-to-specimen diameter ratio D/D_s is set by the number of spheres across the
+FCC specimen: 6, 8 and 10 across give D/D_s = 1/5.7, 1/7.4 and 1/10 (D_s = √(4A/π) of the platen area),
+spanning the issue's 1/6–1/10. Heights keep H/D_s ≈ 1.25 (10, 13 and 17 layers). Every group uses the
+small preset of ``membrax reproduce`` (:data:`membrax.reproduce.SIZES` ``"small"``: a membrane of edge D/3,
+inertial number 5e-3, float64, consolidation to an unbalanced-force ratio ≤ 1e-3). At paper size the
+same nine Table 1 cases take 22 min on 2 cores; this grid's 36 members take a fraction of that, and the extra
+stresses depend on the groups the models use (t_m/D, E_m t_m/(σc D), D/D_s, the strains), which the grid
+spans, rather than on the specimen's height. The held-out members lie off every grid line: σc 25 and 70
+kPa, t_m 2 and 4 mm, E_m 1000 and 2000 kPa, 7 spheres across (D/D_s = 1/7).
+
+Run: ``python -m calibrate.grid OUT [--held-out]`` (one JAX CPU device per core, as ``membrax sweep``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+__all__ = ["base_fields", "CALIBRATION", "HELD_OUT", "run_grid", "sweep_commands"]
+
+#: Cell pressures (kPa), membrane thicknesses (mm) and moduli (kPa) of the calibration grid.
+_PRESSURES = (10.0, 40.0, 100.0)
+
+#: group → (specimen fields, sweep grid). D/D_s = 1/5.7, 1/7.4, 1/10 (module docstring).
+CALIBRATION = {
+    "d6": (
+        {"particles_across": 6, "layers": 10},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (1.0, 3.0, 5.0),
+            "membrane_modulus_kpa": (1400.0, 2800.0),
+        },
+    ),
+    # The softest membrane without its thinnest: at 100 kPa a 1 mm sheet of 700 kPa (α/D = 0.48,
+    # E_m t_m/(σc D) = 0.28) blew up in consolidation (non-finite positions within 5,000 steps).
+    "d6_soft": (
+        {"particles_across": 6, "layers": 10},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (3.0, 5.0),
+            "membrane_modulus_kpa": (700.0,),
+        },
+    ),
+    # 2 mm rather than 1 mm: at 100 kPa a 1 mm sheet of 1400 kPa (α/D = 0.38) blew up in shearing on the
+    # 8-across specimen (non-finite positions at 8.5k shearing steps); the 6-across one completed it.
+    "d8": (
+        {"particles_across": 8, "layers": 13},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (2.0, 5.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+    "d10": (
+        {"particles_across": 10, "layers": 17},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (2.0, 5.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+}
+
+#: Members off every grid line, for the held-out comparison (module docstring).
+HELD_OUT = {
+    "d7": (
+        {"particles_across": 7, "layers": 12},
+        {
+            "cell_pressure_kpa": (25.0, 70.0),
+            "membrane_thickness_mm": (2.0, 4.0),
+            "membrane_modulus_kpa": (1000.0, 2000.0),
+        },
+    ),
+}
+
+
+def base_fields() -> dict:
+    """The configuration fields every group shares: the small preset of ``membrax reproduce``.
+
+    A function, not a constant, so that importing this module does not import JAX (``split_cpu_devices``
+    must run first).
+    """
+    from membrax.reproduce import SIZES
+
+    return dict(SIZES["small"])
+
+
+def sweep_commands(groups=None, folder: str = "calibration") -> list[str]:
+    """The ``membrax sweep`` command line of each group (the base written as ``--set`` overrides)."""
+    groups = CALIBRATION if groups is None else groups
+    lines = []
+    for name, (specimen, grid) in groups.items():
+        sets = " ".join(f"--set {key}={value}" for key, value in {**base_fields(), **specimen}.items())
+        grids = " ".join(f"--grid {key}={','.join(f'{v:g}' for v in values)}" for key, values in grid.items())
+        lines.append(f"membrax sweep base.toml {sets} {grids} --out {folder}/{name}")
+    return lines
+
+
+def run_grid(folder, groups=None, progress: bool = True) -> list[Path]:
+    """Run every group of ``groups`` (default :data:`CALIBRATION`) into ``folder/<group>/``.
+
+    A group whose ``sweep.nc`` exists is skipped; one with a checkpoint resumes.
+
+    Returns:
+      The ``sweep.nc`` paths, in the order of ``groups``.
+    """
+    from membrax.config import TriaxialConfig
+    from membrax.sweep import run_sweep
+
+    groups = CALIBRATION if groups is None else groups
+    paths = []
+    for name, (specimen, grid) in groups.items():
+        out = Path(folder) / name
+        path = out / "sweep.nc"
+        if not path.exists():
+            base = TriaxialConfig(name=f"calibration_{name}", **{**base_fields(), **specimen})
+            run_sweep(
+                base, {k: list(v) for k, v in grid.items()}, out, resume=out.exists(), progress=progress
+            )
+        paths.append(path)
+    return paths
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m calibrate.grid", description=__doc__.split("\n")[0])
+    parser.add_argument("folder", help="where each group's sweep folder is written")
+    parser.add_argument("--held-out", action="store_true", help="run the held-out members instead")
+    parser.add_argument("--commands", action="store_true", help="print the membrax sweep commands only")
+    args = parser.parse_args(argv)
+    groups = HELD_OUT if args.held_out else CALIBRATION
+    if args.commands:
+        print("\n".join(sweep_commands(groups, args.folder)))
+        return 0
+    from membrax.devices import split_cpu_devices
+
+    split_cpu_devices()
+    for path in run_grid(args.folder, groups):
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
