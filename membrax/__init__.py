@@ -6,6 +6,8 @@ ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user n
 - configuration: :class:`TriaxialConfig`, :func:`load_config`, :data:`DEMO_CONFIG`, :class:`ConfigError`;
 - runs: :func:`run_test` (one test into a results folder), :func:`run_sweep` (a grid as one compiled
   batch), :func:`member_records`, :func:`split_cpu_devices` (one JAX device per core; call it first);
+- gradients: :func:`sensitivity` (the consolidated equilibrium's derivatives by implicit differentiation,
+  checked by finite differences of the simulator);
 - results: :func:`read_results`;
 - the factories under them: :func:`fcc_specimen`, :func:`rigid_wall_test`, :func:`membrane_test`,
   :func:`dem` (the sphere step; the coupled step is :func:`membrax.membrane.coupled.membrane_dem`),
@@ -38,6 +40,7 @@ _API = {
     "RunError": "membrax.run",
     "RunResult": "membrax.run",
     "run_sweep": "membrax.sweep",
+    "sensitivity": "membrax.sensitivities",
     "member_records": "membrax.sweep",
     "split_cpu_devices": "membrax.devices",
     "read_results": "membrax.io",

@@ -15,6 +15,10 @@ Sub-commands:
            simulation (:mod:`membrax.sweep`)
   reproduce ``membrax reproduce [--size small|paper]``: the paper's Table 1, then its Tables 2–3 and
            Figs 5–9 (:mod:`membrax.reproduce`)
+  sensitivity ``membrax sensitivity config.toml [--wrt membrane_modulus_kpa,membrane_thickness_mm]
+           [--outputs internal_axial_stress,...] [--no-check]``: the consolidated equilibrium's derivatives
+           by implicit differentiation, each beside its finite-difference check and its elasticity
+           (:mod:`membrax.sensitivities`)
   fit      ``membrax fit sweep.nc [more.nc] [--out corrections.json] [--model paper|rich]``: a membrane
            correction fitted on sweeps (:mod:`calibrate.workflow`)
   correct  ``membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20
@@ -279,6 +283,24 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sensitivity(args: argparse.Namespace) -> int:
+    from membrax.config import ConfigError, load_config, parse_overrides, with_overrides
+    from membrax.sensitivities import OUTPUTS, PARAMETERS, format_table, sensitivity
+
+    try:
+        config = load_config(args.config)
+        if args.set:
+            config = with_overrides(config, **parse_overrides(args.set))
+        wrt = tuple(args.wrt.split(",")) if args.wrt else tuple(PARAMETERS)
+        outputs = tuple(args.outputs.split(",")) if args.outputs else OUTPUTS
+        table = sensitivity(config, outputs, wrt, finite_differences=not args.no_check)
+    except (FileNotFoundError, ValueError, ConfigError) as error:
+        print(f"membrax: {error}", file=sys.stderr)
+        return 2
+    print(format_table(table))
+    return 0
+
+
 #: Axial strains (fractions) at which ``membrax correct`` prints φ' by method.
 CORRECT_REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
 
@@ -384,6 +406,22 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument("--no-cross-validation", action="store_true", help="skip leave-one-case-out")
     fit.add_argument("--table", default=None, help="also write the fitting table (.npz)")
     fit.set_defaults(func=_fit)
+    sensitivity = commands.add_parser(
+        "sensitivity",
+        help="derivatives of the consolidated stresses by implicit differentiation, checked by differences",
+        description="Consolidate the configuration's test (float64) and print, for each output and "
+        "parameter, the value, dy/dx by the implicit function theorem, dy/dx by central differences of "
+        "the simulator continued from the equilibrium, and d ln y/d ln x. Example: membrax sensitivity "
+        "small.toml --wrt membrane_modulus_kpa,membrane_thickness_mm",
+    )
+    sensitivity.add_argument("config", help="TOML configuration file (a small specimen: the solve is dense)")
+    sensitivity.add_argument("--wrt", default=None, help="parameters, comma-separated (default: all six)")
+    sensitivity.add_argument("--outputs", default=None, help="outputs, comma-separated (default: all six)")
+    sensitivity.add_argument(
+        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a configuration field"
+    )
+    sensitivity.add_argument("--no-check", action="store_true", help="skip the finite differences")
+    sensitivity.set_defaults(func=_sensitivity)
     correct = commands.add_parser(
         "correct", help="correct a laboratory record for the membrane (classical and fitted corrections)"
     )

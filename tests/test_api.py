@@ -18,6 +18,7 @@ EXPECTED = {
     "RunError",
     "RunResult",
     "run_sweep",
+    "sensitivity",
     "member_records",
     "split_cpu_devices",
     "read_results",
@@ -45,7 +46,7 @@ def test_the_api_is_exactly_the_curated_names():
 
 
 def test_every_name_resolves_to_its_defining_module():
-    from membrax import config, devices, driver, errors, io, run, sweep
+    from membrax import config, devices, driver, errors, io, run, sensitivities, sweep
     from membrax.membrane import mesh
     from membrax.spheres import integrate, packing
     from membrax.triaxial import membrane_cell, rigid
@@ -55,6 +56,7 @@ def test_every_name_resolves_to_its_defining_module():
         "load_config": config,
         "run_test": run,
         "run_sweep": sweep,
+        "sensitivity": sensitivities,
         "member_records": sweep,
         "split_cpu_devices": devices,
         "read_results": io,

@@ -1,0 +1,443 @@
+"""Sensitivities of the consolidated specimen by implicit differentiation, checked by continuation.
+
+Contract. :func:`sensitivity` consolidates the membrane test of a configuration (float64, to an
+unbalanced-force ratio ≤ ``tolerance``) and returns, for each output y of :data:`OUTPUTS` (the initial
+external and internal stresses of the paper's §4.3 and Δσ = internal − external, as in its Table 3) and
+each parameter x of :data:`PARAMETERS` (configuration fields, in their units), the value, dy/dx by the
+implicit function theorem, the same by central differences of the simulator (optional) and the
+elasticity d ln y/d ln x. ``membrax sensitivity config.toml --wrt a,b`` prints that table.
+
+Equilibrium. The consolidated state u* (sphere centres x and rotations φ, free membrane nodes y, the two
+platen heights h) satisfies R(u*, θ) = 0, with R the out-of-balance forces and torques on spheres and
+nodes and the platens' ram-force errors F_ram − σc A₀. R is evaluated by **one step of the simulator
+itself** (:func:`membrax.membrane.coupled.membrane_dem`, damping off) from a state displaced by δu and
+moving at δu/Δt: the step's contact laws then advance every tangential spring by k_t times the contact's
+relative tangential displacement, so R carries the frictional contacts' history as the quasi-static
+incremental (tangent) stiffness, stuck springs at k_t and sliding ones at the Coulomb limit. By the
+implicit function theorem
+
+    du*/dθ = −(∂R/∂u)⁺ ∂R/∂θ,    dy/dθ = ∂y/∂θ + ∂y/∂u · du*/dθ,
+
+with ∂R/∂u formed densely by reverse mode (``jax.jacrev``; the compiled CPU kernels have reverse-mode
+rules only) and solved by least squares (``numpy.linalg.lstsq``, singular values below 1e-12 of the
+largest cut). The cut removes the zero-stiffness modes. The one measured on a 4 × 4 × 5 specimen is the
+vertical rigid translation of specimen, membrane and both servo platens together (singular value 2e-17
+of the largest), which no output sees. A rotation about the axis or a lateral drift is held by the
+clamps, which fix the membrane's end rings on the platens. A sphere without contacts, or a contact
+sliding at the Coulomb limit, gives a zero mode too, and the cut removes those as well. The dense
+Jacobian limits this to small specimens (:data:`MAX_DENSE_UNKNOWNS`).
+
+Parameters (θ): σc (cell pressure and the servo target), E_m, t_m (with the membrane's rest geometry,
+which is built t_m/2 off the spheres, and the clamp rings, both linearised by central differences of the
+mesh construction), the membrane–particle and interparticle friction angles (through tan φ) and the
+particle stiffness k_n (with k_t = k_n/2 and the platens' stiffnesses, as :func:`membrax.stages.build_test`).
+
+Finite differences by continuation (:func:`continuation_differences`): from the consolidated state, set
+θ ± h and let the simulator (its own damping) relax to equilibrium again, then measure. The two agree
+where the path is smooth: no contact opens, closes or starts to slide between θ − h and θ + h, and the
+servo platens end at rest. A full re-consolidation at θ ± h would follow another path, and its friction
+history would differ.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from membrax.config import TriaxialConfig
+from membrax.membrane import measure as membrane_measure
+from membrax.membrane import mesh as membrane_lib
+from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
+from membrax.spheres.integrate import DampingParams
+from membrax.spheres.walls import BOTTOM, TOP, platen_separation
+from membrax.stages import GEOMETRY_FIELDS, build_test
+
+__all__ = [
+    "MAX_DENSE_UNKNOWNS",
+    "OUTPUTS",
+    "PARAMETERS",
+    "Equilibrium",
+    "SensitivityTable",
+    "consolidated",
+    "continuation_differences",
+    "format_table",
+    "implicit_sensitivities",
+    "sensitivity",
+]
+
+#: Outputs, Pa: the initial stresses of the paper's §4.3 (Table 3) and Δσ = internal − external.
+OUTPUTS = (
+    "external_axial_stress",
+    "external_radial_stress",
+    "internal_axial_stress",
+    "internal_radial_stress",
+    "additional_axial_stress",
+    "additional_radial_stress",
+)
+#: Parameters (configuration fields, in their units) and what they set.
+PARAMETERS = {
+    "cell_pressure_kpa": "σc: the cell pressure on the membrane and the ram's servo target σc A₀",
+    "membrane_modulus_kpa": "E_m",
+    "membrane_thickness_mm": "t_m, with the membrane's rest geometry and clamp rings",
+    "membrane_friction_angle_deg": "membrane–particle friction angle (μ = tan φ)",
+    "friction_angle_deg": "interparticle friction angle (μ = tan φ)",
+    "particle_stiffness_n_m": "k_n, with k_t = k_n/2 and the platens' k_n, k_t",
+}
+#: Largest number of unknowns (6 per sphere, 3 per free node, 2 platens) for the dense Jacobian.
+MAX_DENSE_UNKNOWNS = 12_000
+#: Relative singular-value cut of the least-squares solve (module docstring).
+RCOND = 1e-12
+
+
+class Equilibrium(NamedTuple):
+    """A consolidated membrane test: the test, its state and the configuration it came from."""
+
+    config: TriaxialConfig
+    test: object
+    state: object
+
+
+class SensitivityTable(NamedTuple):
+    """Rows (output, parameter): y (Pa), x (its unit), dy/dx, the difference check, d ln y/d ln x.
+
+    Attributes:
+      rows: list of dicts with ``output``, ``parameter``, ``value`` (Pa), ``at`` (x), ``derivative``
+        (Pa per unit of x), ``finite_difference`` (the same by continuation, or NaN), ``elasticity``.
+      seconds: {"consolidation", "implicit", "finite_differences"} wall times, s.
+      unknowns: size of the equilibrium system.
+    """
+
+    rows: list
+    seconds: dict
+    unknowns: int
+
+
+def consolidated(config: TriaxialConfig, tolerance: float = 1e-7, max_steps: int = 200_000) -> Equilibrium:
+    """Build the configuration's test and consolidate it to an unbalanced-force ratio ≤ ``tolerance``.
+
+    Call inside ``jax.enable_x64(True)`` with ``config.float64`` true (:func:`sensitivity` does).
+    """
+    test = build_test(config)
+    state, _ = test.consolidate(tolerance=tolerance, max_steps=max_steps, chunk_steps=2000, record_every=500)
+    return Equilibrium(config, test, state)
+
+
+def _free_and_rings(mesh):
+    free = np.ones(mesh.num_nodes, dtype=bool)
+    bottom, top = np.asarray(mesh.bottom_ring), np.asarray(mesh.top_ring)
+    free[bottom] = False
+    free[top] = False
+    return np.flatnonzero(free), bottom, top
+
+
+def _geometry_derivative(config: TriaxialConfig, test, relative_step: float = 1e-4):
+    """d(rest geometry)/d t_m (per mm) of the mesh arrays and the clamp rings, by central differences."""
+    around = int(np.asarray(test.mesh.bottom_ring).size)
+    h = relative_step * config.membrane_thickness_mm
+    meshes = []
+    for sign in (1.0, -1.0):
+        other = dataclasses.replace(config, membrane_thickness_mm=config.membrane_thickness_mm + sign * h)
+        meshes.append(build_test(other, time_step=test.dt, nodes_around=around).mesh)
+    fields = {
+        name: (getattr(meshes[0], name) - getattr(meshes[1], name)) / (2.0 * h) for name in GEOMETRY_FIELDS
+    }
+    return fields
+
+
+class _System:
+    """The equilibrium residual R(u, θ) and the outputs y(u, θ) around one consolidated state."""
+
+    def __init__(self, equilibrium: Equilibrium, wrt):
+        config, test, state = equilibrium
+        self.config, self.test, self.state = config, test, state
+        self.wrt = tuple(wrt)
+        self.theta0 = np.asarray([float(getattr(config, name)) for name in self.wrt])
+        self.free, bottom, top = _free_and_rings(test.mesh)
+        self.rings = np.concatenate([bottom, top])
+        self.ring_sizes = (bottom.size, top.size)
+        self.num_spheres = int(state.dem.position.shape[0])
+        self.size = 6 * self.num_spheres + 3 * self.free.size + 2
+        self.geometry = _geometry_derivative(config, test) if "membrane_thickness_mm" in self.wrt else None
+        self.dt = test.dt
+        self.node_mass_per_thickness = membrane_lib.lumped_mass(test.mesh, 1.0, LATEX_DENSITY)
+
+    def apply(self, theta, state):
+        """(params, step, mesh, state) at parameters ``theta`` (configuration units).
+
+        The state's parameter-dependent parts (the servo target, the clamp rings) are set from the
+        equilibrium's, so applying θ to a state that already carries it changes nothing.
+        """
+        test = self.test
+        params = test.params
+        mesh = test.mesh
+        value = dict(zip(self.wrt, [theta[k] for k in range(len(self.wrt))], strict=True))
+        membrane, dem_params = params.membrane, params.dem
+        if "cell_pressure_kpa" in value:
+            pressure = 1e3 * value["cell_pressure_kpa"]
+            membrane = membrane.set(cell_pressure=pressure)
+            walls = state.dem.walls
+            state = state.set(
+                dem=state.dem.set(
+                    walls=walls.set(target_stress=jnp.full_like(walls.target_stress, 1.0) * pressure)
+                )
+            )
+        if "membrane_modulus_kpa" in value:
+            membrane = membrane.set(modulus=1e3 * value["membrane_modulus_kpa"])
+        if "membrane_thickness_mm" in value:
+            change = value["membrane_thickness_mm"] - self.config.membrane_thickness_mm
+            membrane = membrane.set(thickness=1e-3 * value["membrane_thickness_mm"])
+            mesh = mesh.set(**{name: getattr(mesh, name) + change * d for name, d in self.geometry.items()})
+            clamp_change = jnp.stack(
+                [self.geometry["reference_position"][ring] for ring in (mesh.bottom_ring, mesh.top_ring)]
+            )
+            clamp = self.state.membrane.clamp_position + change * clamp_change
+            state = state.set(membrane=state.membrane.set(clamp_position=clamp))
+        if "membrane_friction_angle_deg" in value:
+            friction = jnp.tan(jnp.deg2rad(value["membrane_friction_angle_deg"]))
+            membrane = membrane.set(contact=membrane.contact.set(friction_coefficient=friction))
+        contact = dem_params.contact
+        if "friction_angle_deg" in value:
+            contact = contact.set(friction_coefficient=jnp.tan(jnp.deg2rad(value["friction_angle_deg"])))
+        if "particle_stiffness_n_m" in value:
+            stiffness = value["particle_stiffness_n_m"]
+            contact = contact.set(
+                normal_stiffness=stiffness,
+                tangential_stiffness=0.5 * stiffness,
+                wall_normal_stiffness=stiffness,
+                wall_tangential_stiffness=0.5 * stiffness,
+            )
+        params = params.set(membrane=membrane, dem=dem_params.set(contact=contact))
+        return params, test.make_step(mesh), mesh, state
+
+    def displaced(self, u, state):
+        """``state`` displaced by u and moving at u/Δt (module docstring); the clamped rings ride along."""
+        n, free = self.num_spheres, self.free
+        dx = u[: 3 * n].reshape(n, 3)
+        dphi = u[3 * n : 6 * n].reshape(n, 3)
+        dy = u[6 * n : 6 * n + 3 * free.size].reshape(free.size, 3)
+        dh = u[6 * n + 3 * free.size :]
+        dt = self.dt
+        spheres = state.dem
+        walls = spheres.walls
+        # The bottom platen's wall coordinate is −z (its normal is −e_z).
+        wall_position = walls.position.at[0, BOTTOM].add(-dh[0]).at[0, TOP].add(dh[1])
+        spheres = spheres.set(
+            position=spheres.position + dx,
+            velocity=dx / dt,
+            angular_velocity=dphi / dt,
+            walls=walls.set(position=wall_position, velocity=jnp.zeros_like(walls.velocity)),
+        )
+        nodes = state.membrane
+        # The clamped rings sit where the step puts them, on the clamp moved with the platens (the clamp
+        # itself moves with t_m); their velocity is the platens' alone, as in the step.
+        lift = platen_heights(spheres.walls) - nodes.clamp_platen_height
+        rings = nodes.clamp_position.at[:, :, 2].add(lift[:, None]).reshape(-1, 3)
+        shift = jnp.concatenate([jnp.full(self.ring_sizes[0], dh[0]), jnp.full(self.ring_sizes[1], dh[1])])
+        position = nodes.position.at[free].add(dy).at[self.rings].set(rings)
+        velocity = jnp.zeros_like(nodes.velocity).at[free].set(dy / dt).at[self.rings, 2].set(shift / dt)
+        return state.set(dem=spheres, membrane=nodes.set(position=position, velocity=velocity))
+
+    def evaluate(self, u, theta, state=None):
+        """(R(u, θ), y(u, θ)) around ``state`` (default the consolidated one)."""
+        state = self.state if state is None else state
+        params, step, mesh, state = self.apply(theta, state)
+        params_static = params.set(dem=params.dem.set(damping=DampingParams.none()))
+        before = self.displaced(u, state)
+        after = step(before, params_static)
+        dt, free = self.dt, self.free
+        particles = self.test.particles
+        sphere = particles.mass[:, None] * (after.dem.velocity - before.dem.velocity) / dt
+        torque = particles.inertia[:, None] * (after.dem.angular_velocity - before.dem.angular_velocity) / dt
+        node_mass = params.membrane.thickness * self.node_mass_per_thickness[free]
+        node = node_mass[:, None] * (after.membrane.velocity[free] - before.membrane.velocity[free]) / dt
+        walls = after.dem.walls
+        platens = jnp.asarray([BOTTOM, TOP])
+        ram = walls.force[0, platens] - walls.target_stress[0, platens] * self.test.platen_area
+        residual = jnp.concatenate([sphere.ravel(), torque.ravel(), node.ravel(), ram])
+        # Measure at the displaced positions with the membrane's forces computed there by the step.
+        measured = before.set(
+            membrane=before.membrane.set(
+                node_force=after.membrane.node_force,
+                sphere_force=after.membrane.sphere_force,
+                platen_reaction=after.membrane.platen_reaction,
+                ring_contact_force=after.membrane.ring_contact_force,
+            )
+        )
+        height = platen_separation(before.dem.walls)[0]
+        volume = membrane_lib.inner_volume(before.membrane.position, mesh, params.membrane.contact_thickness)
+        # The reference is the equilibrium itself (Table 3: areas from the start of shearing), so A = A₀.
+        record = membrane_measure.measure_coupled(
+            measured, particles, mesh, params, dt, height, volume, self.test.platen_area
+        )
+        internal = jnp.stack([record.internal_axial_stress[0], record.internal_radial_stress[0]])
+        external = jnp.stack([record.external_axial_stress[0], record.external_radial_stress[0]])
+        outputs = jnp.concatenate([external, internal, internal - external])
+        return residual, outputs
+
+
+def _check_wrt(wrt) -> None:
+    unknown = [name for name in wrt if name not in PARAMETERS]
+    if unknown or not wrt:
+        raise ValueError(f"wrt {list(unknown)}: choose one or more of {', '.join(PARAMETERS)}.")
+
+
+def implicit_sensitivities(
+    equilibrium: Equilibrium, wrt=tuple(PARAMETERS)
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """(outputs y (Pa), dy/dθ (Pa per unit, (outputs, parameters)), unknowns) at the equilibrium.
+
+    Raises:
+      ValueError: an unknown parameter, or a system above :data:`MAX_DENSE_UNKNOWNS` unknowns.
+    """
+    _check_wrt(wrt)
+    system = _System(equilibrium, wrt)
+    if system.size > MAX_DENSE_UNKNOWNS:
+        raise ValueError(
+            f"{system.size} unknowns: the dense implicit solve is limited to {MAX_DENSE_UNKNOWNS} (a "
+            "specimen of about 6 × 10 spheres with a membrane of edge D/3); use a smaller specimen."
+        )
+    u0 = jnp.zeros(system.size)
+    theta0 = jnp.asarray(system.theta0)
+
+    def stacked(u, theta):  # [R; y]: one reverse-mode Jacobian, one compilation
+        residual, outputs = system.evaluate(u, theta)
+        return jnp.concatenate([residual, outputs])
+
+    value, (by_u, by_theta) = jax.jit(
+        lambda u, t: (stacked(u, t), jax.jacrev(stacked, argnums=(0, 1))(u, t))
+    )(u0, theta0)
+    value, by_u, by_theta = np.asarray(value), np.asarray(by_u), np.asarray(by_theta)
+    n = system.size
+    displacement = np.linalg.lstsq(by_u[:n], -by_theta[:n], rcond=RCOND)[0]
+    return value[n:], by_theta[n:] + by_u[n:] @ displacement, n
+
+
+def continuation_differences(
+    equilibrium: Equilibrium,
+    wrt=tuple(PARAMETERS),
+    relative_step: float = 1e-4,
+    chunk_steps: int = 2000,
+    max_chunks: int = 50,
+    tolerance: float = 1e-9,
+) -> np.ndarray:
+    """dy/dθ by central differences of the simulator, continued from the equilibrium (module docstring).
+
+    For each parameter, θ ± h (h = ``relative_step`` × θ) is set on the consolidated state and the
+    simulator relaxes (its own damping) in chunks until the largest out-of-balance force on a sphere or a
+    node is below ``tolerance`` × σc A₀ (the platens' servo error excepted), then the outputs are
+    measured.
+    """
+    system = _System(equilibrium, wrt)
+    load = equilibrium.test.cell_pressure * equilibrium.test.platen_area
+    u0 = jnp.zeros(system.size)
+
+    @jax.jit
+    def advance(state, theta):  # θ traced: one compilation for every parameter and sign
+        params, step, _, state = system.apply(theta, state)
+        return jax.lax.fori_loop(0, chunk_steps, lambda _, x: step(x, params), state)
+
+    evaluate = jax.jit(lambda state, theta: system.evaluate(u0, theta, state))
+    columns = []
+    for k in range(len(system.wrt)):
+        step_size = relative_step * abs(system.theta0[k])
+        outputs = []
+        for sign in (1.0, -1.0):
+            theta = system.theta0.copy()
+            theta[k] += sign * step_size
+            theta = jnp.asarray(theta)
+            state = equilibrium.state
+            for _ in range(max_chunks):
+                state = advance(state, theta)
+                residual, measured = (np.asarray(a) for a in evaluate(state, theta))
+                if np.max(np.abs(residual[:-2])) < tolerance * load:
+                    break
+            outputs.append(measured)
+        columns.append((outputs[0] - outputs[1]) / (2.0 * step_size))
+    return np.stack(columns, axis=1)
+
+
+def sensitivity(
+    config: TriaxialConfig,
+    outputs=OUTPUTS,
+    wrt=tuple(PARAMETERS),
+    finite_differences: bool = True,
+    tolerance: float = 1e-7,
+) -> SensitivityTable:
+    """The sensitivity table of a configuration's consolidated equilibrium (module docstring).
+
+    Runs in float64 (scoped to this call). Outputs are named from :data:`OUTPUTS`, parameters from
+    :data:`PARAMETERS`.
+
+    Raises:
+      ValueError: an unknown output or parameter.
+    """
+    unknown = [name for name in outputs if name not in OUTPUTS]
+    if unknown:
+        raise ValueError(f"outputs {unknown}: choose from {', '.join(OUTPUTS)}.")
+    _check_wrt(wrt)
+    config = dataclasses.replace(config, float64=True)
+    seconds = {}
+    with jax.enable_x64(True):
+        start = time.perf_counter()
+        equilibrium = consolidated(config, tolerance)
+        seconds["consolidation"] = time.perf_counter() - start
+        start = time.perf_counter()
+        values, derivative, size = implicit_sensitivities(equilibrium, wrt)
+        seconds["implicit"] = time.perf_counter() - start
+        check = np.full(derivative.shape, np.nan)
+        if finite_differences:
+            start = time.perf_counter()
+            check = continuation_differences(equilibrium, wrt)
+            seconds["finite_differences"] = time.perf_counter() - start
+    rows = []
+    for name in outputs:
+        i = OUTPUTS.index(name)
+        for k, parameter in enumerate(wrt):
+            x = float(getattr(config, parameter))
+            y = float(values[i])
+            rows.append(
+                {
+                    "output": name,
+                    "parameter": parameter,
+                    "value": y,
+                    "at": x,
+                    "derivative": float(derivative[i, k]),
+                    "finite_difference": float(check[i, k]),
+                    "elasticity": float(derivative[i, k]) * x / y if y != 0.0 else math.nan,
+                }
+            )
+    return SensitivityTable(rows, seconds, size)
+
+
+def format_table(table: SensitivityTable) -> str:
+    """The table as text: stresses in kPa, derivatives in kPa per unit of the parameter.
+
+    ``rel. err`` is |implicit − difference| / max(|implicit|, |difference|); ``~0`` where both are below an
+    elasticity of 1e-6 (zero within the differences' floor).
+    """
+    lines = [
+        f"{'output':<26}{'parameter':<30}{'y (kPa)':>10}{'x':>10}{'dy/dx':>13}{'difference':>13}"
+        f"{'rel. err':>10}{'d ln y/d ln x':>15}"
+    ]
+    for row in table.rows:
+        derivative, check = 1e-3 * row["derivative"], 1e-3 * row["finite_difference"]
+        scale = abs(row["value"]) / max(abs(row["at"]), 1e-300)  # dy/dx of an elasticity of 1, Pa per unit
+        if not np.isfinite(check):
+            error = "—"
+        elif max(abs(row["derivative"]), abs(row["finite_difference"])) < 1e-6 * scale:
+            error = "~0"  # both below an elasticity of 1e-6: zero within the differences' floor
+        else:
+            error = f"{abs(derivative - check) / max(abs(check), abs(derivative)):.1e}"
+        lines.append(
+            f"{row['output']:<26}{row['parameter']:<30}{1e-3 * row['value']:>10.4g}{row['at']:>10.4g}"
+            f"{derivative:>13.5g}{check:>13.5g}{error:>10}{row['elasticity']:>15.4g}"
+        )
+    seconds = ", ".join(f"{name} {value:.1f} s" for name, value in table.seconds.items())
+    lines.append(f"{table.unknowns} unknowns; {seconds}")
+    return "\n".join(lines)
