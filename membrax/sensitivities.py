@@ -18,14 +18,14 @@ implicit function theorem
 
     du*/dθ = −(∂R/∂u)⁺ ∂R/∂θ,    dy/dθ = ∂y/∂θ + ∂y/∂u · du*/dθ,
 
-with ∂R/∂u formed densely by reverse mode (``jax.jacrev``; the compiled CPU kernels have reverse-mode
-rules only) and solved by least squares (``numpy.linalg.lstsq``, singular values below 1e-12 of the
-largest cut). The cut removes the zero-stiffness modes. The one measured on a 4 × 4 × 5 specimen is the
-vertical rigid translation of specimen, membrane and both servo platens together (singular value 2e-17
-of the largest), which no output sees. A rotation about the axis or a lateral drift is held by the
-clamps, which fix the membrane's end rings on the platens. A sphere without contacts, or a contact
-sliding at the Coulomb limit, gives a zero mode too, and the cut removes those as well. The dense
-Jacobian limits this to small specimens (:data:`MAX_DENSE_UNKNOWNS`).
+with ∂R/∂u formed densely by reverse mode (``jax.vjp`` over batches of unit cotangents; the compiled CPU
+kernels have reverse-mode rules only) and solved by least squares (``numpy.linalg.lstsq``, singular values
+below 1e-12 of the largest cut). The cut removes the zero-stiffness modes. The one measured on a 4 × 4 × 5
+specimen is the vertical rigid translation of specimen, membrane and both servo platens together (singular
+value 2e-17 of the largest), which no output sees. A rotation about the axis or a lateral drift is held by
+the clamps, which fix the membrane's end rings on the platens. A sphere without contacts, or a contact
+sliding at the Coulomb limit, gives a zero mode too, and the cut removes those as well. The dense Jacobian
+limits this to small specimens (:data:`MAX_DENSE_UNKNOWNS`).
 
 Parameters (θ): σc (cell pressure and the servo target), E_m, t_m (with the membrane's rest geometry,
 which is built t_m/2 off the spheres, and the clamp rings, both linearised by central differences of the
@@ -59,6 +59,7 @@ from membrax.spheres.walls import BOTTOM, TOP, platen_separation
 from membrax.stages import GEOMETRY_FIELDS, build_test
 
 __all__ = [
+    "DIFFERENCE_STEPS",
     "MAX_DENSE_UNKNOWNS",
     "OUTPUTS",
     "PARAMETERS",
@@ -91,6 +92,12 @@ PARAMETERS = {
 }
 #: Largest number of unknowns (6 per sphere, 3 per free node, 2 platens) for the dense Jacobian.
 MAX_DENSE_UNKNOWNS = 12_000
+#: Relative steps h/θ of the continuation differences where 1e-4 is too large. A node–sphere contact
+#: touches at R + t_m/2, so t_m moves every contact's offset: on the 6 × 10 demo specimen h = 1e-4 t_m
+#: opened or closed a contact (internal σ1's difference 16 % off), 1e-5 t_m agreed within 7e-4.
+DIFFERENCE_STEPS = {"membrane_thickness_mm": 1e-5}
+#: Cotangents per batch of the reverse-mode Jacobian (memory: about 17 MB each on the demo specimen).
+JACOBIAN_BATCH = 64
 #: Relative singular-value cut of the least-squares solve (module docstring).
 RCOND = 1e-12
 
@@ -309,9 +316,19 @@ def implicit_sensitivities(
         residual, outputs = system.evaluate(u, theta)
         return jnp.concatenate([residual, outputs])
 
-    value, (by_u, by_theta) = jax.jit(
-        lambda u, t: (stacked(u, t), jax.jacrev(stacked, argnums=(0, 1))(u, t))
-    )(u0, theta0)
+    # Rows by reverse mode, JACOBIAN_BATCH unit cotangents per compiled call: all rows at once
+    # (``jax.jacrev``, or ``lax.map`` inside one jit) asked for 75 GB on the 6 × 10 demo specimen.
+    value, pullback = jax.jit(lambda u, t: jax.vjp(stacked, u, t))(u0, theta0)
+    rows = jax.jit(lambda back, cotangents: jax.vmap(back)(cotangents))
+    count = int(value.shape[0])
+    by_u, by_theta = np.empty((count, system.size)), np.empty((count, theta0.shape[0]))
+    for first in range(0, count, JACOBIAN_BATCH):
+        cotangents = np.zeros((JACOBIAN_BATCH, count))  # a fixed batch shape: one compilation
+        last = min(first + JACOBIAN_BATCH, count)
+        cotangents[np.arange(last - first), np.arange(first, last)] = 1.0
+        batch_u, batch_theta = rows(pullback, jnp.asarray(cotangents))
+        by_u[first:last] = np.asarray(batch_u)[: last - first]
+        by_theta[first:last] = np.asarray(batch_theta)[: last - first]
     value, by_u, by_theta = np.asarray(value), np.asarray(by_u), np.asarray(by_theta)
     n = system.size
     displacement = np.linalg.lstsq(by_u[:n], -by_theta[:n], rcond=RCOND)[0]
@@ -321,17 +338,17 @@ def implicit_sensitivities(
 def continuation_differences(
     equilibrium: Equilibrium,
     wrt=tuple(PARAMETERS),
-    relative_step: float = 1e-4,
+    relative_step: float | None = None,
     chunk_steps: int = 2000,
     max_chunks: int = 50,
     tolerance: float = 1e-9,
 ) -> np.ndarray:
     """dy/dθ by central differences of the simulator, continued from the equilibrium (module docstring).
 
-    For each parameter, θ ± h (h = ``relative_step`` × θ) is set on the consolidated state and the
-    simulator relaxes (its own damping) in chunks until the largest out-of-balance force on a sphere or a
-    node is below ``tolerance`` × σc A₀ (the platens' servo error excepted), then the outputs are
-    measured.
+    For each parameter, θ ± h (h = ``relative_step`` × θ; default :data:`DIFFERENCE_STEPS`, else 1e-4) is
+    set on the consolidated state and the simulator relaxes (its own damping) in chunks until the largest
+    out-of-balance force on a sphere or a node is below ``tolerance`` × σc A₀ (the platens' servo error
+    excepted), then the outputs are measured.
     """
     system = _System(equilibrium, wrt)
     load = equilibrium.test.cell_pressure * equilibrium.test.platen_area
@@ -345,7 +362,8 @@ def continuation_differences(
     evaluate = jax.jit(lambda state, theta: system.evaluate(u0, theta, state))
     columns = []
     for k in range(len(system.wrt)):
-        step_size = relative_step * abs(system.theta0[k])
+        relative = DIFFERENCE_STEPS.get(system.wrt[k], 1e-4) if relative_step is None else relative_step
+        step_size = relative * abs(system.theta0[k])
         outputs = []
         for sign in (1.0, -1.0):
             theta = system.theta0.copy()

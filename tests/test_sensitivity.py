@@ -1,11 +1,11 @@
 """membrax.sensitivities: derivatives of the consolidated equilibrium, implicit against finite differences.
 
-The finite differences continue the simulator from the equilibrium (θ ± h, h = 1e-4 θ, relaxed until the
-largest out-of-balance force is below 1e-9 σc A₀), so they follow the same friction history. The two
-agree where that path is smooth: no node–sphere or sphere–sphere contact opens, closes or starts to slide
-between θ − h and θ + h. On this specimen the relative step 1e-3 in t_m already shifts the node–sphere
-contact offset (t_m/2) by a fraction of the penalty overlaps (~6 µm) and the differences lose their
-meaning there; 1e-4 keeps every contact.
+The finite differences continue the simulator from the equilibrium (θ ± h, h = 1e-4 θ and 1e-5 t_m, relaxed
+until the largest out-of-balance force is below 1e-9 σc A₀), so they follow the same friction history. The
+two agree where that path is smooth: no node–sphere or sphere–sphere contact opens, closes or starts to
+slide between θ − h and θ + h. On this specimen the relative step 1e-3 in t_m already shifts the node–sphere
+contact offset (t_m/2) by a fraction of the penalty overlaps (~6 µm) and the differences lose their meaning
+there; 1e-4 keeps every contact.
 """
 
 import jax
