@@ -144,7 +144,10 @@ def _free_and_rings(mesh):
 
 
 def _geometry_derivative(config: TriaxialConfig, test, relative_step: float = 1e-4):
-    """d(rest geometry)/d t_m (per mm) of the mesh arrays and the clamp rings, by central differences."""
+    """d(rest geometry)/d t_m (per mm) of the mesh arrays, by central differences.
+
+    The clamp rings follow from ``reference_position``'s ring rows (:meth:`_System.apply`).
+    """
     around = int(np.asarray(test.mesh.bottom_ring).size)
     h = relative_step * config.membrane_thickness_mm
     meshes = []

@@ -1,0 +1,122 @@
+"""Reverse mode through a rollout of the coupled step, with ``jax.checkpoint``: time and memory vs forward.
+
+For a rollout of N steps (default 2,000) of the membrane test from its as-built state (both platens
+servo-controlled to σc A₀, the consolidation stage), y = the internal σ1 at the end:
+
+- ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps;
+- ``reverse``: (y, dy/dθ) by ``jax.value_and_grad`` of the same scan, each window wrapped in
+  ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
+  at a time (θ = E_m and σc);
+
+each in its own process, once per dtype, printing compile time, run time (best of 3), peak RSS and the
+ratios reverse/forward. The issue's goals at paper size: memory ≤ 2×, time ≤ 4×.
+
+The paper's mode (Cundall local damping, hard Coulomb, contact onset) is differentiable almost everywhere:
+sign(v) and the Coulomb cone's projection have zero or piecewise derivatives, so these gradients are
+those of the piecewise-smooth path.
+
+Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--steps 2000] [--window 50]``.
+"""
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import time
+
+SIZES = {
+    "small": {"particles_across": 6, "layers": 10, "membrane_edges_per_diameter": 3.0},
+    "paper": {},
+}
+
+
+def child(dtype: str, mode: str, size: str, steps: int, window: int) -> dict:
+    import jax
+
+    if dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    from membrax.config import TriaxialConfig
+    from membrax.stages import build_test
+
+    config = TriaxialConfig(**SIZES[size], cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)
+    test = build_test(config)
+    state = test.start_consolidation(test.initial_state)
+    step = test.make_step(test.mesh)
+    record = test.make_record(test.mesh, test.initial_volume)
+    base = test.params
+
+    def output(theta):
+        params = base.set(membrane=base.membrane.set(modulus=theta[0], cell_pressure=theta[1]))
+        walls = state.dem.walls
+        start = state.set(
+            dem=state.dem.set(
+                walls=walls.set(target_stress=jnp.full_like(walls.target_stress, 1.0) * theta[1])
+            )
+        )
+
+        def body(s, _):
+            return jax.lax.fori_loop(0, window, lambda i, x: step(x, params), s), None
+
+        if mode == "reverse":
+            body = jax.checkpoint(body)
+        final, _ = jax.lax.scan(body, start, None, length=steps // window)
+        return record(final, params).internal_axial_stress[0]
+
+    theta = jnp.asarray([float(base.membrane.modulus), float(base.membrane.cell_pressure)])
+    function = jax.jit(output if mode == "forward" else jax.value_and_grad(output))
+    start = time.perf_counter()
+    jax.block_until_ready(function(theta))
+    compile_s = time.perf_counter() - start
+    runs = []
+    for _ in range(3):
+        start = time.perf_counter()
+        out = jax.block_until_ready(function(theta))
+        runs.append(time.perf_counter() - start)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    value = out if mode == "forward" else out[0]
+    return {
+        "compile_s": compile_s,
+        "run_s": min(runs),
+        "peak_mb": peak_mb,
+        "value": float(value),
+        "gradient": None if mode == "forward" else [float(g) for g in out[1]],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--size", choices=tuple(SIZES), default="paper")
+    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--window", type=int, default=50)
+    parser.add_argument("--child", nargs=2, metavar=("DTYPE", "MODE"))
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(*args.child, args.size, args.steps, args.window)))
+        return
+    print(
+        f"gradient benchmark: {args.size} size, {args.steps} steps, windows of {args.window} (jax.checkpoint)"
+    )
+    print(
+        f"{'dtype':<8}{'fwd compile':>12}{'fwd run (s)':>12}{'rev compile':>12}{'rev run (s)':>12}"
+        f"{'time ×':>8}{'fwd RSS MB':>11}{'rev RSS MB':>11}{'memory ×':>10}"
+    )
+    for dtype in ("float32", "float64"):
+        rows = {}
+        for mode in ("forward", "reverse"):
+            command = [sys.executable, __file__, "--child", dtype, mode, "--size", args.size]
+            command += ["--steps", str(args.steps), "--window", str(args.window)]
+            output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+            rows[mode] = json.loads(output.strip().splitlines()[-1])
+        forward, reverse = rows["forward"], rows["reverse"]
+        print(
+            f"{dtype:<8}{forward['compile_s']:>12.1f}{forward['run_s']:>12.2f}{reverse['compile_s']:>12.1f}"
+            f"{reverse['run_s']:>12.2f}{reverse['run_s'] / forward['run_s']:>8.2f}{forward['peak_mb']:>11.0f}"
+            f"{reverse['peak_mb']:>11.0f}{reverse['peak_mb'] / forward['peak_mb']:>10.2f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
