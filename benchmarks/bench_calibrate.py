@@ -70,7 +70,9 @@ def main() -> None:
         record_path, values = _thousand_rows(Path(folder))
         specimen = correct.Specimen.from_mm_kpa(*values)
         specimen_args = [
-            item for name, value in zip(SPECIMEN_ARGS, values, strict=True) for item in (name, f"{value:g}")
+            item
+            for name, value in zip(evaluate.SPECIMEN_FLAGS, values, strict=True)
+            for item in (name, f"{value:g}")
         ]
         start = time.perf_counter()
         correct.correct_file(record_path, specimen, out=Path(folder) / "out.csv")

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import functools
 import io
+import numbers
 import warnings
 from importlib import resources
 from pathlib import Path
@@ -95,7 +96,7 @@ class Specimen(NamedTuple):
             "membrane_modulus_kpa": membrane_modulus_kpa,
         }
         for name, value in values.items():
-            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+            if not (isinstance(value, numbers.Real) and np.isfinite(value) and value > 0):
                 raise ValueError(
                     f"{name} = {value!r}; give a positive number (e.g. --{name.replace('_', '-')} 2)."
                 )
@@ -185,8 +186,7 @@ def _corrections_fn(model_name: str, names: tuple):
 
     model = models.MODELS[model_name]
 
-    def angle(sigma_1, sigma_3):
-        return jnp.rad2deg(jnp.arcsin((sigma_1 - sigma_3) / (sigma_1 + sigma_3)))
+    angle = theory.mobilised_friction_angle_deg  # unchecked on tracers
 
     def corrections(theta, covariance, inputs, axial, volumetric, measured, cell, membrane, rms):
         modulus, thickness, diameter = membrane[0], membrane[1], membrane[2]
@@ -312,6 +312,8 @@ def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
     """
     import matplotlib
 
+    from membrax.triaxial.analysis import friction_angle_deg
+
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
@@ -332,7 +334,7 @@ def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
     truth = None
     if reference is not None:
         s1, s3 = (np.asarray(v, dtype=np.float64) for v in reference)
-        truth = (s1, s3, np.degrees(np.arcsin((s1 - s3) / (s1 + s3))))
+        truth = (s1, s3, friction_angle_deg(s1, s3))
     for k, (axis, (values, scale, label, spread)) in enumerate(zip(axes, quantities, strict=True)):
         if truth is not None:
             axis.plot(strain, scale * truth[k], color="0.6", lw=4, alpha=0.6, label="internal (simulated)")

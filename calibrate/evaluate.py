@@ -23,6 +23,7 @@ from calibrate import correct, datasets, lab
 
 __all__ = [
     "EXAMPLE_ARGUMENTS_PREFIX",
+    "SPECIMEN_FLAGS",
     "example_arguments",
     "read_example_record",
     "friction_angle_errors",
@@ -33,6 +34,13 @@ __all__ = [
 
 #: The comment of the example record that carries its ``membrax correct`` arguments.
 EXAMPLE_ARGUMENTS_PREFIX = "membrax correct arguments:"
+#: Those arguments' flags, in the order of :meth:`calibrate.correct.Specimen.from_mm_kpa`.
+SPECIMEN_FLAGS = (
+    "--specimen-diameter-mm",
+    "--particle-size-mm",
+    "--membrane-thickness-mm",
+    "--membrane-modulus-kpa",
+)
 
 
 def read_example_record():
@@ -59,15 +67,7 @@ def example_arguments(comments) -> tuple[float, float, float, float]:
         if line.startswith(EXAMPLE_ARGUMENTS_PREFIX):
             words = line[len(EXAMPLE_ARGUMENTS_PREFIX) :].split()
             values = dict(zip(words[::2], words[1::2], strict=True))
-            return tuple(
-                float(values[key])
-                for key in (
-                    "--specimen-diameter-mm",
-                    "--particle-size-mm",
-                    "--membrane-thickness-mm",
-                    "--membrane-modulus-kpa",
-                )
-            )
+            return tuple(float(values[flag]) for flag in SPECIMEN_FLAGS)
     raise ValueError(f"no '# {EXAMPLE_ARGUMENTS_PREFIX} ...' comment in the record.")
 
 
@@ -81,8 +81,8 @@ def lab_record_of(config: dict, rows):
     keep = np.concatenate([[True], np.diff(axial) > 0.0])
     keep &= np.maximum.accumulate(axial) == axial
     volumetric = np.asarray(rows["volumetric_strain"], dtype=np.float64)[keep]
+    radial = np.asarray(rows["radial_strain"], dtype=np.float64)[keep]  # theory.radial_strain of the two
     axial = axial[keep]
-    radial = 1.0 - np.sqrt((1.0 - volumetric) / (1.0 - axial))
     cell = np.full(axial.shape, 1e3 * config["cell_pressure_kpa"])
     record = lab.LabRecord(
         axial,
@@ -114,7 +114,9 @@ def friction_angle_errors(record, specimen, internal_1, internal_3, corrections=
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = correct.correct_record(record, specimen, corrections)
-    internal = np.degrees(np.arcsin((internal_1 - internal_3) / (internal_1 + internal_3)))
+    from membrax.triaxial.analysis import friction_angle_deg
+
+    internal = friction_angle_deg(internal_1, internal_3)
     strain = record.axial_strain
     rows = (strain > 0.0) & (strain <= max_strain + 1e-12) & np.isfinite(result.friction_angle["fitted"])
     errors = {}
@@ -163,6 +165,12 @@ def write_example_record(dataset, path, version: str, **coordinates) -> Path:
     config, rows = chosen[0]
     record, specimen, internal_1, internal_3 = lab_record_of(config, rows)
     particle = config["particle_diameter_mm"]
+    arguments = (
+        round(1e3 * specimen.specimen_diameter, 1),
+        particle,
+        config["membrane_thickness_mm"],
+        config["membrane_modulus_kpa"],
+    )
     out = io.StringIO()
     out.write(
         f"# synthetic: produced by a membrax {version} simulation (calibrate.grid.HELD_OUT), not a laboratory"
@@ -172,9 +180,9 @@ def write_example_record(dataset, path, version: str, **coordinates) -> Path:
         f" membrane {config['membrane_thickness_mm']:g} mm of {config['membrane_modulus_kpa']:g} kPa\n"
         "# internal_sigma_1/internal_sigma_3: the stresses the specimen carried (membrax's internal stresses,"
         " the paper's 4.3); membrax correct does not read them\n"
-        f"# {EXAMPLE_ARGUMENTS_PREFIX} --specimen-diameter-mm {1e3 * specimen.specimen_diameter:.1f} "
-        f"--particle-size-mm {particle:g} --membrane-thickness-mm {config['membrane_thickness_mm']:g} "
-        f"--membrane-modulus-kpa {config['membrane_modulus_kpa']:g}\n"
+        f"# {EXAMPLE_ARGUMENTS_PREFIX} "
+        + " ".join(f"{flag} {value:g}" for flag, value in zip(SPECIMEN_FLAGS, arguments, strict=True))
+        + "\n"
     )
     out.write(
         "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa],"

@@ -14,10 +14,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from calibrate import correct, evaluate
+from membrax import analysis
 
 record, specimen, internal_1, internal_3 = evaluate.read_example_record()
 result = correct.correct_record(record, specimen)
-internal = np.degrees(np.arcsin((internal_1 - internal_3) / (internal_1 + internal_3)))
+internal = analysis.friction_angle_deg(internal_1, internal_3)
 print(f"{'ε_a %':>6}{'internal':>10}" + "".join(f"{m:>16}" for m in correct.METHODS))
 for target in (0.01, 0.02, 0.05, 0.10):
     i = int(np.argmin(np.abs(record.axial_strain - target)))

@@ -199,13 +199,19 @@ def _run_config(config, out, resume: bool, progress: bool) -> int:
     return 0
 
 
+def _load_config(args: argparse.Namespace):
+    """The TOML configuration of ``args.config`` with the ``--set key=value`` overrides applied."""
+    from membrax.config import load_config, parse_overrides, with_overrides
+
+    config = load_config(args.config)
+    return with_overrides(config, **parse_overrides(args.set)) if args.set else config
+
+
 def _run(args: argparse.Namespace) -> int:
-    from membrax.config import ConfigError, load_config, parse_overrides, with_overrides
+    from membrax.config import ConfigError
 
     try:
-        config = load_config(args.config)
-        if args.set:
-            config = with_overrides(config, **parse_overrides(args.set))
+        config = _load_config(args)
     except (ConfigError, FileNotFoundError) as error:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
@@ -228,14 +234,12 @@ def _split_cpu(args: argparse.Namespace) -> bool:
 def _sweep(args: argparse.Namespace) -> int:
     if not _split_cpu(args):
         return 2
-    from membrax.config import ConfigError, load_config, parse_overrides, with_overrides
+    from membrax.config import ConfigError
     from membrax.run import RunError
     from membrax.sweep import parse_grid, run_sweep
 
     try:
-        config = load_config(args.config)
-        if args.set:
-            config = with_overrides(config, **parse_overrides(args.set))
+        config = _load_config(args)
         grid = parse_grid(args.grid) if args.grid else None
         result = run_sweep(
             config,
@@ -284,13 +288,11 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _sensitivity(args: argparse.Namespace) -> int:
-    from membrax.config import ConfigError, load_config, parse_overrides, with_overrides
+    from membrax.config import ConfigError
     from membrax.sensitivities import OUTPUTS, PARAMETERS, format_table, sensitivity
 
     try:
-        config = load_config(args.config)
-        if args.set:
-            config = with_overrides(config, **parse_overrides(args.set))
+        config = _load_config(args)
         wrt = tuple(args.wrt.split(",")) if args.wrt else tuple(PARAMETERS)
         outputs = tuple(args.outputs.split(",")) if args.outputs else OUTPUTS
         table = sensitivity(config, outputs, wrt, finite_differences=not args.no_check)

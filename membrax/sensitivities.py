@@ -136,11 +136,12 @@ def consolidated(config: TriaxialConfig, tolerance: float = 1e-7, max_steps: int
 
 
 def _free_and_rings(mesh):
-    free = np.ones(mesh.num_nodes, dtype=bool)
-    bottom, top = np.asarray(mesh.bottom_ring), np.asarray(mesh.top_ring)
-    free[bottom] = False
-    free[top] = False
-    return np.flatnonzero(free), bottom, top
+    """(free node ids, bottom ring ids, top ring ids)."""
+    return (
+        np.flatnonzero(membrane_lib.free_node_mask(mesh)),
+        np.asarray(mesh.bottom_ring),
+        np.asarray(mesh.top_ring),
+    )
 
 
 def _geometry_derivative(config: TriaxialConfig, test, relative_step: float = 1e-4):

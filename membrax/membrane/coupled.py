@@ -395,10 +395,7 @@ def membrane_dem(
     sphere_subset = jnp.asarray(sphere_subset, dtype=jnp.int32)
     # Mass per unit thickness: lumped_mass is linear in t_m, which stays a traced parameter.
     mass_per_thickness = membrane_lib.lumped_mass(mesh, 1.0, latex_density)
-    free = np.ones(mesh.num_nodes, dtype=bool)
-    free[np.asarray(mesh.bottom_ring)] = False
-    free[np.asarray(mesh.top_ring)] = False
-    free = jnp.asarray(free)
+    free = jnp.asarray(membrane_lib.free_node_mask(mesh))
     rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
 
     def init_fn(
@@ -582,9 +579,7 @@ def membrane_critical_time_step(
     """
     position = mesh.reference_position
     mass = np.asarray(membrane_lib.lumped_mass(mesh, params.thickness, latex_density), dtype=float)
-    free = np.ones(mesh.num_nodes, dtype=bool)
-    free[np.asarray(mesh.bottom_ring)] = False
-    free[np.asarray(mesh.top_ring)] = False
+    free = membrane_lib.free_node_mask(mesh)
 
     def energy(x):
         return membrane_lib.total_energy(

@@ -57,6 +57,7 @@ __all__ = [
     "total_energy",
     "nodal_forces",
     "lumped_mass",
+    "free_node_mask",
 ]
 
 STRETCHING_MODELS = ("neo_hookean", "svk")
@@ -711,6 +712,14 @@ def surface_area(position, mesh: MembraneMesh):
     x1, x2, x3 = _corners(position, mesh)
     normal = cross(x2 - x1, x3 - x1)
     return 0.5 * jnp.sum(jnp.sqrt(dot(normal, normal)))
+
+
+def free_node_mask(mesh: MembraneMesh) -> np.ndarray:
+    """(n,) bool, host-side: True for the nodes that move freely, False for the clamped end rings."""
+    free = np.ones(mesh.num_nodes, dtype=bool)
+    free[np.asarray(mesh.bottom_ring)] = False
+    free[np.asarray(mesh.top_ring)] = False
+    return free
 
 
 def inner_volume(position, mesh: MembraneMesh, thickness):
