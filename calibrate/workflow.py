@@ -19,7 +19,7 @@ __all__ = ["fit_sweeps"]
 
 
 def fit_sweeps(
-    paths, out, model: str = "paper", cross_validation: bool = True, table_out=None
+    paths, out, model: str = "rich", cross_validation: bool = True, table_out=None
 ) -> tuple[str, Path]:
     """Fit ``model`` on the sweeps at ``paths`` and write it to ``out`` (module docstring).
 

@@ -344,10 +344,88 @@ def _demo(args: argparse.Namespace) -> int:
     return _run_config(TriaxialConfig(**DEMO_CONFIG), args.out, args.resume, not args.no_progress)
 
 
+#: Each sub-command's ``--help``: what it does (description) and examples (epilog), printed as written.
+SUBCOMMAND_HELP = {
+    "theory": (
+        "Print the closed-form reference table: Rowe's FCC peak friction angle (both alpha conventions),\n"
+        "Bolton and the paper's Eq. 1 for its ballast, Molenkamp & Luger's indentation ratio over the\n"
+        "paper's 3 x 3 grid, and the ASTM shell correction for its three membranes. No simulation.",
+        "example:\n  membrax theory",
+    ),
+    "demo": (
+        "Print the theory table, then run the membrane triaxial test on a small FCC specimen (6 spheres\n"
+        "across, 10 layers, membrane edge D/3) at 10 kPa in a 5 mm membrane: consolidation, then drained\n"
+        "shearing to 10 % axial strain (about a minute on 2 CPU cores). Writes results.nc/.csv,\n"
+        "consolidation.nc/.csv, the Figs 5-8 PNGs, summary.md and a checkpoint into --out.",
+        "examples:\n"
+        "  membrax demo\n"
+        "  membrax demo --out my_demo --no-progress\n"
+        "  membrax demo --out my_demo --resume      # continue an interrupted demo from its checkpoint",
+    ),
+    "run": (
+        "Run the membrane triaxial test of a TOML configuration (membrax.config.TriaxialConfig: each\n"
+        "field named with its unit, e.g. cell_pressure_kpa, membrane_thickness_mm; keys left out take the\n"
+        "paper's values; bad values are refused before anything compiles) into a results folder:\n"
+        "results.nc/.csv, consolidation.nc/.csv, Figs 5-8, summary.md, config.toml, checkpoint.npz.",
+        "example:\n"
+        "  $ cat test.toml\n"
+        '  name = "test40"\n'
+        "  cell_pressure_kpa = 40.0\n"
+        "  membrane_thickness_mm = 2.5\n"
+        "  particles_across = 6\n"
+        "  layers = 10\n"
+        "  $ membrax run test.toml --set target_axial_strain=0.05      # writes results_test40/\n"
+        "  $ membrax run test.toml --resume                            # after an interruption",
+    ),
+    "sweep": (
+        "Run every combination of the --grid values over a base configuration as one batched, compiled\n"
+        "simulation (one JAX device per CPU core, members sharded over the devices), and write sweep.nc\n"
+        "(dimensions: the grid's fields and record), sweep_consolidation.nc, summary.csv, sweep.toml.",
+        "examples:\n"
+        "  membrax sweep test.toml --grid cell_pressure_kpa=10,40,100 \\\n"
+        "      --grid membrane_thickness_mm=2.5,3.33,5\n"
+        "  membrax sweep test.toml --grid membrane_modulus_kpa=700,1400,2800 --out study --devices 2",
+    ),
+    "reproduce": (
+        "Run the paper's Table 1 (10, 40, 100 kPa x 2.5, 3.33, 5 mm) as one sweep, then write its Tables\n"
+        "2-3 beside the paper's (table2/table3 .csv and .md), Figs 5-9 and reproduction.md.",
+        "examples:\n"
+        "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
+        "  membrax reproduce --size paper --out paper_run        # about 22 min on 2 CPU cores",
+    ),
+    "fit": (
+        "Fit a membrane correction (calibrate.models: 'paper' or 'rich') on the records of one or more\n"
+        "sweeps by weighted least squares (optax Adam, then L-BFGS), score it by leave-one-case-out\n"
+        "cross-validation and write it as JSON with provenance, for membrax correct --model.",
+        "example:\n"
+        "  membrax fit calibration/*/sweep.nc --model rich --out corrections.json --table table.npz",
+    ),
+    "correct": (
+        "Correct a drained laboratory record for the membrane by five methods: uncorrected, ASTM\n"
+        "D4767/D7181, Henkel & Gilbert, Kuerbis & Vaid, and the fitted DEM-based correction with a band\n"
+        "of one standard deviation. Writes a CSV and a plot of sigma_1, sigma_3 and phi' by method, and\n"
+        "warns where the record leaves the range the correction was fitted on.",
+        "examples:\n"
+        "  membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20 \\\n"
+        "      --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
+        "  membrax correct calibrate/data/example_record.csv --specimen-diameter-mm 175 \\\n"
+        "      --particle-size-mm 25 --membrane-thickness-mm 2 --membrane-modulus-kpa 1000 --out ex.csv\n"
+        "where the record's header gives each column's unit, e.g.\n"
+        "  axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]",
+    ),
+}
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``membrax`` command."""
     parser = argparse.ArgumentParser(
-        prog="membrax", description="Differentiable triaxial-test simulator for membrane corrections."
+        prog="membrax",
+        description="Differentiable triaxial-test simulator for membrane corrections.",
+        epilog="examples:\n"
+        "  membrax demo                      # a small membrane triaxial test, about a minute\n"
+        "  membrax theory                    # the closed-form reference table\n"
+        "  membrax run --help                # each sub-command's own help, with examples",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"membrax {__version__}")
     commands = parser.add_subparsers(dest="command", required=True)
@@ -404,7 +482,12 @@ def build_parser() -> argparse.ArgumentParser:
     fit.add_argument(
         "--out", default="corrections.json", help="JSON file to write (default corrections.json)"
     )
-    fit.add_argument("--model", default="paper", choices=("paper", "rich"), help="correction model")
+    fit.add_argument(
+        "--model",
+        default="rich",
+        choices=("paper", "rich"),
+        help="correction model (default rich: the shipped one, chosen by cross-validation)",
+    )
     fit.add_argument("--no-cross-validation", action="store_true", help="skip leave-one-case-out")
     fit.add_argument("--table", default=None, help="also write the fitting table (.npz)")
     fit.set_defaults(func=_fit)
@@ -447,6 +530,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.set_defaults(func=_run)
     sweep.set_defaults(func=_sweep)
     reproduce.set_defaults(func=_reproduce)
+    for name, (description, epilog) in SUBCOMMAND_HELP.items():
+        command = commands.choices[name]
+        command.description, command.epilog = description, epilog
+        command.formatter_class = argparse.RawDescriptionHelpFormatter
     return parser
 
 

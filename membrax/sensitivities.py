@@ -65,6 +65,7 @@ __all__ = [
     "PARAMETERS",
     "Equilibrium",
     "SensitivityTable",
+    "apply_parameters",
     "consolidated",
     "continuation_differences",
     "format_table",
@@ -161,6 +162,51 @@ def _geometry_derivative(config: TriaxialConfig, test, relative_step: float = 1e
     return fields
 
 
+def apply_parameters(
+    values: dict, params, mesh, state, thickness_mm=None, geometry=None, clamp_position=None
+):
+    """(params, mesh, state) with the :data:`PARAMETERS` in ``values`` (configuration units, traced) set.
+
+    σc sets the membrane's cell pressure and the platens' servo target σc (the ram force σc A₀); t_m sets
+    the membrane's thickness and moves its rest geometry and clamp rings linearly from those at
+    ``thickness_mm`` along ``geometry`` (d field/d t_m per mm, :func:`_geometry_derivative`), the clamp
+    rings from ``clamp_position``; the friction angles set μ = tan φ; k_n sets k_t = k_n/2 and the
+    platens' k_n, k_t alike (as :func:`membrax.stages.build_test`).
+    """
+    membrane, dem_params = params.membrane, params.dem
+    if "cell_pressure_kpa" in values:
+        pressure = 1e3 * values["cell_pressure_kpa"]
+        membrane = membrane.set(cell_pressure=pressure)
+        walls = state.dem.walls
+        target = jnp.full_like(walls.target_stress, 1.0) * pressure
+        state = state.set(dem=state.dem.set(walls=walls.set(target_stress=target)))
+    if "membrane_modulus_kpa" in values:
+        membrane = membrane.set(modulus=1e3 * values["membrane_modulus_kpa"])
+    if "membrane_thickness_mm" in values:
+        change = values["membrane_thickness_mm"] - thickness_mm
+        membrane = membrane.set(thickness=1e-3 * values["membrane_thickness_mm"])
+        mesh = mesh.set(**{name: getattr(mesh, name) + change * d for name, d in geometry.items()})
+        clamp_change = jnp.stack(
+            [geometry["reference_position"][ring] for ring in (mesh.bottom_ring, mesh.top_ring)]
+        )
+        state = state.set(membrane=state.membrane.set(clamp_position=clamp_position + change * clamp_change))
+    if "membrane_friction_angle_deg" in values:
+        friction = jnp.tan(jnp.deg2rad(values["membrane_friction_angle_deg"]))
+        membrane = membrane.set(contact=membrane.contact.set(friction_coefficient=friction))
+    contact = dem_params.contact
+    if "friction_angle_deg" in values:
+        contact = contact.set(friction_coefficient=jnp.tan(jnp.deg2rad(values["friction_angle_deg"])))
+    if "particle_stiffness_n_m" in values:
+        stiffness = values["particle_stiffness_n_m"]
+        contact = contact.set(
+            normal_stiffness=stiffness,
+            tangential_stiffness=0.5 * stiffness,
+            wall_normal_stiffness=stiffness,
+            wall_tangential_stiffness=0.5 * stiffness,
+        )
+    return params.set(membrane=membrane, dem=dem_params.set(contact=contact)), mesh, state
+
+
 class _System:
     """The equilibrium residual R(u, θ) and the outputs y(u, θ) around one consolidated state."""
 
@@ -184,47 +230,17 @@ class _System:
         The state's parameter-dependent parts (the servo target, the clamp rings) are set from the
         equilibrium's, so applying θ to a state that already carries it changes nothing.
         """
-        test = self.test
-        params = test.params
-        mesh = test.mesh
         value = dict(zip(self.wrt, [theta[k] for k in range(len(self.wrt))], strict=True))
-        membrane, dem_params = params.membrane, params.dem
-        if "cell_pressure_kpa" in value:
-            pressure = 1e3 * value["cell_pressure_kpa"]
-            membrane = membrane.set(cell_pressure=pressure)
-            walls = state.dem.walls
-            state = state.set(
-                dem=state.dem.set(
-                    walls=walls.set(target_stress=jnp.full_like(walls.target_stress, 1.0) * pressure)
-                )
-            )
-        if "membrane_modulus_kpa" in value:
-            membrane = membrane.set(modulus=1e3 * value["membrane_modulus_kpa"])
-        if "membrane_thickness_mm" in value:
-            change = value["membrane_thickness_mm"] - self.config.membrane_thickness_mm
-            membrane = membrane.set(thickness=1e-3 * value["membrane_thickness_mm"])
-            mesh = mesh.set(**{name: getattr(mesh, name) + change * d for name, d in self.geometry.items()})
-            clamp_change = jnp.stack(
-                [self.geometry["reference_position"][ring] for ring in (mesh.bottom_ring, mesh.top_ring)]
-            )
-            clamp = self.state.membrane.clamp_position + change * clamp_change
-            state = state.set(membrane=state.membrane.set(clamp_position=clamp))
-        if "membrane_friction_angle_deg" in value:
-            friction = jnp.tan(jnp.deg2rad(value["membrane_friction_angle_deg"]))
-            membrane = membrane.set(contact=membrane.contact.set(friction_coefficient=friction))
-        contact = dem_params.contact
-        if "friction_angle_deg" in value:
-            contact = contact.set(friction_coefficient=jnp.tan(jnp.deg2rad(value["friction_angle_deg"])))
-        if "particle_stiffness_n_m" in value:
-            stiffness = value["particle_stiffness_n_m"]
-            contact = contact.set(
-                normal_stiffness=stiffness,
-                tangential_stiffness=0.5 * stiffness,
-                wall_normal_stiffness=stiffness,
-                wall_tangential_stiffness=0.5 * stiffness,
-            )
-        params = params.set(membrane=membrane, dem=dem_params.set(contact=contact))
-        return params, test.make_step(mesh), mesh, state
+        params, mesh, state = apply_parameters(
+            value,
+            self.test.params,
+            self.test.mesh,
+            state,
+            thickness_mm=self.config.membrane_thickness_mm,
+            geometry=self.geometry,
+            clamp_position=self.state.membrane.clamp_position,
+        )
+        return params, self.test.make_step(mesh), mesh, state
 
     def displaced(self, u, state):
         """``state`` displaced by u and moving at u/Δt (module docstring); the clamped rings ride along."""

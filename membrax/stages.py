@@ -55,8 +55,9 @@ from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import grow_candidates, grown_candidate_capacities
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.contact import ContactParams
+from membrax.spheres.integrate import DampingParams
 from membrax.spheres.neighbors import remap_pair_history
-from membrax.spheres.packing import fcc_specimen, with_imperfection
+from membrax.spheres.packing import fcc_specimen, particle_mass, with_imperfection
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
 
@@ -159,6 +160,10 @@ def build_test(
         tangential_stiffness=0.5 * config.particle_stiffness_n_m,
     )
     membrane_contact = MembraneContactParams.default(friction_angle_deg=config.membrane_friction_angle_deg)
+    damping = None  # the paper's Cundall local damping
+    if config.viscous_damping:
+        mass = float(particle_mass(config.particle_radius, config.particle_density_kg_m3))
+        damping = DampingParams.equivalent_viscous(config.particle_stiffness_n_m, mass)
     return membrane_test(
         specimen,
         cell_pressure_kpa=config.cell_pressure_kpa,
@@ -166,6 +171,7 @@ def build_test(
         membrane_modulus_kpa=config.membrane_modulus_kpa,
         contact_params=contact,
         membrane_contact=membrane_contact,
+        damping=damping,
         density=config.particle_density_kg_m3,
         edges_per_diameter=config.membrane_edges_per_diameter,
         dt_safety=config.dt_safety,

@@ -13,6 +13,14 @@ of membrax's own code runs strict.
 import os
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # scipy's L-BFGS-B threads only contend on 2 cores
+# One persistent compilation cache for the session, which the notebooks' kernels inherit (nbmake starts
+# them from this process): a program compiled twice (the same specimen's step in a test and a notebook)
+# is read back the second time. Set before jax is imported, which reads these at import.
+if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+    import tempfile
+
+    os.environ["JAX_COMPILATION_CACHE_DIR"] = tempfile.mkdtemp(prefix="membrax_jax_cache_")
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 
 import jax
 

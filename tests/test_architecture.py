@@ -36,7 +36,7 @@ LAYERS = (
     ("triaxial.analysis", "io.files", "io.vtk", "io.results", "io.checkpoint", "io", "plots", "paper"),
     # runs: the stage loop every run and sweep shares, then one test, a grid, the paper
     ("stages",),
-    ("run", "sensitivities"),
+    ("run", "sensitivities", "gradients"),
     ("sweep",),
     ("reproduce",),
     # commands: nothing imports them

@@ -251,7 +251,7 @@ def test_membrax_fit_writes_the_fit_of_the_sweep_files_and_names_a_bad_file(tmp_
     first = io.write_netcdf(_sweep_like(), tmp_path / "a.nc")
     second = io.write_netcdf(_sweep_like(((100.0, 2.5),)), tmp_path / "b.nc")
     out = tmp_path / "corrections.json"
-    assert cli.main(["fit", str(first), str(second), "--out", str(out)]) == 0
+    assert cli.main(["fit", str(first), str(second), "--out", str(out), "--model", "paper"]) == 0
     report = capsys.readouterr().out
     assert "3 cases, 15 records from 2 sweep(s)" in report and "leave-one-case-out" in report
     loaded = persistence.load_corrections(out)

@@ -141,7 +141,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 30
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 31
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 

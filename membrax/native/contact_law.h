@@ -1,12 +1,13 @@
 // The Cundall–Strack contact law shared by the kernels: the tangential spring and the sphere–sphere law.
 //
 // membrax.contact.tangential_spring_update is the reference:
-//   s' = |s| Π_t(s)/|Π_t(s)| − k_t Δt v_t, then s'' = s' min(1, μ F_n/|s'|); s'' = 0 if not in contact.
+//   s' = |s| Π_t(s)/max(|Π_t(s)|, |s|/2) − k_t Δt v_t, then s'' = s' min(1, μ F_n/|s'|); s'' = 0 if not in contact.
 // Branch-free (selects only) and on 3-vectors passed by value, so that a loop calling it vectorises.
 
 #ifndef MEMBRAX_NATIVE_CONTACT_LAW_H_
 #define MEMBRAX_NATIVE_CONTACT_LAW_H_
 
+#include <algorithm>
 #include <cmath>
 
 namespace membrax {
@@ -36,9 +37,10 @@ __attribute__((always_inline)) inline Vec3<T> tangential_spring(Vec3<T> spring, 
                                  T limit, bool active) {
   const T length = std::sqrt(dot(spring, spring));
   const Vec3<T> projected = spring - dot(spring, normal) * normal;
-  const T projected_sq = dot(projected, projected);
-  // Rotated into the tangent plane with its length kept (zero if the spring stood along the normal).
-  const T rotate = projected_sq > T(0) ? length / std::sqrt(projected_sq > T(0) ? projected_sq : T(1)) : T(0);
+  // Rotated into the tangent plane with its length kept; the rescaling is capped at 2 (a spring more than
+  // 60° out of the plane is round-off, e.g. 1e-18 N along the normal of an FCC contact), as in the JAX law.
+  const T denominator_sq = std::max(dot(projected, projected), T(0.25) * length * length);
+  const T rotate = denominator_sq > T(0) ? length / std::sqrt(denominator_sq > T(0) ? denominator_sq : T(1)) : T(0);
   const Vec3<T> trial = rotate * projected - stiffness_dt * tangential_velocity;
   const T trial_length = std::sqrt(dot(trial, trial));
   const T slip = trial_length > limit ? limit / (trial_length > T(0) ? trial_length : T(1)) : T(1);

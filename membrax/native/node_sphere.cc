@@ -5,7 +5,7 @@
 // derivatives. For each slot (node n, candidate k) with sphere i = idx[n, k] < N:
 //   b = x_n − x_i, δ = R_i + t_m/2 − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on the node),
 //   v_t = Π_t[v_n − (v_i + ω_i × b)],
-//   s' = Coulomb-capped (|s| Π_t(s)/|Π_t(s)| − k_t v_t Δt), |s'| ≤ μ k_n δ, s' = 0 when δ ≤ 0,
+//   s' = Coulomb-capped (|s| Π_t(s)/max(|Π_t(s)|, |s|/2) − k_t v_t Δt), |s'| ≤ μ k_n δ, s' = 0 when δ ≤ 0,
 //   F = F_n + s' on the node, −F on the sphere, torque b × (−F) on the sphere.
 // A vectorised pass finds the touching slots (about one in ten at paper size); the law and the sums run
 // over those alone, in slot order.

@@ -99,7 +99,8 @@ def tangential_spring_update(
 ):
     """Advance a Cundall–Strack tangential spring by one step.
 
-    s' = Π_t(s) |s|/|Π_t(s)| − k_s v_t Δt, then s'' = s' min(1, μ F_n / |s'|); s'' = 0 if not in contact.
+    s' = Π_t(s) |s|/max(|Π_t(s)|, |s|/2) − k_s v_t Δt, then s'' = s' min(1, μ F_n / |s'|); s'' = 0 if not
+    in contact.
     Π_t removes the normal component, so the spring follows the rotating contact plane.
 
     Args:
@@ -117,7 +118,16 @@ def tangential_spring_update(
     """
     length = safe_norm(spring)
     projected = spring - scale(dot(spring, normal), normal)
-    direction, _ = safe_normalize(projected)
+    # |s| Π_t(s)/|Π_t(s)|, the rescaling capped at 2. A physical spring turns by a tiny angle per step
+    # (factor ≈ 1); one more than 60° out of the plane is round-off (1e-18 N along an FCC contact's normal,
+    # measured), where the uncapped factor's derivative, ~|s|/|Π_t(s)|, reached 1e16 and blew up reverse
+    # mode through a rollout. The cap changes only such round-off springs.
+    # (Rounded as |s| · (Π_t(s) · 1/|Π_t(s)|), as before the cap: float32 springs summed over 20,000 steps
+    # keep their earlier round-off.)
+    denominator_squared = jnp.maximum(dot(projected, projected), 0.25 * length * length)
+    positive = denominator_squared > 0.0
+    denominator = jnp.where(positive, jnp.sqrt(jnp.where(positive, denominator_squared, 1.0)), 0.0)
+    direction = select(positive, scale(1.0 / jnp.where(positive, denominator, 1.0), projected))
     trial = scale(length, direction) - scale(tangential_stiffness * dt, tangential_velocity)
     trial_length = safe_norm(trial)
     limit = friction_coefficient * normal_force

@@ -1,0 +1,238 @@
+"""Gradients through a rollout of the simulator: reverse mode over ``jax.checkpoint`` windows, vmapped.
+
+Contract. :func:`consolidation_rollout` builds, for a list of configurations that may differ in the
+batched fields (σc, t_m, E_m, …: :data:`membrax.stages.BATCHED_FIELDS`), one :class:`Rollout`:
+``rollout.outputs(theta)`` runs every member from the start of consolidation (as-built specimen and
+membrane, both platens servo-controlled to σc A₀) for ``steps`` time steps and returns the §4.3 stresses
+of :data:`membrax.sensitivities.OUTPUTS` at the end (areas from the end, as Table 3's from the start of
+shearing), (B, 6) in Pa, for parameters ``theta`` (B, P) in
+configuration units (the ``wrt`` names, from :data:`membrax.sensitivities.PARAMETERS`). It is a pure
+function of ``theta`` under ``jit``, ``vmap`` (it is one) and reverse mode (``jax.grad``, ``jax.vjp``,
+``jax.jacrev``); forward mode is not defined (the compiled kernels carry reverse-mode rules only,
+:mod:`membrax.native`). :func:`rollout_jacobian` returns the values and dy/dθ of every member from one
+compiled call; :func:`rollout_differences` the same by central differences of the forward rollout.
+
+Memory: each member's rollout is a ``lax.scan`` over windows of ``window`` steps, each window wrapped in
+``jax.checkpoint``, so reverse mode keeps steps/window window-start states and recomputes one window's
+steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward).
+
+Which outputs have a derivative. The rollout is differentiable where the map θ → final state is: with
+``viscous_damping`` (the smooth mode, :class:`membrax.config.TriaxialConfig`), the step is continuous and
+piecewise smooth in the state and θ (Coulomb caps and contact onsets are kinks, not jumps) and reverse
+mode matches central differences within 1e-3 (``tests/test_gradients.py``). In the paper's mode (Cundall
+local damping, F − α|F| sign(v)) the step jumps by 2α|F|Δt/m wherever a velocity component changes sign;
+a transient crosses such jumps on every sphere and node, the final state is discontinuous in θ and no
+derivative exists: central differences do not converge (their value changes sign with the step), and
+reverse mode returns the derivative of the smooth pieces, which grows without bound with the steps.
+There, use the implicit derivatives of the consolidated equilibrium (:mod:`membrax.sensitivities`); the
+friction angles, which the equilibrium does not see (every contact stuck), need the rollout.
+
+t_m is applied as in :mod:`membrax.sensitivities` (the rest geometry and clamp rings moved linearly along
+their derivative, by central differences of the mesh construction), exact to first order at the members'
+own t_m.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from membrax.config import TriaxialConfig
+from membrax.errors import OVERFLOWS, describe
+from membrax.membrane import measure as membrane_measure
+from membrax.membrane import mesh as membrane_lib
+from membrax.sensitivities import OUTPUTS, PARAMETERS, _geometry_derivative, apply_parameters
+from membrax.spheres.walls import platen_separation
+from membrax.stages import GEOMETRY_FIELDS, BatchedTest, build_batch
+
+__all__ = ["Rollout", "consolidation_rollout", "rollout_differences", "rollout_jacobian"]
+
+
+@dataclasses.dataclass
+class Rollout:
+    """A batch's consolidation rollout as a function of its parameters (module docstring).
+
+    Attributes:
+      batch: the members (:class:`membrax.stages.BatchedTest`, in the configurations' order).
+      wrt: parameter names (:data:`membrax.sensitivities.PARAMETERS`).
+      steps: time steps from the start of consolidation, a multiple of ``window``.
+      window: steps per ``jax.checkpoint`` window.
+      theta0: (B, P) the members' own parameter values, configuration units.
+    """
+
+    batch: BatchedTest
+    wrt: tuple
+    steps: int
+    window: int
+    theta0: np.ndarray
+    geometry: dict
+
+    def member_outputs(self, theta, params, member, state, geometry):
+        """One member's outputs (6,), Pa, at ``theta`` (P,): the rollout and the §4.3 measurement."""
+        template = self.batch.tests[0]
+        mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
+        values = dict(zip(self.wrt, [theta[k] for k in range(len(self.wrt))], strict=True))
+        thickness_mm = 1e3 * params.membrane.thickness
+        params, mesh, state = apply_parameters(
+            values,
+            params,
+            mesh,
+            state,
+            thickness_mm=thickness_mm,
+            geometry=geometry,
+            clamp_position=state.membrane.clamp_position,
+        )
+        step = template.make_step(mesh)
+
+        @jax.checkpoint
+        def window(s, _):
+            return jax.lax.fori_loop(0, self.window, lambda _, x: step(x, params), s), None
+
+        final, _ = jax.lax.scan(window, state, None, length=self.steps // self.window)
+        # Measured as membrax.sensitivities does (Table 3: areas from the start of shearing, here the end of
+        # the rollout, so A = A₀), not against the as-built volume, which the indenting membrane leaves
+        # ~11 % larger on the 4 × 4 × 5 specimen.
+        height = platen_separation(final.dem.walls)[0]
+        volume = membrane_lib.inner_volume(final.membrane.position, mesh, params.membrane.contact_thickness)
+        measured = membrane_measure.measure_coupled(
+            final, template.particles, mesh, params, template.dt, height, volume, template.platen_area
+        )
+        external = jnp.stack([measured.external_axial_stress[0], measured.external_radial_stress[0]])
+        internal = jnp.stack([measured.internal_axial_stress[0], measured.internal_radial_stress[0]])
+        return jnp.concatenate([external, internal, internal - external]), final.dem.error
+
+    def outputs_and_errors(self, theta):
+        """((B, 6) outputs in Pa, (B,) error bits) at ``theta`` (B, P)."""
+        batch = self.batch
+        real = jax.tree_util.tree_map(lambda leaf: leaf[: batch.num_members], batch.params)
+        members = jax.tree_util.tree_map(lambda leaf: leaf[: batch.num_members], batch.members)
+        states = jax.tree_util.tree_map(lambda leaf: leaf[: batch.num_members], batch.initial_state)
+        return jax.vmap(self.member_outputs)(jnp.asarray(theta), real, members, states, self.geometry)
+
+    def outputs(self, theta):
+        """(B, 6) outputs, Pa, at ``theta`` (B, P), configuration units; differentiable (reverse mode)."""
+        return self.outputs_and_errors(theta)[0]
+
+    @functools.cached_property
+    def forward(self):
+        """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout."""
+        return jax.jit(self.outputs_and_errors)
+
+
+def consolidation_rollout(
+    configs: Sequence[TriaxialConfig] | TriaxialConfig, wrt: Sequence[str], steps: int, window: int = 50
+) -> Rollout:
+    """The consolidation rollout of ``configs`` (one batch, one Δt and mesh topology) over ``wrt``.
+
+    Run in float64 (``jax.enable_x64``) with ``float64 = true`` configurations for derivative checks. The
+    neighbour lists and node candidate tables are sized by one forward rollout first (grown and rerun on
+    overflow), so the differentiated rollout never reallocates.
+
+    Args:
+      configs: one configuration or several that differ only in batched fields.
+      wrt: parameter names, from :data:`membrax.sensitivities.PARAMETERS`.
+      steps: time steps from the start of consolidation (rounded up to whole windows).
+      window: steps per checkpoint window.
+
+    Raises:
+      ValueError: an unknown parameter, or steps or window below 1.
+      membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
+    """
+    from membrax.driver import SimulationError
+
+    configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
+    wrt = tuple(wrt)
+    unknown = [name for name in wrt if name not in PARAMETERS]
+    if unknown or not wrt:
+        raise ValueError(f"wrt {unknown}: choose one or more of {', '.join(PARAMETERS)}.")
+    if steps < 1 or window < 1:
+        raise ValueError(f"steps = {steps}, window = {window}: give positive integers.")
+    steps = window * -(-steps // window)
+    batch = build_batch(configs, order=list(range(len(configs))), mode="vmap", num_devices=1)
+    if "membrane_thickness_mm" in wrt:
+        geometry = [_geometry_derivative(c, t) for c, t in zip(batch.configs, batch.tests, strict=True)]
+        geometry = {name: jnp.stack([g[name] for g in geometry]) for name in GEOMETRY_FIELDS}
+    else:
+        geometry = {}
+    theta0 = np.asarray([[float(getattr(c, name)) for name in wrt] for c in batch.configs])
+    rollout = Rollout(batch, wrt, steps, window, theta0, geometry)
+    forward = rollout.forward
+    for _ in range(8):
+        _, errors = forward(jnp.asarray(theta0))
+        errors = np.asarray(errors)
+        if not np.any(errors & int(OVERFLOWS)):
+            break
+        # Grow the start states' tables to what the rollout needed, and run again.
+        states = batch.initial_state
+        final = _final_states(rollout, theta0)
+        batch.initial_state = batch._grow(states, np.bitwise_or.reduce(errors), final.membrane.candidates)
+    bad = np.flatnonzero(errors)
+    if bad.size:
+        raise SimulationError(
+            f"member {int(bad[0])} ({batch.configs[int(bad[0])].name}) failed in the rollout: "
+            + "; ".join(describe(int(errors[bad[0]])))
+        )
+    return rollout
+
+
+def _final_states(rollout: Rollout, theta0):
+    """The members' final states of a forward rollout (to size the tables after an overflow)."""
+    batch = rollout.batch
+    template = batch.tests[0]
+
+    def one(params, member, state):
+        mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
+        step = template.make_step(mesh)
+        return jax.lax.fori_loop(0, rollout.steps, lambda _, x: step(x, params), state)
+
+    return jax.jit(jax.vmap(one))(batch.params, batch.members, batch.initial_state)
+
+
+def rollout_jacobian(rollout: Rollout, theta=None) -> tuple[np.ndarray, np.ndarray]:
+    """(outputs (B, 6), Pa; dy/dθ (B, 6, P), Pa per unit) at ``theta`` (default the members' own).
+
+    One compiled call: ``jax.jacrev`` of each member's rollout, vmapped over the members.
+    """
+    theta = rollout.theta0 if theta is None else np.asarray(theta)
+    batch = rollout.batch
+    count = batch.num_members
+
+    def member(t, params, m, state, geometry):
+        def outputs(t_):
+            return rollout.member_outputs(t_, params, m, state, geometry)[0]
+
+        value, pullback = jax.vjp(outputs, t)
+        rows = jax.vmap(pullback)(jnp.eye(len(OUTPUTS), dtype=value.dtype))[0]
+        return value, rows
+
+    def all_members(t):
+        real = jax.tree_util.tree_map(lambda leaf: leaf[:count], batch.params)
+        members = jax.tree_util.tree_map(lambda leaf: leaf[:count], batch.members)
+        states = jax.tree_util.tree_map(lambda leaf: leaf[:count], batch.initial_state)
+        return jax.vmap(member)(t, real, members, states, rollout.geometry)
+
+    value, jacobian = jax.jit(all_members)(jnp.asarray(theta))
+    return np.asarray(value), np.asarray(jacobian)
+
+
+def rollout_differences(rollout: Rollout, relative_step: float = 1e-4, theta=None) -> np.ndarray:
+    """dy/dθ (B, 6, P) by central differences of the forward rollout, h = ``relative_step`` × |θ|."""
+    theta = rollout.theta0 if theta is None else np.asarray(theta, dtype=float)
+
+    def forward(t):
+        return rollout.forward(t)[0]
+
+    columns = []
+    for k in range(theta.shape[1]):
+        step = relative_step * np.abs(theta[:, k])
+        plus, minus = theta.copy(), theta.copy()
+        plus[:, k] += step
+        minus[:, k] -= step
+        difference = np.asarray(forward(jnp.asarray(plus))) - np.asarray(forward(jnp.asarray(minus)))
+        columns.append(difference / (2.0 * step[:, None]))
+    return np.stack(columns, axis=-1)

@@ -1,0 +1,135 @@
+"""Gradients through rollouts (membrax.gradients), the smooth mode and the inverse problem (calibrate.inverse)
+
+Smoothness conditions of the gradient checks. Reverse mode through a rollout is the derivative of the map
+θ → final state where that map is smooth. In the smooth mode (``viscous_damping = true``) each step is
+continuous and piecewise smooth; its kinks are contact onsets and Coulomb caps. Central differences with
+h = 1e-6 θ match the reverse-mode derivative where no contact opens, closes or starts to slide between θ − h
+and θ + h at any step; at h = 1e-4 θ some do during the consolidation transient (measured: up to 15 %
+apart on internal σ1 w.r.t. σc after 1,000 steps), at 1e-6 θ they agree within 4e-6. The paper's damping
+(Cundall local, sign(v)) makes the step discontinuous instead, and there is no derivative to check
+(membrax.gradients).
+"""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from calibrate import inverse
+from membrax import gradients, sensitivities
+from membrax.config import TriaxialConfig
+from membrax.spheres.contact import tangential_spring_update
+from membrax.spheres.integrate import DampingParams
+from membrax.spheres.packing import particle_mass
+from membrax.stages import build_test
+
+SMOOTH = TriaxialConfig(
+    particles_across=4,
+    layers=5,
+    membrane_edges_per_diameter=2.0,
+    cell_pressure_kpa=10.0,
+    membrane_thickness_mm=5.0,
+    float64=True,
+    viscous_damping=True,
+)
+
+
+def test_viscous_damping_removes_what_local_damping_does_per_cycle_and_is_off_by_default():
+    # off: the paper's Cundall local damping α = 0.3 and no viscous term, as before the option existed
+    paper = build_test(dataclasses.replace(SMOOTH, viscous_damping=False)).params.dem.damping
+    assert float(paper.local_coefficient) == pytest.approx(0.3) and float(paper.viscous_rate) == 0.0
+    # on: equal energy loss per cycle of a contact oscillator (k_n, m): 2αkA² = 4πζ·½kA², γ = 2ζω = 2αω/π
+    smooth = build_test(SMOOTH).params.dem.damping
+    mass = float(particle_mass(SMOOTH.particle_radius, SMOOTH.particle_density_kg_m3))
+    omega = math.sqrt(SMOOTH.particle_stiffness_n_m / mass)
+    assert float(smooth.local_coefficient) == 0.0
+    assert float(smooth.viscous_rate) == pytest.approx(2 * 0.3 * omega / math.pi, rel=1e-6)
+    # the derivation, checked on one oscillator (k, m) integrated over one period from x = A at rest, for a
+    # light α = 0.01 where the per-cycle losses are linear in the damping: the two lose the same energy
+    k, m, alpha = 1e7, mass, 0.01
+    gamma = float(DampingParams.equivalent_viscous(k, m, alpha).viscous_rate)
+    period = 2 * math.pi * math.sqrt(m / k)
+    dt = period / 20000
+
+    def energy_lost(force):
+        x, v = 1e-4, 0.0
+        for _ in range(20000):
+            v += dt * force(x, v) / m
+            x += dt * v
+        return 1.0 - (0.5 * k * x * x + 0.5 * m * v * v) / (0.5 * k * 1e-8)
+
+    local = energy_lost(lambda x, v: -k * x - alpha * abs(k * x) * np.sign(v))
+    viscous = energy_lost(lambda x, v: -k * x - gamma * m * v)
+    assert viscous == pytest.approx(local, rel=0.02)
+    assert local == pytest.approx(4 * alpha, rel=0.02)  # 2αkA² of ½kA²
+    assert DampingParams.equivalent_viscous(1e7, mass).viscous_rate == pytest.approx(smooth.viscous_rate)
+
+
+def test_spring_rotation_is_unchanged_for_physical_springs_and_bounded_for_round_off_ones():
+    with jax.enable_x64(True):
+        normal = jnp.array([0.0, 0.0, 1.0])
+        zero = jnp.zeros(3)
+
+        def update(spring):
+            return tangential_spring_update(spring, normal, zero, 1e-5, 5e6, 10.0, 100.0, True)
+
+        # a spring tilted 1e-3 rad out of the tangent plane comes back into it with its length kept:
+        # |s| Π_t(s)/|Π_t(s)| (the law before the cap, by hand)
+        tilted = jnp.array([0.3, 0.4, 0.5 * 1e-3])
+        expected = 0.5 * np.array([0.6, 0.8, 0.0]) * np.linalg.norm(tilted) / 0.5
+        np.testing.assert_allclose(update(tilted), expected, rtol=1e-14)
+        # a round-off spring along the normal (1e-18 N, measured in FCC contacts): the uncapped rescaling
+        # |s|/|Π_t(s)| had a derivative of ~1e16; capped at 2 the Jacobian stays O(1) and equals
+        # central differences
+        round_off = jnp.array([1e-24, 0.0, 1e-18])
+        jacobian = np.asarray(jax.jacrev(update)(round_off))
+        assert np.max(np.abs(jacobian)) <= 2.0 + 1e-12
+        assert np.max(np.abs(update(round_off))) <= 2.0 * 1e-24 + 1e-30
+        spring = jnp.array([0.3, -0.2, 0.25])  # 44° out of the plane: still uncapped, a smooth region
+        jacobian = np.asarray(jax.jacrev(update)(spring))
+        for k in range(3):
+            step = np.zeros(3)
+            step[k] = 1e-6
+            difference = (np.asarray(update(spring + step)) - np.asarray(update(spring - step))) / 2e-6
+            np.testing.assert_allclose(jacobian[:, k], difference, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.slow
+def test_checkpointed_rollout_gradients_match_central_differences_under_vmap():
+    # two Table 1-like members in one compiled call (vmap): 10 kPa in 5 mm, 40 kPa in 2.5 mm
+    configs = [SMOOTH, dataclasses.replace(SMOOTH, cell_pressure_kpa=40.0, membrane_thickness_mm=2.5)]
+    wrt = ("cell_pressure_kpa", "membrane_modulus_kpa", "membrane_friction_angle_deg")
+    with jax.enable_x64(True):
+        rollout = gradients.consolidation_rollout(configs, wrt, steps=1000, window=50)
+        values, jacobian = gradients.rollout_jacobian(rollout)
+        differences = gradients.rollout_differences(rollout, relative_step=1e-6)
+    assert values.shape == (2, len(sensitivities.OUTPUTS)) and jacobian.shape == (2, 6, 3)
+    # the external stresses are the servo's and the cell's: σ_ext = σc (kPa → Pa: 1e3), within the servo's
+    # unfinished transient at 1,000 steps
+    np.testing.assert_allclose(values[:, 1], [1e4, 4e4], rtol=1e-9)
+    np.testing.assert_allclose(jacobian[:, 1, 0], 1e3, rtol=1e-9)
+    internal = [sensitivities.OUTPUTS.index(n) for n in ("internal_axial_stress", "internal_radial_stress")]
+    for b in range(2):
+        for row in internal:
+            np.testing.assert_allclose(jacobian[b, row], differences[b, row], rtol=1e-3)
+    # membrane friction acts along the path (the equilibrium's implicit derivative is 0): here it is not
+    assert np.all(np.abs(jacobian[:, internal, 2]) > 1.0)  # Pa per degree
+
+
+@pytest.mark.slow
+def test_inverse_problem_recovers_modulus_and_friction_from_fifty_percent_off():
+    true = {"membrane_modulus_kpa": 1400.0, "membrane_friction_angle_deg": 25.0}
+    start = {"membrane_modulus_kpa": 2100.0, "membrane_friction_angle_deg": 12.5}
+    with jax.enable_x64(True):
+        problem = inverse.InverseProblem(SMOOTH, tuple(true), steps=2000)
+        observed = problem.observe()  # at the configuration's own E_m = 1400 kPa, φ_m = 25°
+        result = inverse.invert(problem, observed, start)
+    for name, value in true.items():
+        assert result.parameters[name] == pytest.approx(value, rel=0.02), name
+    assert result.objective < 1e-10
+    assert result.gradient_calls <= 30
+    # the misfit falls from the start: J(start) is the first of the history
+    assert result.history[0][1] > 1e-3 > result.history[-1][1]
