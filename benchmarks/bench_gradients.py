@@ -11,11 +11,11 @@ servo-controlled to σc A₀, the consolidation stage), y = the internal σ1 at 
 each in its own process, once per dtype, printing compile time, run time (best of 3), peak RSS and the
 ratios reverse/forward. The issue's goals at paper size: memory ≤ 2×, time ≤ 4×.
 
-This measures cost, not correctness. The paper's mode (Cundall local damping, hard Coulomb, contact onset)
-is differentiable only almost everywhere, and through this transient the gradient explodes. On the small
-specimen in float64, reverse mode gives dσ1/dσc = −6.0e7, against central differences of 1.03 (h = 1e-4
-σc) and −36 (h = 1e-6 σc). Use the implicit derivatives at the equilibrium
-(:mod:`membrax.sensitivities`).
+This measures cost, not correctness, in the paper's mode (Cundall local damping), which has no derivative
+through this transient (its step jumps where a velocity changes sign; membrax.gradients): the gradient
+printed is the derivative of the smooth pieces and means nothing. The smooth mode (``viscous_damping``)
+runs the same kernels and the same work per step; its gradients are checked against central differences
+in ``tests/test_gradients.py``.
 
 Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--steps 2000] [--window 50]``.
 """

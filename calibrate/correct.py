@@ -231,6 +231,10 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
       record: a :class:`calibrate.lab.LabRecord`.
       specimen: the :class:`Specimen`.
       corrections: a :class:`calibrate.persistence.Corrections` (default :func:`default_corrections`).
+
+    Returns:
+      A :class:`CorrectedRecord`: per method σ1, σ3 (Pa) and φ' (degrees), with the fitted method's
+      standard deviations.
     """
     from membrax.triaxial.analysis import strain_ratio_change
 

@@ -131,6 +131,10 @@ def run_grid(folder, groups=None, progress: bool = True) -> list[Path]:
 
 
 def main(argv=None) -> int:
+    """``python -m calibrate.grid FOLDER [--held-out] [--commands]``: run (or print) the calibration sweeps.
+
+    Returns the exit status (0).
+    """
     parser = argparse.ArgumentParser(prog="python -m calibrate.grid", description=__doc__.split("\n")[0])
     parser.add_argument("folder", help="where each group's sweep folder is written")
     parser.add_argument("--held-out", action="store_true", help="run the held-out members instead")

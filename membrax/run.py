@@ -71,7 +71,17 @@ __all__ = [
 
 @dataclasses.dataclass
 class RunResult:
-    """What :func:`run_test` produced."""
+    """What :func:`run_test` produced.
+
+    Attributes:
+      folder: the results folder.
+      results: xarray.Dataset of the shearing records (stresses in Pa, strains as fractions, SI throughout;
+        the columns of :class:`membrax.membrane.measure.MembraneMeasurements`).
+      consolidation: xarray.Dataset of the consolidation records, the same columns.
+      summary: the Markdown summary (Table 2/3 numbers in kPa and degrees).
+      files: {kind: path} of the files written.
+      metadata: the run's provenance (configuration, version, steps, wall times in s).
+    """
 
     folder: Path
     results: object  # xarray.Dataset of the shearing records

@@ -409,8 +409,17 @@ def sensitivity(
 ) -> SensitivityTable:
     """The sensitivity table of a configuration's consolidated equilibrium (module docstring).
 
-    Runs in float64 (scoped to this call). Outputs are named from :data:`OUTPUTS`, parameters from
-    :data:`PARAMETERS`.
+    Runs in float64 (scoped to this call).
+
+    Args:
+      config: the test; it is consolidated to an unbalanced-force ratio ≤ ``tolerance``.
+      outputs: names from :data:`OUTPUTS` (stresses in Pa).
+      wrt: names from :data:`PARAMETERS` (configuration fields, in their units: kPa, mm, degrees, N/m).
+      finite_differences: also compute the continuation differences (the check column).
+      tolerance: the unbalanced-force ratio that ends consolidation (dimensionless).
+
+    Returns:
+      A :class:`SensitivityTable`: derivatives in Pa per unit of the parameter, elasticities dimensionless.
 
     Raises:
       ValueError: an unknown output or parameter.
