@@ -107,23 +107,23 @@ FCC_VOID_RATIO = FCC_POROSITY / FCC_SOLID_FRACTION
 
 
 def stress_ratio(sigma_1, sigma_3):
-    """Principal stress ratio R = σ1/σ3.
+    """Principal stress ratio R = σ1/σ3 (dimensionless).
 
     Args:
-      sigma_1: major principal (axial) effective stress.
-      sigma_3: minor principal (radial) effective stress, > 0.
+      sigma_1: major principal (axial) effective stress, any stress unit (Pa, kPa).
+      sigma_3: minor principal (radial) effective stress in the same unit, > 0.
     """
     check_range("sigma_3", sigma_3, **_POSITIVE)
     return _as_float(sigma_1) / _as_float(sigma_3)
 
 
 def mean_stress(sigma_1, sigma_3):
-    """Mean stress p = (σ1 + 2σ3)/3 for axisymmetric (triaxial) conditions."""
+    """Mean stress p = (σ1 + 2σ3)/3 for axisymmetric (triaxial) conditions, in the unit of σ1 and σ3."""
     return (_as_float(sigma_1) + 2.0 * _as_float(sigma_3)) / 3.0
 
 
 def deviator_stress(sigma_1, sigma_3):
-    """Deviator stress q = σ1 − σ3."""
+    """Deviator stress q = σ1 − σ3, in the unit of σ1 and σ3."""
     return _as_float(sigma_1) - _as_float(sigma_3)
 
 
@@ -578,9 +578,9 @@ def henkel_gilbert_shell_correction(
     Undrained (εv = 0): Δσ_a = 4 M ε_a √(1 − ε_a)/D0   [U model, D mechanics; reference §1(a)]
 
     Args:
-      membrane_modulus: E_m.
-      membrane_thickness: t_m.
-      initial_diameter: D0 of the specimen (right cylinder).
+      membrane_modulus: E_m, Pa (or kPa: Δσ comes out in E_m's unit).
+      membrane_thickness: t_m, m (or mm, with D0 in the same unit).
+      initial_diameter: D0 of the specimen (right cylinder), in t_m's unit.
       axial_strain: ε_a, compression positive, < 1.
       volumetric_strain: ε_v, contraction positive, < 1 (0: undrained).
     """
@@ -613,9 +613,9 @@ def hoop_tension_correction(
     radially.
 
     Args:
-      membrane_modulus: E_m.
-      membrane_thickness: t_m.
-      initial_diameter: D0 of the specimen.
+      membrane_modulus: E_m, Pa (or kPa: Δσ comes out in E_m's unit).
+      membrane_thickness: t_m, m (or mm, with the diameters in the same unit).
+      initial_diameter: D0 of the specimen, in t_m's unit.
       axial_strain: ε_a, < 1.
       volumetric_strain: ε_v, < 1 (0: undrained).
       unstretched_membrane_diameter: D_m0; defaults to D0.
@@ -659,9 +659,9 @@ def right_cylinder_shell_correction(
     [C abstract of Kuerbis & Vaid (1990) GTJ 13(4); printed equations U; derivation D, reference §3]
 
     Args:
-      membrane_modulus: E_m.
-      membrane_thickness: t_m (unstretched).
-      membrane_diameter: D, the unstretched membrane (cavity) diameter.
+      membrane_modulus: E_m, Pa (or kPa: Δσ comes out in E_m's unit).
+      membrane_thickness: t_m (unstretched), m (or mm, with D in the same unit).
+      membrane_diameter: D, the unstretched membrane (cavity) diameter, in t_m's unit.
       axial_strain: ε_a of the membrane cavity, compression positive, < 1.
       volumetric_strain: ε_v of the membrane cavity, contraction positive, < 1.
       poisson_ratio: ν_m (0.5 for latex), in [0, 0.5].
