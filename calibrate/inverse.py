@@ -40,7 +40,7 @@ from membrax.config import TriaxialConfig
 from membrax.gradients import consolidation_rollout
 from membrax.sensitivities import OUTPUTS
 
-__all__ = ["OBSERVED", "InverseProblem", "InverseResult", "invert", "invert_gradient_free", "observe"]
+__all__ = ["OBSERVED", "InverseProblem", "InverseResult", "invert", "invert_gradient_free"]
 
 #: The observed outputs: the initial internal stresses (Pa).
 OBSERVED = ("internal_axial_stress", "internal_radial_stress")
@@ -140,11 +140,6 @@ class InverseProblem:
     def parameters(self, x, start) -> dict:
         """{name: start · exp(x)}."""
         return dict(zip(self.wrt, (np.asarray(start) * np.exp(np.asarray(x))).tolist(), strict=True))
-
-
-def observe(configs, steps: int, window: int = 50) -> np.ndarray:
-    """The internal σ1, σ3 (B, 2), Pa, of ``configs`` at their own parameters (synthetic observations)."""
-    return InverseProblem(configs, ("membrane_modulus_kpa",), steps, window).observe()
 
 
 def invert(

@@ -44,10 +44,12 @@ import numpy as np
 
 from membrax.config import TriaxialConfig
 from membrax.errors import OVERFLOWS, describe
-from membrax.membrane import measure as membrane_measure
-from membrax.membrane import mesh as membrane_lib
-from membrax.sensitivities import OUTPUTS, PARAMETERS, _geometry_derivative, apply_parameters
-from membrax.spheres.walls import platen_separation
+from membrax.sensitivities import (
+    PARAMETERS,
+    _geometry_derivative,
+    apply_parameters,
+    measure_outputs,
+)
 from membrax.stages import GEOMETRY_FIELDS, BatchedTest, build_batch
 
 __all__ = ["Rollout", "consolidation_rollout", "rollout_differences", "rollout_jacobian"]
@@ -94,25 +96,19 @@ class Rollout:
             return jax.lax.fori_loop(0, self.window, lambda _, x: step(x, params), s), None
 
         final, _ = jax.lax.scan(window, state, None, length=self.steps // self.window)
-        # Measured as membrax.sensitivities does (Table 3: areas from the start of shearing, here the end of
-        # the rollout, so A = A₀), not against the as-built volume, which the indenting membrane leaves
-        # ~11 % larger on the 4 × 4 × 5 specimen.
-        height = platen_separation(final.dem.walls)[0]
-        volume = membrane_lib.inner_volume(final.membrane.position, mesh, params.membrane.contact_thickness)
-        measured = membrane_measure.measure_coupled(
-            final, template.particles, mesh, params, template.dt, height, volume, template.platen_area
-        )
-        external = jnp.stack([measured.external_axial_stress[0], measured.external_radial_stress[0]])
-        internal = jnp.stack([measured.internal_axial_stress[0], measured.internal_radial_stress[0]])
-        return jnp.concatenate([external, internal, internal - external]), final.dem.error
+        return measure_outputs(final, template, mesh, params), final.dem.error
 
     def outputs_and_errors(self, theta):
         """((B, 6) outputs in Pa, (B,) error bits) at ``theta`` (B, P)."""
+        return jax.vmap(self.member_outputs)(jnp.asarray(theta), *self.real_members(), self.geometry)
+
+    def real_members(self):
+        """(params, members, start states) of the real members (the batch's padding dropped)."""
+        count = self.batch.num_members
         batch = self.batch
-        real = jax.tree_util.tree_map(lambda leaf: leaf[: batch.num_members], batch.params)
-        members = jax.tree_util.tree_map(lambda leaf: leaf[: batch.num_members], batch.members)
-        states = jax.tree_util.tree_map(lambda leaf: leaf[: batch.num_members], batch.initial_state)
-        return jax.vmap(self.member_outputs)(jnp.asarray(theta), real, members, states, self.geometry)
+        return jax.tree_util.tree_map(
+            lambda leaf: leaf[:count], (batch.params, batch.members, batch.initial_state)
+        )
 
     def outputs(self, theta):
         """(B, 6) outputs, Pa, at ``theta`` (B, P), configuration units; differentiable (reverse mode)."""
@@ -169,7 +165,7 @@ def consolidation_rollout(
             break
         # Grow the start states' tables to what the rollout needed, and run again.
         states = batch.initial_state
-        final = _final_states(rollout, theta0)
+        final = _final_states(rollout)
         batch.initial_state = batch._grow(states, np.bitwise_or.reduce(errors), final.membrane.candidates)
     bad = np.flatnonzero(errors)
     if bad.size:
@@ -180,8 +176,8 @@ def consolidation_rollout(
     return rollout
 
 
-def _final_states(rollout: Rollout, theta0):
-    """The members' final states of a forward rollout (to size the tables after an overflow)."""
+def _final_states(rollout: Rollout):
+    """The members' final states of a forward rollout at their own parameters (to size the tables)."""
     batch = rollout.batch
     template = batch.tests[0]
 
@@ -199,22 +195,17 @@ def rollout_jacobian(rollout: Rollout, theta=None) -> tuple[np.ndarray, np.ndarr
     One compiled call: ``jax.jacrev`` of each member's rollout, vmapped over the members.
     """
     theta = rollout.theta0 if theta is None else np.asarray(theta)
-    batch = rollout.batch
-    count = batch.num_members
 
     def member(t, params, m, state, geometry):
-        def outputs(t_):
-            return rollout.member_outputs(t_, params, m, state, geometry)[0]
+        def outputs(t_):  # the outputs twice: the Jacobian's function and its value (aux)
+            y = rollout.member_outputs(t_, params, m, state, geometry)[0]
+            return y, y
 
-        value, pullback = jax.vjp(outputs, t)
-        rows = jax.vmap(pullback)(jnp.eye(len(OUTPUTS), dtype=value.dtype))[0]
+        rows, value = jax.jacrev(outputs, has_aux=True)(t)
         return value, rows
 
     def all_members(t):
-        real = jax.tree_util.tree_map(lambda leaf: leaf[:count], batch.params)
-        members = jax.tree_util.tree_map(lambda leaf: leaf[:count], batch.members)
-        states = jax.tree_util.tree_map(lambda leaf: leaf[:count], batch.initial_state)
-        return jax.vmap(member)(t, real, members, states, rollout.geometry)
+        return jax.vmap(member)(t, *rollout.real_members(), rollout.geometry)
 
     value, jacobian = jax.jit(all_members)(jnp.asarray(theta))
     return np.asarray(value), np.asarray(jacobian)
