@@ -1,7 +1,12 @@
 """Reverse mode through a rollout of the coupled step, with ``jax.checkpoint``: time and memory vs forward.
 
-For a rollout of N steps (default 2,000) of the membrane test from its as-built state (both platens
-servo-controlled to σc A₀, the consolidation stage), y = the internal σ1 at the end:
+For a rollout of N steps (default 2,000) of the membrane test, y = the internal σ1 at the end, along one
+of two stages (``--stage``):
+
+- ``shear`` (default): from the state after C steps of consolidation (``--consolidation-steps``, default
+  5,000, run forward and not differentiated), the platens closing at the configuration's strain rate
+  (:meth:`MembraneTest.start_shear`); θ acts on the shearing window only;
+- ``consolidation``: from the as-built state, both platens servo-controlled to σc A₀;
 
 - ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps;
 - ``reverse``: (y, dy/dθ) by ``jax.value_and_grad`` of the same scan, each window wrapped in
@@ -17,7 +22,8 @@ printed is the derivative of the smooth pieces and means nothing. The smooth mod
 runs the same kernels and the same work per step; its gradients are checked against central differences
 in ``tests/test_gradients.py``.
 
-Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--steps 2000] [--window 50]``.
+Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--stage shear|consolidation] [--steps 2000]
+[--window 50] [--consolidation-steps 5000]``.
 """
 
 import argparse
@@ -33,7 +39,9 @@ SIZES = {
 }
 
 
-def child(dtype: str, mode: str, size: str, steps: int, window: int) -> dict:
+def child(
+    dtype: str, mode: str, size: str, steps: int, window: int, stage: str, consolidation_steps: int
+) -> dict:
     import jax
 
     if dtype == "float64":
@@ -47,8 +55,15 @@ def child(dtype: str, mode: str, size: str, steps: int, window: int) -> dict:
     test = build_test(config)
     state = test.start_consolidation(test.initial_state)
     step = test.make_step(test.mesh)
-    record = test.make_record(test.mesh, test.initial_volume)
     base = test.params
+    if stage == "shear":  # consolidate forward (not timed), then shear from there
+        state = jax.jit(lambda s: jax.lax.fori_loop(0, consolidation_steps, lambda _, x: step(x, base), s))(
+            state
+        )
+        state = test.start_shear(
+            state, config.inertial_number, config.shear_ramp_strain, config.symmetric_loading
+        )
+    record = test.make_record(test.mesh, test.initial_volume)  # (areas from the as-built size: cost only)
 
     def output(theta):
         params = base.set(membrane=base.membrane.set(modulus=theta[0], cell_pressure=theta[1]))
@@ -57,7 +72,7 @@ def child(dtype: str, mode: str, size: str, steps: int, window: int) -> dict:
             dem=state.dem.set(
                 walls=walls.set(target_stress=jnp.full_like(walls.target_stress, 1.0) * theta[1])
             )
-        )
+        )  # (the servo target: consolidation's platens; shearing's move at constant velocity)
 
         def body(s, _):
             return jax.lax.fori_loop(0, window, lambda i, x: step(x, params), s), None
@@ -93,13 +108,21 @@ def main() -> None:
     parser.add_argument("--size", choices=tuple(SIZES), default="paper")
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--window", type=int, default=50)
+    parser.add_argument("--stage", choices=("shear", "consolidation"), default="shear")
+    parser.add_argument("--consolidation-steps", type=int, default=5000)
     parser.add_argument("--child", nargs=2, metavar=("DTYPE", "MODE"))
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(child(*args.child, args.size, args.steps, args.window)))
+        print(
+            json.dumps(
+                child(*args.child, args.size, args.steps, args.window, args.stage, args.consolidation_steps)
+            )
+        )
         return
     print(
-        f"gradient benchmark: {args.size} size, {args.steps} steps, windows of {args.window} (jax.checkpoint)"
+        f"gradient benchmark: {args.size} size, {args.stage}, {args.steps} steps, windows of {args.window} "
+        f"(jax.checkpoint)"
+        + (f", after {args.consolidation_steps} steps of consolidation" if args.stage == "shear" else "")
     )
     print(
         f"{'dtype':<8}{'fwd compile':>12}{'fwd run (s)':>12}{'rev compile':>12}{'rev run (s)':>12}"
@@ -109,7 +132,8 @@ def main() -> None:
         rows = {}
         for mode in ("forward", "reverse"):
             command = [sys.executable, __file__, "--child", dtype, mode, "--size", args.size]
-            command += ["--steps", str(args.steps), "--window", str(args.window)]
+            command += ["--steps", str(args.steps), "--window", str(args.window), "--stage", args.stage]
+            command += ["--consolidation-steps", str(args.consolidation_steps)]
             output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
             rows[mode] = json.loads(output.strip().splitlines()[-1])
         forward, reverse = rows["forward"], rows["reverse"]

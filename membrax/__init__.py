@@ -3,7 +3,8 @@
 The package is built to calibrate membrane corrections for large-particle triaxial tests (railway
 ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user needs (:data:`__all__`):
 
-- configuration: :class:`TriaxialConfig`, :func:`load_config`, :data:`DEMO_CONFIG`, :class:`ConfigError`;
+- configuration: :class:`TriaxialConfig`, :func:`load_config`, :data:`DEMO_CONFIG`, :data:`SMOKE_CONFIG`,
+  :class:`ConfigError`;
 - runs: :func:`run_test` (one test into a results folder), :func:`run_sweep` (a grid as one compiled
   batch), :func:`member_records`, :func:`split_cpu_devices` (one JAX device per core; call it first);
 - gradients: :func:`sensitivity` (the consolidated equilibrium's derivatives by implicit differentiation,
@@ -34,6 +35,7 @@ __version__ = "0.1.0"
 _API = {
     "ConfigError": "membrax.config",
     "DEMO_CONFIG": "membrax.config",
+    "SMOKE_CONFIG": "membrax.config",
     "TriaxialConfig": "membrax.config",
     "load_config": "membrax.config",
     "run_test": "membrax.run",

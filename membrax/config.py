@@ -57,6 +57,7 @@ __all__ = [
     "parse_overrides",
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
+    "SMOKE_CONFIG",
     "DEFAULT_CONSOLIDATION_TOLERANCE",
     "default_consolidation_tolerance",
 ]
@@ -76,6 +77,23 @@ DEMO_CONFIG = dict(
     inertial_number=5e-3,
     chunk_steps=5000,
     checkpoint_every_chunks=5,
+)
+
+#: The notebooks' smoke preset (``MEMBRAX_SMOKE=1``, what CI sets; ``notebooks/01``–``03`` add their cell
+#: pressure, thickness or strain): 4 across, 5 layers, a membrane of edge D/3, sheared at I = 5e-3 after a
+#: ramp to 0.1 % strain, to 0.4 % axial strain, recorded every 50 steps to 0.2 % and every 100 after.
+SMOKE_CONFIG = dict(
+    name="smoke",
+    particles_across=4,
+    layers=5,
+    membrane_edges_per_diameter=3.0,
+    target_axial_strain=0.004,
+    inertial_number=5e-3,
+    shear_ramp_strain=1e-3,
+    fine_until_strain=2e-3,
+    record_every_fine=50,
+    record_every_coarse=100,
+    chunk_steps=1000,
 )
 
 

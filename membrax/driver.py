@@ -24,6 +24,7 @@ import math
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from membrax.errors import OVERFLOWS, ErrorCode, describe
@@ -245,8 +246,12 @@ def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors,
 
 
 def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
-    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I (GDR MiDi 2004), 1/s."""
-    return inertial_number / (particle_diameter * math.sqrt(density / confining_stress))
+    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I (GDR MiDi 2004), 1/s.
+
+    Traceable: σ may be a JAX value (a rollout differentiated with respect to σc, :mod:`membrax.gradients`).
+    """
+    sqrt = math.sqrt if isinstance(confining_stress, float | int) else jnp.sqrt
+    return inertial_number / (particle_diameter * sqrt(density / confining_stress))
 
 
 def two_rate_plan(

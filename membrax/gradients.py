@@ -6,7 +6,10 @@ batched fields (σc, t_m, E_m, …: :data:`membrax.stages.BATCHED_FIELDS`), one 
 membrane, both platens servo-controlled to σc A₀) for ``steps`` time steps and returns the §4.3 stresses
 of :data:`membrax.sensitivities.OUTPUTS` at the end (areas from the end, as Table 3's from the start of
 shearing), (B, 6) in Pa, for parameters ``theta`` (B, P) in
-configuration units (the ``wrt`` names, from :data:`membrax.sensitivities.PARAMETERS`). It is a pure
+configuration units (the ``wrt`` names, from :data:`membrax.sensitivities.PARAMETERS`).
+:func:`shearing_rollout` goes on from there into drained shearing (the platens switched to constant
+velocity inside the differentiated function) and measures at the end of shearing, areas from its start;
+the whole path, consolidation included, is differentiated. Each rollout is a pure
 function of ``theta`` under ``jit``, ``vmap`` (it is one) and reverse mode (``jax.grad``, ``jax.vjp``,
 ``jax.jacrev``); forward mode is not defined (the compiled kernels carry reverse-mode rules only,
 :mod:`membrax.native`). :func:`rollout_jacobian` returns the values and dy/dθ of every member from one
@@ -49,22 +52,26 @@ from membrax.sensitivities import (
     _geometry_derivative,
     apply_parameters,
     measure_outputs,
+    reference_size,
 )
 from membrax.stages import GEOMETRY_FIELDS, BatchedTest, build_batch
 
-__all__ = ["Rollout", "consolidation_rollout", "rollout_differences", "rollout_jacobian"]
+__all__ = ["Rollout", "consolidation_rollout", "rollout_differences", "rollout_jacobian", "shearing_rollout"]
 
 
 @dataclasses.dataclass
 class Rollout:
-    """A batch's consolidation rollout as a function of its parameters (module docstring).
+    """A batch's rollout as a function of its parameters (module docstring).
 
     Attributes:
       batch: the members (:class:`membrax.stages.BatchedTest`, in the configurations' order).
       wrt: parameter names (:data:`membrax.sensitivities.PARAMETERS`).
-      steps: time steps from the start of consolidation, a multiple of ``window``.
+      steps: consolidation time steps, a multiple of ``window``.
       window: steps per ``jax.checkpoint`` window.
       theta0: (B, P) the members' own parameter values, configuration units.
+      geometry: d(rest geometry)/d t_m per member (empty unless t_m is in ``wrt``).
+      shear_steps: shearing time steps after the consolidation, a multiple of ``window`` (0: none).
+      shear: (inertial number, ramp strain, symmetric) of the shearing (the configurations').
     """
 
     batch: BatchedTest
@@ -73,9 +80,16 @@ class Rollout:
     window: int
     theta0: np.ndarray
     geometry: dict
+    shear_steps: int = 0
+    shear: tuple = ()
 
-    def member_outputs(self, theta, params, member, state, geometry):
-        """One member's outputs (6,), Pa, at ``theta`` (P,): the rollout and the §4.3 measurement."""
+    def member_final(self, theta, params, member, state, geometry):
+        """One member's run at ``theta`` (P,): (final state, reference (height, volume), mesh, params).
+
+        Consolidation for :attr:`steps`, then, if :attr:`shear_steps`, shearing from where it stopped
+        (the platens switched to constant velocity, :meth:`MembraneTest.start_shear`, the reference the
+        state there); each a ``lax.scan`` over ``jax.checkpoint`` windows.
+        """
         template = self.batch.tests[0]
         mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
         values = dict(zip(self.wrt, [theta[k] for k in range(len(self.wrt))], strict=True))
@@ -96,7 +110,21 @@ class Rollout:
             return jax.lax.fori_loop(0, self.window, lambda _, x: step(x, params), s), None
 
         final, _ = jax.lax.scan(window, state, None, length=self.steps // self.window)
-        return measure_outputs(final, template, mesh, params), final.dem.error
+        reference = None
+        if self.shear_steps:
+            inertial_number, ramp_strain, symmetric = self.shear
+            final = template.start_shear(
+                final, inertial_number, ramp_strain, symmetric, cell_pressure=params.membrane.cell_pressure
+            )
+            reference = reference_size(final, mesh, params)
+            final, _ = jax.lax.scan(window, final, None, length=self.shear_steps // self.window)
+        return final, reference, mesh, params
+
+    def member_outputs(self, theta, params, member, state, geometry):
+        """One member's outputs (6,), Pa, at ``theta`` (P,) (§4.3's stresses at the end), and error bits."""
+        final, reference, mesh, params = self.member_final(theta, params, member, state, geometry)
+        outputs = measure_outputs(final, self.batch.tests[0], mesh, params, reference)
+        return outputs, final.dem.error
 
     def outputs_and_errors(self, theta):
         """((B, 6) outputs in Pa, (B,) error bits) at ``theta`` (B, P)."""
@@ -119,6 +147,14 @@ class Rollout:
         """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout."""
         return jax.jit(self.outputs_and_errors)
 
+    def final_states(self):
+        """The members' final states at their own parameters (to size the tables), stacked."""
+
+        def one(*args):
+            return self.member_final(*args)[0]
+
+        return jax.jit(jax.vmap(one))(jnp.asarray(self.theta0), *self.real_members(), self.geometry)
+
 
 def consolidation_rollout(
     configs: Sequence[TriaxialConfig] | TriaxialConfig, wrt: Sequence[str], steps: int, window: int = 50
@@ -139,6 +175,41 @@ def consolidation_rollout(
       ValueError: an unknown parameter, or steps or window below 1.
       membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
     """
+    return _rollout(configs, wrt, steps, 0, window)
+
+
+def shearing_rollout(
+    configs: Sequence[TriaxialConfig] | TriaxialConfig,
+    wrt: Sequence[str],
+    shear_steps: int,
+    consolidation_steps: int,
+    window: int = 50,
+) -> Rollout:
+    """The rollout of ``configs`` through consolidation and then shearing, for the given steps of each.
+
+    The whole path is differentiated: θ acts on the consolidation, on the start of shearing (σc sets the
+    strain rate ε̇ = I √(σc/ρ)/d) and on the shearing. The shearing is the configurations' own
+    (``inertial_number``, ``shear_ramp_strain``, ``symmetric_loading``); the outputs are §4.3's stresses at
+    the end, with strains and areas counted from the start of shearing (Table 3). As
+    :func:`consolidation_rollout` otherwise (float64 for checks; tables sized by a forward run first).
+
+    Args:
+      configs: one configuration or several that differ only in batched fields.
+      wrt: parameter names, from :data:`membrax.sensitivities.PARAMETERS`.
+      shear_steps: time steps of shearing (rounded up to whole windows), ≥ 1.
+      consolidation_steps: time steps of consolidation before it (rounded up to whole windows), ≥ 1.
+      window: steps per checkpoint window.
+
+    Raises:
+      ValueError: an unknown parameter, steps or window below 1, or configurations that shear differently.
+      membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
+    """
+    if shear_steps < 1:
+        raise ValueError(f"shear_steps = {shear_steps}: give a positive integer.")
+    return _rollout(configs, wrt, consolidation_steps, shear_steps, window)
+
+
+def _rollout(configs, wrt, steps: int, shear_steps: int, window: int) -> Rollout:
     from membrax.driver import SimulationError
 
     configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
@@ -148,7 +219,14 @@ def consolidation_rollout(
         raise ValueError(f"wrt {unknown}: choose one or more of {', '.join(PARAMETERS)}.")
     if steps < 1 or window < 1:
         raise ValueError(f"steps = {steps}, window = {window}: give positive integers.")
+    shear = {(c.inertial_number, c.shear_ramp_strain, c.symmetric_loading) for c in configs}
+    if shear_steps and len(shear) > 1:
+        raise ValueError(
+            f"the configurations shear differently (inertial_number, shear_ramp_strain, symmetric_loading: "
+            f"{sorted(shear)}): give them one shearing."
+        )
     steps = window * -(-steps // window)
+    shear_steps = window * -(-shear_steps // window)
     batch = build_batch(configs, order=list(range(len(configs))), mode="vmap", num_devices=1)
     if "membrane_thickness_mm" in wrt:
         geometry = [_geometry_derivative(c, t) for c, t in zip(batch.configs, batch.tests, strict=True)]
@@ -156,7 +234,7 @@ def consolidation_rollout(
     else:
         geometry = {}
     theta0 = np.asarray([[float(getattr(c, name)) for name in wrt] for c in batch.configs])
-    rollout = Rollout(batch, wrt, steps, window, theta0, geometry)
+    rollout = Rollout(batch, wrt, steps, window, theta0, geometry, shear_steps, next(iter(shear)))
     forward = rollout.forward
     for _ in range(8):
         _, errors = forward(jnp.asarray(theta0))
@@ -164,9 +242,11 @@ def consolidation_rollout(
         if not np.any(errors & int(OVERFLOWS)):
             break
         # Grow the start states' tables to what the rollout needed, and run again.
+        final = rollout.final_states()
         states = batch.initial_state
-        final = _final_states(rollout)
         batch.initial_state = batch._grow(states, np.bitwise_or.reduce(errors), final.membrane.candidates)
+        rollout.__dict__.pop("forward", None)  # the tables' shapes changed: compile again
+        forward = rollout.forward
     bad = np.flatnonzero(errors)
     if bad.size:
         raise SimulationError(
@@ -174,19 +254,6 @@ def consolidation_rollout(
             + "; ".join(describe(int(errors[bad[0]])))
         )
     return rollout
-
-
-def _final_states(rollout: Rollout):
-    """The members' final states of a forward rollout at their own parameters (to size the tables)."""
-    batch = rollout.batch
-    template = batch.tests[0]
-
-    def one(params, member, state):
-        mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
-        step = template.make_step(mesh)
-        return jax.lax.fori_loop(0, rollout.steps, lambda _, x: step(x, params), state)
-
-    return jax.jit(jax.vmap(one))(batch.params, batch.members, batch.initial_state)
 
 
 def rollout_jacobian(rollout: Rollout, theta=None) -> tuple[np.ndarray, np.ndarray]:

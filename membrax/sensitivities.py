@@ -301,15 +301,22 @@ class _System:
         return residual, outputs
 
 
-def measure_outputs(state, test, mesh, params):
-    """The :data:`OUTPUTS` (6,), Pa, of a membrane-test state measured against itself.
+def reference_size(state, mesh, params):
+    """(height between the platens (m), volume inside the membrane (m³)) of a membrane-test state."""
+    height = platen_separation(state.dem.walls)[0]
+    volume = membrane_lib.inner_volume(state.membrane.position, mesh, params.membrane.contact_thickness)
+    return height, volume
 
-    The reference height and volume are the state's own (Table 3: areas from the start of shearing, so
+
+def measure_outputs(state, test, mesh, params, reference=None):
+    """The :data:`OUTPUTS` (6,), Pa, of a membrane-test state.
+
+    The strains and the area A = A₀ (1 − ε_v)/(1 − ε_a) count from ``reference`` ((height, volume) of
+    :func:`reference_size`), by default the state's own (Table 3: areas from the start of shearing, so
     A = A₀), not the as-built ones, which the indenting membrane leaves ~11 % larger on the 4 × 4 × 5
     specimen.
     """
-    height = platen_separation(state.dem.walls)[0]
-    volume = membrane_lib.inner_volume(state.membrane.position, mesh, params.membrane.contact_thickness)
+    height, volume = reference_size(state, mesh, params) if reference is None else reference
     record = membrane_measure.measure_coupled(
         state, test.particles, mesh, params, test.dt, height, volume, test.platen_area
     )

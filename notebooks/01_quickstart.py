@@ -50,19 +50,13 @@ OUT = Path(tempfile.mkdtemp(prefix="membrax_01_"))
 
 if SMOKE:  # 4 spheres across, 5 layers, to 1 % strain
     CONFIG = membrax.TriaxialConfig(
-        name="quickstart_smoke",
-        particles_across=4,
-        layers=5,
-        membrane_edges_per_diameter=3.0,
-        cell_pressure_kpa=10.0,
-        membrane_thickness_mm=5.0,
-        target_axial_strain=0.01,
-        inertial_number=5e-3,
-        shear_ramp_strain=1e-3,
-        fine_until_strain=2e-3,
-        record_every_fine=50,
-        record_every_coarse=100,
-        chunk_steps=1000,
+        **{
+            **membrax.SMOKE_CONFIG,
+            "name": "quickstart_smoke",
+            "cell_pressure_kpa": 10.0,
+            "membrane_thickness_mm": 5.0,
+            "target_axial_strain": 0.01,
+        }
     )
 else:  # membrax demo
     CONFIG = membrax.TriaxialConfig(**{**membrax.DEMO_CONFIG, "name": "quickstart"})

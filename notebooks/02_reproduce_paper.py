@@ -60,19 +60,7 @@ SIZE = "paper"  # or "small": the 6 × 10 specimen of `membrax reproduce --size 
 OUT = Path(tempfile.mkdtemp(prefix="membrax_02_"))
 
 if SMOKE:
-    BASE = membrax.TriaxialConfig(
-        name="reproduce_smoke",
-        particles_across=4,
-        layers=5,
-        membrane_edges_per_diameter=3.0,
-        target_axial_strain=0.004,
-        inertial_number=5e-3,
-        shear_ramp_strain=1e-3,
-        fine_until_strain=2e-3,
-        record_every_fine=50,
-        record_every_coarse=100,
-        chunk_steps=1000,
-    )
+    BASE = membrax.TriaxialConfig(**{**membrax.SMOKE_CONFIG, "name": "reproduce_smoke"})
 else:
     BASE = membrax.TriaxialConfig(name=f"reproduce_{SIZE}", **SIZES[SIZE])
 print(

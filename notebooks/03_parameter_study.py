@@ -58,19 +58,12 @@ CELL_PRESSURE_KPA, THICKNESS_MM = 40.0, 2.5
 if SMOKE:
     GRID = {"membrane_modulus_kpa": (700.0, 2800.0), "membrane_friction_angle_deg": (10.0, 40.0)}
     BASE = membrax.TriaxialConfig(
-        name="study_smoke",
-        particles_across=4,
-        layers=5,
-        membrane_edges_per_diameter=3.0,
-        cell_pressure_kpa=CELL_PRESSURE_KPA,
-        membrane_thickness_mm=THICKNESS_MM,
-        target_axial_strain=0.004,
-        inertial_number=5e-3,
-        shear_ramp_strain=1e-3,
-        fine_until_strain=2e-3,
-        record_every_fine=50,
-        record_every_coarse=100,
-        chunk_steps=1000,
+        **{
+            **membrax.SMOKE_CONFIG,
+            "name": "study_smoke",
+            "cell_pressure_kpa": CELL_PRESSURE_KPA,
+            "membrane_thickness_mm": THICKNESS_MM,
+        }
     )
 else:
     GRID = {

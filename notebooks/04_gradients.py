@@ -22,7 +22,7 @@
 #    derivatives of the initial external and internal stresses (the paper's Table 3) with respect to
 #    σc, E_m, t_m, the friction angles and k_n, each checked against central differences of the
 #    simulator. This works in the paper's own mode.
-# 2. **through a consolidation run**, by reverse mode over checkpointed windows of steps
+# 2. **through a run, consolidation and shearing**, by reverse mode over checkpointed windows of steps
 #    (`membrax.gradients`), vmapped over a batch of members in one compiled call. This needs the smooth
 #    mode, `viscous_damping = true`: the paper's Cundall local damping, F − α|F| sign(v), makes a run
 #    discontinuous in its parameters, so no derivative exists through a transient.
@@ -33,9 +33,9 @@
 # against Nelder–Mead.
 #
 # Smoke mode (`MEMBRAX_SMOKE=1`, what CI sets): a 4 × 4 × 5 specimen throughout, rollouts of 1,000 steps
-# (gradients) and 2,000 steps (the inverse problem).
+# of consolidation and 1,000 of shearing (gradients) and 2,000 steps of consolidation (the inverse problem).
 # Full size: the demo specimen (6 × 10, membrane edge D/3) for the implicit sensitivities, and the
-# 4 × 4 × 5 specimen with 4,000-step rollouts (the end of consolidation) over Table 1's 3 × 3 grid.
+# 4 × 4 × 5 specimen with 4,000 steps of consolidation and 4,000 of shearing over Table 1's 3 × 3 grid.
 #
 # **Time** (2 CPU cores): smoke about 2.5 min; full size about 15 min (estimated from the README's
 # figures: the implicit sensitivities 2 min 26 s on the demo specimen, the inverse problem 2 min at
@@ -61,7 +61,7 @@ TINY = dict(particles_across=4, layers=5, membrane_edges_per_diameter=2.0)
 DEMO = dict(particles_across=6, layers=10, membrane_edges_per_diameter=3.0)
 SENSITIVITY_SPECIMEN = TINY if SMOKE else DEMO
 # Smoke: the sizes of tests/test_gradients.py, so the two share compiled programs (conftest's cache).
-ROLLOUT_STEPS = 1000 if SMOKE else 4000
+ROLLOUT_STEPS = 1000 if SMOKE else 4000  # consolidation, then as many of shearing
 INVERSE_STEPS = 2000 if SMOKE else 4000
 
 # %% [markdown]
@@ -141,12 +141,15 @@ else:
     print("docs/table1_sensitivities.csv not found: run examples/table1_sensitivities.py")
 
 # %% [markdown]
-# ## 2. Reverse mode through a consolidation run, vmapped over members (the smooth mode)
+# ## 2. Reverse mode through consolidation and shearing, vmapped over members (the smooth mode)
 #
-# `consolidation_rollout` makes the consolidation of a batch a function of its parameters; each member's
-# steps run in windows of 50 under `jax.checkpoint`. `rollout_jacobian` returns all members' values and
-# Jacobians from one compiled call. The check: central differences with h = 1e-6 θ (small enough that no
-# contact opens, closes or starts to slide between θ ± h, the condition for the two to agree).
+# `shearing_rollout` makes a batch's run, consolidation then drained shearing, a function of its
+# parameters (`consolidation_rollout` stops at the end of consolidation); each member's steps run in
+# windows of 50 under `jax.checkpoint`. The shearing here is fast, at an inertial number of 0.01 with a
+# ramp to 0.1 % strain, so that 1,000 steps reach ε_a ≈ 0.8 % at 10 kPa (ε̇ ∝ √σc: twice that at 40 kPa).
+# `rollout_jacobian` returns all members' values and Jacobians from one compiled call. The check:
+# central differences with h = 1e-6 θ (small enough that no contact opens, closes or starts to slide
+# between θ ± h, the condition for the two to agree).
 
 # %%
 smooth = membrax.TriaxialConfig(**TINY, float64=True, viscous_damping=True)
@@ -154,9 +157,14 @@ if SMOKE:
     cases = [(10.0, 5.0), (40.0, 2.5)]
 else:
     cases = [(p, t) for t in (2.5, 3.33, 5.0) for p in (10.0, 40.0, 100.0)]
-members = [dataclasses.replace(smooth, cell_pressure_kpa=p, membrane_thickness_mm=t) for p, t in cases]
+shearing = {"inertial_number": 0.01, "shear_ramp_strain": 0.001}
+members = [
+    dataclasses.replace(smooth, cell_pressure_kpa=p, membrane_thickness_mm=t, **shearing) for p, t in cases
+]
 rollout_wrt = ("cell_pressure_kpa", "membrane_modulus_kpa", "membrane_friction_angle_deg")
-rollout = gradients.consolidation_rollout(members, rollout_wrt, steps=ROLLOUT_STEPS)
+rollout = gradients.shearing_rollout(
+    members, rollout_wrt, shear_steps=ROLLOUT_STEPS, consolidation_steps=ROLLOUT_STEPS
+)
 values, jacobian = gradients.rollout_jacobian(rollout)
 differences = gradients.rollout_differences(rollout, relative_step=1e-6)
 internal = [sensitivities.OUTPUTS.index(n) for n in ("internal_axial_stress", "internal_radial_stress")]
@@ -170,6 +178,8 @@ gap = np.abs(jacobian[:, internal] - differences[:, internal]) / np.abs(differen
 print(f"largest relative gap to the differences: {gap.max():.1e}")
 assert gap.max() < 1e-3
 assert np.allclose(jacobian[:, 1, 0], 1e3)  # dσ_ext,radial/dσc = 1: the cell pressure itself
+# sheared: the internal deviator σ1 − σ3 exceeds the cell pressure
+assert np.all(values[:, internal[0]] - values[:, internal[1]] > 1e3 * rollout.theta0[:, 0])
 
 # %% [markdown]
 # ## 3. The inverse problem: E_m and the membrane friction angle from the initial internal stresses

@@ -24,6 +24,7 @@ from membrax.config import TriaxialConfig
 from membrax.spheres.contact import tangential_spring_update
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.packing import particle_mass
+from membrax.spheres.walls import platen_separation
 from membrax.stages import build_test
 
 SMOOTH = TriaxialConfig(
@@ -98,22 +99,37 @@ def test_spring_rotation_is_unchanged_for_physical_springs_and_bounded_for_round
 
 
 @pytest.mark.slow
-def test_checkpointed_rollout_gradients_match_central_differences_under_vmap():
-    # two Table 1-like members in one compiled call (vmap): 10 kPa in 5 mm, 40 kPa in 2.5 mm
-    configs = [SMOOTH, dataclasses.replace(SMOOTH, cell_pressure_kpa=40.0, membrane_thickness_mm=2.5)]
+def test_checkpointed_gradients_through_consolidation_and_shearing_match_central_differences_under_vmap():
+    # two Table 1-like members in one compiled call (vmap): 10 kPa in 5 mm, 40 kPa in 2.5 mm; 1,000 steps of
+    # consolidation, then 1,000 of shearing at I = 0.01 with a ramp to 0.1 % strain (ε̇ Δt = 8.8e-6 per step
+    # at 10 kPa: ε_a ≈ 0.8 %, twice that at 40 kPa), the whole path differentiated
+    shearing = {"inertial_number": 0.01, "shear_ramp_strain": 0.001}
+    configs = [
+        dataclasses.replace(SMOOTH, **shearing),
+        dataclasses.replace(SMOOTH, cell_pressure_kpa=40.0, membrane_thickness_mm=2.5, **shearing),
+    ]
     wrt = ("cell_pressure_kpa", "membrane_modulus_kpa", "membrane_friction_angle_deg")
     with jax.enable_x64(True):
-        rollout = gradients.consolidation_rollout(configs, wrt, steps=1000, window=50)
+        rollout = gradients.shearing_rollout(configs, wrt, shear_steps=1000, consolidation_steps=1000)
         values, jacobian = gradients.rollout_jacobian(rollout)
         differences = gradients.rollout_differences(rollout, relative_step=1e-6)
+        final, (start_height, _), _, _ = jax.vmap(rollout.member_final)(
+            jnp.asarray(rollout.theta0), *rollout.real_members(), rollout.geometry
+        )
+    # the platens close at ε̇ H₀ after a linear ramp of 2 ε_r/ε̇: ε_a = ε̇ t − ε_r, ε̇ = I √(σc/ρ)/d
+    rate = np.asarray([test.shear_rate(0.01) for test in rollout.batch.tests])
+    expected = rate * 1000 * rollout.batch.tests[0].dt - 0.001  # 7.79e-3, 1.66e-2
+    strain = 1.0 - np.asarray(jax.vmap(platen_separation)(final.dem.walls)[:, 0]) / np.asarray(start_height)
+    np.testing.assert_allclose(strain, expected, rtol=1e-3)  # measured 6e-4: the ramp's discrete steps
     assert values.shape == (2, len(sensitivities.OUTPUTS)) and jacobian.shape == (2, 6, 3)
-    # the external stresses are the servo's and the cell's: σ_ext = σc (kPa → Pa: 1e3), within the servo's
-    # unfinished transient at 1,000 steps
+    # the external radial stress is the cell's: σ_ext,r = σc (kPa → Pa: 1e3), exactly, shearing or not
     np.testing.assert_allclose(values[:, 1], [1e4, 4e4], rtol=1e-9)
     np.testing.assert_allclose(jacobian[:, 1, 0], 1e3, rtol=1e-9)
+    # sheared: the deviator σ1 − σ3 of the internal stresses is well above the cell pressure
     internal = [sensitivities.OUTPUTS.index(n) for n in ("internal_axial_stress", "internal_radial_stress")]
+    assert np.all(values[:, internal[0]] - values[:, internal[1]] > np.array([1e4, 4e4]))
     for b in range(2):
-        for row in internal:
+        for row in [*internal, sensitivities.OUTPUTS.index("additional_axial_stress")]:
             np.testing.assert_allclose(jacobian[b, row], differences[b, row], rtol=1e-3)
     # membrane friction acts along the path (the equilibrium's implicit derivative is 0): here it is not
     assert np.all(np.abs(jacobian[:, internal, 2]) > 1.0)  # Pa per degree

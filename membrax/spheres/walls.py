@@ -222,17 +222,19 @@ def ramp_acceleration(velocity, strain_rate: float, ramp_strain: float):
 
     Under a ramp of duration t_r the strain grows as ½ ε̇ t_r by full speed, so ½ ε̇ t_r = ε_r gives
     a = |v| / t_r = |v| ε̇ / (2 ε_r) (YADE's ``UniaxialStrainer.initAccelTime`` idea). inf (no ramp, for
-    :func:`set_control`) where ``ramp_strain`` is 0 or the velocity is 0. Host-side numpy.
+    :func:`set_control`) where ``ramp_strain`` is 0 or the velocity is 0. Traceable in ``velocity`` and
+    ``strain_rate`` (``ramp_strain`` is a Python float).
 
     Args:
       velocity: target wall velocities, m/s (any shape).
       strain_rate: ε̇ at full speed, 1/s.
       ramp_strain: ε_r, the axial strain at full speed, >= 0.
     """
-    velocity = np.asarray(velocity, dtype=float)
+    xp = np if isinstance(velocity, np.ndarray | float | int | list) else jnp  # host values stay float64
+    velocity = xp.asarray(velocity)
     if ramp_strain <= 0.0:
-        return np.full(velocity.shape, np.inf)
-    return np.where(velocity != 0.0, np.abs(velocity) * strain_rate / (2.0 * ramp_strain), np.inf)
+        return xp.full(velocity.shape, xp.inf)
+    return xp.where(velocity != 0.0, xp.abs(velocity) * strain_rate / (2.0 * ramp_strain), xp.inf)
 
 
 def set_control(walls: WallState, servo, velocity, target_stress, acceleration=np.inf) -> WallState:

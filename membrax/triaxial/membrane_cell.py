@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses as pydataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -158,11 +159,15 @@ class MembraneTest(StagedTest):
             and creep < volume_tolerance
         )
 
-    def shear_rate(self, inertial_number: float) -> float:
-        """Axial strain rate ε̇ = I / (d √(ρ/σc)) for an inertial number I (GDR MiDi 2004), 1/s."""
+    def shear_rate(self, inertial_number: float, cell_pressure=None) -> float:
+        """Axial strain rate ε̇ = I / (d √(ρ/σc)) for an inertial number I (GDR MiDi 2004), 1/s.
+
+        ``cell_pressure`` (Pa, default the test's) may be traced (:mod:`membrax.gradients`).
+        """
         check_range("inertial_number", inertial_number, lower=0.0, lower_open=True)
+        pressure = self.cell_pressure if cell_pressure is None else cell_pressure
         return strain_rate_from_inertial_number(
-            inertial_number, self.specimen.particle_diameter, self.density, self.cell_pressure
+            inertial_number, self.specimen.particle_diameter, self.density, pressure
         )
 
     def start_shear(
@@ -171,8 +176,12 @@ class MembraneTest(StagedTest):
         inertial_number: float = 1e-3,
         ramp_strain: float = DEFAULT_RAMP_STRAIN,
         symmetric: bool = True,
+        cell_pressure=None,
     ) -> CoupledState:
         """Switch ``state`` to stage 2: the platens close at ε̇ H (H the current height), ramped up from rest.
+
+        Traceable in ``state`` and ``cell_pressure``: a rollout starts shearing inside a differentiated
+        function (:func:`membrax.gradients.shearing_rollout`).
 
         Args:
           state: the consolidated state.
@@ -181,18 +190,24 @@ class MembraneTest(StagedTest):
             lasts 2 ε_ramp/ε̇ (0: a step change). Its purpose and default: :data:`DEFAULT_RAMP_STRAIN`.
           symmetric: both platens move, each at ε̇ H/2 (the specimen's mid-height stays put, so the two
             ends bulge alike); False: the bottom platen fixed and the top one at ε̇ H.
+          cell_pressure: σc, Pa, setting ε̇ and the platens' (unused) servo target; default the test's.
         """
         check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
         walls = state.dem.walls
-        height = float(walls.position[0, TOP] + walls.position[0, BOTTOM])
-        rate = self.shear_rate(inertial_number)
-        velocity = np.zeros(walls.velocity.shape)
+        height = walls.position[0, TOP] + walls.position[0, BOTTOM]
+        rate = self.shear_rate(inertial_number, cell_pressure)
+        moving = np.zeros(walls.velocity.shape)  # the share of ε̇ H each wall closes at
         if symmetric:
-            velocity[0, [BOTTOM, TOP]] = -0.5 * rate * height
+            moving[0, [BOTTOM, TOP]] = 0.5
         else:
-            velocity[0, TOP] = -rate * height
+            moving[0, TOP] = 1.0
+        if isinstance(height, jax.core.Tracer) or isinstance(rate, jax.core.Tracer):
+            velocity = -jnp.asarray(moving, height.dtype) * (rate * height)
+        else:  # on the host in float64, rounded once into the state (set_control)
+            velocity = -moving * (rate * float(height))
         acceleration = ramp_acceleration(velocity, rate, ramp_strain)
-        return self.set_platens(state, False, velocity, self.cell_pressure, acceleration)
+        target = self.cell_pressure if cell_pressure is None else cell_pressure
+        return self.set_platens(state, False, velocity, target, acceleration)
 
     def ramp_transit_ratio(
         self, inertial_number: float = 1e-3, ramp_strain: float = DEFAULT_RAMP_STRAIN
