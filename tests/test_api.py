@@ -11,6 +11,7 @@ EXPECTED = {
     # configuration
     "ConfigError",
     "DEMO_CONFIG",
+    "SMOKE_CONFIG",
     "TriaxialConfig",
     "load_config",
     # runs and results
