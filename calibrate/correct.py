@@ -172,6 +172,12 @@ def strain_ratio_window(axial_strain) -> float:
     :func:`membrax.triaxial.analysis.strain_ratio_change` needs 3 records in the window; a laboratory
     logging every 0.25 % or more would leave most windows of 0.5 % with 2 and the correction undefined.
     Four median spacings put 3 records in the window at the record's ends and 5 inside.
+
+    Args:
+      axial_strain: the record's axial strains, dimensionless (not %).
+
+    Returns:
+      the window, as an axial strain (dimensionless).
     """
     from membrax.triaxial.analysis import STRAIN_RATIO_WINDOW
 

@@ -76,7 +76,15 @@ INPUTS = (
 
 
 class FittingTable(NamedTuple):
-    """Rows of (inputs, targets) for fitting; every field a float64 array of one length (module docstring)."""
+    """Rows of (inputs, targets) for fitting; every field a float64 array of one length (module docstring).
+
+    Attributes:
+      inputs: name → column: σc, t_m, E_m, D, D_s in SI (Pa, m), the strains and ratios dimensionless.
+      axial_target: Δσ_a/σc, dimensionless.
+      radial_target: Δσ_r/σc, dimensionless.
+      case: the member each row comes from (integer labels).
+      initial: whether the row is a member's start of shearing (bool).
+    """
 
     inputs: dict
     axial_target: np.ndarray

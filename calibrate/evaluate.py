@@ -76,6 +76,14 @@ def lab_record_of(config: dict, rows):
 
     Records whose axial strain does not exceed the previous one's (the platens start from rest) are
     dropped, as a laboratory's logger would.
+
+    Args:
+      config: the member's configuration (``cell_pressure_kpa`` kPa, ``particle_diameter_mm`` and
+        ``membrane_thickness_mm`` mm, ``membrane_modulus_kpa`` kPa).
+      rows: its shearing records (stresses in Pa, strains dimensionless, ``platen_area`` m²).
+
+    Returns:
+      the record (SI: Pa, strains), the specimen (m, Pa) and the internal σ1 and σ3 (Pa) of the kept rows.
     """
     axial = np.asarray(rows["axial_strain"], dtype=np.float64)
     keep = np.concatenate([[True], np.diff(axial) > 0.0])
@@ -108,6 +116,14 @@ def friction_angle_errors(record, specimen, internal_1, internal_3, corrections=
 
     Records where the fitted correction is undefined (its strain-ratio window is short) are left out of
     every method, so all are scored on the same records.
+
+    Args:
+      record: a :class:`calibrate.lab.LabRecord` (Pa, strains).
+      specimen: its :class:`calibrate.correct.Specimen` (m, Pa).
+      internal_1: the internal σ1 of each record, Pa.
+      internal_3: the internal σ3 of each record, Pa.
+      corrections: the fitted correction (default the shipped one).
+      max_strain: the largest axial strain scored, dimensionless.
     """
     import warnings
 

@@ -141,6 +141,19 @@ class InverseProblem:
         """{name: start · exp(x)}."""
         return dict(zip(self.wrt, (np.asarray(start) * np.exp(np.asarray(x))).tolist(), strict=True))
 
+    def result(self, x, origin, start: dict, iterations: int, objective, history, began: float):
+        """The :class:`InverseResult` at log-parameters ``x``, with this problem's call counters."""
+        return InverseResult(
+            parameters=self.parameters(x, origin),
+            start=dict(start),
+            iterations=iterations,
+            value_calls=self.value_calls,
+            gradient_calls=self.gradient_calls,
+            objective=float(objective),
+            history=history,
+            seconds=time.perf_counter() - began,
+        )
+
 
 def invert(
     problem: InverseProblem,
@@ -195,16 +208,7 @@ def invert(
             break
         x, state = step(x, state, value, gradient, origin, observed)
         iterations += 1
-    return InverseResult(
-        parameters=problem.parameters(x, origin),
-        start=dict(start),
-        iterations=iterations,
-        value_calls=problem.value_calls,
-        gradient_calls=problem.gradient_calls,
-        objective=float(value),
-        history=history,
-        seconds=time.perf_counter() - began,
-    )
+    return problem.result(x, origin, start, iterations, value, history, began)
 
 
 def invert_gradient_free(
@@ -254,13 +258,4 @@ def invert_gradient_free(
         iterations = int(result.nit)
     except _Reached:
         iterations = len(history)
-    return InverseResult(
-        parameters=problem.parameters(best["x"], origin),
-        start=dict(start),
-        iterations=iterations,
-        value_calls=problem.value_calls,
-        gradient_calls=0,
-        objective=best["value"],
-        history=history,
-        seconds=time.perf_counter() - began,
-    )
+    return problem.result(best["x"], origin, start, iterations, best["value"], history, began)

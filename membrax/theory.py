@@ -133,8 +133,11 @@ def mobilised_friction_angle(sigma_1, sigma_3):
     sin φ' = (σ1 − σ3)/(σ1 + σ3)   [C, standard; reference §9]
 
     Args:
-      sigma_1: major principal effective stress, > 0.
-      sigma_3: minor principal effective stress, > 0.
+      sigma_1: major principal effective stress, > 0, any stress unit (Pa or kPa).
+      sigma_3: minor principal effective stress, > 0, the same unit as ``sigma_1``.
+
+    Returns:
+      φ', radians (dimensionless ratio of the two stresses).
     """
     check_range("sigma_1", sigma_1, **_POSITIVE)
     check_range("sigma_3", sigma_3, **_POSITIVE)
@@ -156,7 +159,14 @@ def friction_angle_from_stress_ratio(ratio):
 
 
 def stress_ratio_from_friction_angle(friction_angle):
-    """Inverse of :func:`friction_angle_from_stress_ratio`: R = (1 + sin φ')/(1 − sin φ')."""
+    """Inverse of :func:`friction_angle_from_stress_ratio`: R = (1 + sin φ')/(1 − sin φ').
+
+    Args:
+      friction_angle: φ', radians, in [−π/2, π/2).
+
+    Returns:
+      R = σ1/σ3, dimensionless.
+    """
     check_range("friction_angle", friction_angle, lower=-math.pi / 2, upper=math.pi / 2, upper_open=True)
     sine = jnp.sin(_as_float(friction_angle))
     return (1.0 + sine) / (1.0 - sine)
@@ -343,6 +353,14 @@ def bolton_peak_friction_angle_deg(
 
     triaxial:     φ'_peak = φ'_crit + 3 I_R;   plane strain: φ'_peak = φ'_crit + 5 I_R
     [C, Bolton (1986); reference §7]. I_R from :func:`relative_dilatancy_index` (same options).
+
+    Args:
+      critical_friction_angle_deg: φ'_crit, degrees.
+      relative_density: I_D, dimensionless, 0–1.
+      mean_effective_stress_kpa: p', kPa.
+      plane_strain: 5 I_R instead of 3 I_R.
+      clip: as :func:`relative_dilatancy_index`.
+      low_pressure_rule: as :func:`relative_dilatancy_index`.
     """
     check_range("critical_friction_angle_deg", critical_friction_angle_deg, **_ANGLE_DEG)
     index = relative_dilatancy_index(
@@ -386,6 +404,12 @@ def leps_friction_angle_deg(
 
     Leps (1970) gave a chart; this fitted form is usually attributed to Duncan et al. (1980). Treat
     φ'_0 and Δφ' as fit parameters.
+
+    Args:
+      reference_friction_angle_deg: φ'_0 at σ'3 = p_a, degrees.
+      friction_angle_drop_per_log_cycle_deg: Δφ', degrees per tenfold σ'3.
+      confining_stress_kpa: σ'3, kPa, > 0.
+      atmospheric_pressure_kpa: p_a, kPa.
     """
     check_range("confining_stress_kpa", confining_stress_kpa, **_POSITIVE)
     return _as_float(reference_friction_angle_deg) - _as_float(
@@ -473,6 +497,15 @@ def baldi_nova_penetration(grain_diameter, effective_stress, membrane_modulus, m
     v_m = (d_g/2) (σ'3 d_g/(E_m t_m))^(1/3)   [form C via abstract; constant U; reference §5]
 
     Not valid for ballast (d_g/D ≈ 0.13 gives unrealistic strains, reference §12.9): use for scaling only.
+
+    Args:
+      grain_diameter: d_g, m (any length unit; the result is in it).
+      effective_stress: σ'3, Pa (any stress unit, the same as ``membrane_modulus``), ≥ 0.
+      membrane_modulus: E_m, Pa (the unit of ``effective_stress``), > 0.
+      membrane_thickness: t_m, in the length unit of ``grain_diameter``, > 0.
+
+    Returns:
+      v_m, volume per membrane area, in the length unit of ``grain_diameter``.
     """
     check_range("grain_diameter", grain_diameter, **_POSITIVE)
     check_range("effective_stress", effective_stress, lower=0.0)
@@ -517,7 +550,12 @@ class MembraneCorrection(NamedTuple):
 
 
 class CorrectedStresses(NamedTuple):
-    """Principal stresses on the specimen after a membrane correction."""
+    """Principal stresses on the specimen after a membrane correction, in the unit of the measured ones.
+
+    Attributes:
+      sigma_1: σ1 on the specimen (kPa when the inputs are in kPa).
+      sigma_3: σ3 on the specimen, the same unit.
+    """
 
     sigma_1: jnp.ndarray
     sigma_3: jnp.ndarray
