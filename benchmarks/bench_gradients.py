@@ -49,6 +49,7 @@ def child(
     import jax.numpy as jnp
 
     from membrax.config import TriaxialConfig
+    from membrax.sensitivities import apply_parameters
     from membrax.stages import build_test
 
     config = TriaxialConfig(**SIZES[size], cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)
@@ -65,14 +66,9 @@ def child(
         )
     record = test.make_record(test.mesh, test.initial_volume)  # (areas from the as-built size: cost only)
 
-    def output(theta):
-        params = base.set(membrane=base.membrane.set(modulus=theta[0], cell_pressure=theta[1]))
-        walls = state.dem.walls
-        start = state.set(
-            dem=state.dem.set(
-                walls=walls.set(target_stress=jnp.full_like(walls.target_stress, 1.0) * theta[1])
-            )
-        )  # (the servo target: consolidation's platens; shearing's move at constant velocity)
+    def output(theta):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation's platens)
+        values = {"membrane_modulus_kpa": theta[0], "cell_pressure_kpa": theta[1]}
+        params, _, start = apply_parameters(values, base, test.mesh, state)
 
         def body(s, _):
             return jax.lax.fori_loop(0, window, lambda i, x: step(x, params), s), None
@@ -82,7 +78,7 @@ def child(
         final, _ = jax.lax.scan(body, start, None, length=steps // window)
         return record(final, params).internal_axial_stress[0]
 
-    theta = jnp.asarray([float(base.membrane.modulus), float(base.membrane.cell_pressure)])
+    theta = jnp.asarray([config.membrane_modulus_kpa, config.cell_pressure_kpa])
     function = jax.jit(output if mode == "forward" else jax.value_and_grad(output))
     start = time.perf_counter()
     jax.block_until_ready(function(theta))

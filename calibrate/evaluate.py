@@ -27,6 +27,7 @@ __all__ = [
     "example_arguments",
     "read_example_record",
     "friction_angle_errors",
+    "friction_angle_table",
     "held_out_errors",
     "lab_record_of",
     "write_example_record",
@@ -109,6 +110,29 @@ def lab_record_of(config: dict, rows):
     internal_1 = np.asarray(rows["internal_axial_stress"], dtype=np.float64)[keep]
     internal_3 = np.asarray(rows["internal_radial_stress"], dtype=np.float64)[keep]
     return record, specimen, internal_1, internal_3
+
+
+def friction_angle_table(record, result, internal_1, internal_3, strains=(0.01, 0.02, 0.05, 0.10)) -> str:
+    """φ' (degrees) by method at the records nearest ``strains``, beside the internal φ', as a text table.
+
+    Args:
+      record: the corrected :class:`calibrate.lab.LabRecord` (strains dimensionless).
+      result: :func:`calibrate.correct.correct_record`'s result for it.
+      internal_1: the internal σ1 of each record (any stress unit).
+      internal_3: the internal σ3 of each record, the same unit.
+      strains: the axial strains to show, dimensionless (not %).
+    """
+    from membrax.triaxial.analysis import friction_angle_deg
+
+    internal = friction_angle_deg(internal_1, internal_3)
+    lines = [f"{'ε_a %':>6}{'internal':>10}" + "".join(f"{m:>16}" for m in correct.METHODS)]
+    for target in strains:
+        i = int(np.argmin(np.abs(record.axial_strain - target)))
+        lines.append(
+            f"{100 * record.axial_strain[i]:6.2f}{internal[i]:10.2f}"
+            + "".join(f"{result.friction_angle[m][i]:16.2f}" for m in correct.METHODS)
+        )
+    return "\n".join(lines)
 
 
 def friction_angle_errors(record, specimen, internal_1, internal_3, corrections=None, max_strain=0.10):

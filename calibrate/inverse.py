@@ -141,6 +141,11 @@ class InverseProblem:
         """{name: start · exp(x)}."""
         return dict(zip(self.wrt, (np.asarray(start) * np.exp(np.asarray(x))).tolist(), strict=True))
 
+    def begin(self, start: dict, observed):
+        """A method's start: (the time now, θ_start, observations as an array), the counters zeroed."""
+        self.reset()
+        return time.perf_counter(), jnp.asarray(self._start(start)), jnp.asarray(observed)
+
     def result(self, x, origin, start: dict, iterations: int, objective, history, began: float):
         """The :class:`InverseResult` at log-parameters ``x``, with this problem's call counters."""
         return InverseResult(
@@ -171,10 +176,7 @@ def invert(
       tolerance: stop when J falls below it (J ~ the squared relative misfit; 1e-10: 1e-5 relative).
       max_iterations: most L-BFGS iterations.
     """
-    began = time.perf_counter()
-    problem.reset()
-    origin = jnp.asarray(problem._start(start))
-    observed = jnp.asarray(observed)
+    began, origin, observed = problem.begin(start, observed)
     optimizer = optax.lbfgs()
     x = jnp.zeros(len(problem.wrt))
     state = optimizer.init(x)
@@ -223,10 +225,7 @@ def invert_gradient_free(
     It stops when J falls below ``tolerance`` (the criterion :func:`invert` uses) or after ``max_calls``
     rollouts; the initial simplex steps 5 % in each parameter (scipy's default).
     """
-    began = time.perf_counter()
-    problem.reset()
-    origin = jnp.asarray(problem._start(start))
-    observed = jnp.asarray(observed)
+    began, origin, observed = problem.begin(start, observed)
     history = []
     best = {"x": np.zeros(len(problem.wrt)), "value": np.inf}
 

@@ -11,21 +11,12 @@ Run: ``python examples/correct_example_record.py [out.png]``.
 import sys
 
 import matplotlib.pyplot as plt
-import numpy as np
 
 from calibrate import correct, evaluate
-from membrax import analysis
 
 record, specimen, internal_1, internal_3 = evaluate.read_example_record()
 result = correct.correct_record(record, specimen)
-internal = analysis.friction_angle_deg(internal_1, internal_3)
-print(f"{'ε_a %':>6}{'internal':>10}" + "".join(f"{m:>16}" for m in correct.METHODS))
-for target in (0.01, 0.02, 0.05, 0.10):
-    i = int(np.argmin(np.abs(record.axial_strain - target)))
-    print(
-        f"{100 * record.axial_strain[i]:6.2f}{internal[i]:10.2f}"
-        + "".join(f"{result.friction_angle[m][i]:16.2f}" for m in correct.METHODS)
-    )
+print(evaluate.friction_angle_table(record, result, internal_1, internal_3))
 errors = evaluate.friction_angle_errors(record, specimen, internal_1, internal_3)
 print(
     "mean / worst |φ' − φ'_internal| over 0 < ε_a ≤ 10 %: "

@@ -250,7 +250,7 @@ def strain_rate_from_inertial_number(inertial_number, particle_diameter, density
 
     Traceable: σ may be a JAX value (a rollout differentiated with respect to σc, :mod:`membrax.gradients`).
     """
-    sqrt = math.sqrt if isinstance(confining_stress, float | int) else jnp.sqrt
+    sqrt = jnp.sqrt if isinstance(confining_stress, jax.Array) else math.sqrt
     return inertial_number / (particle_diameter * sqrt(density / confining_stress))
 
 

@@ -48,7 +48,7 @@ import numpy as np
 from membrax.config import TriaxialConfig
 from membrax.errors import OVERFLOWS, describe
 from membrax.sensitivities import (
-    PARAMETERS,
+    _check_wrt,
     _geometry_derivative,
     apply_parameters,
     measure_outputs,
@@ -147,6 +147,20 @@ class Rollout:
         """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout."""
         return jax.jit(self.outputs_and_errors)
 
+    @functools.cached_property
+    def values_and_jacobians(self):
+        """θ (B, P) → ((B, 6) outputs, (B, 6, P) dy/dθ): each member's ``jax.jacrev``, vmapped, compiled."""
+
+        def member(t, params, m, state, geometry):
+            def outputs(t_):  # the outputs twice: the Jacobian's function and its value (aux)
+                y = self.member_outputs(t_, params, m, state, geometry)[0]
+                return y, y
+
+            rows, value = jax.jacrev(outputs, has_aux=True)(t)
+            return value, rows
+
+        return jax.jit(lambda t: jax.vmap(member)(t, *self.real_members(), self.geometry))
+
     def final_states(self):
         """The members' final states at their own parameters (to size the tables), stacked."""
 
@@ -214,9 +228,7 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int) -> Rollout
 
     configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
     wrt = tuple(wrt)
-    unknown = [name for name in wrt if name not in PARAMETERS]
-    if unknown or not wrt:
-        raise ValueError(f"wrt {unknown}: choose one or more of {', '.join(PARAMETERS)}.")
+    _check_wrt(wrt)
     if steps < 1 or window < 1:
         raise ValueError(f"steps = {steps}, window = {window}: give positive integers.")
     shear = {(c.inertial_number, c.shear_ramp_strain, c.symmetric_loading) for c in configs}
@@ -245,7 +257,8 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int) -> Rollout
         final = rollout.final_states()
         states = batch.initial_state
         batch.initial_state = batch._grow(states, np.bitwise_or.reduce(errors), final.membrane.candidates)
-        rollout.__dict__.pop("forward", None)  # the tables' shapes changed: compile again
+        for compiled in ("forward", "values_and_jacobians"):  # the tables' shapes changed: compile again
+            rollout.__dict__.pop(compiled, None)
         forward = rollout.forward
     bad = np.flatnonzero(errors)
     if bad.size:
@@ -259,22 +272,11 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int) -> Rollout
 def rollout_jacobian(rollout: Rollout, theta=None) -> tuple[np.ndarray, np.ndarray]:
     """(outputs (B, 6), Pa; dy/dθ (B, 6, P), Pa per unit) at ``theta`` (default the members' own).
 
-    One compiled call: ``jax.jacrev`` of each member's rollout, vmapped over the members.
+    One compiled call (:attr:`Rollout.values_and_jacobians`, compiled once per rollout): ``jax.jacrev`` of
+    each member's rollout, vmapped over the members.
     """
     theta = rollout.theta0 if theta is None else np.asarray(theta)
-
-    def member(t, params, m, state, geometry):
-        def outputs(t_):  # the outputs twice: the Jacobian's function and its value (aux)
-            y = rollout.member_outputs(t_, params, m, state, geometry)[0]
-            return y, y
-
-        rows, value = jax.jacrev(outputs, has_aux=True)(t)
-        return value, rows
-
-    def all_members(t):
-        return jax.vmap(member)(t, *rollout.real_members(), rollout.geometry)
-
-    value, jacobian = jax.jit(all_members)(jnp.asarray(theta))
+    value, jacobian = rollout.values_and_jacobians(jnp.asarray(theta))
     return np.asarray(value), np.asarray(jacobian)
 
 

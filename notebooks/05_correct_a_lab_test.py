@@ -44,7 +44,6 @@ from pathlib import Path
 import numpy as np
 
 from calibrate import correct, datasets, evaluate, fit, models, persistence
-from membrax import analysis
 
 SMOKE = os.environ.get("MEMBRAX_SMOKE") == "1"
 OUT = Path(tempfile.mkdtemp(prefix="membrax_05_"))
@@ -131,14 +130,7 @@ with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
     result = correct.correct_record(record, specimen, refit_corrections)
 print("range warnings:", [str(w.message) for w in caught] or "none")
-internal = analysis.friction_angle_deg(internal_1, internal_3)
-print(f"{'ε_a %':>6}{'internal':>10}" + "".join(f"{m:>16}" for m in correct.METHODS))
-for target in (0.01, 0.02, 0.05, 0.10):
-    i = int(np.argmin(np.abs(record.axial_strain - target)))
-    print(
-        f"{100 * record.axial_strain[i]:6.2f}{internal[i]:10.2f}"
-        + "".join(f"{result.friction_angle[m][i]:16.2f}" for m in correct.METHODS)
-    )
+print(evaluate.friction_angle_table(record, result, internal_1, internal_3))
 
 # %%
 figure = correct.plot_correction(

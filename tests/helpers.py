@@ -1,6 +1,20 @@
-"""Shared test utilities: per-dtype tolerances, central finite differences for gradient checks."""
+"""Shared test utilities: per-dtype tolerances, central finite differences for gradient checks, and the
+small membrane test the derivative checks share."""
 
 import numpy as np
+
+from membrax.config import TriaxialConfig
+
+#: The derivative checks' specimen (test_sensitivity, test_gradients): 4 × 4 × 5 spheres, a membrane of
+#: edge D/2, 10 kPa, 5 mm, float64.
+SMALL_MEMBRANE_TEST = TriaxialConfig(
+    particles_across=4,
+    layers=5,
+    membrane_edges_per_diameter=2.0,
+    cell_pressure_kpa=10.0,
+    membrane_thickness_mm=5.0,
+    float64=True,
+)
 
 #: Round-off tolerances per dtype (jax-md's ``test_util`` is the model): ``ROUNDOFF`` for a few operations
 #: (a sum of forces, a ratio), ``ACCUMULATED`` for quantities through thousands of explicit steps.

@@ -17,25 +17,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import SMALL_MEMBRANE_TEST
 
 from calibrate import inverse
 from membrax import gradients, sensitivities
-from membrax.config import TriaxialConfig
 from membrax.spheres.contact import tangential_spring_update
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.packing import particle_mass
 from membrax.spheres.walls import platen_separation
 from membrax.stages import build_test
 
-SMOOTH = TriaxialConfig(
-    particles_across=4,
-    layers=5,
-    membrane_edges_per_diameter=2.0,
-    cell_pressure_kpa=10.0,
-    membrane_thickness_mm=5.0,
-    float64=True,
-    viscous_damping=True,
-)
+SMOOTH = dataclasses.replace(SMALL_MEMBRANE_TEST, viscous_damping=True)
 
 
 def test_viscous_damping_removes_what_local_damping_does_per_cycle_and_is_off_by_default():

@@ -11,25 +11,16 @@ there; 1e-4 keeps every contact.
 import jax
 import numpy as np
 import pytest
+from helpers import SMALL_MEMBRANE_TEST
 
 from membrax import cli, sensitivities
-from membrax.config import TriaxialConfig
-
-SMALL = TriaxialConfig(
-    particles_across=4,
-    layers=5,
-    membrane_edges_per_diameter=2.0,
-    cell_pressure_kpa=10.0,
-    membrane_thickness_mm=5.0,
-    float64=True,
-)
 
 
 @pytest.mark.slow
 def test_implicit_derivatives_match_differences_of_the_simulator_and_the_servo_law():
     wrt = ("cell_pressure_kpa", "membrane_modulus_kpa", "membrane_thickness_mm", "particle_stiffness_n_m")
     with jax.enable_x64(True):
-        equilibrium = sensitivities.consolidated(SMALL)
+        equilibrium = sensitivities.consolidated(SMALL_MEMBRANE_TEST)
         values, implicit, unknowns = sensitivities.implicit_sensitivities(equilibrium, wrt)
         differences = sensitivities.continuation_differences(equilibrium, wrt)
     assert (
@@ -52,7 +43,7 @@ def test_implicit_derivatives_match_differences_of_the_simulator_and_the_servo_l
     # the internal stresses: implicit = continuation differences within 1e-3 relative. Where the elasticity
     # d ln y/d ln x is below 1e-2 (k_n: ~5e-4) the differences' own floor (outputs relaxed to ~1e-9 of the
     # load, over 2h = 2e-4 θ: ~5e-6 in elasticity) sets the bar instead: 1e-5 in elasticity.
-    theta = np.asarray([getattr(SMALL, name) for name in wrt])
+    theta = np.asarray([getattr(SMALL_MEMBRANE_TEST, name) for name in wrt])
     for row in (internal_axial, internal_radial):
         implicit_elasticity = implicit[row] * theta / values[row]
         difference_elasticity = differences[row] * theta / values[row]

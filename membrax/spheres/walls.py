@@ -31,6 +31,7 @@ platen area must be given (the membrane test updates it from the membrane).
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -230,8 +231,9 @@ def ramp_acceleration(velocity, strain_rate: float, ramp_strain: float):
       strain_rate: ε̇ at full speed, 1/s.
       ramp_strain: ε_r, the axial strain at full speed, >= 0.
     """
-    xp = np if isinstance(velocity, np.ndarray | float | int | list) else jnp  # host values stay float64
-    velocity = xp.asarray(velocity)
+    traced = isinstance(velocity, jax.Array) or isinstance(strain_rate, jax.Array)
+    xp = jnp if traced else np  # host values stay float64
+    velocity = xp.asarray(velocity) if traced else np.asarray(velocity, dtype=float)
     if ramp_strain <= 0.0:
         return xp.full(velocity.shape, xp.inf)
     return xp.where(velocity != 0.0, xp.abs(velocity) * strain_rate / (2.0 * ramp_strain), xp.inf)

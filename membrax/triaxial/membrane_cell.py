@@ -201,7 +201,7 @@ class MembraneTest(StagedTest):
             moving[0, [BOTTOM, TOP]] = 0.5
         else:
             moving[0, TOP] = 1.0
-        if isinstance(height, jax.core.Tracer) or isinstance(rate, jax.core.Tracer):
+        if isinstance(height, jax.core.Tracer) or isinstance(rate, jax.Array):
             velocity = -jnp.asarray(moving, height.dtype) * (rate * height)
         else:  # on the host in float64, rounded once into the state (set_control)
             velocity = -moving * (rate * float(height))
