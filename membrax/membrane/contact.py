@@ -319,7 +319,7 @@ def node_sphere_forces(
     )
 
 
-def _kernel_node_sphere_forces(
+def _kernel_inputs(
     node_position,
     node_velocity,
     sphere_position,
@@ -332,7 +332,7 @@ def _kernel_node_sphere_forces(
     params,
     membrane_thickness,
 ):
-    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc)."""
+    """The kernel's differentiable inputs, in its order (less the candidates), the scalars stacked."""
     dtype = node_position.dtype
     scalars = jnp.stack(
         [
@@ -346,22 +346,54 @@ def _kernel_node_sphere_forces(
             )
         ]
     )
-    rows = jax.ShapeDtypeStruct(node_position.shape, dtype)
-    sphere_rows = jax.ShapeDtypeStruct(sphere_position.shape, dtype)
-    return native.call(
-        "node_sphere_forces",
-        dtype,
-        (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
+    return (
         node_position,
         node_velocity.astype(dtype),
         sphere_position.astype(dtype),
         sphere_velocity.astype(dtype),
         sphere_angular_velocity.astype(dtype),
         sphere_radius.astype(dtype),
-        candidates.astype(jnp.int32),
         spring.astype(dtype),
         scalars,
     )
+
+
+def _kernel_node_sphere_forces(*args):
+    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc)."""
+    *bodies, spring, scalars = _kernel_inputs(*args)
+    node_position, sphere_position = bodies[0], bodies[2]
+    dtype = node_position.dtype
+    rows = jax.ShapeDtypeStruct(node_position.shape, dtype)
+    sphere_rows = jax.ShapeDtypeStruct(sphere_position.shape, dtype)
+    return native.call(
+        "node_sphere_forces",
+        dtype,
+        (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
+        *bodies,
+        args[6].astype(jnp.int32),
+        spring,
+        scalars,
+    )
+
+
+def _backward_node_sphere_forces(args, perturbed, cotangents):
+    """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
+    del perturbed  # it covers every differentiable argument
+    flat = _kernel_inputs(*args)
+    dtype = flat[0].dtype
+    *bodies, spring, scalars = flat
+    shapes = tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat)
+    flat_cotangents = native.call(
+        "node_sphere_backward",
+        dtype,
+        shapes,
+        *bodies,
+        args[6].astype(jnp.int32),
+        spring,
+        scalars,
+        *(jnp.asarray(c, dtype) for c in cotangents),
+    )
+    return native.pack_cotangents(_kernel_inputs, args, flat_cotangents)
 
 
 def _reference_outputs(*args):
@@ -370,7 +402,9 @@ def _reference_outputs(*args):
     return result.node_force, result.sphere_force, result.sphere_torque, result.spring
 
 
-_compiled_node_sphere_forces = native.with_reference(_kernel_node_sphere_forces, _reference_outputs)
+_compiled_node_sphere_forces = native.with_reference(
+    _kernel_node_sphere_forces, _reference_outputs, _backward_node_sphere_forces
+)
 
 
 def _reference_node_sphere_forces(

@@ -305,9 +305,10 @@ def _advance_nodes_reference(
     return force, velocity, position, compensation
 
 
-def _advance_nodes_kernel(
+def _advance_nodes_inputs(
     membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping
 ):
+    """The kernel's differentiable inputs (all but ``free``), the scalars Δt, α, γ stacked."""
     dtype = position.dtype
     scalars = jnp.stack(
         [
@@ -316,23 +317,51 @@ def _advance_nodes_kernel(
             jnp.ravel(damping.viscous_rate)[0].astype(dtype),
         ]
     )
-    rows = jax.ShapeDtypeStruct(position.shape, dtype)
-    return native.call(
-        "membrane_nodes",
-        dtype,
-        (rows, rows, rows, rows),
+    return (
         membrane_force.astype(dtype),
         contact_force.astype(dtype),
         position,
         compensation.astype(dtype),
         velocity.astype(dtype),
         mass.astype(dtype),
-        free.astype(dtype),
         scalars,
     )
 
 
-_compiled_advance_nodes = native.with_reference(_advance_nodes_kernel, _advance_nodes_reference)
+def _advance_nodes_kernel(*args):
+    *vectors, mass, scalars = _advance_nodes_inputs(*args)
+    dtype = mass.dtype
+    rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
+    free = args[6]
+    return native.call(
+        "membrane_nodes", dtype, (rows, rows, rows, rows), *vectors, mass, free.astype(dtype), scalars
+    )
+
+
+def _advance_nodes_backward(args, perturbed, cotangents):
+    """The compiled reverse-mode rule (``membrane_nodes_backward``)."""
+    del perturbed  # it covers every differentiable argument
+    *vectors, mass, scalars = _advance_nodes_inputs(*args)
+    dtype = mass.dtype
+    rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
+    force, position, velocity, mass_bar, scalars_bar = native.call(
+        "membrane_nodes_backward",
+        dtype,
+        (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
+        *vectors,
+        mass,
+        args[6].astype(dtype),
+        scalars,
+        *(jnp.asarray(c, dtype) for c in cotangents),
+    )
+    # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
+    flat = (force, force, position, position, velocity, mass_bar, scalars_bar)
+    return native.pack_cotangents(_advance_nodes_inputs, args, flat)
+
+
+_compiled_advance_nodes = native.with_reference(
+    _advance_nodes_kernel, _advance_nodes_reference, _advance_nodes_backward
+)
 
 
 def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):

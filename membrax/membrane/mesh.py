@@ -851,10 +851,8 @@ def _reference_nodal_forces(
     )
 
 
-def _kernel_nodal_forces(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
-):
-    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`_reference_nodal_forces`)."""
+def _kernel_inputs(position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor):
+    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b)."""
     dtype = position.dtype
     scalars = jnp.stack(
         [
@@ -862,11 +860,12 @@ def _kernel_nodal_forces(
             for value in (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
         ]
     )
-    return native.call(
-        "membrane_forces",
-        dtype,
-        jax.ShapeDtypeStruct(position.shape, dtype),
-        position,
+    return position, scalars
+
+
+def _mesh_inputs(mesh, dtype):
+    """The kernel's mesh inputs, in its order after the positions."""
+    return (
         mesh.corner_index,
         mesh.reference_inverse.astype(dtype),
         mesh.reference_area.astype(dtype),
@@ -875,15 +874,55 @@ def _kernel_nodal_forces(
         mesh.rest_dihedral.astype(dtype),
         mesh.bottom_ring,
         mesh.top_ring,
+    )
+
+
+def _kernel_nodal_forces(
+    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
+):
+    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`_reference_nodal_forces`)."""
+    position, scalars = _kernel_inputs(
+        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
+    )
+    dtype = position.dtype
+    return native.call(
+        "membrane_forces",
+        dtype,
+        jax.ShapeDtypeStruct(position.shape, dtype),
+        position,
+        *_mesh_inputs(mesh, dtype),
         scalars,
         model=np.int64(STRETCHING_MODELS.index(model)),
     )
+
+
+def _backward_nodal_forces(args, perturbed, cotangent, model):
+    """The compiled reverse-mode rule (``membrane_forces_backward``): J ū for the positions (the forces are
+    −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None (the reference's rule) when the mesh's
+    rest geometry is differentiated."""
+    position, mesh = args[0], args[1]
+    if any(jax.tree.leaves(perturbed[1])):
+        return None
+    position, scalars = _kernel_inputs(*args)
+    dtype = position.dtype
+    flat = native.call(
+        "membrane_forces_backward",
+        dtype,
+        (jax.ShapeDtypeStruct(position.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
+        position,
+        *_mesh_inputs(mesh, dtype),
+        scalars,
+        cotangent.astype(dtype),
+        model=np.int64(STRETCHING_MODELS.index(model)),
+    )
+    return native.pack_cotangents(_kernel_inputs, args, flat)
 
 
 _COMPILED_NODAL_FORCES = {
     model: native.with_reference(
         functools.partial(_kernel_nodal_forces, model=model),
         functools.partial(_reference_nodal_forces, model=model),
+        functools.partial(_backward_nodal_forces, model=model),
     )
     for model in STRETCHING_MODELS
 }

@@ -24,6 +24,7 @@ is wrapped in ``jax.custom_vjp`` whose backward pass is the JAX code's) and on o
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import functools
 import hashlib
 import os
@@ -37,15 +38,18 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-__all__ = ["available", "build", "cache_dir", "call", "enabled_for", "with_reference"]
+__all__ = ["available", "build", "cache_dir", "call", "enabled_for", "pack_cotangents", "with_reference"]
 
 _SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
-_HEADERS = ("contact_law.h",)
+_HEADERS = ("contact_law.h", "dual.h")
 # Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
 _KERNELS = {
     "membrane_forces": "MembraxMembraneForces",  # membrane.nodal_forces
+    "membrane_forces_backward": "MembraxMembraneForcesBackward",  # its reverse-mode rule
     "membrane_nodes": "MembraxMembraneNodes",  # membrane_dem.advance_nodes
+    "membrane_nodes_backward": "MembraxMembraneNodesBackward",
     "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
+    "node_sphere_backward": "MembraxNodeSphereBackward",
     "dem_pairs": "MembraxDemPairs",  # integrate.compute_forces (pairs)
 }
 _FLAGS = ("-O3", "-march=native", "-fopenmp-simd", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC")
@@ -158,24 +162,79 @@ def call(name: str, dtype, results, *args, **attributes):
     return function(*args, **attributes)
 
 
-def with_reference(kernel, reference):
+@jax.tree_util.register_static
+@dataclasses.dataclass(frozen=True)
+class _Perturbed:
+    """Which argument leaves are differentiated: static, so it rides in the residuals' tree structure."""
+
+    flags: tuple
+
+
+def with_reference(kernel, reference, backward=None):
     """``kernel`` on the CPU and ``reference`` on other backends, with the derivatives of ``reference``.
 
     Both take the same positional arguments and return the same arrays; ``reference`` is the JAX
     definition the kernel computes. Reverse mode (``jax.grad``, ``jax.vjp``, and reverse over reverse
     through the reference) is defined; forward mode is not (``jax.custom_vjp``).
+
+    ``backward(args, perturbed, cotangents)``, when given, is the compiled reverse-mode rule on the CPU:
+    ``perturbed`` is a pytree of bools like ``args`` (which leaves are being differentiated) and
+    ``cotangents`` the outputs' (dense arrays); it returns the arguments' cotangents, or None where it
+    does not cover a perturbed argument, and then the reference's derivative is used. The tests hold it
+    to the reference's ``jax.vjp``.
     """
 
     @jax.custom_vjp
     def compiled(*args):
         return jax.lax.platform_dependent(*args, cpu=kernel, default=reference)
 
-    def forward(*args):
-        return compiled(*args), args
-
-    def backward(args, cotangents):
+    def reference_backward(args, cotangents):
         _, pullback = jax.vjp(reference, *args)
         return pullback(cotangents)
 
-    compiled.defvjp(forward, backward)
+    if backward is None:
+
+        def forward(*args):
+            return compiled(*args), args
+
+        compiled.defvjp(forward, reference_backward)
+        return compiled
+
+    def is_primal(leaf):
+        return isinstance(leaf, jax.custom_derivatives.CustomVJPPrimal)
+
+    def forward_marked(*primals):
+        args = jax.tree.map(lambda leaf: leaf.value, primals, is_leaf=is_primal)
+        perturbed = jax.tree.map(lambda leaf: leaf.perturbed, primals, is_leaf=is_primal)
+        flat, structure = jax.tree.flatten(perturbed)
+        return compiled(*args), (args, _Perturbed((tuple(flat), structure)))
+
+    def backward_marked(residuals, cotangents):
+        args, marks = residuals
+        flat, structure = marks.flags
+        perturbed = jax.tree.unflatten(structure, flat)
+        cotangents = jax.tree.map(
+            lambda c: jnp.zeros(c.shape, c.dtype) if isinstance(c, jax.custom_derivatives.SymbolicZero) else c,
+            cotangents,
+            is_leaf=lambda c: isinstance(c, jax.custom_derivatives.SymbolicZero),
+        )
+        result = None
+        if jax.default_backend() == "cpu":
+            result = backward(args, perturbed, cotangents)
+        return reference_backward(args, cotangents) if result is None else tuple(result)
+
+    compiled.defvjp(forward_marked, backward_marked, symbolic_zeros=True)
     return compiled
+
+
+def pack_cotangents(pack, args, flat_cotangents):
+    """The cotangents of ``args`` from those of ``pack(*args)``, the kernel's flat inputs (a cheap ``jax.vjp``).
+
+    ``pack`` maps the caller's arguments to the arrays a kernel takes (stacked scalars, casts); a backward
+    kernel returns cotangents of those arrays, and this carries them back through the packing.
+    """
+    packed, pullback = jax.vjp(pack, *args)
+    flat_cotangents = tuple(
+        jnp.asarray(c, p.dtype).reshape(p.shape) for p, c in zip(packed, flat_cotangents, strict=True)
+    )
+    return pullback(flat_cotangents)

@@ -24,11 +24,15 @@
 #include <cstdint>
 #include <vector>
 
+#include "contact_law.h"
+#include "dual.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
 
 namespace {
+
+using membrax::Dual;
 
 // atan(a) for 0 ≤ a ≤ 1 (Cephes atanf: relative error ≤ 2.1e-7 on [0, 1], checked against std::atan).
 inline float atan_unit(float a) {
@@ -289,6 +293,317 @@ ffi::Error membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> co
   return ffi::Error::Success();
 }
 
+
+// ---- The backward kernel: Jᵀū = J ū (the forces are −∇Φ, J symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b).
+
+// atan2 on dual numbers: the value of atan2_branchless, the tangent (x dy − y dx)/(x² + y²).
+template <typename T>
+inline Dual<T> atan2_branchless(Dual<T> y, Dual<T> x) {
+  const T radius_sq = x.v * x.v + y.v * y.v;
+  const T tangent = radius_sq > T(0) ? (x.v * y.d - y.v * x.d) / (radius_sq > T(0) ? radius_sq : T(1)) : T(0);
+  return {atan2_branchless(y.v, x.v), tangent};
+}
+
+// Sums of ū·∂F/∂(scalar) over the elements.
+template <typename T>
+struct ScalarSums {
+  T modulus = 0, thickness = 0, pressure = 0, poisson = 0, bending = 0;  // bending: ∂/∂k_b
+};
+
+// Vectors of dual numbers, as named fields (no indexed arrays), so that the element loops vectorise.
+template <typename T>
+using DualVec = membrax::Vec3<Dual<T>>;
+
+template <typename T>
+__attribute__((always_inline)) inline DualVec<T> operator*(T k, DualVec<T> a) {
+  return {k * a.x, k * a.y, k * a.z};
+}
+
+// Gathers the corners' positions and tangents, component-first ((corner, component) n + element), so
+// that the element loops read contiguous rows (with the gathers inside, GCC does not vectorise them).
+template <typename T>
+void gather_corners(const T* __restrict x, const T* __restrict u, const int32_t* __restrict index,
+                    int corners, int64_t n, T* __restrict gathered_x, T* __restrict gathered_u) {
+  for (int k = 0; k < corners; ++k) {
+    const int32_t* node = index + k * n;
+    for (int c = 0; c < 3; ++c) {
+      T* gx = gathered_x + (3 * k + c) * n;
+      T* gu = gathered_u + (3 * k + c) * n;
+      for (int64_t e = 0; e < n; ++e) {
+        const int64_t i = 3 * int64_t(node[e]) + c;
+        gx[e] = x[i];
+        gu[e] = u[i];
+      }
+    }
+  }
+}
+
+// The gathered rows' pointers, taken before an element loop: with row offsets (k n + e) computed inside,
+// GCC finds the offsets not affine and does not vectorise the loop.
+template <typename T>
+struct CornerRows {
+  const T* x[12];
+  const T* u[12];
+  CornerRows(const T* gathered_x, const T* gathered_u, int corners, int64_t n) {
+    for (int k = 0; k < 3 * corners; ++k) {
+      x[k] = gathered_x + k * n;
+      u[k] = gathered_u + k * n;
+    }
+  }
+};
+
+template <typename T>
+__attribute__((always_inline)) inline DualVec<T> load_dual(const CornerRows<T>& rows, int corner, int64_t e) {
+  return {Dual<T>{rows.x[3 * corner][e], rows.u[3 * corner][e]},
+          Dual<T>{rows.x[3 * corner + 1][e], rows.u[3 * corner + 1][e]},
+          Dual<T>{rows.x[3 * corner + 2][e], rows.u[3 * corner + 2][e]}};
+}
+
+// Writes the tangent of a corner force, component-first: out[(corner, c) n + element].
+template <typename T>
+__attribute__((always_inline)) inline void store_tangent(T* __restrict out, int corner, int64_t n, int64_t e,
+                                                         DualVec<T> force) {
+  out[(3 * corner + 0) * n + e] = force.x.d;
+  out[(3 * corner + 1) * n + e] = force.y.d;
+  out[(3 * corner + 2) * n + e] = force.z.d;
+}
+
+// ū·v for the tangents ū of a (the position's) and the values of v.
+template <typename T>
+__attribute__((always_inline)) inline T tangent_dot_value(DualVec<T> a, DualVec<T> v) {
+  return a.x.d * v.x.v + a.y.d * v.y.v + a.z.d * v.z.v;
+}
+
+// The triangles' corner forces on x + ū ε: their tangents (J ū), component-first, and the scalar sums.
+template <typename T>
+void triangle_tangents(const T* __restrict gx, const T* __restrict gu, const T* __restrict inverse,
+                       const T* __restrict area, int64_t num_triangles, T modulus, T thickness, T pressure,
+                       T poisson, int64_t model, T* __restrict out, T* __restrict partial,
+                       ScalarSums<T>* sums) {
+  using D = Dual<T>;
+  using membrax::cross;
+  using membrax::dot;
+  const int64_t n = num_triangles;
+  // Per unit E_m: μ/E = 1/2(1 + ν), λ*/E = ν/(1 − ν²), and their ν-derivatives.
+  const T shear_unit = T(1) / (T(2) * (T(1) + poisson));
+  const T lame_unit = poisson / (T(1) - poisson * poisson);
+  const T shear_unit_nu = -T(1) / (T(2) * (T(1) + poisson) * (T(1) + poisson));
+  const T lame_unit_nu = (T(1) + poisson * poisson) / ((T(1) - poisson * poisson) * (T(1) - poisson * poisson));
+  const T sixth_pressure = pressure / T(6);
+  const bool neo_hookean = model == 0;
+  const CornerRows<T> rows(gx, gu, 3, n);
+  // Per-element partial sums, added up after the loop. (No `omp simd`: it turns the Vec3 temporaries into
+  // per-lane arrays in memory, and GCC then gives up; after inlining, plain -O3 vectorises the loop.)
+#pragma GCC ivdep
+  for (int64_t t = 0; t < n; ++t) {
+    const DualVec<T> x1 = load_dual(rows, 0, t);
+    const DualVec<T> x2 = load_dual(rows, 1, t);
+    const DualVec<T> x3 = load_dual(rows, 2, t);
+    const T m00 = inverse[4 * t], m01 = inverse[4 * t + 1], m10 = inverse[4 * t + 2],
+            m11 = inverse[4 * t + 3];
+    const DualVec<T> e1 = x2 - x1, e2 = x3 - x1;
+    const DualVec<T> f1 = m00 * e1 + m10 * e2;  // F = [e₁ e₂] D_m⁻¹
+    const DualVec<T> f2 = m01 * e1 + m11 * e2;
+    const D e11 = T(0.5) * (dot(f1, f1) - T(1));
+    const D e22 = T(0.5) * (dot(f2, f2) - T(1));
+    const D e12 = T(0.5) * dot(f1, f2);
+    const D trace = e11 + e22;
+    // ∂w/∂E per unit E_m, both models evaluated and one selected (branch-free); ν-derivatives (SVK only).
+    const D det = e11 * e22 - e12 * e12;
+    const D det_c = T(1) + T(2) * trace + T(4) * det;
+    const D bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
+    const D by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
+    const D by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
+    const D u11 = membrax::select(neo_hookean, (by_trace + by_det * e22) / T(6),
+                                  T(2) * shear_unit * e11 + lame_unit * trace);
+    const D u22 = membrax::select(neo_hookean, (by_trace + by_det * e11) / T(6),
+                                  T(2) * shear_unit * e22 + lame_unit * trace);
+    const D u12 = membrax::select(neo_hookean, (-T(2) * by_det * e12) / T(6), T(4) * shear_unit * e12);
+    const T nu11 = neo_hookean ? T(0) : T(2) * shear_unit_nu * e11.v + lame_unit_nu * trace.v;
+    const T nu22 = neo_hookean ? T(0) : T(2) * shear_unit_nu * e22.v + lame_unit_nu * trace.v;
+    const T nu12 = neo_hookean ? T(0) : T(4) * shear_unit_nu * e12.v;
+    const T scale = modulus * thickness * area[t];
+    const D c11 = scale * u11, c22 = scale * u22, c12 = scale * u12;
+    const DualVec<T> cross23 = cross(x2, x3), cross31 = cross(x3, x1), cross12 = cross(x1, x2);
+    const DualVec<T> pull1 = c11 * f1 + (T(0.5) * c12) * f2;
+    const DualVec<T> pull2 = c22 * f2 + (T(0.5) * c12) * f1;
+    const DualVec<T> g2 = m00 * pull1 + m01 * pull2;
+    const DualVec<T> g3 = m10 * pull1 + m11 * pull2;
+    store_tangent(out, 0, n, t, (g2 + g3) - sixth_pressure * cross23);  // −(∂W/∂x₁ + p ∂V/∂x₁)
+    store_tangent(out, 1, n, t, (T(0) * g2 - g2) - sixth_pressure * cross31);
+    store_tangent(out, 2, n, t, (T(0) * g3 - g3) - sixth_pressure * cross12);
+    // ū·F_stretch = −E t A₀ (∂w/∂E)/E : dE, dE the strain's tangent; ū·F_pressure = −(p/6) Σ ū_k·∂(6V)/∂x_k.
+    const T work_unit = u11.v * e11.d + u22.v * e22.d + u12.v * e12.d;
+    const T volume_rate =
+        tangent_dot_value(x1, cross23) + tangent_dot_value(x2, cross31) + tangent_dot_value(x3, cross12);
+    partial[t] = area[t] * work_unit;
+    partial[n + t] = scale * (nu11 * e11.d + nu22 * e22.d + nu12 * e12.d);
+    partial[2 * n + t] = volume_rate;
+  }
+  T stretch = 0, poisson_sum = 0, volume = 0;
+  for (int64_t t = 0; t < n; ++t) {
+    stretch += partial[t];
+    poisson_sum += partial[n + t];
+    volume += partial[2 * n + t];
+  }
+  sums->modulus += -thickness * stretch;
+  sums->thickness += -modulus * stretch;
+  sums->poisson += -poisson_sum;
+  sums->pressure += -volume / T(6);
+}
+
+// The hinges' bending forces on x + ū ε: tangents (component-first) and ū·∂F/∂k_b.
+template <typename T>
+void hinge_tangents(const T* __restrict gx, const T* __restrict gu, const T* __restrict weight,
+                    const T* __restrict rest, int64_t num_hinges, T stiffness, T* __restrict out,
+                    T* __restrict partial, ScalarSums<T>* sums) {
+  using D = Dual<T>;
+  using membrax::cross;
+  using membrax::dot;
+  const int64_t n = num_hinges;
+  const CornerRows<T> rows(gx, gu, 4, n);
+#pragma GCC ivdep
+  for (int64_t e = 0; e < n; ++e) {
+    const DualVec<T> a = load_dual(rows, 0, e);
+    const DualVec<T> b = load_dual(rows, 1, e);
+    const DualVec<T> c = load_dual(rows, 2, e);
+    const DualVec<T> d = load_dual(rows, 3, e);
+    const DualVec<T> edge = b - a, ca = c - a, db = d - b;
+    // n₁ = (b − a) × (c − a), n₂ = (a − b) × (d − b) = (d − b) × (b − a) (hinge_forces)
+    const DualVec<T> n1 = cross(edge, ca), n2 = cross(db, edge);
+    const D length_sq = dot(edge, edge);
+    const D length = membrax::sqrt(membrax::select(length_sq.v > T(0), length_sq, membrax::constant(T(1))));
+    const D sine = dot(cross(n1, n2), edge);
+    const D cosine = length * dot(n1, n2);
+    const D area1_sq = dot(n1, n1), area2_sq = dot(n2, n2);
+    const bool degenerate = (area1_sq.v == T(0)) | (area2_sq.v == T(0)) | (length_sq.v == T(0));
+    const D angle = membrax::select(degenerate, membrax::constant(T(0)), atan2_branchless(sine, cosine));
+    const D w1 = membrax::select(degenerate, membrax::constant(T(0)), T(1) / membrax::select(degenerate, membrax::constant(T(1)), area1_sq));
+    const D w2 = membrax::select(degenerate, membrax::constant(T(0)), T(1) / membrax::select(degenerate, membrax::constant(T(1)), area2_sq));
+    const D coefficient = (-T(2) * stiffness * weight[e]) * (angle - rest[e]);
+    const D cb_e = dot(c - b, edge), db_e = dot(db, edge), ac_e = dot(a - c, edge), ad_e = dot(a - d, edge);
+    const DualVec<T> along1 = w1 * n1, along2 = w2 * n2;
+    const D end_scale = -coefficient / length;  // −c/|e| on the edge's ends, −c|e| on the wings
+    const D wing_scale = -coefficient * length;
+    store_tangent(out, 0, n, e, end_scale * (cb_e * along1 + db_e * along2));
+    store_tangent(out, 1, n, e, end_scale * (ac_e * along1 + ad_e * along2));
+    store_tangent(out, 2, n, e, wing_scale * along1);
+    store_tangent(out, 3, n, e, wing_scale * along2);
+    // ū·F = −2 k_b w (θ − θ̄) dθ, dθ = ∇θ·ū the angle's tangent.
+    partial[e] = -T(2) * weight[e] * (angle.v - rest[e]) * angle.d;
+  }
+  T bending = 0;
+  for (int64_t e = 0; e < n; ++e) bending += partial[e];
+  sums->bending += bending;
+}
+
+// The cap fans' pressure forces on x + ū ε (cap_forces): tangents added to the nodes, ū·∂F/∂p.
+template <typename T>
+void cap_tangents(const T* x, const T* u, const int32_t* ring, int64_t count, bool upward, T pressure, T* tangent,
+                  ScalarSums<T>* sums) {
+  using D = Dual<T>;
+  if (count == 0) return;
+  D centre[3] = {membrax::constant(T(0)), membrax::constant(T(0)), membrax::constant(T(0))};
+  for (int64_t k = 0; k < count; ++k)
+    #pragma GCC unroll 3
+    for (int c = 0; c < 3; ++c) centre[c] = centre[c] + D{x[3 * int64_t(ring[k]) + c], u[3 * int64_t(ring[k]) + c]};
+  #pragma GCC unroll 3
+  for (int c = 0; c < 3; ++c) centre[c] = centre[c] / T(count);
+  D summed_cross[3] = {membrax::constant(T(0)), membrax::constant(T(0)), membrax::constant(T(0))};
+  const T factor = -pressure / T(6);
+  T work_unit = 0;  // ū·F per unit p
+  for (int64_t k = 0; k < count; ++k) {
+    const int64_t here = ring[k], after = ring[(k + 1) % count];
+    const int64_t iu = 3 * (upward ? here : after), iv = 3 * (upward ? after : here);
+    const D p[3] = {D{x[iu], u[iu]}, D{x[iu + 1], u[iu + 1]}, D{x[iu + 2], u[iu + 2]}};
+    const D q[3] = {D{x[iv], u[iv]}, D{x[iv + 1], u[iv + 1]}, D{x[iv + 2], u[iv + 2]}};
+    summed_cross[0] = summed_cross[0] + (p[1] * q[2] - p[2] * q[1]);
+    summed_cross[1] = summed_cross[1] + (p[2] * q[0] - p[0] * q[2]);
+    summed_cross[2] = summed_cross[2] + (p[0] * q[1] - p[1] * q[0]);
+    const D on_u[3] = {q[1] * centre[2] - q[2] * centre[1], q[2] * centre[0] - q[0] * centre[2],
+                       q[0] * centre[1] - q[1] * centre[0]};
+    const D on_v[3] = {centre[1] * p[2] - centre[2] * p[1], centre[2] * p[0] - centre[0] * p[2],
+                       centre[0] * p[1] - centre[1] * p[0]};
+    #pragma GCC unroll 3
+    for (int c = 0; c < 3; ++c) {
+      tangent[iu + c] += factor * on_u[c].d;
+      tangent[iv + c] += factor * on_v[c].d;
+      work_unit += -(u[iu + c] * on_u[c].v + u[iv + c] * on_v[c].v) / T(6);
+    }
+  }
+  for (int64_t k = 0; k < count; ++k)
+    #pragma GCC unroll 3
+    for (int c = 0; c < 3; ++c) {
+      const int64_t i = 3 * int64_t(ring[k]) + c;
+      tangent[i] += factor * summed_cross[c].d / T(count);
+      work_unit += -u[i] * summed_cross[c].v / (T(6) * T(count));
+    }
+  sums->pressure += work_unit;
+}
+
+// Inputs: those of membrane_forces, then the forces' cotangent ū (N, 3).
+// Outputs: the position's cotangent J ū (N, 3) and the scalars' (5,): ū·∂F/∂(E_m, t_m, p, ν, f_b).
+template <ffi::DataType dtype>
+ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
+                                    ffi::Buffer<dtype> inverse, ffi::Buffer<dtype> area,
+                                    ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
+                                    ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
+                                    ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars,
+                                    ffi::Buffer<dtype> cotangent, int64_t model,
+                                    ffi::ResultBuffer<dtype> position_cotangent,
+                                    ffi::ResultBuffer<dtype> scalars_cotangent) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = position.element_count() / 3;
+  const int64_t num_triangles = area.element_count();
+  const int64_t num_hinges = edge_weight.element_count();
+  if (position.element_count() != size_t(3 * num_nodes) || scalars.element_count() != 5 ||
+      cotangent.element_count() != size_t(3 * num_nodes) ||
+      corner_index.element_count() != size_t(3 * num_triangles) ||
+      inverse.element_count() != size_t(4 * num_triangles) ||
+      hinge_index.element_count() != size_t(4 * num_hinges) ||
+      rest_dihedral.element_count() != size_t(num_hinges)) {
+    return ffi::Error::InvalidArgument("membrane_forces_backward: inconsistent array sizes");
+  }
+  const T* x = position.typed_data();
+  const T* u = cotangent.typed_data();
+  const T* s = scalars.typed_data();
+  const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4];
+  T* tangent = position_cotangent->typed_data();
+  std::fill(tangent, tangent + 3 * num_nodes, T(0));
+  ScalarSums<T> sums;
+
+  const int64_t most = std::max(num_triangles, num_hinges);
+  thread_local std::vector<T> scratch, gathered;
+  scratch.resize(size_t(12 * most));
+  gathered.resize(size_t(27 * most));
+  T* gx = gathered.data();
+  T* gu = gx + 12 * most;
+  T* partial = gu + 12 * most;
+  gather_corners<T>(x, u, corner_index.typed_data(), 3, num_triangles, gx, gu);
+  triangle_tangents<T>(gx, gu, inverse.typed_data(), area.typed_data(), num_triangles, modulus, thickness,
+                       pressure, poisson, model, scratch.data(), partial, &sums);
+  add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, tangent);
+  // k_b = f_b E t³/(72(1 − ν²)) (D/6); the hinges run even at f_b = 0, where ∂/∂f_b is not zero.
+  const T plate = thickness * thickness * thickness / (T(72) * (T(1) - poisson * poisson));
+  const T stiffness = bending_factor * modulus * plate;
+  gather_corners<T>(x, u, hinge_index.typed_data(), 4, num_hinges, gx, gu);
+  hinge_tangents<T>(gx, gu, edge_weight.typed_data(), rest_dihedral.typed_data(), num_hinges, stiffness,
+                    scratch.data(), partial, &sums);
+  if (bending_factor != T(0)) add_to_nodes<T>(scratch.data(), hinge_index.typed_data(), 4, num_hinges, tangent);
+  cap_tangents<T>(x, u, bottom_ring.typed_data(), bottom_ring.element_count(), false, pressure, tangent, &sums);
+  cap_tangents<T>(x, u, top_ring.typed_data(), top_ring.element_count(), true, pressure, tangent, &sums);
+
+  const T one_minus = T(1) - poisson * poisson;
+  T* out = scalars_cotangent->typed_data();
+  out[0] = sums.modulus + sums.bending * bending_factor * plate;
+  out[1] = sums.thickness + sums.bending * bending_factor * modulus * T(3) * thickness * thickness /
+                                (T(72) * one_minus);
+  out[2] = sums.pressure;
+  out[3] = sums.poisson + sums.bending * stiffness * T(2) * poisson / one_minus;
+  out[4] = sums.bending * modulus * plate;
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 #define MEMBRAX_MEMBRANE_HANDLER(name, dtype)                                  \
@@ -309,3 +624,24 @@ ffi::Error membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> co
 
 MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF32, ffi::F32)
 MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF64, ffi::F64)
+
+#define MEMBRAX_MEMBRANE_BACKWARD_HANDLER(name, dtype)                         \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, membrane_forces_backward<dtype>,         \
+                                ffi::Ffi::Bind()                               \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Attr<int64_t>("model")                    \
+                                    .Ret<ffi::Buffer<dtype>>()                 \
+                                    .Ret<ffi::Buffer<dtype>>());
+
+MEMBRAX_MEMBRANE_BACKWARD_HANDLER(MembraxMembraneForcesBackwardF32, ffi::F32)
+MEMBRAX_MEMBRANE_BACKWARD_HANDLER(MembraxMembraneForcesBackwardF64, ffi::F64)

@@ -69,6 +69,81 @@ ffi::Error membrane_nodes(ffi::Buffer<dtype> membrane_force, ffi::Buffer<dtype> 
   return ffi::Error::Success();
 }
 
+
+// The backward kernel of advance: the outputs' cotangents (F̄, v̄', x̄', c̄') to the inputs'. The new
+// compensation c' = (Δt v' + c) − (x' − x) has a zero derivative (x' = x + Δt v' + c), as in JAX's.
+template <typename T>
+void advance_backward(const T* __restrict membrane_force, const T* __restrict contact_force,
+                      const T* __restrict velocity, const T* __restrict mass, const T* __restrict free,
+                      const T* __restrict force_bar, const T* __restrict velocity_bar,
+                      const T* __restrict position_bar, int64_t num_nodes, T dt, T local, T viscous,
+                      T* __restrict force_out, T* __restrict position_out, T* __restrict velocity_out,
+                      T* __restrict mass_out, T* scalars_out) {
+  T sum_dt = 0, sum_local = 0, sum_viscous = 0;
+#pragma omp simd reduction(+ : sum_dt, sum_local, sum_viscous)
+  for (int64_t node = 0; node < num_nodes; ++node) {
+    const T m = mass[node];
+    const bool moves = free[node] != T(0);
+    T mass_bar = 0;
+    for (int c = 0; c < 3; ++c) {
+      const int64_t k = 3 * node + c;
+      const T f = membrane_force[k] + contact_force[k];
+      const T v = velocity[k];
+      const T sign = v > T(0) ? T(1) : (v < T(0) ? T(-1) : T(0));
+      const T force_sign = f > T(0) ? T(1) : (f < T(0) ? T(-1) : T(0));
+      const T damped = f - local * std::fabs(f) * sign - viscous * m * v;
+      const T updated = moves ? v + dt * damped / m : T(0);
+      const T corrected_bar = position_bar[k];  // x' = x + (Δt v' + c)
+      const T updated_bar = velocity_bar[k] + dt * corrected_bar;
+      sum_dt += corrected_bar * updated;
+      const T damped_bar = moves ? updated_bar * dt / m : T(0);
+      sum_dt += moves ? updated_bar * damped / m : T(0);
+      mass_bar += moves ? -updated_bar * dt * damped / (m * m) : T(0);
+      T velocity_cotangent = moves ? updated_bar : T(0);
+      sum_local += -damped_bar * std::fabs(f) * sign;
+      sum_viscous += -damped_bar * m * v;
+      mass_bar += -damped_bar * viscous * v;
+      velocity_cotangent += -damped_bar * viscous * m;
+      force_out[k] = force_bar[k] + damped_bar * (T(1) - local * force_sign * sign);
+      position_out[k] = corrected_bar;
+      velocity_out[k] = velocity_cotangent;
+    }
+    mass_out[node] = mass_bar;
+  }
+  scalars_out[0] = sum_dt;
+  scalars_out[1] = sum_local;
+  scalars_out[2] = sum_viscous;
+}
+
+// Inputs: those of membrane_nodes, then the cotangents of its four outputs (n, 3).
+// Outputs: the cotangents of the (membrane and contact) force, position and compensation (all three
+// equal to the summed ones), velocity (n, 3), mass (n,) and scalars (3,) = Δt, α, γ.
+template <ffi::DataType dtype>
+ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> membrane_force, ffi::Buffer<dtype> contact_force,
+                                   ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation,
+                                   ffi::Buffer<dtype> velocity, ffi::Buffer<dtype> mass, ffi::Buffer<dtype> free,
+                                   ffi::Buffer<dtype> scalars, ffi::Buffer<dtype> force_bar,
+                                   ffi::Buffer<dtype> velocity_bar, ffi::Buffer<dtype> position_bar,
+                                   ffi::Buffer<dtype> compensation_bar, ffi::ResultBuffer<dtype> force_out,
+                                   ffi::ResultBuffer<dtype> position_out, ffi::ResultBuffer<dtype> velocity_out,
+                                   ffi::ResultBuffer<dtype> mass_out, ffi::ResultBuffer<dtype> scalars_out) {
+  const int64_t n = mass.element_count();
+  for (const auto* vector : {&membrane_force, &contact_force, &position, &compensation, &velocity, &force_bar,
+                             &velocity_bar, &position_bar, &compensation_bar}) {
+    if (vector->element_count() != size_t(3 * n))
+      return ffi::Error::InvalidArgument("membrane_nodes_backward: (n, 3) arrays must match the n masses");
+  }
+  if (free.element_count() != size_t(n) || scalars.element_count() != 3)
+    return ffi::Error::InvalidArgument("membrane_nodes_backward: free must be (n,), scalars (3,)");
+  const auto* s = scalars.typed_data();
+  advance_backward(membrane_force.typed_data(), contact_force.typed_data(), velocity.typed_data(),
+                   mass.typed_data(), free.typed_data(), force_bar.typed_data(), velocity_bar.typed_data(),
+                   position_bar.typed_data(), n, s[0], s[1], s[2], force_out->typed_data(),
+                   position_out->typed_data(), velocity_out->typed_data(), mass_out->typed_data(),
+                   scalars_out->typed_data());
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 #define MEMBRAX_NODES_HANDLER(name, dtype)                     \
@@ -89,3 +164,27 @@ ffi::Error membrane_nodes(ffi::Buffer<dtype> membrane_force, ffi::Buffer<dtype> 
 
 MEMBRAX_NODES_HANDLER(MembraxMembraneNodesF32, ffi::F32)
 MEMBRAX_NODES_HANDLER(MembraxMembraneNodesF64, ffi::F64)
+
+#define MEMBRAX_NODES_BACKWARD_HANDLER(name, dtype)                     \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, membrane_nodes_backward<dtype>,   \
+                                ffi::Ffi::Bind()                        \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Arg<ffi::Buffer<dtype>>()          \
+                                    .Ret<ffi::Buffer<dtype>>()          \
+                                    .Ret<ffi::Buffer<dtype>>()          \
+                                    .Ret<ffi::Buffer<dtype>>()          \
+                                    .Ret<ffi::Buffer<dtype>>()          \
+                                    .Ret<ffi::Buffer<dtype>>());
+
+MEMBRAX_NODES_BACKWARD_HANDLER(MembraxMembraneNodesBackwardF32, ffi::F32)
+MEMBRAX_NODES_BACKWARD_HANDLER(MembraxMembraneNodesBackwardF64, ffi::F64)

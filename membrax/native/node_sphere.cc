@@ -142,6 +142,225 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
   return ffi::Error::Success();
 }
 
+
+// ---- The backward kernel: the law of each touching slot run backwards by hand (reverse mode).
+
+template <typename T>
+struct SlotCotangents {
+  Vec3<T> branch, relative, spring;
+  T overlap, dt, normal_stiffness, tangential_stiffness, friction;
+};
+
+// The cotangents of slot_law's inputs from those of its force on the node (force_bar) and its new spring
+// (spring_bar). Follows slot_law and membrax::tangential_spring step by step (active: a touching slot),
+// with the derivatives of the JAX law's guarded norms and selects.
+template <typename T>
+inline SlotCotangents<T> slot_law_backward(Vec3<T> b, Vec3<T> relative, Vec3<T> s, T overlap, T dt,
+                                           T normal_stiffness, T tangential_stiffness, T friction,
+                                           Vec3<T> force_bar, Vec3<T> spring_bar) {
+  // Forward, keeping the intermediates.
+  const T distance_sq = dot(b, b);
+  const bool apart = distance_sq > T(0);
+  const T distance = std::sqrt(apart ? distance_sq : T(1));
+  const Vec3<T> normal = (apart ? T(1) / distance : T(0)) * b;
+  const T normal_force = apart ? normal_stiffness * overlap : T(0);
+  const T normal_speed = dot(relative, normal);
+  const Vec3<T> tangential_velocity = relative - normal_speed * normal;
+  const T length_sq = dot(s, s);
+  const T length = length_sq > T(0) ? std::sqrt(length_sq > T(0) ? length_sq : T(1)) : T(0);
+  const T spring_normal = dot(s, normal);
+  const Vec3<T> projected = s - spring_normal * normal;
+  const T projected_sq = dot(projected, projected);
+  const T quarter = T(0.25) * length * length;
+  const bool projected_wins = projected_sq >= quarter;
+  const T denominator_sq = projected_wins ? projected_sq : quarter;
+  const bool positive = denominator_sq > T(0);
+  const T denominator = positive ? std::sqrt(positive ? denominator_sq : T(1)) : T(0);
+  const T inverse_denominator = positive ? T(1) / denominator : T(0);
+  const Vec3<T> direction = inverse_denominator * projected;
+  const T stiffness_dt = tangential_stiffness * dt;
+  const Vec3<T> trial = length * direction - stiffness_dt * tangential_velocity;
+  const T trial_sq = dot(trial, trial);
+  const T trial_length = trial_sq > T(0) ? std::sqrt(trial_sq > T(0) ? trial_sq : T(1)) : T(0);
+  const T limit = friction * normal_force;
+  const bool slipping = trial_length > limit;
+  const T safe_trial_length = trial_length > T(0) ? trial_length : T(1);
+  const T slip = slipping ? limit / safe_trial_length : T(1);
+
+  // Backward. F = F_n n̂ + s', so s' receives F̄ too.
+  SlotCotangents<T> bar{};
+  const Vec3<T> new_spring_bar = spring_bar + force_bar;
+  T normal_force_bar = dot(force_bar, normal);
+  Vec3<T> normal_bar = normal_force * force_bar;
+  Vec3<T> trial_bar = slip * new_spring_bar;
+  const T slip_bar = dot(new_spring_bar, trial);
+  T trial_length_bar = T(0);
+  if (slipping) {  // slip = μ F_n/|trial|
+    const T limit_bar = slip_bar / safe_trial_length;
+    trial_length_bar = trial_length > T(0) ? -slip_bar * limit / (safe_trial_length * safe_trial_length) : T(0);
+    bar.friction = limit_bar * normal_force;
+    normal_force_bar += limit_bar * friction;
+  }
+  if (trial_sq > T(0)) trial_bar = trial_bar + (trial_length_bar / trial_length) * trial;
+  T length_bar = dot(trial_bar, direction);
+  const Vec3<T> direction_bar = length * trial_bar;
+  const Vec3<T> tangential_velocity_bar = (-stiffness_dt) * trial_bar;
+  const T stiffness_dt_bar = -dot(trial_bar, tangential_velocity);
+  bar.tangential_stiffness = stiffness_dt_bar * dt;
+  bar.dt = stiffness_dt_bar * tangential_stiffness;
+  Vec3<T> projected_bar = inverse_denominator * direction_bar;
+  if (positive) {  // direction = projected/√(denominator²)
+    const T denominator_bar = -dot(direction_bar, projected) * inverse_denominator * inverse_denominator;
+    const T denominator_sq_bar = denominator_bar / (T(2) * denominator);
+    if (projected_wins) {
+      projected_bar = projected_bar + (T(2) * denominator_sq_bar) * projected;
+    } else {
+      length_bar += denominator_sq_bar * T(0.5) * length;
+    }
+  }
+  // projected = s − (s·n̂) n̂
+  Vec3<T> spring_cotangent = projected_bar;
+  const T spring_normal_bar = -dot(projected_bar, normal);
+  normal_bar = normal_bar - spring_normal * projected_bar;
+  spring_cotangent = spring_cotangent + spring_normal_bar * normal;
+  normal_bar = normal_bar + spring_normal_bar * s;
+  if (length_sq > T(0)) spring_cotangent = spring_cotangent + (length_bar / length) * s;
+  // v_t = v − (v·n̂) n̂
+  Vec3<T> relative_bar = tangential_velocity_bar;
+  const T normal_speed_bar = -dot(tangential_velocity_bar, normal);
+  normal_bar = normal_bar - normal_speed * tangential_velocity_bar;
+  relative_bar = relative_bar + normal_speed_bar * normal;
+  normal_bar = normal_bar + normal_speed_bar * relative;
+  // F_n = k_n δ, n̂ = b/|b|
+  if (apart) {
+    bar.normal_stiffness = normal_force_bar * overlap;
+    bar.overlap = normal_force_bar * normal_stiffness;
+    bar.branch = (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal);
+  }
+  bar.relative = relative_bar;
+  bar.spring = spring_cotangent;
+  return bar;
+}
+
+// Inputs: those of node_sphere_forces, then the cotangents of its outputs: node force (n, 3), sphere
+// force and torque (N, 3), springs (3, n, K). Outputs: the cotangents of node position and velocity
+// (n, 3), sphere position, velocity and angular velocity (N, 3), radius (N,), springs (3, n, K) and
+// scalars (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero outputs whatever their inputs.
+template <ffi::DataType dtype>
+ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity,
+                                ffi::Buffer<dtype> sphere_position, ffi::Buffer<dtype> sphere_velocity,
+                                ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
+                                ffi::Buffer<ffi::S32> idx, ffi::Buffer<dtype> spring, ffi::Buffer<dtype> scalars,
+                                ffi::Buffer<dtype> node_force_bar, ffi::Buffer<dtype> sphere_force_bar,
+                                ffi::Buffer<dtype> sphere_torque_bar, ffi::Buffer<dtype> spring_bar,
+                                ffi::ResultBuffer<dtype> node_position_out,
+                                ffi::ResultBuffer<dtype> node_velocity_out,
+                                ffi::ResultBuffer<dtype> sphere_position_out,
+                                ffi::ResultBuffer<dtype> sphere_velocity_out,
+                                ffi::ResultBuffer<dtype> sphere_angular_out, ffi::ResultBuffer<dtype> radius_out,
+                                ffi::ResultBuffer<dtype> spring_out, ffi::ResultBuffer<dtype> scalars_out) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = node_position.element_count() / 3;
+  const int64_t num_spheres = sphere_radius.element_count();
+  const auto dims = idx.dimensions();
+  if (dims.size() != 2 || dims[0] != num_nodes || scalars.element_count() != 5 ||
+      spring.element_count() != size_t(3 * num_nodes * dims[1]) ||
+      spring_bar.element_count() != spring.element_count() ||
+      node_force_bar.element_count() != size_t(3 * num_nodes) ||
+      sphere_force_bar.element_count() != size_t(3 * num_spheres) ||
+      sphere_torque_bar.element_count() != size_t(3 * num_spheres) ||
+      sphere_position.element_count() != size_t(3 * num_spheres)) {
+    return ffi::Error::InvalidArgument("node_sphere_backward: inconsistent array sizes");
+  }
+  const int64_t capacity = dims[1];
+  const int64_t m = num_nodes * capacity;
+  const T* scalar = scalars.typed_data();
+  const T dt = scalar[0], normal_stiffness = scalar[1], tangential_stiffness = scalar[2],
+          friction = scalar[3], half_thickness = T(0.5) * scalar[4];
+  const T* x = node_position.typed_data();
+  const T* v = node_velocity.typed_data();
+  const T* xs = sphere_position.typed_data();
+  const T* vs = sphere_velocity.typed_data();
+  const T* ws = sphere_angular_velocity.typed_data();
+  const T* radius = sphere_radius.typed_data();
+  const int32_t* id = idx.typed_data();
+  const T* old_spring = spring.typed_data();
+  const T* f_node_bar = node_force_bar.typed_data();
+  const T* f_sphere_bar = sphere_force_bar.typed_data();
+  const T* tau_bar = sphere_torque_bar.typed_data();
+  const T* s_bar = spring_bar.typed_data();
+  T* x_out = node_position_out->typed_data();
+  T* v_out = node_velocity_out->typed_data();
+  T* xs_out = sphere_position_out->typed_data();
+  T* vs_out = sphere_velocity_out->typed_data();
+  T* ws_out = sphere_angular_out->typed_data();
+  T* r_out = radius_out->typed_data();
+  T* s_out = spring_out->typed_data();
+  T* scalar_out = scalars_out->typed_data();
+  std::fill(x_out, x_out + 3 * num_nodes, T(0));
+  std::fill(v_out, v_out + 3 * num_nodes, T(0));
+  std::fill(xs_out, xs_out + 3 * num_spheres, T(0));
+  std::fill(vs_out, vs_out + 3 * num_spheres, T(0));
+  std::fill(ws_out, ws_out + 3 * num_spheres, T(0));
+  std::fill(r_out, r_out + num_spheres, T(0));
+  std::fill(s_out, s_out + 3 * m, T(0));
+  std::fill(scalar_out, scalar_out + 5, T(0));
+
+  thread_local std::vector<uint8_t> touching;
+  touching.resize(size_t(m));
+  touching_slots<T>(x, xs, radius, id, num_nodes, capacity, num_spheres, half_thickness, touching.data());
+  for (int64_t j = 0; j < m; ++j) {
+    if (!touching[j]) continue;
+    const int64_t node = j / capacity, sphere = id[j];
+    const Vec3<T> b = {x[3 * node] - xs[3 * sphere], x[3 * node + 1] - xs[3 * sphere + 1],
+                       x[3 * node + 2] - xs[3 * sphere + 2]};
+    const Vec3<T> s = {old_spring[j], old_spring[m + j], old_spring[2 * m + j]};
+    const Vec3<T> w = {ws[3 * sphere], ws[3 * sphere + 1], ws[3 * sphere + 2]};
+    const Vec3<T> node_velocity_j = {v[3 * node], v[3 * node + 1], v[3 * node + 2]};
+    const Vec3<T> sphere_velocity_j = {vs[3 * sphere], vs[3 * sphere + 1], vs[3 * sphere + 2]};
+    const Vec3<T> relative = node_velocity_j - (sphere_velocity_j + cross(w, b));
+    const T distance_sq = dot(b, b);
+    const T distance = std::sqrt(distance_sq);
+    const T overlap = radius[sphere] + half_thickness - distance;
+    Vec3<T> updated;
+    const Vec3<T> force =
+        slot_law<T>(b, relative, s, overlap, dt, normal_stiffness, tangential_stiffness, friction, &updated);
+    // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
+    const Vec3<T> node_bar = {f_node_bar[3 * node], f_node_bar[3 * node + 1], f_node_bar[3 * node + 2]};
+    const Vec3<T> sphere_bar = {f_sphere_bar[3 * sphere], f_sphere_bar[3 * sphere + 1],
+                                f_sphere_bar[3 * sphere + 2]};
+    const Vec3<T> torque_bar = {tau_bar[3 * sphere], tau_bar[3 * sphere + 1], tau_bar[3 * sphere + 2]};
+    const Vec3<T> new_spring_bar = {s_bar[j], s_bar[m + j], s_bar[2 * m + j]};
+    const Vec3<T> force_bar = (node_bar - sphere_bar) + cross(b, torque_bar);  // τ̄·(−b × F) = F·(b × τ̄)
+    SlotCotangents<T> bar = slot_law_backward<T>(b, relative, s, overlap, dt, normal_stiffness,
+                                                 tangential_stiffness, friction, force_bar, new_spring_bar);
+    // torque: b̄ += τ̄ × F; relative = v_n − v_i − ω × b: ω̄ += v̄_rel × b, b̄ += ω × v̄_rel;
+    // δ = R + t_m/2 − |b|: R̄ += δ̄, t̄_m += δ̄/2, b̄ −= δ̄ b/|b|.
+    Vec3<T> branch_bar = bar.branch + cross(torque_bar, force) + cross(w, bar.relative);
+    if (distance_sq > T(0)) branch_bar = branch_bar - (bar.overlap / distance) * b;
+    const Vec3<T> angular_bar = cross(bar.relative, b);
+    const T branch_out[3] = {branch_bar.x, branch_bar.y, branch_bar.z};
+    const T relative_out[3] = {bar.relative.x, bar.relative.y, bar.relative.z};
+    const T angular_out[3] = {angular_bar.x, angular_bar.y, angular_bar.z};
+    const T spring_in_out[3] = {bar.spring.x, bar.spring.y, bar.spring.z};
+    for (int c = 0; c < 3; ++c) {
+      x_out[3 * node + c] += branch_out[c];
+      xs_out[3 * sphere + c] -= branch_out[c];
+      v_out[3 * node + c] += relative_out[c];
+      vs_out[3 * sphere + c] -= relative_out[c];
+      ws_out[3 * sphere + c] += angular_out[c];
+      s_out[c * m + j] = spring_in_out[c];
+    }
+    r_out[sphere] += bar.overlap;
+    scalar_out[0] += bar.dt;
+    scalar_out[1] += bar.normal_stiffness;
+    scalar_out[2] += bar.tangential_stiffness;
+    scalar_out[3] += bar.friction;
+    scalar_out[4] += T(0.5) * bar.overlap;
+  }
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 #define MEMBRAX_NODE_SPHERE_HANDLER(name, dtype)                 \
@@ -163,3 +382,31 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
 
 MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF32, ffi::F32)
 MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF64, ffi::F64)
+
+#define MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(name, dtype)                 \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, node_sphere_backward<dtype>,        \
+                                ffi::Ffi::Bind()                          \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<ffi::S32>>()         \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ret<ffi::Buffer<dtype>>());
+
+MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF32, ffi::F32)
+MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF64, ffi::F64)
