@@ -347,7 +347,7 @@ def _advance_nodes_backward(args, perturbed, cotangents):
     force, position, velocity, mass_bar, scalars_bar = native.call(
         "membrane_nodes_backward",
         dtype,
-        (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
+        (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
         *vectors,
         mass,
         args[6].astype(dtype),

@@ -897,9 +897,11 @@ def _kernel_nodal_forces(
 
 
 def _backward_nodal_forces(args, perturbed, cotangent, model):
-    """The compiled reverse-mode rule (``membrane_forces_backward``): J ū for the positions (the forces are
-    −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None (the reference's rule) when the mesh's
-    rest geometry is differentiated."""
+    """The compiled reverse-mode rule (``membrane_forces_backward``).
+
+    J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
+    (the reference's rule) when the mesh's rest geometry is differentiated.
+    """
     position, mesh = args[0], args[1]
     if any(jax.tree.leaves(perturbed[1])):
         return None

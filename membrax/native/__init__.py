@@ -51,6 +51,7 @@ _KERNELS = {
     "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
     "node_sphere_backward": "MembraxNodeSphereBackward",
     "dem_pairs": "MembraxDemPairs",  # integrate.compute_forces (pairs)
+    "dem_pairs_backward": "MembraxDemPairsBackward",
 }
 _FLAGS = ("-O3", "-march=native", "-fopenmp-simd", "-fno-math-errno", "-std=c++17", "-shared", "-fPIC")
 
@@ -213,10 +214,11 @@ def with_reference(kernel, reference, backward=None):
         args, marks = residuals
         flat, structure = marks.flags
         perturbed = jax.tree.unflatten(structure, flat)
+        symbolic = jax.custom_derivatives.SymbolicZero
         cotangents = jax.tree.map(
-            lambda c: jnp.zeros(c.shape, c.dtype) if isinstance(c, jax.custom_derivatives.SymbolicZero) else c,
+            lambda c: jnp.zeros(c.shape, c.dtype) if isinstance(c, symbolic) else c,
             cotangents,
-            is_leaf=lambda c: isinstance(c, jax.custom_derivatives.SymbolicZero),
+            is_leaf=lambda c: isinstance(c, symbolic),
         )
         result = None
         if jax.default_backend() == "cpu":
@@ -228,7 +230,7 @@ def with_reference(kernel, reference, backward=None):
 
 
 def pack_cotangents(pack, args, flat_cotangents):
-    """The cotangents of ``args`` from those of ``pack(*args)``, the kernel's flat inputs (a cheap ``jax.vjp``).
+    """The cotangents of ``args`` from those of ``pack(*args)``, a kernel's flat inputs (by ``jax.vjp``).
 
     ``pack`` maps the caller's arguments to the arrays a kernel takes (stacked scalars, casts); a backward
     kernel returns cotangents of those arrays, and this carries them back through the packing.

@@ -47,6 +47,69 @@ __attribute__((always_inline)) inline Vec3<T> tangential_spring(Vec3<T> spring, 
   return (active ? slip : T(0)) * trial;
 }
 
+// The cotangents of tangential_spring's inputs (active: a touching contact) from the new spring's, run
+// backwards by hand with the derivatives of the JAX law's guarded norms and selects.
+template <typename T>
+struct SpringCotangents {
+  Vec3<T> spring, normal, tangential_velocity;
+  T stiffness_dt, limit;
+};
+
+template <typename T>
+inline SpringCotangents<T> tangential_spring_backward(Vec3<T> spring, Vec3<T> normal, Vec3<T> tangential_velocity,
+                                                      T stiffness_dt, T limit, Vec3<T> new_spring_bar) {
+  // Forward, keeping the intermediates.
+  const T length_sq = dot(spring, spring);
+  const T length = length_sq > T(0) ? std::sqrt(length_sq > T(0) ? length_sq : T(1)) : T(0);
+  const T spring_normal = dot(spring, normal);
+  const Vec3<T> projected = spring - spring_normal * normal;
+  const T projected_sq = dot(projected, projected);
+  const T quarter = T(0.25) * length * length;
+  const bool projected_wins = projected_sq >= quarter;
+  const T denominator_sq = projected_wins ? projected_sq : quarter;
+  const bool positive = denominator_sq > T(0);
+  const T denominator = positive ? std::sqrt(positive ? denominator_sq : T(1)) : T(0);
+  const T inverse_denominator = positive ? T(1) / denominator : T(0);
+  const Vec3<T> direction = inverse_denominator * projected;
+  const Vec3<T> trial = length * direction - stiffness_dt * tangential_velocity;
+  const T trial_sq = dot(trial, trial);
+  const T trial_length = trial_sq > T(0) ? std::sqrt(trial_sq > T(0) ? trial_sq : T(1)) : T(0);
+  const bool slipping = trial_length > limit;
+  const T safe_trial_length = trial_length > T(0) ? trial_length : T(1);
+  const T slip = slipping ? limit / safe_trial_length : T(1);
+
+  // Backward.
+  SpringCotangents<T> bar{};
+  Vec3<T> trial_bar = slip * new_spring_bar;
+  const T slip_bar = dot(new_spring_bar, trial);
+  T trial_length_bar = T(0);
+  if (slipping) {  // slip = limit/|trial|
+    bar.limit = slip_bar / safe_trial_length;
+    trial_length_bar = trial_length > T(0) ? -slip_bar * limit / (safe_trial_length * safe_trial_length) : T(0);
+  }
+  if (trial_sq > T(0)) trial_bar = trial_bar + (trial_length_bar / trial_length) * trial;
+  T length_bar = dot(trial_bar, direction);
+  const Vec3<T> direction_bar = length * trial_bar;
+  bar.tangential_velocity = (-stiffness_dt) * trial_bar;
+  bar.stiffness_dt = -dot(trial_bar, tangential_velocity);
+  Vec3<T> projected_bar = inverse_denominator * direction_bar;
+  if (positive) {  // direction = projected/√(denominator²)
+    const T denominator_bar = -dot(direction_bar, projected) * inverse_denominator * inverse_denominator;
+    const T denominator_sq_bar = denominator_bar / (T(2) * denominator);
+    if (projected_wins) {
+      projected_bar = projected_bar + (T(2) * denominator_sq_bar) * projected;
+    } else {
+      length_bar += denominator_sq_bar * T(0.5) * length;
+    }
+  }
+  // projected = s − (s·n̂) n̂
+  const T spring_normal_bar = -dot(projected_bar, normal);
+  bar.spring = projected_bar + spring_normal_bar * normal;
+  bar.normal = spring_normal_bar * spring - spring_normal * projected_bar;
+  if (length_sq > T(0)) bar.spring = bar.spring + (length_bar / length) * spring;
+  return bar;
+}
+
 // Sphere–sphere Cundall–Strack contact (membrax.contact.pair_contact is the reference), b = x_j − x_i:
 //   δ = R_i + R_j − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on j),
 //   arm_i = (R_i − δ/2) n̂, arm_j = −(R_j − δ/2) n̂,

@@ -113,6 +113,148 @@ ffi::Error dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensatio
   return ffi::Error::Success();
 }
 
+
+// ---- The backward kernel: sphere_pair run backwards by hand for each touching slot.
+
+// Inputs: those of dem_pairs, then the cotangents of its outputs: totals (N, 6), spring' and the force
+// on j (C, 3). Outputs: the cotangents of position and compensation (N, 3, equal: b = (x_j − x_i) +
+// (c_j − c_i)), velocity and angular velocity (N, 3), radius (N,), spring (C, 3), the per-slot k_n, k_t,
+// μ (C,) and Δt (1,). Padded slots and slots that do not touch (δ ≤ 0: zero outputs) contribute nothing.
+template <ffi::DataType dtype>
+ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation,
+                              ffi::Buffer<dtype> velocity, ffi::Buffer<dtype> angular_velocity,
+                              ffi::Buffer<dtype> radius, ffi::Buffer<ffi::S32> idx, ffi::Buffer<dtype> spring,
+                              ffi::Buffer<dtype> normal_stiffness, ffi::Buffer<dtype> tangential_stiffness,
+                              ffi::Buffer<dtype> friction_coefficient, ffi::Buffer<dtype> time_step,
+                              ffi::Buffer<dtype> totals_bar, ffi::Buffer<dtype> spring_bar,
+                              ffi::Buffer<dtype> pair_force_bar, ffi::ResultBuffer<dtype> position_out,
+                              ffi::ResultBuffer<dtype> velocity_out, ffi::ResultBuffer<dtype> angular_out,
+                              ffi::ResultBuffer<dtype> radius_out, ffi::ResultBuffer<dtype> spring_out,
+                              ffi::ResultBuffer<dtype> kn_out, ffi::ResultBuffer<dtype> kt_out,
+                              ffi::ResultBuffer<dtype> mu_out, ffi::ResultBuffer<dtype> dt_out) {
+  using T = ffi::NativeType<dtype>;
+  using Vec3 = membrax::Vec3<T>;
+  using membrax::cross;
+  using membrax::dot;
+  const int64_t n = radius.element_count();
+  const int64_t slots = spring.element_count() / 3;
+  for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
+    if (rows->element_count() != size_t(3 * n))
+      return ffi::Error::InvalidArgument("dem_pairs_backward: sphere arrays must be (N, 3)");
+  }
+  if (idx.element_count() != size_t(2 * slots) || totals_bar.element_count() != size_t(6 * n) ||
+      spring_bar.element_count() != size_t(3 * slots) || pair_force_bar.element_count() != size_t(3 * slots))
+    return ffi::Error::InvalidArgument("dem_pairs_backward: inconsistent array sizes");
+  const T* x = position.typed_data();
+  const T* xc = compensation.typed_data();
+  const T* v = velocity.typed_data();
+  const T* w = angular_velocity.typed_data();
+  const T* r = radius.typed_data();
+  const int32_t* id = idx.typed_data();
+  const T* s_in = spring.typed_data();
+  const T* kn = normal_stiffness.typed_data();
+  const T* kt = tangential_stiffness.typed_data();
+  const T* mu = friction_coefficient.typed_data();
+  const T dt = time_step.typed_data()[0];
+  const T* total_bar = totals_bar.typed_data();
+  const T* s_bar = spring_bar.typed_data();
+  const T* f_bar = pair_force_bar.typed_data();
+  T* x_out = position_out->typed_data();
+  T* v_out = velocity_out->typed_data();
+  T* w_out = angular_out->typed_data();
+  T* r_out = radius_out->typed_data();
+  T* s_out = spring_out->typed_data();
+  T* kn_bar = kn_out->typed_data();
+  T* kt_bar = kt_out->typed_data();
+  T* mu_bar = mu_out->typed_data();
+  std::fill(x_out, x_out + 3 * n, T(0));
+  std::fill(v_out, v_out + 3 * n, T(0));
+  std::fill(w_out, w_out + 3 * n, T(0));
+  std::fill(r_out, r_out + n, T(0));
+  std::fill(s_out, s_out + 3 * slots, T(0));
+  std::fill(kn_bar, kn_bar + slots, T(0));
+  std::fill(kt_bar, kt_bar + slots, T(0));
+  std::fill(mu_bar, mu_bar + slots, T(0));
+  T dt_bar = T(0);
+  auto row = [](const T* a, int64_t i) { return Vec3{a[3 * i], a[3 * i + 1], a[3 * i + 2]}; };
+  auto add = [](T* a, int64_t i, Vec3 value) {
+    a[3 * i] += value.x;
+    a[3 * i + 1] += value.y;
+    a[3 * i + 2] += value.z;
+  };
+  for (int64_t k = 0; k < slots; ++k) {
+    const int64_t i = id[k], j = id[slots + k];
+    if (i >= n) continue;
+    // Forward (sphere_pair), keeping the intermediates.
+    const Vec3 branch = (row(x, j) - row(x, i)) + (row(xc, j) - row(xc, i));
+    const T distance_sq = dot(branch, branch);
+    if (!(distance_sq > T(0))) continue;
+    const T distance = std::sqrt(distance_sq);
+    const T overlap = r[i] + r[j] - distance;
+    if (!(overlap > T(0))) continue;
+    const Vec3 normal = (T(1) / distance) * branch;
+    const T normal_force = kn[k] * overlap;
+    const Vec3 arm_i = (r[i] - T(0.5) * overlap) * normal;
+    const Vec3 arm_j = (-(r[j] - T(0.5) * overlap)) * normal;
+    const Vec3 wi = row(w, i), wj = row(w, j);
+    const Vec3 relative = (row(v, j) + cross(wj, arm_j)) - (row(v, i) + cross(wi, arm_i));
+    const T normal_speed = dot(relative, normal);
+    const Vec3 tangential_velocity = relative - normal_speed * normal;
+    const Vec3 s = row(s_in, k);
+    const Vec3 updated = membrax::tangential_spring(s, normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force,
+                                                    true);
+    const Vec3 force = normal_force * normal + updated;
+    // The outputs' cotangents: F on j (totals of j, less those of i, and the pair force), torques
+    // τ_i = −arm_i × F and τ_j = arm_j × F, spring s'.
+    const Vec3 torque_i_bar = {total_bar[6 * i + 3], total_bar[6 * i + 4], total_bar[6 * i + 5]};
+    const Vec3 torque_j_bar = {total_bar[6 * j + 3], total_bar[6 * j + 4], total_bar[6 * j + 5]};
+    const Vec3 force_bar = (Vec3{total_bar[6 * j], total_bar[6 * j + 1], total_bar[6 * j + 2]} -
+                            Vec3{total_bar[6 * i], total_bar[6 * i + 1], total_bar[6 * i + 2]}) +
+                           row(f_bar, k) + cross(arm_i, torque_i_bar) + cross(torque_j_bar, arm_j);
+    Vec3 arm_i_bar = cross(torque_i_bar, force);
+    Vec3 arm_j_bar = cross(force, torque_j_bar);
+    // F = F_n n̂ + s'
+    T normal_force_bar = dot(force_bar, normal);
+    const membrax::SpringCotangents<T> bar = membrax::tangential_spring_backward(
+        s, normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force, row(s_bar, k) + force_bar);
+    Vec3 normal_bar = normal_force * force_bar + bar.normal;
+    mu_bar[k] = bar.limit * normal_force;
+    normal_force_bar += bar.limit * mu[k];
+    kt_bar[k] = bar.stiffness_dt * dt;
+    dt_bar += bar.stiffness_dt * kt[k];
+    // v_t = v − (v·n̂) n̂
+    const T normal_speed_bar = -dot(bar.tangential_velocity, normal);
+    normal_bar = normal_bar - normal_speed * bar.tangential_velocity + normal_speed_bar * relative;
+    const Vec3 relative_bar = bar.tangential_velocity + normal_speed_bar * normal;
+    // v_rel = v_j + ω_j × arm_j − v_i − ω_i × arm_i
+    add(v_out, j, relative_bar);
+    add(v_out, i, T(-1) * relative_bar);
+    add(w_out, j, cross(arm_j, relative_bar));
+    add(w_out, i, T(-1) * cross(arm_i, relative_bar));
+    arm_j_bar = arm_j_bar + cross(relative_bar, wj);
+    arm_i_bar = arm_i_bar - cross(relative_bar, wi);
+    // arm_i = (R_i − δ/2) n̂, arm_j = −(R_j − δ/2) n̂
+    const T along_i = dot(arm_i_bar, normal), along_j = dot(arm_j_bar, normal);
+    T overlap_bar = T(-0.5) * along_i + T(0.5) * along_j;
+    normal_bar = normal_bar + (r[i] - T(0.5) * overlap) * arm_i_bar - (r[j] - T(0.5) * overlap) * arm_j_bar;
+    // F_n = k_n δ
+    kn_bar[k] = normal_force_bar * overlap;
+    overlap_bar += normal_force_bar * kn[k];
+    // δ = R_i + R_j − |b|, n̂ = b/|b|
+    r_out[i] += along_i + overlap_bar;
+    r_out[j] += -along_j + overlap_bar;
+    const Vec3 branch_bar =
+        (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal) - overlap_bar * normal;
+    add(x_out, j, branch_bar);
+    add(x_out, i, T(-1) * branch_bar);
+    s_out[3 * k] = bar.spring.x;
+    s_out[3 * k + 1] = bar.spring.y;
+    s_out[3 * k + 2] = bar.spring.z;
+  }
+  dt_out->typed_data()[0] = dt_bar;
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 #define MEMBRAX_DEM_PAIRS_HANDLER(name, dtype)                 \
@@ -135,3 +277,33 @@ ffi::Error dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensatio
 
 MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF32, ffi::F32)
 MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF64, ffi::F64)
+
+#define MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(name, dtype)           \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, dem_pairs_backward<dtype>,   \
+                                ffi::Ffi::Bind()                   \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<ffi::S32>>()  \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Arg<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ret<ffi::Buffer<dtype>>());
+
+MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF32, ffi::F32)
+MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF64, ffi::F64)

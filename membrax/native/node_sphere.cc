@@ -152,13 +152,11 @@ struct SlotCotangents {
 };
 
 // The cotangents of slot_law's inputs from those of its force on the node (force_bar) and its new spring
-// (spring_bar). Follows slot_law and membrax::tangential_spring step by step (active: a touching slot),
-// with the derivatives of the JAX law's guarded norms and selects.
+// (spring_bar), slot_law run backwards by hand (active: a touching slot).
 template <typename T>
 inline SlotCotangents<T> slot_law_backward(Vec3<T> b, Vec3<T> relative, Vec3<T> s, T overlap, T dt,
                                            T normal_stiffness, T tangential_stiffness, T friction,
                                            Vec3<T> force_bar, Vec3<T> spring_bar) {
-  // Forward, keeping the intermediates.
   const T distance_sq = dot(b, b);
   const bool apart = distance_sq > T(0);
   const T distance = std::sqrt(apart ? distance_sq : T(1));
@@ -166,79 +164,28 @@ inline SlotCotangents<T> slot_law_backward(Vec3<T> b, Vec3<T> relative, Vec3<T> 
   const T normal_force = apart ? normal_stiffness * overlap : T(0);
   const T normal_speed = dot(relative, normal);
   const Vec3<T> tangential_velocity = relative - normal_speed * normal;
-  const T length_sq = dot(s, s);
-  const T length = length_sq > T(0) ? std::sqrt(length_sq > T(0) ? length_sq : T(1)) : T(0);
-  const T spring_normal = dot(s, normal);
-  const Vec3<T> projected = s - spring_normal * normal;
-  const T projected_sq = dot(projected, projected);
-  const T quarter = T(0.25) * length * length;
-  const bool projected_wins = projected_sq >= quarter;
-  const T denominator_sq = projected_wins ? projected_sq : quarter;
-  const bool positive = denominator_sq > T(0);
-  const T denominator = positive ? std::sqrt(positive ? denominator_sq : T(1)) : T(0);
-  const T inverse_denominator = positive ? T(1) / denominator : T(0);
-  const Vec3<T> direction = inverse_denominator * projected;
-  const T stiffness_dt = tangential_stiffness * dt;
-  const Vec3<T> trial = length * direction - stiffness_dt * tangential_velocity;
-  const T trial_sq = dot(trial, trial);
-  const T trial_length = trial_sq > T(0) ? std::sqrt(trial_sq > T(0) ? trial_sq : T(1)) : T(0);
-  const T limit = friction * normal_force;
-  const bool slipping = trial_length > limit;
-  const T safe_trial_length = trial_length > T(0) ? trial_length : T(1);
-  const T slip = slipping ? limit / safe_trial_length : T(1);
 
-  // Backward. F = F_n n̂ + s', so s' receives F̄ too.
+  // F = F_n n̂ + s', so s' receives F̄ too.
   SlotCotangents<T> bar{};
-  const Vec3<T> new_spring_bar = spring_bar + force_bar;
   T normal_force_bar = dot(force_bar, normal);
-  Vec3<T> normal_bar = normal_force * force_bar;
-  Vec3<T> trial_bar = slip * new_spring_bar;
-  const T slip_bar = dot(new_spring_bar, trial);
-  T trial_length_bar = T(0);
-  if (slipping) {  // slip = μ F_n/|trial|
-    const T limit_bar = slip_bar / safe_trial_length;
-    trial_length_bar = trial_length > T(0) ? -slip_bar * limit / (safe_trial_length * safe_trial_length) : T(0);
-    bar.friction = limit_bar * normal_force;
-    normal_force_bar += limit_bar * friction;
-  }
-  if (trial_sq > T(0)) trial_bar = trial_bar + (trial_length_bar / trial_length) * trial;
-  T length_bar = dot(trial_bar, direction);
-  const Vec3<T> direction_bar = length * trial_bar;
-  const Vec3<T> tangential_velocity_bar = (-stiffness_dt) * trial_bar;
-  const T stiffness_dt_bar = -dot(trial_bar, tangential_velocity);
-  bar.tangential_stiffness = stiffness_dt_bar * dt;
-  bar.dt = stiffness_dt_bar * tangential_stiffness;
-  Vec3<T> projected_bar = inverse_denominator * direction_bar;
-  if (positive) {  // direction = projected/√(denominator²)
-    const T denominator_bar = -dot(direction_bar, projected) * inverse_denominator * inverse_denominator;
-    const T denominator_sq_bar = denominator_bar / (T(2) * denominator);
-    if (projected_wins) {
-      projected_bar = projected_bar + (T(2) * denominator_sq_bar) * projected;
-    } else {
-      length_bar += denominator_sq_bar * T(0.5) * length;
-    }
-  }
-  // projected = s − (s·n̂) n̂
-  Vec3<T> spring_cotangent = projected_bar;
-  const T spring_normal_bar = -dot(projected_bar, normal);
-  normal_bar = normal_bar - spring_normal * projected_bar;
-  spring_cotangent = spring_cotangent + spring_normal_bar * normal;
-  normal_bar = normal_bar + spring_normal_bar * s;
-  if (length_sq > T(0)) spring_cotangent = spring_cotangent + (length_bar / length) * s;
+  const membrax::SpringCotangents<T> spring = membrax::tangential_spring_backward(
+      s, normal, tangential_velocity, tangential_stiffness * dt, friction * normal_force, spring_bar + force_bar);
+  Vec3<T> normal_bar = normal_force * force_bar + spring.normal;
+  bar.friction = spring.limit * normal_force;
+  normal_force_bar += spring.limit * friction;
+  bar.tangential_stiffness = spring.stiffness_dt * dt;
+  bar.dt = spring.stiffness_dt * tangential_stiffness;
   // v_t = v − (v·n̂) n̂
-  Vec3<T> relative_bar = tangential_velocity_bar;
-  const T normal_speed_bar = -dot(tangential_velocity_bar, normal);
-  normal_bar = normal_bar - normal_speed * tangential_velocity_bar;
-  relative_bar = relative_bar + normal_speed_bar * normal;
-  normal_bar = normal_bar + normal_speed_bar * relative;
+  const T normal_speed_bar = -dot(spring.tangential_velocity, normal);
+  normal_bar = normal_bar - normal_speed * spring.tangential_velocity + normal_speed_bar * relative;
+  bar.relative = spring.tangential_velocity + normal_speed_bar * normal;
   // F_n = k_n δ, n̂ = b/|b|
   if (apart) {
     bar.normal_stiffness = normal_force_bar * overlap;
     bar.overlap = normal_force_bar * normal_stiffness;
     bar.branch = (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal);
   }
-  bar.relative = relative_bar;
-  bar.spring = spring_cotangent;
+  bar.spring = spring.spring;
   return bar;
 }
 

@@ -324,7 +324,7 @@ def _pair_totals_reference(
     return totals, select(valid, pairs.spring).T, pair_force.T
 
 
-def _pair_totals_kernel(
+def _pair_totals_inputs(
     position,
     compensation,
     velocity,
@@ -337,27 +337,19 @@ def _pair_totals_kernel(
     friction_coefficient,
     dt,
 ):
-    """:func:`_pair_totals_reference` by the compiled kernel (``pair_contact.cc``, ``dem_pairs``)."""
+    """The kernel's differentiable inputs (all but ``idx``): per-slot parameters, Δt as (1,)."""
     dtype = position.dtype
-    n, slots = radius.shape[0], spring.shape[0]
+    slots = spring.shape[0]
 
     def per_slot(value):
         return jnp.broadcast_to(jnp.asarray(value, dtype), (slots,))
 
-    return native.call(
-        "dem_pairs",
-        dtype,
-        (
-            jax.ShapeDtypeStruct((n, 6), dtype),
-            jax.ShapeDtypeStruct((slots, 3), dtype),
-            jax.ShapeDtypeStruct((slots, 3), dtype),
-        ),
+    return (
         position,
         compensation.astype(dtype),
         velocity.astype(dtype),
         angular_velocity.astype(dtype),
         radius.astype(dtype),
-        idx.astype(jnp.int32),
         spring.astype(dtype),
         per_slot(normal_stiffness),
         per_slot(tangential_stiffness),
@@ -366,7 +358,59 @@ def _pair_totals_kernel(
     )
 
 
-_compiled_pair_totals = native.with_reference(_pair_totals_kernel, _pair_totals_reference)
+def _pair_totals_kernel(*args):
+    """:func:`_pair_totals_reference` by the compiled kernel (``dem_pairs.cc``)."""
+    *spheres, radius, spring, kn, kt, mu, dt = _pair_totals_inputs(*args)
+    dtype = radius.dtype
+    n, slots = radius.shape[0], spring.shape[0]
+    return native.call(
+        "dem_pairs",
+        dtype,
+        (
+            jax.ShapeDtypeStruct((n, 6), dtype),
+            jax.ShapeDtypeStruct((slots, 3), dtype),
+            jax.ShapeDtypeStruct((slots, 3), dtype),
+        ),
+        *spheres,
+        radius,
+        args[5].astype(jnp.int32),
+        spring,
+        kn,
+        kt,
+        mu,
+        dt,
+    )
+
+
+def _pair_totals_backward(args, perturbed, cotangents):
+    """The compiled reverse-mode rule (``dem_pairs_backward``: the law of each touching slot backwards)."""
+    del perturbed  # it covers every differentiable argument
+    flat = _pair_totals_inputs(*args)
+    *spheres, radius, spring, kn, kt, mu, dt = flat
+    dtype = radius.dtype
+    position, velocity, angular, radius_bar, spring_bar, kn_bar, kt_bar, mu_bar, dt_bar = native.call(
+        "dem_pairs_backward",
+        dtype,
+        tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat[:1] + flat[2:]),
+        *spheres,
+        radius,
+        args[5].astype(jnp.int32),
+        spring,
+        kn,
+        kt,
+        mu,
+        dt,
+        *(jnp.asarray(c, dtype) for c in cotangents),
+    )
+    # b = (x_j − x_i) + (c_j − c_i): the position and its compensation share a cotangent.
+    flat_cotangents = (position, position, velocity, angular, radius_bar, spring_bar)
+    flat_cotangents += (kn_bar, kt_bar, mu_bar, dt_bar)
+    return native.pack_cotangents(_pair_totals_inputs, args, flat_cotangents)
+
+
+_compiled_pair_totals = native.with_reference(
+    _pair_totals_kernel, _pair_totals_reference, _pair_totals_backward
+)
 
 
 def compute_forces(
