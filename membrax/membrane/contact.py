@@ -260,8 +260,10 @@ def node_sphere_forces(
 
     On the CPU, in float32 or float64, the forces, torques and springs come from a compiled kernel
     (:mod:`membrax.native`, ``node_sphere.cc``) that finds the touching slots in one vectorised pass and
-    applies this law to those alone; derivatives are those of the JAX law below
-    (``_reference_node_sphere_forces``), which the tests hold the kernel to (agreement to round-off).
+    applies this law to those alone. The JAX law below (``_reference_node_sphere_forces``) is the
+    definition the tests hold the kernel to (agreement to round-off); reverse mode runs a compiled
+    backward kernel (``node_sphere_backward``, the law of each touching slot run backwards by hand) that
+    gives the JAX law's derivatives to round-off.
 
     Args:
       node_position: (n_nodes, 3), m.

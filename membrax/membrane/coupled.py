@@ -285,8 +285,9 @@ def advance_nodes(
     (:func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and 0 on the
     others (``free``, (n,) bool); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`). On
     the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
-    ``membrane_nodes.cc``) does it; derivatives are those of this JAX code. The damping coefficients are one
-    specimen's (scalars, or arrays of one member).
+    ``membrane_nodes.cc``) does it, and reverse mode a compiled backward kernel
+    (``membrane_nodes_backward``) that gives this JAX code's derivatives to round-off. The damping
+    coefficients are one specimen's (scalars, or arrays of one member).
     """
     args = (membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping)
     if native.enabled_for(position.dtype):

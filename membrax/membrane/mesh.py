@@ -829,9 +829,13 @@ def nodal_forces(
 
     On the CPU, in float32 or float64, the forces come from a compiled kernel (:mod:`membrax.native`,
     ``membrane_forces.cc``) that evaluates the same formulas in one pass over the triangles and hinges,
-    and skips the hinges when ``bending_factor`` is 0; their derivatives (``jax.grad``, ``jax.vjp``) are
-    those of the JAX expression −∇(total energy), which is used everywhere else and is the reference the
-    tests hold the kernel to (agreement to round-off).
+    and skips the hinges when ``bending_factor`` is 0. The JAX expression −∇(total energy) is used
+    everywhere else and is the definition the tests hold the kernel to (agreement to round-off). Reverse
+    mode (``jax.grad``, ``jax.vjp``) runs a compiled backward kernel on the CPU
+    (``membrane_forces_backward``): the forces are −∇Φ, so their Jacobian is symmetric and Jᵀū is the
+    directional derivative J ū, evaluated on dual numbers, with ū·∂F/∂(E_m, t_m, p, ν, f_b) from the same
+    pass; it gives the JAX expression's derivatives to round-off (``tests/test_native.py``). When the
+    mesh's rest geometry is differentiated, the JAX expression's own derivatives are used.
     """
     if model not in STRETCHING_MODELS:
         raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")

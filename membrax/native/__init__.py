@@ -16,9 +16,18 @@ sphere (:func:`membrax.spheres.integrate.compute_forces`, with the law of
 Why. XLA-CPU has no multi-output loop fusion and turns each per-element formula into several passes
 over memory (see :mod:`membrax.fusion`); a membrane force is a short formula over 34,000 triangles, and
 one loop that computes it once per element and adds it to its nodes does in one pass what XLA does in a
-dozen. The callers keep their JAX formulas as the definition: they use them for derivatives (a kernel
-is wrapped in ``jax.custom_vjp`` whose backward pass is the JAX code's) and on other backends
+dozen. The callers keep their JAX formulas as the definition: they use them on other backends
 (``lax.platform_dependent``), and the tests check kernel against JAX.
+
+Derivatives. Each kernel is wrapped in ``jax.custom_vjp`` (:func:`with_reference`). Its backward pass on
+the CPU is a second compiled kernel (``*_backward``): the membrane forces are −∇Φ, whose Jacobian is
+symmetric, so their backward kernel evaluates the directional derivative J ū on dual numbers
+(``dual.h``); the contact laws and the node update are run backwards by hand. XLA's own derivatives of
+the JAX formulas spread over hundreds of small fusions per step and made reverse mode through a rollout
+50–60× the forward pass at paper size (``benchmarks/bench_gradients.py``). The JAX formulas' derivatives
+remain the definition: the tests hold each backward kernel to ``jax.vjp`` of the JAX code to round-off,
+and that derivative is used on other backends and for arguments a backward kernel does not cover (the
+membrane mesh's rest geometry).
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@
 // idx[:, k] (padded with N) it gathers the two spheres (b = (x_j − x_i) + (c_j − c_i), positions with
 // their compensation), applies the Cundall–Strack law (contact_law.h, sphere_pair; the reference is
 // membrax.contact.pair_contact), zeroes the padded slots and sums per sphere: j receives (F, T_j), i
-// receives (−F, T_i). membrax/integrate.py (_pair_totals_reference) is the JAX definition and supplies
-// the derivatives.
+// receives (−F, T_i). membrax/spheres/integrate.py (_pair_totals_reference) is the JAX definition;
+// dem_pairs_backward (below) is its reverse-mode rule.
 //
 // Inputs (T: float or double): position, compensation, velocity, angular_velocity (N, 3); radius (N,);
 // idx (2, C) i32 padded with N; spring (C, 3); normal_stiffness, tangential_stiffness,

@@ -1,8 +1,8 @@
 // Membrane nodal forces −∂(W_stretch + f_b W_bend + p V)/∂x in one pass over triangles and hinges.
 //
 // An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the formulas are those
-// of membrax/membrane.py, which remains the reference (and supplies the derivatives of these forces,
-// see membrax.membrane.nodal_forces). The per-element loops are written branch-free so that the
+// of membrax/membrane/mesh.py, which remains the reference (see membrax.membrane.mesh.nodal_forces).
+// A second handler, membrane_forces_backward, is their reverse-mode rule (below). The per-element loops are written branch-free so that the
 // compiler vectorises them; each writes its corner forces into a component-first scratch array, and a
 // serial loop adds them to the nodes (a scatter cannot be vectorised safely, and is cheap in order).
 //

@@ -1,8 +1,8 @@
 // Node–sphere contacts of the membrane: forces, torques and the tangential springs, one pass per slot.
 //
 // An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the law is that of
-// membrax/membrane_contact.py (node_sphere_forces), which remains the reference and supplies the
-// derivatives. For each slot (node n, candidate k) with sphere i = idx[n, k] < N:
+// membrax/membrane/contact.py (node_sphere_forces), which remains the reference; node_sphere_backward
+// (below) is its reverse-mode rule. For each slot (node n, candidate k) with sphere i = idx[n, k] < N:
 //   b = x_n − x_i, δ = R_i + t_m/2 − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on the node),
 //   v_t = Π_t[v_n − (v_i + ω_i × b)],
 //   s' = Coulomb-capped (|s| Π_t(s)/max(|Π_t(s)|, |s|/2) − k_t v_t Δt), |s'| ≤ μ k_n δ, s' = 0 when δ ≤ 0,
