@@ -319,44 +319,10 @@ __attribute__((always_inline)) inline DualVec<T> operator*(T k, DualVec<T> a) {
   return {k * a.x, k * a.y, k * a.z};
 }
 
-// Gathers the corners' positions and tangents, component-first ((corner, component) n + element), so
-// that the element loops read contiguous rows (with the gathers inside, GCC does not vectorise them).
+// A node's position x and its tangent ū (gathered inside the element loops, which GCC vectorises).
 template <typename T>
-void gather_corners(const T* __restrict x, const T* __restrict u, const int32_t* __restrict index,
-                    int corners, int64_t n, T* __restrict gathered_x, T* __restrict gathered_u) {
-  for (int k = 0; k < corners; ++k) {
-    const int32_t* node = index + k * n;
-    for (int c = 0; c < 3; ++c) {
-      T* gx = gathered_x + (3 * k + c) * n;
-      T* gu = gathered_u + (3 * k + c) * n;
-      for (int64_t e = 0; e < n; ++e) {
-        const int64_t i = 3 * int64_t(node[e]) + c;
-        gx[e] = x[i];
-        gu[e] = u[i];
-      }
-    }
-  }
-}
-
-// The gathered rows' pointers, taken before an element loop: with row offsets (k n + e) computed inside,
-// GCC finds the offsets not affine and does not vectorise the loop.
-template <typename T>
-struct CornerRows {
-  const T* x[12];
-  const T* u[12];
-  CornerRows(const T* gathered_x, const T* gathered_u, int corners, int64_t n) {
-    for (int k = 0; k < 3 * corners; ++k) {
-      x[k] = gathered_x + k * n;
-      u[k] = gathered_u + k * n;
-    }
-  }
-};
-
-template <typename T>
-__attribute__((always_inline)) inline DualVec<T> load_dual(const CornerRows<T>& rows, int corner, int64_t e) {
-  return {Dual<T>{rows.x[3 * corner][e], rows.u[3 * corner][e]},
-          Dual<T>{rows.x[3 * corner + 1][e], rows.u[3 * corner + 1][e]},
-          Dual<T>{rows.x[3 * corner + 2][e], rows.u[3 * corner + 2][e]}};
+__attribute__((always_inline)) inline DualVec<T> load_node(const T* x, const T* u, int64_t i) {
+  return {Dual<T>{x[i], u[i]}, Dual<T>{x[i + 1], u[i + 1]}, Dual<T>{x[i + 2], u[i + 2]}};
 }
 
 // Writes the tangent of a corner force, component-first: out[(corner, c) n + element].
@@ -376,7 +342,8 @@ __attribute__((always_inline)) inline T tangent_dot_value(DualVec<T> a, DualVec<
 
 // The triangles' corner forces on x + ū ε: their tangents (J ū), component-first, and the scalar sums.
 template <typename T>
-void triangle_tangents(const T* __restrict gx, const T* __restrict gu, const T* __restrict inverse,
+void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict corner,
+                       const T* __restrict inverse,
                        const T* __restrict area, int64_t num_triangles, T modulus, T thickness, T pressure,
                        T poisson, int64_t model, T* __restrict out, T* __restrict partial,
                        ScalarSums<T>* sums) {
@@ -391,14 +358,13 @@ void triangle_tangents(const T* __restrict gx, const T* __restrict gu, const T* 
   const T lame_unit_nu = (T(1) + poisson * poisson) / ((T(1) - poisson * poisson) * (T(1) - poisson * poisson));
   const T sixth_pressure = pressure / T(6);
   const bool neo_hookean = model == 0;
-  const CornerRows<T> rows(gx, gu, 3, n);
   // Per-element partial sums, added up after the loop. (No `omp simd`: it turns the Vec3 temporaries into
   // per-lane arrays in memory, and GCC then gives up; after inlining, plain -O3 vectorises the loop.)
 #pragma GCC ivdep
   for (int64_t t = 0; t < n; ++t) {
-    const DualVec<T> x1 = load_dual(rows, 0, t);
-    const DualVec<T> x2 = load_dual(rows, 1, t);
-    const DualVec<T> x3 = load_dual(rows, 2, t);
+    const DualVec<T> x1 = load_node(x, u, 3 * int64_t(corner[t]));
+    const DualVec<T> x2 = load_node(x, u, 3 * int64_t(corner[n + t]));
+    const DualVec<T> x3 = load_node(x, u, 3 * int64_t(corner[2 * n + t]));
     const T m00 = inverse[4 * t], m01 = inverse[4 * t + 1], m10 = inverse[4 * t + 2],
             m11 = inverse[4 * t + 3];
     const DualVec<T> e1 = x2 - x1, e2 = x3 - x1;
@@ -454,20 +420,20 @@ void triangle_tangents(const T* __restrict gx, const T* __restrict gu, const T* 
 
 // The hinges' bending forces on x + ū ε: tangents (component-first) and ū·∂F/∂k_b.
 template <typename T>
-void hinge_tangents(const T* __restrict gx, const T* __restrict gu, const T* __restrict weight,
+void hinge_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict vertex,
+                    const T* __restrict weight,
                     const T* __restrict rest, int64_t num_hinges, T stiffness, T* __restrict out,
                     T* __restrict partial, ScalarSums<T>* sums) {
   using D = Dual<T>;
   using membrax::cross;
   using membrax::dot;
   const int64_t n = num_hinges;
-  const CornerRows<T> rows(gx, gu, 4, n);
 #pragma GCC ivdep
   for (int64_t e = 0; e < n; ++e) {
-    const DualVec<T> a = load_dual(rows, 0, e);
-    const DualVec<T> b = load_dual(rows, 1, e);
-    const DualVec<T> c = load_dual(rows, 2, e);
-    const DualVec<T> d = load_dual(rows, 3, e);
+    const DualVec<T> a = load_node(x, u, 3 * int64_t(vertex[e]));
+    const DualVec<T> b = load_node(x, u, 3 * int64_t(vertex[n + e]));
+    const DualVec<T> c = load_node(x, u, 3 * int64_t(vertex[2 * n + e]));
+    const DualVec<T> d = load_node(x, u, 3 * int64_t(vertex[3 * n + e]));
     const DualVec<T> edge = b - a, ca = c - a, db = d - b;
     // n₁ = (b − a) × (c − a), n₂ = (a − b) × (d − b) = (d − b) × (b − a) (hinge_forces)
     const DualVec<T> n1 = cross(edge, ca), n2 = cross(db, edge);
@@ -573,21 +539,17 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   ScalarSums<T> sums;
 
   const int64_t most = std::max(num_triangles, num_hinges);
-  thread_local std::vector<T> scratch, gathered;
+  thread_local std::vector<T> scratch, partial_sums;
   scratch.resize(size_t(12 * most));
-  gathered.resize(size_t(27 * most));
-  T* gx = gathered.data();
-  T* gu = gx + 12 * most;
-  T* partial = gu + 12 * most;
-  gather_corners<T>(x, u, corner_index.typed_data(), 3, num_triangles, gx, gu);
-  triangle_tangents<T>(gx, gu, inverse.typed_data(), area.typed_data(), num_triangles, modulus, thickness,
+  partial_sums.resize(size_t(3 * most));
+  T* partial = partial_sums.data();
+  triangle_tangents<T>(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles, modulus, thickness,
                        pressure, poisson, model, scratch.data(), partial, &sums);
   add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, tangent);
   // k_b = f_b E t³/(72(1 − ν²)) (D/6); the hinges run even at f_b = 0, where ∂/∂f_b is not zero.
   const T plate = thickness * thickness * thickness / (T(72) * (T(1) - poisson * poisson));
   const T stiffness = bending_factor * modulus * plate;
-  gather_corners<T>(x, u, hinge_index.typed_data(), 4, num_hinges, gx, gu);
-  hinge_tangents<T>(gx, gu, edge_weight.typed_data(), rest_dihedral.typed_data(), num_hinges, stiffness,
+  hinge_tangents<T>(x, u, hinge_index.typed_data(), edge_weight.typed_data(), rest_dihedral.typed_data(), num_hinges, stiffness,
                     scratch.data(), partial, &sums);
   if (bending_factor != T(0)) add_to_nodes<T>(scratch.data(), hinge_index.typed_data(), 4, num_hinges, tangent);
   cap_tangents<T>(x, u, bottom_ring.typed_data(), bottom_ring.element_count(), false, pressure, tangent, &sums);

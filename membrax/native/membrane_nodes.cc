@@ -14,6 +14,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <vector>
 
 #include "xla/ffi/api/ffi.h"
 
@@ -26,6 +27,8 @@ void advance(const T* __restrict membrane_force, const T* __restrict contact_for
              const T* __restrict compensation, const T* __restrict velocity, const T* __restrict mass,
              const T* __restrict free, int64_t num_nodes, T dt, T local, T viscous, T* __restrict force,
              T* __restrict new_velocity, T* __restrict new_position, T* __restrict new_compensation) {
+  // Per-component partial sums (Δt̄, ᾱ, γ̄, m̄), added up after the loop: with a per-node output or a
+  // float reduction inside, GCC 12 does not vectorise it.
 #pragma GCC ivdep
   for (int64_t node = 0; node < num_nodes; ++node) {
     const T m = mass[node];
@@ -78,13 +81,12 @@ void advance_backward(const T* __restrict membrane_force, const T* __restrict co
                       const T* __restrict force_bar, const T* __restrict velocity_bar,
                       const T* __restrict position_bar, int64_t num_nodes, T dt, T local, T viscous,
                       T* __restrict force_out, T* __restrict position_out, T* __restrict velocity_out,
-                      T* __restrict mass_out, T* scalars_out) {
-  T sum_dt = 0, sum_local = 0, sum_viscous = 0;
-#pragma omp simd reduction(+ : sum_dt, sum_local, sum_viscous)
+                      T* __restrict mass_out, T* __restrict dt_partial, T* __restrict local_partial,
+                      T* __restrict viscous_partial, T* __restrict mass_partial, T* scalars_out) {
+#pragma GCC ivdep
   for (int64_t node = 0; node < num_nodes; ++node) {
     const T m = mass[node];
     const bool moves = free[node] != T(0);
-    T mass_bar = 0;
     for (int c = 0; c < 3; ++c) {
       const int64_t k = 3 * node + c;
       const T f = membrane_force[k] + contact_force[k];
@@ -95,21 +97,24 @@ void advance_backward(const T* __restrict membrane_force, const T* __restrict co
       const T updated = moves ? v + dt * damped / m : T(0);
       const T corrected_bar = position_bar[k];  // x' = x + (Δt v' + c)
       const T updated_bar = velocity_bar[k] + dt * corrected_bar;
-      sum_dt += corrected_bar * updated;
       const T damped_bar = moves ? updated_bar * dt / m : T(0);
-      sum_dt += moves ? updated_bar * damped / m : T(0);
-      mass_bar += moves ? -updated_bar * dt * damped / (m * m) : T(0);
-      T velocity_cotangent = moves ? updated_bar : T(0);
-      sum_local += -damped_bar * std::fabs(f) * sign;
-      sum_viscous += -damped_bar * m * v;
-      mass_bar += -damped_bar * viscous * v;
-      velocity_cotangent += -damped_bar * viscous * m;
+      dt_partial[k] = corrected_bar * updated + (moves ? updated_bar * damped / m : T(0));
+      local_partial[k] = -damped_bar * std::fabs(f) * sign;
+      viscous_partial[k] = -damped_bar * m * v;
+      mass_partial[k] = (moves ? -updated_bar * dt * damped / (m * m) : T(0)) - damped_bar * viscous * v;
       force_out[k] = force_bar[k] + damped_bar * (T(1) - local * force_sign * sign);
       position_out[k] = corrected_bar;
-      velocity_out[k] = velocity_cotangent;
+      velocity_out[k] = (moves ? updated_bar : T(0)) - damped_bar * viscous * m;
     }
-    mass_out[node] = mass_bar;
   }
+  T sum_dt = 0, sum_local = 0, sum_viscous = 0;
+  for (int64_t k = 0; k < 3 * num_nodes; ++k) {
+    sum_dt += dt_partial[k];
+    sum_local += local_partial[k];
+    sum_viscous += viscous_partial[k];
+  }
+  for (int64_t node = 0; node < num_nodes; ++node)
+    mass_out[node] = mass_partial[3 * node] + mass_partial[3 * node + 1] + mass_partial[3 * node + 2];
   scalars_out[0] = sum_dt;
   scalars_out[1] = sum_local;
   scalars_out[2] = sum_viscous;
@@ -136,11 +141,14 @@ ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> membrane_force, ffi::Buffe
   if (free.element_count() != size_t(n) || scalars.element_count() != 3)
     return ffi::Error::InvalidArgument("membrane_nodes_backward: free must be (n,), scalars (3,)");
   const auto* s = scalars.typed_data();
+  thread_local std::vector<ffi::NativeType<dtype>> partial;
+  partial.resize(size_t(12 * n));
+  auto* p = partial.data();
   advance_backward(membrane_force.typed_data(), contact_force.typed_data(), velocity.typed_data(),
                    mass.typed_data(), free.typed_data(), force_bar.typed_data(), velocity_bar.typed_data(),
                    position_bar.typed_data(), n, s[0], s[1], s[2], force_out->typed_data(),
-                   position_out->typed_data(), velocity_out->typed_data(), mass_out->typed_data(),
-                   scalars_out->typed_data());
+                   position_out->typed_data(), velocity_out->typed_data(), mass_out->typed_data(), p,
+                   p + 3 * n, p + 6 * n, p + 9 * n, scalars_out->typed_data());
   return ffi::Error::Success();
 }
 
