@@ -7,6 +7,7 @@ derivatives through ``jax.grad``; ``vmap`` must equal a loop. Without a compiler
 switched off, everything falls back to the JAX code, with a warning when a build fails.
 """
 
+import dataclasses
 import math
 import os
 import shutil
@@ -387,3 +388,26 @@ def test_compiled_backward_kernels_give_the_reference_cotangents(case):
     assert checked >= 6
     program = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](cotangents)).lower(*values).as_text()
     assert f"membrax_{target}_f64" in program
+
+
+def test_membrane_forces_differentiated_in_the_rest_geometry_use_the_reference_rule():
+    """The membrane backward kernel covers the positions and the scalars; a derivative in the rest mesh
+    (here the rest areas, which scale each triangle's stretching force linearly) falls back to the JAX
+    definition's. Checked against that and against the hand calculation: with F_stretch ∝ A₀ per triangle,
+    Σ_t A₀ ∂(ū·F)/∂A₀ = ū·F_stretch, the stretching part alone (pressure and bending off)."""
+    mesh, position = _deformed_cylinder(seed=2)
+    direction = jnp.asarray(np.random.default_rng(3).normal(size=position.shape))
+    forces = membrane._COMPILED_NODAL_FORCES["svk"]
+
+    def work(fn, area):
+        deformed = dataclasses.replace(mesh, reference_area=area)
+        return jnp.sum(direction * fn(position, deformed, 1.4e6, 0.004, 0.0, 0.45, 0.0))
+
+    def reference(x, m, *scalars):
+        return membrane._reference_nodal_forces(x, m, *scalars, "svk")
+
+    area = mesh.reference_area
+    got = jax.grad(lambda a: work(forces, a))(area)
+    want = jax.grad(lambda a: work(reference, a))(area)
+    assert _relative_error(got, want) < 1e-12
+    assert float(jnp.sum(area * got)) == pytest.approx(float(work(forces, area)), rel=1e-12)

@@ -906,7 +906,7 @@ def _backward_nodal_forces(args, perturbed, cotangent, model):
     J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
     (the reference's rule) when the mesh's rest geometry is differentiated.
     """
-    position, mesh = args[0], args[1]
+    mesh = args[1]
     if any(jax.tree.leaves(perturbed[1])):
         return None
     position, scalars = _kernel_inputs(*args)

@@ -48,11 +48,13 @@ __attribute__((always_inline)) inline Vec3<T> tangential_spring(Vec3<T> spring, 
 }
 
 // The cotangents of tangential_spring's inputs (active: a touching contact) from the new spring's, run
-// backwards by hand with the derivatives of the JAX law's guarded norms and selects.
+// backwards by hand with the derivatives of the JAX law's guarded norms and selects; with the new spring
+// itself (tangential_spring's value), which the forward pass recomputed here gives for free.
 template <typename T>
 struct SpringCotangents {
   Vec3<T> spring, normal, tangential_velocity;
   T stiffness_dt, limit;
+  Vec3<T> new_spring;
 };
 
 template <typename T>
@@ -80,6 +82,7 @@ inline SpringCotangents<T> tangential_spring_backward(Vec3<T> spring, Vec3<T> no
 
   // Backward.
   SpringCotangents<T> bar{};
+  bar.new_spring = slip * trial;
   Vec3<T> trial_bar = slip * new_spring_bar;
   const T slip_bar = dot(new_spring_bar, trial);
   T trial_length_bar = T(0);

@@ -201,9 +201,6 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
     const T normal_speed = dot(relative, normal);
     const Vec3 tangential_velocity = relative - normal_speed * normal;
     const Vec3 s = row(s_in, k);
-    const Vec3 updated = membrax::tangential_spring(s, normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force,
-                                                    true);
-    const Vec3 force = normal_force * normal + updated;
     // The outputs' cotangents: F on j (totals of j, less those of i, and the pair force), torques
     // τ_i = −arm_i × F and τ_j = arm_j × F, spring s'.
     const Vec3 torque_i_bar = {total_bar[6 * i + 3], total_bar[6 * i + 4], total_bar[6 * i + 5]};
@@ -211,12 +208,13 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
     const Vec3 force_bar = (Vec3{total_bar[6 * j], total_bar[6 * j + 1], total_bar[6 * j + 2]} -
                             Vec3{total_bar[6 * i], total_bar[6 * i + 1], total_bar[6 * i + 2]}) +
                            row(f_bar, k) + cross(arm_i, torque_i_bar) + cross(torque_j_bar, arm_j);
-    Vec3 arm_i_bar = cross(torque_i_bar, force);
-    Vec3 arm_j_bar = cross(force, torque_j_bar);
     // F = F_n n̂ + s'
     T normal_force_bar = dot(force_bar, normal);
     const membrax::SpringCotangents<T> bar = membrax::tangential_spring_backward(
         s, normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force, row(s_bar, k) + force_bar);
+    const Vec3 force = normal_force * normal + bar.new_spring;
+    Vec3 arm_i_bar = cross(torque_i_bar, force);
+    Vec3 arm_j_bar = cross(force, torque_j_bar);
     Vec3 normal_bar = normal_force * force_bar + bar.normal;
     mu_bar[k] = bar.limit * normal_force;
     normal_force_bar += bar.limit * mu[k];

@@ -252,6 +252,18 @@ void cap_forces(const T* x, const int32_t* ring, int64_t count, bool upward, T p
     for (int c = 0; c < 3; ++c) force[3 * int64_t(ring[k]) + c] += factor * summed_cross[c] / T(count);
 }
 
+// Whether the mesh arrays agree with each other and with the positions (both handlers' inputs).
+template <ffi::DataType dtype>
+bool consistent_sizes(const ffi::Buffer<dtype>& position, const ffi::Buffer<ffi::S32>& corner_index,
+                      const ffi::Buffer<dtype>& inverse, const ffi::Buffer<dtype>& area,
+                      const ffi::Buffer<ffi::S32>& hinge_index, const ffi::Buffer<dtype>& edge_weight,
+                      const ffi::Buffer<dtype>& rest_dihedral, const ffi::Buffer<dtype>& scalars) {
+  const size_t num_triangles = area.element_count(), num_hinges = edge_weight.element_count();
+  return position.element_count() % 3 == 0 && scalars.element_count() == 5 &&
+         corner_index.element_count() == 3 * num_triangles && inverse.element_count() == 4 * num_triangles &&
+         hinge_index.element_count() == 4 * num_hinges && rest_dihedral.element_count() == num_hinges;
+}
+
 template <ffi::DataType dtype>
 ffi::Error membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
                            ffi::Buffer<dtype> inverse, ffi::Buffer<dtype> area,
@@ -263,11 +275,7 @@ ffi::Error membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> co
   const int64_t num_nodes = position.element_count() / 3;
   const int64_t num_triangles = area.element_count();
   const int64_t num_hinges = edge_weight.element_count();
-  if (position.element_count() != size_t(3 * num_nodes) || scalars.element_count() != 5 ||
-      corner_index.element_count() != size_t(3 * num_triangles) ||
-      inverse.element_count() != size_t(4 * num_triangles) ||
-      hinge_index.element_count() != size_t(4 * num_hinges) ||
-      rest_dihedral.element_count() != size_t(num_hinges)) {
+  if (!consistent_sizes(position, corner_index, inverse, area, hinge_index, edge_weight, rest_dihedral, scalars)) {
     return ffi::Error::InvalidArgument("membrane_forces: inconsistent array sizes");
   }
   const T* x = position.typed_data();
@@ -341,11 +349,11 @@ __attribute__((always_inline)) inline T tangent_dot_value(DualVec<T> a, DualVec<
 }
 
 // The triangles' corner forces on x + ū ε: their tangents (J ū), component-first, and the scalar sums.
-template <typename T>
+// The stretching model is a template argument, so that the loop evaluates one model's formula.
+template <typename T, bool kNeoHookean>
 void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict corner,
-                       const T* __restrict inverse,
-                       const T* __restrict area, int64_t num_triangles, T modulus, T thickness, T pressure,
-                       T poisson, int64_t model, T* __restrict out, T* __restrict partial,
+                       const T* __restrict inverse, const T* __restrict area, int64_t num_triangles, T modulus,
+                       T thickness, T pressure, T poisson, T* __restrict out, T* __restrict partial,
                        ScalarSums<T>* sums) {
   using D = Dual<T>;
   using membrax::cross;
@@ -357,7 +365,6 @@ void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32
   const T shear_unit_nu = -T(1) / (T(2) * (T(1) + poisson) * (T(1) + poisson));
   const T lame_unit_nu = (T(1) + poisson * poisson) / ((T(1) - poisson * poisson) * (T(1) - poisson * poisson));
   const T sixth_pressure = pressure / T(6);
-  const bool neo_hookean = model == 0;
   // Per-element partial sums, added up after the loop. (No `omp simd`: it turns the Vec3 temporaries into
   // per-lane arrays in memory, and GCC then gives up; after inlining, plain -O3 vectorises the loop.)
 #pragma GCC ivdep
@@ -374,20 +381,26 @@ void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32
     const D e22 = T(0.5) * (dot(f2, f2) - T(1));
     const D e12 = T(0.5) * dot(f1, f2);
     const D trace = e11 + e22;
-    // ∂w/∂E per unit E_m, both models evaluated and one selected (branch-free); ν-derivatives (SVK only).
-    const D det = e11 * e22 - e12 * e12;
-    const D det_c = T(1) + T(2) * trace + T(4) * det;
-    const D bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
-    const D by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
-    const D by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
-    const D u11 = membrax::select(neo_hookean, (by_trace + by_det * e22) / T(6),
-                                  T(2) * shear_unit * e11 + lame_unit * trace);
-    const D u22 = membrax::select(neo_hookean, (by_trace + by_det * e11) / T(6),
-                                  T(2) * shear_unit * e22 + lame_unit * trace);
-    const D u12 = membrax::select(neo_hookean, (-T(2) * by_det * e12) / T(6), T(4) * shear_unit * e12);
-    const T nu11 = neo_hookean ? T(0) : T(2) * shear_unit_nu * e11.v + lame_unit_nu * trace.v;
-    const T nu22 = neo_hookean ? T(0) : T(2) * shear_unit_nu * e22.v + lame_unit_nu * trace.v;
-    const T nu12 = neo_hookean ? T(0) : T(4) * shear_unit_nu * e12.v;
+    // ∂w/∂E per unit E_m (triangle_forces' formulas) and its ν-derivative (St Venant–Kirchhoff only).
+    D u11, u22, u12;
+    T nu11 = T(0), nu22 = T(0), nu12 = T(0);
+    if constexpr (kNeoHookean) {
+      const D det = e11 * e22 - e12 * e12;
+      const D det_c = T(1) + T(2) * trace + T(4) * det;
+      const D bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
+      const D by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
+      const D by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
+      u11 = (by_trace + by_det * e22) / T(6);
+      u22 = (by_trace + by_det * e11) / T(6);
+      u12 = (-T(2) * by_det * e12) / T(6);
+    } else {
+      u11 = T(2) * shear_unit * e11 + lame_unit * trace;
+      u22 = T(2) * shear_unit * e22 + lame_unit * trace;
+      u12 = T(4) * shear_unit * e12;
+      nu11 = T(2) * shear_unit_nu * e11.v + lame_unit_nu * trace.v;
+      nu22 = T(2) * shear_unit_nu * e22.v + lame_unit_nu * trace.v;
+      nu12 = T(4) * shear_unit_nu * e12.v;
+    }
     const T scale = modulus * thickness * area[t];
     const D c11 = scale * u11, c22 = scale * u22, c12 = scale * u12;
     const DualVec<T> cross23 = cross(x2, x3), cross31 = cross(x3, x1), cross12 = cross(x1, x2);
@@ -522,12 +535,8 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   const int64_t num_nodes = position.element_count() / 3;
   const int64_t num_triangles = area.element_count();
   const int64_t num_hinges = edge_weight.element_count();
-  if (position.element_count() != size_t(3 * num_nodes) || scalars.element_count() != 5 ||
-      cotangent.element_count() != size_t(3 * num_nodes) ||
-      corner_index.element_count() != size_t(3 * num_triangles) ||
-      inverse.element_count() != size_t(4 * num_triangles) ||
-      hinge_index.element_count() != size_t(4 * num_hinges) ||
-      rest_dihedral.element_count() != size_t(num_hinges)) {
+  if (!consistent_sizes(position, corner_index, inverse, area, hinge_index, edge_weight, rest_dihedral, scalars) ||
+      cotangent.element_count() != position.element_count()) {
     return ffi::Error::InvalidArgument("membrane_forces_backward: inconsistent array sizes");
   }
   const T* x = position.typed_data();
@@ -543,8 +552,9 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   scratch.resize(size_t(12 * most));
   partial_sums.resize(size_t(3 * most));
   T* partial = partial_sums.data();
-  triangle_tangents<T>(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles, modulus, thickness,
-                       pressure, poisson, model, scratch.data(), partial, &sums);
+  const auto triangles = model == 0 ? triangle_tangents<T, true> : triangle_tangents<T, false>;
+  triangles(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles, modulus,
+            thickness, pressure, poisson, scratch.data(), partial, &sums);
   add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, tangent);
   // k_b = f_b E t³/(72(1 − ν²)) (D/6); the hinges run even at f_b = 0, where ∂/∂f_b is not zero.
   const T plate = thickness * thickness * thickness / (T(72) * (T(1) - poisson * poisson));

@@ -149,6 +149,7 @@ template <typename T>
 struct SlotCotangents {
   Vec3<T> branch, relative, spring;
   T overlap, dt, normal_stiffness, tangential_stiffness, friction;
+  Vec3<T> force;  // the law's value F on the node, for the torque's cotangent
 };
 
 // The cotangents of slot_law's inputs from those of its force on the node (force_bar) and its new spring
@@ -186,6 +187,7 @@ inline SlotCotangents<T> slot_law_backward(Vec3<T> b, Vec3<T> relative, Vec3<T> 
     bar.branch = (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal);
   }
   bar.spring = spring.spring;
+  bar.force = normal_force * normal + spring.new_spring;
   return bar;
 }
 
@@ -269,9 +271,6 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
     const T distance_sq = dot(b, b);
     const T distance = std::sqrt(distance_sq);
     const T overlap = radius[sphere] + half_thickness - distance;
-    Vec3<T> updated;
-    const Vec3<T> force =
-        slot_law<T>(b, relative, s, overlap, dt, normal_stiffness, tangential_stiffness, friction, &updated);
     // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
     const Vec3<T> node_bar = {f_node_bar[3 * node], f_node_bar[3 * node + 1], f_node_bar[3 * node + 2]};
     const Vec3<T> sphere_bar = {f_sphere_bar[3 * sphere], f_sphere_bar[3 * sphere + 1],
@@ -283,7 +282,7 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
                                                  tangential_stiffness, friction, force_bar, new_spring_bar);
     // torque: b̄ += τ̄ × F; relative = v_n − v_i − ω × b: ω̄ += v̄_rel × b, b̄ += ω × v̄_rel;
     // δ = R + t_m/2 − |b|: R̄ += δ̄, t̄_m += δ̄/2, b̄ −= δ̄ b/|b|.
-    Vec3<T> branch_bar = bar.branch + cross(torque_bar, force) + cross(w, bar.relative);
+    Vec3<T> branch_bar = bar.branch + cross(torque_bar, bar.force) + cross(w, bar.relative);
     if (distance_sq > T(0)) branch_bar = branch_bar - (bar.overlap / distance) * b;
     const Vec3<T> angular_bar = cross(bar.relative, b);
     const T branch_out[3] = {branch_bar.x, branch_bar.y, branch_bar.z};
