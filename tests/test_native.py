@@ -390,6 +390,40 @@ def test_compiled_backward_kernels_give_the_reference_cotangents(case):
     assert f"membrax_{target}_f64" in program
 
 
+def test_membrane_backward_at_zero_bending_skips_the_hinges_only_when_their_derivative_is_not_wanted():
+    """At f_b = 0 (the paper's pure membrane) the hinges add nothing to the forces, so the backward kernel
+    skips them unless ∂/∂f_b is asked for. Both ways against ``jax.vjp`` of the JAX definition: with f_b
+    differentiated, ū·∂F/∂f_b = ū·F_bend(f_b = 1) (the forces are linear in f_b) is not zero and matches;
+    with f_b a constant, the positions' and E_m's cotangents still match."""
+    mesh, position = _deformed_cylinder(seed=4)
+    compiled = membrane._COMPILED_NODAL_FORCES["neo_hookean"]
+
+    def reference(x, *scalars):
+        return membrane._reference_nodal_forces(x, mesh, *scalars, "neo_hookean")
+
+    scalars = (1.4e6, 0.004, 2e4, 0.45, 0.0)
+    cotangent = jnp.asarray(np.random.default_rng(5).normal(size=position.shape))
+    got = jax.vjp(lambda x, *s: compiled(x, mesh, *s), position, *scalars)[1](cotangent)
+    want = jax.vjp(reference, position, *scalars)[1](cotangent)
+    for g, w in zip(got, want, strict=True):
+        assert _relative_error(g, w) < 1e-12
+    bending = reference(position, *scalars[:4], 1.0) - reference(position, *scalars[:4], 0.0)
+    assert float(got[5]) == pytest.approx(float(jnp.sum(cotangent * bending)), rel=1e-9)
+    assert abs(float(got[5])) > 0.0
+
+    def work(fn, x, modulus):
+        return jnp.sum(cotangent * fn(x, modulus))
+
+    constant_bending = jax.grad(
+        lambda x, e: work(lambda y, m: compiled(y, mesh, m, *scalars[1:]), x, e), argnums=(0, 1)
+    )(position, scalars[0])
+    reference_grad = jax.grad(
+        lambda x, e: work(lambda y, m: reference(y, m, *scalars[1:]), x, e), argnums=(0, 1)
+    )(position, scalars[0])
+    for g, w in zip(constant_bending, reference_grad, strict=True):
+        assert _relative_error(g, w) < 1e-12
+
+
 def test_membrane_forces_differentiated_in_the_rest_geometry_use_the_reference_rule():
     """The membrane backward kernel covers the positions and the scalars; a derivative in the rest mesh
     (here the rest areas, which scale each triangle's stretching force linearly) falls back to the JAX

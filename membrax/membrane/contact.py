@@ -63,6 +63,7 @@ SI units: m, s, N, N·m, kg.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -641,6 +642,13 @@ def remap_node_history(old_idx, new_idx, old_history, num_spheres: int, componen
     if components_first:
         rows = remap_node_history(old_idx, new_idx, jnp.moveaxis(old_history, 0, -1), num_spheres)
         return jnp.moveaxis(rows, -1, 0)
+    return _carry_rows(old_idx, new_idx, old_history, num_spheres)
+
+
+@functools.partial(jax.checkpoint, static_argnums=(3,))
+def _carry_rows(old_idx, new_idx, old_history, num_spheres):
+    # Checkpointed: reverse mode recomputes the 0/1 match from the integer tables instead of keeping it
+    # (n_nodes, K, K) per step; the carry is linear in the history, so nothing else is needed.
     match = (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx < num_spheres)[:, :, None]
     flat = old_history.reshape((*old_history.shape[:2], -1))
     carried = jnp.einsum("nij,njc->nic", match.astype(flat.dtype), flat)

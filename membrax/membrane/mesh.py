@@ -920,6 +920,8 @@ def _backward_nodal_forces(args, perturbed, cotangent, model):
         scalars,
         cotangent.astype(dtype),
         model=np.int64(STRETCHING_MODELS.index(model)),
+        # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
+        bending_derivative=np.int64(bool(perturbed[6])),
     )
     return native.pack_cotangents(_kernel_inputs, args, flat)
 

@@ -58,11 +58,12 @@ struct SpringCotangents {
 };
 
 template <typename T>
-inline SpringCotangents<T> tangential_spring_backward(Vec3<T> spring, Vec3<T> normal, Vec3<T> tangential_velocity,
-                                                      T stiffness_dt, T limit, Vec3<T> new_spring_bar) {
+__attribute__((always_inline)) inline SpringCotangents<T> tangential_spring_backward(
+    Vec3<T> spring, Vec3<T> normal, Vec3<T> tangential_velocity, T stiffness_dt, T limit, Vec3<T> new_spring_bar) {
   // Forward, keeping the intermediates.
   const T length_sq = dot(spring, spring);
-  const T length = length_sq > T(0) ? std::sqrt(length_sq > T(0) ? length_sq : T(1)) : T(0);
+  const bool long_enough = length_sq > T(0);
+  const T length = long_enough ? std::sqrt(long_enough ? length_sq : T(1)) : T(0);
   const T spring_normal = dot(spring, normal);
   const Vec3<T> projected = spring - spring_normal * normal;
   const T projected_sq = dot(projected, projected);
@@ -71,45 +72,44 @@ inline SpringCotangents<T> tangential_spring_backward(Vec3<T> spring, Vec3<T> no
   const T denominator_sq = projected_wins ? projected_sq : quarter;
   const bool positive = denominator_sq > T(0);
   const T denominator = positive ? std::sqrt(positive ? denominator_sq : T(1)) : T(0);
-  const T inverse_denominator = positive ? T(1) / denominator : T(0);
+  const T safe_denominator = positive ? denominator : T(1);
+  const T inverse_denominator = positive ? T(1) / safe_denominator : T(0);
   const Vec3<T> direction = inverse_denominator * projected;
   const Vec3<T> trial = length * direction - stiffness_dt * tangential_velocity;
   const T trial_sq = dot(trial, trial);
-  const T trial_length = trial_sq > T(0) ? std::sqrt(trial_sq > T(0) ? trial_sq : T(1)) : T(0);
+  const bool moving = trial_sq > T(0);
+  const T trial_length = moving ? std::sqrt(moving ? trial_sq : T(1)) : T(0);
   const bool slipping = trial_length > limit;
   const T safe_trial_length = trial_length > T(0) ? trial_length : T(1);
   const T slip = slipping ? limit / safe_trial_length : T(1);
 
-  // Backward.
+  // Backward: the branches of the guarded norms and selects as selects, so that a loop calling this
+  // vectorises.
   SpringCotangents<T> bar{};
   bar.new_spring = slip * trial;
   Vec3<T> trial_bar = slip * new_spring_bar;
-  const T slip_bar = dot(new_spring_bar, trial);
-  T trial_length_bar = T(0);
-  if (slipping) {  // slip = limit/|trial|
-    bar.limit = slip_bar / safe_trial_length;
-    trial_length_bar = trial_length > T(0) ? -slip_bar * limit / (safe_trial_length * safe_trial_length) : T(0);
-  }
-  if (trial_sq > T(0)) trial_bar = trial_bar + (trial_length_bar / trial_length) * trial;
+  const T slip_bar = dot(new_spring_bar, trial);  // slip = limit/|trial| when slipping
+  bar.limit = slipping ? slip_bar / safe_trial_length : T(0);
+  // (Float selects only: GCC does not vectorise a select between two conditions.)
+  const T trial_length_bar_slipping =
+      trial_length > T(0) ? -slip_bar * limit / (safe_trial_length * safe_trial_length) : T(0);
+  const T trial_length_bar = slipping ? trial_length_bar_slipping : T(0);
+  trial_bar = trial_bar + (moving ? trial_length_bar / safe_trial_length : T(0)) * trial;
   T length_bar = dot(trial_bar, direction);
   const Vec3<T> direction_bar = length * trial_bar;
   bar.tangential_velocity = (-stiffness_dt) * trial_bar;
   bar.stiffness_dt = -dot(trial_bar, tangential_velocity);
-  Vec3<T> projected_bar = inverse_denominator * direction_bar;
-  if (positive) {  // direction = projected/√(denominator²)
-    const T denominator_bar = -dot(direction_bar, projected) * inverse_denominator * inverse_denominator;
-    const T denominator_sq_bar = denominator_bar / (T(2) * denominator);
-    if (projected_wins) {
-      projected_bar = projected_bar + (T(2) * denominator_sq_bar) * projected;
-    } else {
-      length_bar += denominator_sq_bar * T(0.5) * length;
-    }
-  }
+  // direction = projected/√(denominator²)
+  const T denominator_bar = -dot(direction_bar, projected) * inverse_denominator * inverse_denominator;
+  const T denominator_sq_bar = positive ? denominator_bar / (T(2) * safe_denominator) : T(0);
+  const Vec3<T> projected_bar =
+      inverse_denominator * direction_bar + (projected_wins ? T(2) * denominator_sq_bar : T(0)) * projected;
+  length_bar += projected_wins ? T(0) : denominator_sq_bar * T(0.5) * length;
   // projected = s − (s·n̂) n̂
   const T spring_normal_bar = -dot(projected_bar, normal);
-  bar.spring = projected_bar + spring_normal_bar * normal;
   bar.normal = spring_normal_bar * spring - spring_normal * projected_bar;
-  if (length_sq > T(0)) bar.spring = bar.spring + (length_bar / length) * spring;
+  bar.spring = projected_bar + spring_normal_bar * normal +
+               (long_enough ? length_bar / (long_enough ? length : T(1)) : T(0)) * spring;
   return bar;
 }
 

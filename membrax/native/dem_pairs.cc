@@ -116,6 +116,117 @@ ffi::Error dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensatio
 
 // ---- The backward kernel: sphere_pair run backwards by hand for each touching slot.
 
+// The backward's per-slot rows (component-first, C entries each): what pass 0 gathers from the two
+// spheres, and the shares of the spheres and of Δt that pass 2 sums.
+enum PairGathered { kBranchIn = 0, kVelocityI = 3, kVelocityJ = 6, kAngularIIn = 9, kAngularJIn = 12,
+                    kForceBar = 15, kTorqueIBar = 18, kTorqueJBar = 21, kRadiusIIn = 24, kRadiusJIn, kGathered };
+enum PairShare { kBranch = 0, kRelative = 3, kAngularI = 6, kAngularJ = 9, kRadiusI = 12, kRadiusJ, kDt, kShares };
+
+// Pass 0, serial: each slot's inputs from its two spheres (zeros on padded slots, which the law then
+// treats as not touching), so that pass 1 reads contiguous rows; GCC does not vectorise a loop with
+// that many gathers.
+template <typename T>
+void dem_pair_gather(const T* x, const T* xc, const T* v, const T* w, const T* r, const int32_t* id,
+                     const T* total_bar, int64_t n, int64_t slots, T* gathered) {
+  for (int64_t k = 0; k < slots; ++k) {
+    const int64_t i = id[k], j = id[slots + k];
+    const bool valid = i < n;
+    for (int c = 0; c < 3; ++c) {
+      gathered[(kBranchIn + c) * slots + k] = valid ? (x[3 * j + c] - x[3 * i + c]) + (xc[3 * j + c] - xc[3 * i + c]) : T(0);
+      gathered[(kVelocityI + c) * slots + k] = valid ? v[3 * i + c] : T(0);
+      gathered[(kVelocityJ + c) * slots + k] = valid ? v[3 * j + c] : T(0);
+      gathered[(kAngularIIn + c) * slots + k] = valid ? w[3 * i + c] : T(0);
+      gathered[(kAngularJIn + c) * slots + k] = valid ? w[3 * j + c] : T(0);
+      gathered[(kForceBar + c) * slots + k] = valid ? total_bar[6 * j + c] - total_bar[6 * i + c] : T(0);
+      gathered[(kTorqueIBar + c) * slots + k] = valid ? total_bar[6 * i + 3 + c] : T(0);
+      gathered[(kTorqueJBar + c) * slots + k] = valid ? total_bar[6 * j + 3 + c] : T(0);
+    }
+    gathered[kRadiusIIn * slots + k] = valid ? r[i] : T(0);
+    gathered[kRadiusJIn * slots + k] = valid ? r[j] : T(0);
+  }
+}
+
+// Pass 1 of the backward, vectorised: the law of every slot run backwards (branch-free; padded slots and
+// slots that do not touch, δ ≤ 0, give zeros). The per-slot cotangents (spring, k_n, k_t, μ) are written
+// out; the shares of the spheres and of Δt go to `share` for pass 2's sums. (Not inlined, as
+// node_sphere.cc's slot_laws_backward: inlined into a handler, GCC 12 may leave such a loop scalar.)
+template <typename T>
+__attribute__((noinline)) void dem_pair_law_backward(const T* __restrict in, const T* __restrict s_in, const T* __restrict kn,
+                           const T* __restrict kt, const T* __restrict mu, T dt, const T* __restrict s_bar,
+                           const T* __restrict f_bar, int64_t slots, T* __restrict s_out, T* __restrict kn_bar,
+                           T* __restrict kt_bar, T* __restrict mu_bar, T* __restrict share) {
+  using Vec3 = membrax::Vec3<T>;
+  using membrax::cross;
+  using membrax::dot;
+  auto row = [slots, in](int q, int64_t k) {
+    return Vec3{in[q * slots + k], in[(q + 1) * slots + k], in[(q + 2) * slots + k]};
+  };
+  auto strided = [](const T* a, int64_t k) { return Vec3{a[3 * k], a[3 * k + 1], a[3 * k + 2]}; };
+#pragma GCC ivdep
+  for (int64_t k = 0; k < slots; ++k) {
+    // Forward (sphere_pair), keeping the intermediates.
+    const Vec3 branch = row(kBranchIn, k);
+    const T radius_i = in[kRadiusIIn * slots + k], radius_j = in[kRadiusJIn * slots + k];
+    const T distance_sq = dot(branch, branch);
+    const bool apart = distance_sq > T(0);
+    const T distance = std::sqrt(apart ? distance_sq : T(1));
+    const T overlap = radius_i + radius_j - distance;
+    const bool active = (apart ? overlap : T(0)) > T(0);
+    const Vec3 normal = (T(1) / distance) * branch;
+    const T normal_force = kn[k] * overlap;
+    const Vec3 arm_i = (radius_i - T(0.5) * overlap) * normal;
+    const Vec3 arm_j = (-(radius_j - T(0.5) * overlap)) * normal;
+    const Vec3 wi = row(kAngularIIn, k), wj = row(kAngularJIn, k);
+    const Vec3 relative = (row(kVelocityJ, k) + cross(wj, arm_j)) - (row(kVelocityI, k) + cross(wi, arm_i));
+    const T normal_speed = dot(relative, normal);
+    const Vec3 tangential_velocity = relative - normal_speed * normal;
+    // The outputs' cotangents: F on j (totals of j, less those of i, and the pair force), torques
+    // τ_i = −arm_i × F and τ_j = arm_j × F, spring s'.
+    const Vec3 torque_i_bar = row(kTorqueIBar, k), torque_j_bar = row(kTorqueJBar, k);
+    const Vec3 force_bar =
+        row(kForceBar, k) + strided(f_bar, k) + cross(arm_i, torque_i_bar) + cross(torque_j_bar, arm_j);
+    // F = F_n n̂ + s'
+    T normal_force_bar = dot(force_bar, normal);
+    const membrax::SpringCotangents<T> bar = membrax::tangential_spring_backward(
+        strided(s_in, k), normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force, strided(s_bar, k) + force_bar);
+    const Vec3 force = normal_force * normal + bar.new_spring;
+    Vec3 arm_i_bar = cross(torque_i_bar, force);
+    Vec3 arm_j_bar = cross(force, torque_j_bar);
+    Vec3 normal_bar = normal_force * force_bar + bar.normal;
+    normal_force_bar += bar.limit * mu[k];
+    // v_t = v − (v·n̂) n̂
+    const T normal_speed_bar = -dot(bar.tangential_velocity, normal);
+    normal_bar = normal_bar - normal_speed * bar.tangential_velocity + normal_speed_bar * relative;
+    const Vec3 relative_bar = bar.tangential_velocity + normal_speed_bar * normal;
+    // v_rel = v_j + ω_j × arm_j − v_i − ω_i × arm_i
+    arm_j_bar = arm_j_bar + cross(relative_bar, wj);
+    arm_i_bar = arm_i_bar - cross(relative_bar, wi);
+    const Vec3 angular_j_bar = cross(arm_j, relative_bar);
+    const Vec3 angular_i_bar = T(-1) * cross(arm_i, relative_bar);
+    // arm_i = (R_i − δ/2) n̂, arm_j = −(R_j − δ/2) n̂
+    const T along_i = dot(arm_i_bar, normal), along_j = dot(arm_j_bar, normal);
+    normal_bar = normal_bar + (radius_i - T(0.5) * overlap) * arm_i_bar - (radius_j - T(0.5) * overlap) * arm_j_bar;
+    // F_n = k_n δ; δ = R_i + R_j − |b|, n̂ = b/|b|
+    const T overlap_bar = T(-0.5) * along_i + T(0.5) * along_j + normal_force_bar * kn[k];
+    const Vec3 branch_bar =
+        (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal) - overlap_bar * normal;
+    // Selects, not products with a 0/1 mask: an untouching slot's values may be inf or NaN.
+    auto keep = [active](T value) { return active ? value : T(0); };
+    s_out[3 * k] = keep(bar.spring.x);
+    s_out[3 * k + 1] = keep(bar.spring.y);
+    s_out[3 * k + 2] = keep(bar.spring.z);
+    kn_bar[k] = keep(normal_force_bar * overlap);
+    kt_bar[k] = keep(bar.stiffness_dt * dt);
+    mu_bar[k] = keep(bar.limit * normal_force);
+    const T shares[kShares] = {branch_bar.x,    branch_bar.y,    branch_bar.z,    relative_bar.x,  relative_bar.y,
+                               relative_bar.z,  angular_i_bar.x, angular_i_bar.y, angular_i_bar.z, angular_j_bar.x,
+                               angular_j_bar.y, angular_j_bar.z, along_i + overlap_bar, -along_j + overlap_bar,
+                               bar.stiffness_dt * kt[k]};
+#pragma GCC unroll 32
+    for (int q = 0; q < kShares; ++q) share[q * slots + k] = keep(shares[q]);
+  }
+}
+
 // Inputs: those of dem_pairs, then the cotangents of its outputs: totals (N, 6), spring' and the force
 // on j (C, 3). Outputs: the cotangents of position and compensation (N, 3, equal: b = (x_j − x_i) +
 // (c_j − c_i)), velocity and angular velocity (N, 3), radius (N,), spring (C, 3), the per-slot k_n, k_t,
@@ -133,9 +244,6 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
                               ffi::ResultBuffer<dtype> kn_out, ffi::ResultBuffer<dtype> kt_out,
                               ffi::ResultBuffer<dtype> mu_out, ffi::ResultBuffer<dtype> dt_out) {
   using T = ffi::NativeType<dtype>;
-  using Vec3 = membrax::Vec3<T>;
-  using membrax::cross;
-  using membrax::dot;
   const int64_t n = radius.element_count();
   const int64_t slots = spring.element_count() / 3;
   for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
@@ -145,109 +253,44 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
   if (idx.element_count() != size_t(2 * slots) || totals_bar.element_count() != size_t(6 * n) ||
       spring_bar.element_count() != size_t(3 * slots) || pair_force_bar.element_count() != size_t(3 * slots))
     return ffi::Error::InvalidArgument("dem_pairs_backward: inconsistent array sizes");
-  const T* x = position.typed_data();
-  const T* xc = compensation.typed_data();
-  const T* v = velocity.typed_data();
-  const T* w = angular_velocity.typed_data();
-  const T* r = radius.typed_data();
   const int32_t* id = idx.typed_data();
-  const T* s_in = spring.typed_data();
-  const T* kn = normal_stiffness.typed_data();
-  const T* kt = tangential_stiffness.typed_data();
-  const T* mu = friction_coefficient.typed_data();
-  const T dt = time_step.typed_data()[0];
-  const T* total_bar = totals_bar.typed_data();
-  const T* s_bar = spring_bar.typed_data();
-  const T* f_bar = pair_force_bar.typed_data();
+  thread_local std::vector<T> scratch;
+  scratch.resize(size_t((kGathered + kShares) * slots));
+  T* gathered = scratch.data();
+  T* share = gathered + kGathered * slots;
+  dem_pair_gather<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
+                     angular_velocity.typed_data(), radius.typed_data(), id, totals_bar.typed_data(), n, slots,
+                     gathered);
+  dem_pair_law_backward<T>(gathered, spring.typed_data(), normal_stiffness.typed_data(),
+                           tangential_stiffness.typed_data(), friction_coefficient.typed_data(),
+                           time_step.typed_data()[0], spring_bar.typed_data(), pair_force_bar.typed_data(), slots,
+                           spring_out->typed_data(), kn_out->typed_data(), kt_out->typed_data(),
+                           mu_out->typed_data(), share);
+  // Pass 2, in slot order: each slot's shares to its two spheres.
   T* x_out = position_out->typed_data();
   T* v_out = velocity_out->typed_data();
   T* w_out = angular_out->typed_data();
   T* r_out = radius_out->typed_data();
-  T* s_out = spring_out->typed_data();
-  T* kn_bar = kn_out->typed_data();
-  T* kt_bar = kt_out->typed_data();
-  T* mu_bar = mu_out->typed_data();
   std::fill(x_out, x_out + 3 * n, T(0));
   std::fill(v_out, v_out + 3 * n, T(0));
   std::fill(w_out, w_out + 3 * n, T(0));
   std::fill(r_out, r_out + n, T(0));
-  std::fill(s_out, s_out + 3 * slots, T(0));
-  std::fill(kn_bar, kn_bar + slots, T(0));
-  std::fill(kt_bar, kt_bar + slots, T(0));
-  std::fill(mu_bar, mu_bar + slots, T(0));
   T dt_bar = T(0);
-  auto row = [](const T* a, int64_t i) { return Vec3{a[3 * i], a[3 * i + 1], a[3 * i + 2]}; };
-  auto add = [](T* a, int64_t i, Vec3 value) {
-    a[3 * i] += value.x;
-    a[3 * i + 1] += value.y;
-    a[3 * i + 2] += value.z;
-  };
   for (int64_t k = 0; k < slots; ++k) {
     const int64_t i = id[k], j = id[slots + k];
     if (i >= n) continue;
-    // Forward (sphere_pair), keeping the intermediates.
-    const Vec3 branch = (row(x, j) - row(x, i)) + (row(xc, j) - row(xc, i));
-    const T distance_sq = dot(branch, branch);
-    if (!(distance_sq > T(0))) continue;
-    const T distance = std::sqrt(distance_sq);
-    const T overlap = r[i] + r[j] - distance;
-    if (!(overlap > T(0))) continue;
-    const Vec3 normal = (T(1) / distance) * branch;
-    const T normal_force = kn[k] * overlap;
-    const Vec3 arm_i = (r[i] - T(0.5) * overlap) * normal;
-    const Vec3 arm_j = (-(r[j] - T(0.5) * overlap)) * normal;
-    const Vec3 wi = row(w, i), wj = row(w, j);
-    const Vec3 relative = (row(v, j) + cross(wj, arm_j)) - (row(v, i) + cross(wi, arm_i));
-    const T normal_speed = dot(relative, normal);
-    const Vec3 tangential_velocity = relative - normal_speed * normal;
-    const Vec3 s = row(s_in, k);
-    // The outputs' cotangents: F on j (totals of j, less those of i, and the pair force), torques
-    // τ_i = −arm_i × F and τ_j = arm_j × F, spring s'.
-    const Vec3 torque_i_bar = {total_bar[6 * i + 3], total_bar[6 * i + 4], total_bar[6 * i + 5]};
-    const Vec3 torque_j_bar = {total_bar[6 * j + 3], total_bar[6 * j + 4], total_bar[6 * j + 5]};
-    const Vec3 force_bar = (Vec3{total_bar[6 * j], total_bar[6 * j + 1], total_bar[6 * j + 2]} -
-                            Vec3{total_bar[6 * i], total_bar[6 * i + 1], total_bar[6 * i + 2]}) +
-                           row(f_bar, k) + cross(arm_i, torque_i_bar) + cross(torque_j_bar, arm_j);
-    // F = F_n n̂ + s'
-    T normal_force_bar = dot(force_bar, normal);
-    const membrax::SpringCotangents<T> bar = membrax::tangential_spring_backward(
-        s, normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force, row(s_bar, k) + force_bar);
-    const Vec3 force = normal_force * normal + bar.new_spring;
-    Vec3 arm_i_bar = cross(torque_i_bar, force);
-    Vec3 arm_j_bar = cross(force, torque_j_bar);
-    Vec3 normal_bar = normal_force * force_bar + bar.normal;
-    mu_bar[k] = bar.limit * normal_force;
-    normal_force_bar += bar.limit * mu[k];
-    kt_bar[k] = bar.stiffness_dt * dt;
-    dt_bar += bar.stiffness_dt * kt[k];
-    // v_t = v − (v·n̂) n̂
-    const T normal_speed_bar = -dot(bar.tangential_velocity, normal);
-    normal_bar = normal_bar - normal_speed * bar.tangential_velocity + normal_speed_bar * relative;
-    const Vec3 relative_bar = bar.tangential_velocity + normal_speed_bar * normal;
-    // v_rel = v_j + ω_j × arm_j − v_i − ω_i × arm_i
-    add(v_out, j, relative_bar);
-    add(v_out, i, T(-1) * relative_bar);
-    add(w_out, j, cross(arm_j, relative_bar));
-    add(w_out, i, T(-1) * cross(arm_i, relative_bar));
-    arm_j_bar = arm_j_bar + cross(relative_bar, wj);
-    arm_i_bar = arm_i_bar - cross(relative_bar, wi);
-    // arm_i = (R_i − δ/2) n̂, arm_j = −(R_j − δ/2) n̂
-    const T along_i = dot(arm_i_bar, normal), along_j = dot(arm_j_bar, normal);
-    T overlap_bar = T(-0.5) * along_i + T(0.5) * along_j;
-    normal_bar = normal_bar + (r[i] - T(0.5) * overlap) * arm_i_bar - (r[j] - T(0.5) * overlap) * arm_j_bar;
-    // F_n = k_n δ
-    kn_bar[k] = normal_force_bar * overlap;
-    overlap_bar += normal_force_bar * kn[k];
-    // δ = R_i + R_j − |b|, n̂ = b/|b|
-    r_out[i] += along_i + overlap_bar;
-    r_out[j] += -along_j + overlap_bar;
-    const Vec3 branch_bar =
-        (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal) - overlap_bar * normal;
-    add(x_out, j, branch_bar);
-    add(x_out, i, T(-1) * branch_bar);
-    s_out[3 * k] = bar.spring.x;
-    s_out[3 * k + 1] = bar.spring.y;
-    s_out[3 * k + 2] = bar.spring.z;
+    for (int c = 0; c < 3; ++c) {
+      const T branch_bar = share[(kBranch + c) * slots + k], relative_bar = share[(kRelative + c) * slots + k];
+      x_out[3 * j + c] += branch_bar;
+      x_out[3 * i + c] -= branch_bar;
+      v_out[3 * j + c] += relative_bar;
+      v_out[3 * i + c] -= relative_bar;
+      w_out[3 * i + c] += share[(kAngularI + c) * slots + k];
+      w_out[3 * j + c] += share[(kAngularJ + c) * slots + k];
+    }
+    r_out[i] += share[kRadiusI * slots + k];
+    r_out[j] += share[kRadiusJ * slots + k];
+    dt_bar += share[kDt * slots + k];
   }
   dt_out->typed_data()[0] = dt_bar;
   return ffi::Error::Success();

@@ -520,7 +520,8 @@ void cap_tangents(const T* x, const T* u, const int32_t* ring, int64_t count, bo
   sums->pressure += work_unit;
 }
 
-// Inputs: those of membrane_forces, then the forces' cotangent ū (N, 3).
+// Inputs: those of membrane_forces, then the forces' cotangent ū (N, 3). Attributes: model, and
+// bending_derivative (1: ū·∂F/∂f_b is wanted, so the hinges run even at f_b = 0).
 // Outputs: the position's cotangent J ū (N, 3) and the scalars' (5,): ū·∂F/∂(E_m, t_m, p, ν, f_b).
 template <ffi::DataType dtype>
 ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
@@ -528,7 +529,7 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
                                     ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
                                     ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
                                     ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars,
-                                    ffi::Buffer<dtype> cotangent, int64_t model,
+                                    ffi::Buffer<dtype> cotangent, int64_t model, int64_t bending_derivative,
                                     ffi::ResultBuffer<dtype> position_cotangent,
                                     ffi::ResultBuffer<dtype> scalars_cotangent) {
   using T = ffi::NativeType<dtype>;
@@ -556,11 +557,13 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   triangles(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles, modulus,
             thickness, pressure, poisson, scratch.data(), partial, &sums);
   add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, tangent);
-  // k_b = f_b E t³/(72(1 − ν²)) (D/6); the hinges run even at f_b = 0, where ∂/∂f_b is not zero.
+  // k_b = f_b E t³/(72(1 − ν²)) (D/6). At f_b = 0 the hinges add nothing but ∂/∂f_b, so they run only
+  // when that derivative is asked for (bending_derivative); every other output has the factor f_b.
   const T plate = thickness * thickness * thickness / (T(72) * (T(1) - poisson * poisson));
   const T stiffness = bending_factor * modulus * plate;
-  hinge_tangents<T>(x, u, hinge_index.typed_data(), edge_weight.typed_data(), rest_dihedral.typed_data(), num_hinges, stiffness,
-                    scratch.data(), partial, &sums);
+  if (bending_factor != T(0) || bending_derivative != 0)
+    hinge_tangents<T>(x, u, hinge_index.typed_data(), edge_weight.typed_data(), rest_dihedral.typed_data(),
+                      num_hinges, stiffness, scratch.data(), partial, &sums);
   if (bending_factor != T(0)) add_to_nodes<T>(scratch.data(), hinge_index.typed_data(), 4, num_hinges, tangent);
   cap_tangents<T>(x, u, bottom_ring.typed_data(), bottom_ring.element_count(), false, pressure, tangent, &sums);
   cap_tangents<T>(x, u, top_ring.typed_data(), top_ring.element_count(), true, pressure, tangent, &sums);
@@ -612,6 +615,7 @@ MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF64, ffi::F64)
                                     .Arg<ffi::Buffer<dtype>>()                 \
                                     .Arg<ffi::Buffer<dtype>>()                 \
                                     .Attr<int64_t>("model")                    \
+                                    .Attr<int64_t>("bending_derivative")       \
                                     .Ret<ffi::Buffer<dtype>>()                 \
                                     .Ret<ffi::Buffer<dtype>>());
 

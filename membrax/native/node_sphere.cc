@@ -153,15 +153,16 @@ struct SlotCotangents {
 };
 
 // The cotangents of slot_law's inputs from those of its force on the node (force_bar) and its new spring
-// (spring_bar), slot_law run backwards by hand (active: a touching slot).
+// (spring_bar), slot_law run backwards by hand (a touching slot); branch-free, so that its loop vectorises.
 template <typename T>
-inline SlotCotangents<T> slot_law_backward(Vec3<T> b, Vec3<T> relative, Vec3<T> s, T overlap, T dt,
-                                           T normal_stiffness, T tangential_stiffness, T friction,
-                                           Vec3<T> force_bar, Vec3<T> spring_bar) {
+__attribute__((always_inline)) inline SlotCotangents<T> slot_law_backward(
+    Vec3<T> b, Vec3<T> relative, Vec3<T> s, T overlap, T dt, T normal_stiffness, T tangential_stiffness,
+    T friction, Vec3<T> force_bar, Vec3<T> spring_bar) {
   const T distance_sq = dot(b, b);
   const bool apart = distance_sq > T(0);
   const T distance = std::sqrt(apart ? distance_sq : T(1));
-  const Vec3<T> normal = (apart ? T(1) / distance : T(0)) * b;
+  const T inverse_distance = apart ? T(1) / distance : T(0);
+  const Vec3<T> normal = inverse_distance * b;
   const T normal_force = apart ? normal_stiffness * overlap : T(0);
   const T normal_speed = dot(relative, normal);
   const Vec3<T> tangential_velocity = relative - normal_speed * normal;
@@ -180,21 +181,57 @@ inline SlotCotangents<T> slot_law_backward(Vec3<T> b, Vec3<T> relative, Vec3<T> 
   const T normal_speed_bar = -dot(spring.tangential_velocity, normal);
   normal_bar = normal_bar - normal_speed * spring.tangential_velocity + normal_speed_bar * relative;
   bar.relative = spring.tangential_velocity + normal_speed_bar * normal;
-  // F_n = k_n δ, n̂ = b/|b|
-  if (apart) {
-    bar.normal_stiffness = normal_force_bar * overlap;
-    bar.overlap = normal_force_bar * normal_stiffness;
-    bar.branch = (T(1) / distance) * (normal_bar - dot(normal_bar, normal) * normal);
-  }
+  // F_n = k_n δ, n̂ = b/|b| (both zero at |b| = 0)
+  bar.normal_stiffness = apart ? normal_force_bar * overlap : T(0);
+  bar.overlap = apart ? normal_force_bar * normal_stiffness : T(0);
+  bar.branch = inverse_distance * (normal_bar - dot(normal_bar, normal) * normal);
   bar.spring = spring.spring;
   bar.force = normal_force * normal + spring.new_spring;
   return bar;
+}
+
+// The backward's rows per touching slot (component-first, one entry per touching slot): what pass 1
+// gathers, and what pass 2 computes for pass 3's sums.
+enum SlotGathered { kBranchIn = 0, kRelativeIn = 3, kSpringIn = 6, kAngularIn = 9, kForceBarIn = 12,
+                    kTorqueBarIn = 15, kSpringBarIn = 18, kOverlapIn = 21, kGathered };
+enum SlotShare { kBranch = 0, kRelative = 3, kAngular = 6, kSpring = 9, kOverlap = 12, kDt, kNormalStiffness,
+                 kTangentialStiffness, kFriction, kShares };
+
+// Pass 2, vectorised: the law of each touching slot run backwards, from the gathered rows to the shares.
+// (Not inlined: inlined into the handler, GCC 12 leaves the loop scalar.)
+template <typename T>
+__attribute__((noinline)) void slot_laws_backward(const T* __restrict in, int64_t count, T dt, T normal_stiffness, T tangential_stiffness,
+                        T friction, T* __restrict share) {
+  auto row = [count, in](int q, int64_t t) {
+    return Vec3<T>{in[q * count + t], in[(q + 1) * count + t], in[(q + 2) * count + t]};
+  };
+#pragma GCC ivdep
+  for (int64_t t = 0; t < count; ++t) {
+    const Vec3<T> b = row(kBranchIn, t), w = row(kAngularIn, t), torque_bar = row(kTorqueBarIn, t);
+    const SlotCotangents<T> bar = slot_law_backward<T>(
+        b, row(kRelativeIn, t), row(kSpringIn, t), in[kOverlapIn * count + t], dt, normal_stiffness,
+        tangential_stiffness, friction, row(kForceBarIn, t), row(kSpringBarIn, t));
+    // torque: b̄ += τ̄ × F; relative = v_n − v_i − ω × b: ω̄ += v̄_rel × b, b̄ += ω × v̄_rel;
+    // δ = R + t_m/2 − |b|: b̄ −= δ̄ b/|b|.
+    const T distance_sq = dot(b, b);
+    const T overlap_pull = distance_sq > T(0) ? bar.overlap / std::sqrt(distance_sq > T(0) ? distance_sq : T(1)) : T(0);
+    const Vec3<T> branch_bar = bar.branch + cross(torque_bar, bar.force) + cross(w, bar.relative) - overlap_pull * b;
+    const Vec3<T> angular_bar = cross(bar.relative, b);
+    const T shares[kShares] = {branch_bar.x,  branch_bar.y,  branch_bar.z,   bar.relative.x,     bar.relative.y,
+                               bar.relative.z, angular_bar.x, angular_bar.y, angular_bar.z,      bar.spring.x,
+                               bar.spring.y,   bar.spring.z,  bar.overlap,   bar.dt,             bar.normal_stiffness,
+                               bar.tangential_stiffness,      bar.friction};
+#pragma GCC unroll 32
+    for (int q = 0; q < kShares; ++q) share[q * count + t] = shares[q];
+  }
 }
 
 // Inputs: those of node_sphere_forces, then the cotangents of its outputs: node force (n, 3), sphere
 // force and torque (N, 3), springs (3, n, K). Outputs: the cotangents of node position and velocity
 // (n, 3), sphere position, velocity and angular velocity (N, 3), radius (N,), springs (3, n, K) and
 // scalars (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero outputs whatever their inputs.
+// Passes: which slots touch (vectorised), their inputs gathered (serial), their laws run backwards
+// (vectorised), their shares summed per node and sphere in slot order (serial).
 template <ffi::DataType dtype>
 ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity,
                                 ffi::Buffer<dtype> sphere_position, ffi::Buffer<dtype> sphere_velocity,
@@ -258,51 +295,64 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   thread_local std::vector<uint8_t> touching;
   touching.resize(size_t(m));
   touching_slots<T>(x, xs, radius, id, num_nodes, capacity, num_spheres, half_thickness, touching.data());
+  // The touching slots in order, compacted without a branch.
+  thread_local std::vector<int64_t> slots;
+  slots.resize(size_t(m) + 1);
+  int64_t* slot_of = slots.data();
+  const uint8_t* touches = touching.data();
+  int64_t count = 0;
   for (int64_t j = 0; j < m; ++j) {
-    if (!touching[j]) continue;
-    const int64_t node = j / capacity, sphere = id[j];
+    slot_of[count] = j;
+    count += touches[j];
+  }
+  thread_local std::vector<T> scratch;
+  scratch.resize(size_t((kGathered + kShares) * count));
+  T* in = scratch.data();
+  T* share = in + kGathered * count;
+  // Pass 1: each touching slot's inputs, component-first.
+  for (int64_t t = 0; t < count; ++t) {
+    const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
     const Vec3<T> b = {x[3 * node] - xs[3 * sphere], x[3 * node + 1] - xs[3 * sphere + 1],
                        x[3 * node + 2] - xs[3 * sphere + 2]};
-    const Vec3<T> s = {old_spring[j], old_spring[m + j], old_spring[2 * m + j]};
     const Vec3<T> w = {ws[3 * sphere], ws[3 * sphere + 1], ws[3 * sphere + 2]};
     const Vec3<T> node_velocity_j = {v[3 * node], v[3 * node + 1], v[3 * node + 2]};
     const Vec3<T> sphere_velocity_j = {vs[3 * sphere], vs[3 * sphere + 1], vs[3 * sphere + 2]};
     const Vec3<T> relative = node_velocity_j - (sphere_velocity_j + cross(w, b));
-    const T distance_sq = dot(b, b);
-    const T distance = std::sqrt(distance_sq);
-    const T overlap = radius[sphere] + half_thickness - distance;
     // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
     const Vec3<T> node_bar = {f_node_bar[3 * node], f_node_bar[3 * node + 1], f_node_bar[3 * node + 2]};
     const Vec3<T> sphere_bar = {f_sphere_bar[3 * sphere], f_sphere_bar[3 * sphere + 1],
                                 f_sphere_bar[3 * sphere + 2]};
     const Vec3<T> torque_bar = {tau_bar[3 * sphere], tau_bar[3 * sphere + 1], tau_bar[3 * sphere + 2]};
-    const Vec3<T> new_spring_bar = {s_bar[j], s_bar[m + j], s_bar[2 * m + j]};
     const Vec3<T> force_bar = (node_bar - sphere_bar) + cross(b, torque_bar);  // τ̄·(−b × F) = F·(b × τ̄)
-    SlotCotangents<T> bar = slot_law_backward<T>(b, relative, s, overlap, dt, normal_stiffness,
-                                                 tangential_stiffness, friction, force_bar, new_spring_bar);
-    // torque: b̄ += τ̄ × F; relative = v_n − v_i − ω × b: ω̄ += v̄_rel × b, b̄ += ω × v̄_rel;
-    // δ = R + t_m/2 − |b|: R̄ += δ̄, t̄_m += δ̄/2, b̄ −= δ̄ b/|b|.
-    Vec3<T> branch_bar = bar.branch + cross(torque_bar, bar.force) + cross(w, bar.relative);
-    if (distance_sq > T(0)) branch_bar = branch_bar - (bar.overlap / distance) * b;
-    const Vec3<T> angular_bar = cross(bar.relative, b);
-    const T branch_out[3] = {branch_bar.x, branch_bar.y, branch_bar.z};
-    const T relative_out[3] = {bar.relative.x, bar.relative.y, bar.relative.z};
-    const T angular_out[3] = {angular_bar.x, angular_bar.y, angular_bar.z};
-    const T spring_in_out[3] = {bar.spring.x, bar.spring.y, bar.spring.z};
-    for (int c = 0; c < 3; ++c) {
-      x_out[3 * node + c] += branch_out[c];
-      xs_out[3 * sphere + c] -= branch_out[c];
-      v_out[3 * node + c] += relative_out[c];
-      vs_out[3 * sphere + c] -= relative_out[c];
-      ws_out[3 * sphere + c] += angular_out[c];
-      s_out[c * m + j] = spring_in_out[c];
+    const Vec3<T> rows[7] = {b, relative, {old_spring[j], old_spring[m + j], old_spring[2 * m + j]}, w,
+                             force_bar, torque_bar, {s_bar[j], s_bar[m + j], s_bar[2 * m + j]}};
+    for (int q = 0; q < 7; ++q) {
+      in[(3 * q) * count + t] = rows[q].x;
+      in[(3 * q + 1) * count + t] = rows[q].y;
+      in[(3 * q + 2) * count + t] = rows[q].z;
     }
-    r_out[sphere] += bar.overlap;
-    scalar_out[0] += bar.dt;
-    scalar_out[1] += bar.normal_stiffness;
-    scalar_out[2] += bar.tangential_stiffness;
-    scalar_out[3] += bar.friction;
-    scalar_out[4] += T(0.5) * bar.overlap;
+    in[kOverlapIn * count + t] = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
+  }
+  slot_laws_backward<T>(in, count, dt, normal_stiffness, tangential_stiffness, friction, share);
+  // Pass 3, in slot order: the shares to the nodes, the spheres and the scalars.
+  for (int64_t t = 0; t < count; ++t) {
+    const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
+    for (int c = 0; c < 3; ++c) {
+      const T branch_bar = share[(kBranch + c) * count + t], relative_bar = share[(kRelative + c) * count + t];
+      x_out[3 * node + c] += branch_bar;
+      xs_out[3 * sphere + c] -= branch_bar;
+      v_out[3 * node + c] += relative_bar;
+      vs_out[3 * sphere + c] -= relative_bar;
+      ws_out[3 * sphere + c] += share[(kAngular + c) * count + t];
+      s_out[c * m + j] = share[(kSpring + c) * count + t];
+    }
+    const T overlap_bar = share[kOverlap * count + t];
+    r_out[sphere] += overlap_bar;
+    scalar_out[0] += share[kDt * count + t];
+    scalar_out[1] += share[kNormalStiffness * count + t];
+    scalar_out[2] += share[kTangentialStiffness * count + t];
+    scalar_out[3] += share[kFriction * count + t];
+    scalar_out[4] += T(0.5) * overlap_bar;
   }
   return ffi::Error::Success();
 }
