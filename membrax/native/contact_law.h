@@ -9,6 +9,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 namespace membrax {
 
@@ -28,6 +29,12 @@ __attribute__((always_inline)) inline T dot(Vec3<T> a, Vec3<T> b) { return a.x *
 template <typename T>
 __attribute__((always_inline)) inline Vec3<T> cross(Vec3<T> a, Vec3<T> b) {
   return {a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x};
+}
+
+// Row i of an (n, 3) array.
+template <typename T>
+__attribute__((always_inline)) inline Vec3<T> row3(const T* a, int64_t i) {
+  return {a[3 * i], a[3 * i + 1], a[3 * i + 2]};
 }
 
 // spring: the carried spring; normal: unit normal (or zero); tangential_velocity: v_t;

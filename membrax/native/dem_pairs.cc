@@ -161,7 +161,7 @@ __attribute__((noinline)) void dem_pair_law_backward(const T* __restrict in, con
   auto row = [slots, in](int q, int64_t k) {
     return Vec3{in[q * slots + k], in[(q + 1) * slots + k], in[(q + 2) * slots + k]};
   };
-  auto strided = [](const T* a, int64_t k) { return Vec3{a[3 * k], a[3 * k + 1], a[3 * k + 2]}; };
+  using membrax::row3;
 #pragma GCC ivdep
   for (int64_t k = 0; k < slots; ++k) {
     // Forward (sphere_pair), keeping the intermediates.
@@ -184,11 +184,11 @@ __attribute__((noinline)) void dem_pair_law_backward(const T* __restrict in, con
     // τ_i = −arm_i × F and τ_j = arm_j × F, spring s'.
     const Vec3 torque_i_bar = row(kTorqueIBar, k), torque_j_bar = row(kTorqueJBar, k);
     const Vec3 force_bar =
-        row(kForceBar, k) + strided(f_bar, k) + cross(arm_i, torque_i_bar) + cross(torque_j_bar, arm_j);
+        row(kForceBar, k) + row3(f_bar, k) + cross(arm_i, torque_i_bar) + cross(torque_j_bar, arm_j);
     // F = F_n n̂ + s'
     T normal_force_bar = dot(force_bar, normal);
     const membrax::SpringCotangents<T> bar = membrax::tangential_spring_backward(
-        strided(s_in, k), normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force, strided(s_bar, k) + force_bar);
+        row3(s_in, k), normal, tangential_velocity, kt[k] * dt, mu[k] * normal_force, row3(s_bar, k) + force_bar);
     const Vec3 force = normal_force * normal + bar.new_spring;
     Vec3 arm_i_bar = cross(torque_i_bar, force);
     Vec3 arm_j_bar = cross(force, torque_j_bar);

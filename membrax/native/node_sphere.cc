@@ -56,6 +56,22 @@ void touching_slots(const T* __restrict node_x, const T* __restrict sphere_x, co
   }
 }
 
+// A slot's branch b = x_n − x_i, the sphere's spin ω_i and the relative velocity v_n − (v_i + ω_i × b),
+// gathered by the forward kernel and by the backward's pass 1 alike.
+template <typename T>
+struct SlotKinematics {
+  Vec3<T> branch, spin, relative;
+};
+
+template <typename T>
+inline SlotKinematics<T> slot_kinematics(const T* x, const T* v, const T* xs, const T* vs, const T* ws,
+                                         int64_t node, int64_t sphere) {
+  using membrax::row3;
+  const Vec3<T> b = row3(x, node) - row3(xs, sphere);
+  const Vec3<T> w = row3(ws, sphere);
+  return {b, w, row3(v, node) - (row3(vs, sphere) + cross(w, b))};
+}
+
 // Pass 2: the law of one touching slot (branch b, relative velocity, carried spring s, overlap δ > 0);
 // writes the new spring and returns the force on the node.
 template <typename T>
@@ -117,13 +133,9 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
   for (int64_t j = 0; j < m; ++j) {
     if (!touching[j]) continue;
     const int64_t node = j / capacity, sphere = id[j];
-    const Vec3<T> b = {x[3 * node] - xs[3 * sphere], x[3 * node + 1] - xs[3 * sphere + 1],
-                       x[3 * node + 2] - xs[3 * sphere + 2]};
+    const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
+    const Vec3<T> b = kinematics.branch, relative = kinematics.relative;
     const Vec3<T> s = {old_spring[j], old_spring[m + j], old_spring[2 * m + j]};
-    const Vec3<T> w = {ws[3 * sphere], ws[3 * sphere + 1], ws[3 * sphere + 2]};
-    const Vec3<T> node_velocity = {v[3 * node], v[3 * node + 1], v[3 * node + 2]};
-    const Vec3<T> sphere_velocity = {vs[3 * sphere], vs[3 * sphere + 1], vs[3 * sphere + 2]};
-    const Vec3<T> relative = node_velocity - (sphere_velocity + cross(w, b));  // v_node − (v_i + ω_i × b)
     const T overlap = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
     Vec3<T> updated;
     const Vec3<T> force =
@@ -312,19 +324,15 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   // Pass 1: each touching slot's inputs, component-first.
   for (int64_t t = 0; t < count; ++t) {
     const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
-    const Vec3<T> b = {x[3 * node] - xs[3 * sphere], x[3 * node + 1] - xs[3 * sphere + 1],
-                       x[3 * node + 2] - xs[3 * sphere + 2]};
-    const Vec3<T> w = {ws[3 * sphere], ws[3 * sphere + 1], ws[3 * sphere + 2]};
-    const Vec3<T> node_velocity_j = {v[3 * node], v[3 * node + 1], v[3 * node + 2]};
-    const Vec3<T> sphere_velocity_j = {vs[3 * sphere], vs[3 * sphere + 1], vs[3 * sphere + 2]};
-    const Vec3<T> relative = node_velocity_j - (sphere_velocity_j + cross(w, b));
+    const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
+    const Vec3<T> b = kinematics.branch;
     // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
-    const Vec3<T> node_bar = {f_node_bar[3 * node], f_node_bar[3 * node + 1], f_node_bar[3 * node + 2]};
-    const Vec3<T> sphere_bar = {f_sphere_bar[3 * sphere], f_sphere_bar[3 * sphere + 1],
-                                f_sphere_bar[3 * sphere + 2]};
-    const Vec3<T> torque_bar = {tau_bar[3 * sphere], tau_bar[3 * sphere + 1], tau_bar[3 * sphere + 2]};
-    const Vec3<T> force_bar = (node_bar - sphere_bar) + cross(b, torque_bar);  // τ̄·(−b × F) = F·(b × τ̄)
-    const Vec3<T> rows[7] = {b, relative, {old_spring[j], old_spring[m + j], old_spring[2 * m + j]}, w,
+    const Vec3<T> torque_bar = membrax::row3(tau_bar, sphere);
+    // τ̄·(−b × F) = F·(b × τ̄)
+    const Vec3<T> force_bar =
+        (membrax::row3(f_node_bar, node) - membrax::row3(f_sphere_bar, sphere)) + cross(b, torque_bar);
+    const Vec3<T> rows[7] = {b, kinematics.relative, {old_spring[j], old_spring[m + j], old_spring[2 * m + j]},
+                             kinematics.spin,
                              force_bar, torque_bar, {s_bar[j], s_bar[m + j], s_bar[2 * m + j]}};
     for (int q = 0; q < 7; ++q) {
       in[(3 * q) * count + t] = rows[q].x;
