@@ -640,19 +640,32 @@ def remap_node_history(old_idx, new_idx, old_history, num_spheres: int, componen
       pair, zero elsewhere.
     """
     if components_first:
-        rows = remap_node_history(old_idx, new_idx, jnp.moveaxis(old_history, 0, -1), num_spheres)
-        return jnp.moveaxis(rows, -1, 0)
+        return _carry_components(old_idx, new_idx, old_history, num_spheres)
     return _carry_rows(old_idx, new_idx, old_history, num_spheres)
 
 
+def _slot_match(old_idx, new_idx, num_spheres):
+    """(n_nodes, K_new, K_old) bool: new slot i and old slot j of a row hold the same (real) sphere."""
+    return (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx < num_spheres)[:, :, None]
+
+
+# Both carries checkpointed: reverse mode recomputes the 0/1 match from the integer tables instead of
+# keeping it (n_nodes, K, K) per step; the carry is linear in the history, so nothing else is needed.
 @functools.partial(jax.checkpoint, static_argnums=(3,))
 def _carry_rows(old_idx, new_idx, old_history, num_spheres):
-    # Checkpointed: reverse mode recomputes the 0/1 match from the integer tables instead of keeping it
-    # (n_nodes, K, K) per step; the carry is linear in the history, so nothing else is needed.
-    match = (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx < num_spheres)[:, :, None]
+    match = _slot_match(old_idx, new_idx, num_spheres)
     flat = old_history.reshape((*old_history.shape[:2], -1))
     carried = jnp.einsum("nij,njc->nic", match.astype(flat.dtype), flat)
     return carried.reshape(new_idx.shape + old_history.shape[2:])
+
+
+@functools.partial(jax.checkpoint, static_argnums=(3,))
+def _carry_components(old_idx, new_idx, old_history, num_spheres):
+    # An elementwise product and a sum over the short old-slot axis, in the (C, n_nodes, K) layout the
+    # kernels use: moving the component axis last (as _carry_rows wants) made XLA give the springs a
+    # transposed layout at the rebuild's cond and copy them back and forth on every step.
+    match = _slot_match(old_idx, new_idx, num_spheres).astype(old_history.dtype)
+    return jnp.sum(match[None] * old_history[:, :, None, :], axis=-1)
 
 
 def update_candidates(

@@ -502,8 +502,10 @@ def membrane_dem(
             nodes.clamp_position
             + jnp.stack([jnp.zeros_like(shift), jnp.zeros_like(shift), shift]).T[:, None, :]
         )
-        position = position.at[rings].set(clamped)
-        compensation = compensation.at[rings].set(0.0)
+        # The rings' nodes are distinct: unique_indices gives the set a plain scatter as its derivative,
+        # not JAX's id-masked one for repeated indices (three full-mesh selects per step).
+        position = position.at[rings].set(clamped, unique_indices=True)
+        compensation = compensation.at[rings].set(0.0, unique_indices=True)
         platen_velocity = jnp.stack([-spheres.walls.velocity[0, BOTTOM], spheres.walls.velocity[0, TOP]])
         ring_velocity = jnp.broadcast_to(
             jnp.stack([jnp.zeros_like(platen_velocity), jnp.zeros_like(platen_velocity), platen_velocity]).T[
@@ -511,7 +513,7 @@ def membrane_dem(
             ],
             clamped.shape,
         )
-        velocity = velocity.at[rings].set(ring_velocity)
+        velocity = velocity.at[rings].set(ring_velocity, unique_indices=True)
 
         candidates, spring = update_candidates(
             nodes.candidates,
