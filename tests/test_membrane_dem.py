@@ -161,3 +161,14 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
         )
     )
     assert penetration < 0.5 * float(test.params.membrane.thickness)
+
+
+def test_a_mesh_whose_rings_share_a_node_is_refused():
+    # The rings are set with unique_indices in the step: a repeated node would make that set undefined.
+    radius, height = 0.05, 0.1
+    mesh = membrane.cylinder_mesh(radius, height, 0.02)
+    mesh = mesh.set(top_ring=mesh.top_ring.at[0].set(mesh.bottom_ring[0]))
+    particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
+    frame = pair_neighbor_fn(np.full(3, -0.1), np.full(3, 0.2), 0.01, 0.02, 0)
+    with pytest.raises(ValueError, match="rings repeat a node"):
+        membrane_dem.membrane_dem(particles, frame, mesh, 1e-6, platen_area=np.pi * radius**2)

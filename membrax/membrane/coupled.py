@@ -427,6 +427,9 @@ def membrane_dem(
     mass_per_thickness = membrane_lib.lumped_mass(mesh, 1.0, latex_density)
     free = jnp.asarray(membrane_lib.free_node_mask(mesh))
     rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
+    # The rings are set with unique_indices (checked here unless the mesh is traced, as in a vmapped rollout).
+    if not isinstance(rings, jax.core.Tracer) and np.unique(np.asarray(rings)).size != rings.size:
+        raise ValueError("membrane_dem: the mesh's two rings repeat a node; build the mesh with prism_mesh.")
 
     def init_fn(
         dem_state: DEMState, params: CoupledParams, capacity: int = 3, skin=None, sphere_capacity: int = 64
