@@ -37,6 +37,33 @@ __attribute__((always_inline)) inline Vec3<T> row3(const T* a, int64_t i) {
   return {a[3 * i], a[3 * i + 1], a[3 * i + 2]};
 }
 
+// Entry k of the three component-first rows q, q + 1, q + 2 of `rows` (count entries each): the backward
+// kernels' gathered inputs and per-slot shares.
+template <typename T>
+__attribute__((always_inline)) inline Vec3<T> column3(const T* rows, int q, int64_t count, int64_t k) {
+  return {rows[q * count + k], rows[(q + 1) * count + k], rows[(q + 2) * count + k]};
+}
+
+// Adds value to row `plus` of an (n, 3) array and subtracts it from row `minus` (an action and its
+// reaction on the two bodies of a contact).
+template <typename T>
+__attribute__((always_inline)) inline void add_opposite(T* a, int64_t plus, int64_t minus, Vec3<T> value) {
+  a[3 * plus] += value.x;
+  a[3 * plus + 1] += value.y;
+  a[3 * plus + 2] += value.z;
+  a[3 * minus] -= value.x;
+  a[3 * minus + 1] -= value.y;
+  a[3 * minus + 2] -= value.z;
+}
+
+// Adds value to row i of an (n, 3) array.
+template <typename T>
+__attribute__((always_inline)) inline void add3(T* a, int64_t i, Vec3<T> value) {
+  a[3 * i] += value.x;
+  a[3 * i + 1] += value.y;
+  a[3 * i + 2] += value.z;
+}
+
 // spring: the carried spring; normal: unit normal (or zero); tangential_velocity: v_t;
 // stiffness_dt: k_t Δt; limit: μ |F_n|; active: whether the bodies overlap. Returns the new spring.
 template <typename T>

@@ -37,16 +37,11 @@ void dem_pair_law(const T* __restrict position, const T* __restrict compensation
     const int32_t i = idx[k], j = idx[num_slots + k];
     const bool valid = i < num_spheres;
     const int64_t gi = valid ? i : 0, gj = valid ? j : 0;
-    const Vec3 branch = (Vec3{position[3 * gj], position[3 * gj + 1], position[3 * gj + 2]} -
-                         Vec3{position[3 * gi], position[3 * gi + 1], position[3 * gi + 2]}) +
-                        (Vec3{compensation[3 * gj], compensation[3 * gj + 1], compensation[3 * gj + 2]} -
-                         Vec3{compensation[3 * gi], compensation[3 * gi + 1], compensation[3 * gi + 2]});
-    const auto result = membrax::sphere_pair(
-        branch, Vec3{velocity[3 * gi], velocity[3 * gi + 1], velocity[3 * gi + 2]},
-        Vec3{velocity[3 * gj], velocity[3 * gj + 1], velocity[3 * gj + 2]},
-        Vec3{angular[3 * gi], angular[3 * gi + 1], angular[3 * gi + 2]},
-        Vec3{angular[3 * gj], angular[3 * gj + 1], angular[3 * gj + 2]}, radius[gi], radius[gj],
-        Vec3{spring[3 * k], spring[3 * k + 1], spring[3 * k + 2]}, kn[k], kt[k], mu[k], dt);
+    using membrax::row3;
+    const Vec3 branch = (row3(position, gj) - row3(position, gi)) + (row3(compensation, gj) - row3(compensation, gi));
+    const auto result = membrax::sphere_pair(branch, row3(velocity, gi), row3(velocity, gj), row3(angular, gi),
+                                             row3(angular, gj), radius[gi], radius[gj], row3(spring, k), kn[k],
+                                             kt[k], mu[k], dt);
     const T keep = valid ? T(1) : T(0);
     const T f[3] = {keep * result.force_on_j.x, keep * result.force_on_j.y, keep * result.force_on_j.z};
     const T s[3] = {keep * result.spring.x, keep * result.spring.y, keep * result.spring.z};
@@ -158,10 +153,8 @@ __attribute__((noinline)) void dem_pair_law_backward(const T* __restrict in, con
   using Vec3 = membrax::Vec3<T>;
   using membrax::cross;
   using membrax::dot;
-  auto row = [slots, in](int q, int64_t k) {
-    return Vec3{in[q * slots + k], in[(q + 1) * slots + k], in[(q + 2) * slots + k]};
-  };
   using membrax::row3;
+  auto row = [slots, in](int q, int64_t k) { return membrax::column3(in, q, slots, k); };
 #pragma GCC ivdep
   for (int64_t k = 0; k < slots; ++k) {
     // Forward (sphere_pair), keeping the intermediates.
@@ -279,15 +272,10 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
   for (int64_t k = 0; k < slots; ++k) {
     const int64_t i = id[k], j = id[slots + k];
     if (i >= n) continue;
-    for (int c = 0; c < 3; ++c) {
-      const T branch_bar = share[(kBranch + c) * slots + k], relative_bar = share[(kRelative + c) * slots + k];
-      x_out[3 * j + c] += branch_bar;
-      x_out[3 * i + c] -= branch_bar;
-      v_out[3 * j + c] += relative_bar;
-      v_out[3 * i + c] -= relative_bar;
-      w_out[3 * i + c] += share[(kAngularI + c) * slots + k];
-      w_out[3 * j + c] += share[(kAngularJ + c) * slots + k];
-    }
+    membrax::add_opposite(x_out, j, i, membrax::column3(share, kBranch, slots, k));
+    membrax::add_opposite(v_out, j, i, membrax::column3(share, kRelative, slots, k));
+    membrax::add3(w_out, i, membrax::column3(share, kAngularI, slots, k));
+    membrax::add3(w_out, j, membrax::column3(share, kAngularJ, slots, k));
     r_out[i] += share[kRadiusI * slots + k];
     r_out[j] += share[kRadiusJ * slots + k];
     dt_bar += share[kDt * slots + k];

@@ -434,8 +434,8 @@ void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32
 // The hinges' bending forces on x + ū ε: tangents (component-first) and ū·∂F/∂k_b.
 template <typename T>
 void hinge_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict vertex,
-                    const T* __restrict weight,
-                    const T* __restrict rest, int64_t num_hinges, T stiffness, T* __restrict out,
+                    const T* __restrict weight, const T* __restrict rest, int64_t num_hinges, T stiffness,
+                    T* __restrict out,
                     T* __restrict partial, ScalarSums<T>* sums) {
   using D = Dual<T>;
   using membrax::cross;

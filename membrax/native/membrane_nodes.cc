@@ -27,8 +27,6 @@ void advance(const T* __restrict membrane_force, const T* __restrict contact_for
              const T* __restrict compensation, const T* __restrict velocity, const T* __restrict mass,
              const T* __restrict free, int64_t num_nodes, T dt, T local, T viscous, T* __restrict force,
              T* __restrict new_velocity, T* __restrict new_position, T* __restrict new_compensation) {
-  // Per-component partial sums (Δt̄, ᾱ, γ̄, m̄), added up after the loop: with a per-node output or a
-  // float reduction inside, GCC 12 does not vectorise it.
 #pragma GCC ivdep
   for (int64_t node = 0; node < num_nodes; ++node) {
     const T m = mass[node];
@@ -83,6 +81,8 @@ void advance_backward(const T* __restrict membrane_force, const T* __restrict co
                       T* __restrict force_out, T* __restrict position_out, T* __restrict velocity_out,
                       T* __restrict mass_out, T* __restrict dt_partial, T* __restrict local_partial,
                       T* __restrict viscous_partial, T* __restrict mass_partial, T* scalars_out) {
+  // Per-component partial sums (Δt̄, ᾱ, γ̄, m̄), added up after the loop: with a per-node output or a
+  // float reduction inside, GCC 12 does not vectorise it.
 #pragma GCC ivdep
   for (int64_t node = 0; node < num_nodes; ++node) {
     const T m = mass[node];

@@ -141,15 +141,12 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
     const Vec3<T> force =
         slot_law<T>(b, relative, s, overlap, dt, normal_stiffness, tangential_stiffness, friction, &updated);
     const Vec3<T> torque_on_sphere = cross(b, T(-1) * force);
-    const T spring_out[3] = {updated.x, updated.y, updated.z};
-    const T force_out[3] = {force.x, force.y, force.z};
-    const T torque_out[3] = {torque_on_sphere.x, torque_on_sphere.y, torque_on_sphere.z};
-    for (int c = 0; c < 3; ++c) {
-      springs[c * m + j] = spring_out[c];
-      on_node[3 * node + c] += force_out[c];
-      on_sphere[3 * sphere + c] -= force_out[c];
-      torque[3 * sphere + c] += torque_out[c];
-    }
+    springs[j] = updated.x;
+    springs[m + j] = updated.y;
+    springs[2 * m + j] = updated.z;
+    membrax::add3(on_node, node, force);
+    membrax::add3(on_sphere, sphere, T(-1) * force);
+    membrax::add3(torque, sphere, torque_on_sphere);
   }
   return ffi::Error::Success();
 }
@@ -161,7 +158,8 @@ template <typename T>
 struct SlotCotangents {
   Vec3<T> branch, relative, spring;
   T overlap, dt, normal_stiffness, tangential_stiffness, friction;
-  Vec3<T> force;  // the law's value F on the node, for the torque's cotangent
+  Vec3<T> force;   // the law's value F on the node, for the torque's cotangent
+  Vec3<T> normal;  // n̂ = b/|b| (zero at |b| = 0), for the overlap's share of b̄
 };
 
 // The cotangents of slot_law's inputs from those of its force on the node (force_bar) and its new spring
@@ -199,6 +197,7 @@ __attribute__((always_inline)) inline SlotCotangents<T> slot_law_backward(
   bar.branch = inverse_distance * (normal_bar - dot(normal_bar, normal) * normal);
   bar.spring = spring.spring;
   bar.force = normal_force * normal + spring.new_spring;
+  bar.normal = normal;
   return bar;
 }
 
@@ -214,9 +213,7 @@ enum SlotShare { kBranch = 0, kRelative = 3, kAngular = 6, kSpring = 9, kOverlap
 template <typename T>
 __attribute__((noinline)) void slot_laws_backward(const T* __restrict in, int64_t count, T dt, T normal_stiffness, T tangential_stiffness,
                         T friction, T* __restrict share) {
-  auto row = [count, in](int q, int64_t t) {
-    return Vec3<T>{in[q * count + t], in[(q + 1) * count + t], in[(q + 2) * count + t]};
-  };
+  auto row = [count, in](int q, int64_t t) { return membrax::column3(in, q, count, t); };
 #pragma GCC ivdep
   for (int64_t t = 0; t < count; ++t) {
     const Vec3<T> b = row(kBranchIn, t), w = row(kAngularIn, t), torque_bar = row(kTorqueBarIn, t);
@@ -224,10 +221,9 @@ __attribute__((noinline)) void slot_laws_backward(const T* __restrict in, int64_
         b, row(kRelativeIn, t), row(kSpringIn, t), in[kOverlapIn * count + t], dt, normal_stiffness,
         tangential_stiffness, friction, row(kForceBarIn, t), row(kSpringBarIn, t));
     // torque: b̄ += τ̄ × F; relative = v_n − v_i − ω × b: ω̄ += v̄_rel × b, b̄ += ω × v̄_rel;
-    // δ = R + t_m/2 − |b|: b̄ −= δ̄ b/|b|.
-    const T distance_sq = dot(b, b);
-    const T overlap_pull = distance_sq > T(0) ? bar.overlap / std::sqrt(distance_sq > T(0) ? distance_sq : T(1)) : T(0);
-    const Vec3<T> branch_bar = bar.branch + cross(torque_bar, bar.force) + cross(w, bar.relative) - overlap_pull * b;
+    // δ = R + t_m/2 − |b|: b̄ −= δ̄ n̂.
+    const Vec3<T> branch_bar =
+        bar.branch + cross(torque_bar, bar.force) + cross(w, bar.relative) - bar.overlap * bar.normal;
     const Vec3<T> angular_bar = cross(bar.relative, b);
     const T shares[kShares] = {branch_bar.x,  branch_bar.y,  branch_bar.z,   bar.relative.x,     bar.relative.y,
                                bar.relative.z, angular_bar.x, angular_bar.y, angular_bar.z,      bar.spring.x,
@@ -345,15 +341,15 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   // Pass 3, in slot order: the shares to the nodes, the spheres and the scalars.
   for (int64_t t = 0; t < count; ++t) {
     const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
-    for (int c = 0; c < 3; ++c) {
-      const T branch_bar = share[(kBranch + c) * count + t], relative_bar = share[(kRelative + c) * count + t];
-      x_out[3 * node + c] += branch_bar;
-      xs_out[3 * sphere + c] -= branch_bar;
-      v_out[3 * node + c] += relative_bar;
-      vs_out[3 * sphere + c] -= relative_bar;
-      ws_out[3 * sphere + c] += share[(kAngular + c) * count + t];
-      s_out[c * m + j] = share[(kSpring + c) * count + t];
-    }
+    // b = x_n − x_i and the relative velocity v_n − v_i − …: the node gets +, the sphere −.
+    const Vec3<T> branch_bar = membrax::column3(share, kBranch, count, t);
+    const Vec3<T> relative_bar = membrax::column3(share, kRelative, count, t);
+    membrax::add3(x_out, node, branch_bar);
+    membrax::add3(xs_out, sphere, T(-1) * branch_bar);
+    membrax::add3(v_out, node, relative_bar);
+    membrax::add3(vs_out, sphere, T(-1) * relative_bar);
+    membrax::add3(ws_out, sphere, membrax::column3(share, kAngular, count, t));
+    for (int c = 0; c < 3; ++c) s_out[c * m + j] = share[(kSpring + c) * count + t];
     const T overlap_bar = share[kOverlap * count + t];
     r_out[sphere] += overlap_bar;
     scalar_out[0] += share[kDt * count + t];
