@@ -45,8 +45,8 @@ def test_kernels_build_and_register():
     assert native.build().exists()
 
 
-def _deformed_cylinder(seed=0, dtype=jnp.float64):
-    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.02)
+def _deformed_cylinder(seed=0, dtype=jnp.float64, edge=0.02):
+    mesh = membrane.cylinder_mesh(0.1, 0.2, edge)
     rng = np.random.default_rng(seed)
     position = mesh.reference_position * jnp.asarray([1.03, 1.03, 0.98])[None, :] + jnp.asarray(
         rng.normal(0.0, 1e-3, mesh.reference_position.shape)
@@ -312,13 +312,22 @@ def test_node_update_kernel_matches_jax_and_keeps_the_compensated_sum():
     assert _relative_error(step, 2e-6 * compiled[1]) < 1e-12
 
 
-def _cotangent_cases():
-    """(FFI target, compiled, reference, positional args) of each kernel with a compiled reverse-mode rule."""
+# Sizes above parallel.h's kMinParallelElements (4,096), so that the backward kernels split their loops.
+_LARGE = {
+    "edge": 0.005,
+    "node_sphere": dict(num_nodes=9000, num_spheres=60),
+    "dem": dict(num_spheres=1500, num_slots=9000),
+}
+
+
+def _cotangent_cases(large=False):
+    """(FFI target, compiled, reference, positional args) of each kernel with a compiled reverse-mode rule;
+    ``large``: sizes at which the membrane, node–sphere and pair kernels run in two halves (parallel.h)."""
     from membrax.membrane import contact
     from membrax.membrane import coupled as membrane_dem
     from membrax.spheres import integrate
 
-    mesh, position = _deformed_cylinder(seed=1)
+    mesh, position = _deformed_cylinder(seed=1, edge=_LARGE["edge"] if large else 0.02)
     forces = [
         (
             "membrane_forces_backward",
@@ -328,7 +337,7 @@ def _cotangent_cases():
         )
         for model in ("neo_hookean", "svk")
     ]
-    node_sphere = _node_sphere_case()
+    node_sphere = _node_sphere_case(**(_LARGE["node_sphere"] if large else {}))
     rng = np.random.default_rng(11)
     n = 500
     free = np.ones(n, dtype=bool)
@@ -362,7 +371,7 @@ def _cotangent_cases():
             "dem_pairs_backward",
             integrate._compiled_pair_totals,
             integrate._pair_totals_reference,
-            _dem_case(),
+            _dem_case(**(_LARGE["dem"] if large else {})),
         ),
     ]
 
@@ -388,6 +397,36 @@ def test_compiled_backward_kernels_give_the_reference_cotangents(case):
     assert checked >= 6
     program = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](cotangents)).lower(*values).as_text()
     assert f"membrax_{target}_f64" in program
+
+
+@pytest.mark.parametrize("case", [0, 2, 4])  # membrane forces, node–sphere, sphere pairs
+def test_backward_kernels_in_two_halves_give_the_reference_cotangents_and_the_same_bits_every_call(case):
+    """Above 4,096 elements (parallel.h) the membrane, node–sphere and pair backward kernels run their
+    element loops in two halves, the second offered to XLA's thread pool. Against ``jax.vjp`` of the JAX
+    definition as above (float64, 1e-12 of the largest entry), and identical to the bit over repeated calls:
+    each half covers fixed elements and sums them in order, so which thread ran it must not show."""
+    target, compiled, reference, values = _cotangent_cases(large=True)[case]
+    # Triangles (about 2 per node), node–sphere slots, pair slots: each split into halves.
+    elements = {0: lambda: 2 * values[0].shape[0], 2: lambda: values[6].size, 4: lambda: values[6].shape[0]}
+    assert elements[case]() > 2 * 4096
+    outputs = compiled(*values)
+    rng = np.random.default_rng(case)
+    cotangents = jax.tree.map(lambda out: jnp.asarray(rng.normal(size=out.shape)), outputs)
+    pullback = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](cotangents))
+    got = pullback(*values)
+    want = jax.vjp(reference, *values)[1](cotangents)
+    checked = 0
+    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        if jnp.dtype(w.dtype) == jax.dtypes.float0:
+            continue
+        assert _relative_error(g, w) < 1e-12, (target, checked)
+        checked += 1
+    assert checked >= 6
+    for _ in range(4):
+        again = pullback(*values)
+        for g, a in zip(jax.tree.leaves(got), jax.tree.leaves(again), strict=True):
+            assert np.array_equal(np.asarray(g), np.asarray(a)), target
+    assert f"membrax_{target}_f64" in pullback.lower(*values).as_text()
 
 
 def test_membrane_backward_at_zero_bending_skips_the_hinges_only_when_their_derivative_is_not_wanted():

@@ -50,7 +50,7 @@ import jax.numpy as jnp
 __all__ = ["available", "build", "cache_dir", "call", "enabled_for", "pack_cotangents", "with_reference"]
 
 _SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
-_HEADERS = ("contact_law.h", "dual.h")
+_HEADERS = ("contact_law.h", "dual.h", "parallel.h")
 # Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
 _KERNELS = {
     "membrane_forces": "MembraxMembraneForces",  # membrane.nodal_forces

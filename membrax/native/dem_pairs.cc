@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "contact_law.h"
+#include "parallel.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -122,8 +123,8 @@ enum PairShare { kBranch = 0, kRelative = 3, kAngularI = 6, kAngularJ = 9, kRadi
 // that many gathers.
 template <typename T>
 void dem_pair_gather(const T* x, const T* xc, const T* v, const T* w, const T* r, const int32_t* id,
-                     const T* total_bar, int64_t n, int64_t slots, T* gathered) {
-  for (int64_t k = 0; k < slots; ++k) {
+                     const T* total_bar, int64_t n, int64_t slots, int64_t begin, int64_t end, T* gathered) {
+  for (int64_t k = begin; k < end; ++k) {
     const int64_t i = id[k], j = id[slots + k];
     const bool valid = i < n;
     for (int c = 0; c < 3; ++c) {
@@ -148,15 +149,16 @@ void dem_pair_gather(const T* x, const T* xc, const T* v, const T* w, const T* r
 template <typename T>
 __attribute__((noinline)) void dem_pair_law_backward(const T* __restrict in, const T* __restrict s_in, const T* __restrict kn,
                            const T* __restrict kt, const T* __restrict mu, T dt, const T* __restrict s_bar,
-                           const T* __restrict f_bar, int64_t slots, T* __restrict s_out, T* __restrict kn_bar,
-                           T* __restrict kt_bar, T* __restrict mu_bar, T* __restrict share) {
+                           const T* __restrict f_bar, int64_t slots, int64_t begin, int64_t end,
+                           T* __restrict s_out, T* __restrict kn_bar, T* __restrict kt_bar, T* __restrict mu_bar,
+                           T* __restrict share) {
   using Vec3 = membrax::Vec3<T>;
   using membrax::cross;
   using membrax::dot;
   using membrax::row3;
   auto row = [slots, in](int q, int64_t k) { return membrax::column3(in, q, slots, k); };
 #pragma GCC ivdep
-  for (int64_t k = 0; k < slots; ++k) {
+  for (int64_t k = begin; k < end; ++k) {
     // Forward (sphere_pair), keeping the intermediates.
     const Vec3 branch = row(kBranchIn, k);
     const T radius_i = in[kRadiusIIn * slots + k], radius_j = in[kRadiusJIn * slots + k];
@@ -235,7 +237,8 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
                               ffi::ResultBuffer<dtype> velocity_out, ffi::ResultBuffer<dtype> angular_out,
                               ffi::ResultBuffer<dtype> radius_out, ffi::ResultBuffer<dtype> spring_out,
                               ffi::ResultBuffer<dtype> kn_out, ffi::ResultBuffer<dtype> kt_out,
-                              ffi::ResultBuffer<dtype> mu_out, ffi::ResultBuffer<dtype> dt_out) {
+                              ffi::ResultBuffer<dtype> mu_out, ffi::ResultBuffer<dtype> dt_out,
+                              ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
   const int64_t n = radius.element_count();
   const int64_t slots = spring.element_count() / 3;
@@ -251,14 +254,18 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
   scratch.resize(size_t((kGathered + kShares) * slots));
   T* gathered = scratch.data();
   T* share = gathered + kGathered * slots;
-  dem_pair_gather<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
-                     angular_velocity.typed_data(), radius.typed_data(), id, totals_bar.typed_data(), n, slots,
-                     gathered);
-  dem_pair_law_backward<T>(gathered, spring.typed_data(), normal_stiffness.typed_data(),
-                           tangential_stiffness.typed_data(), friction_coefficient.typed_data(),
-                           time_step.typed_data()[0], spring_bar.typed_data(), pair_force_bar.typed_data(), slots,
-                           spring_out->typed_data(), kn_out->typed_data(), kt_out->typed_data(),
-                           mu_out->typed_data(), share);
+  // Passes 0 and 1 run in two halves on two threads (parallel.h): XLA runs the reverse pass's kernels one
+  // after another, so a second core would otherwise idle through them. Each half writes its own slots.
+  membrax::two_halves(pool, slots, [&](int, int64_t begin, int64_t end) {
+    dem_pair_gather<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
+                       angular_velocity.typed_data(), radius.typed_data(), id, totals_bar.typed_data(), n, slots,
+                       begin, end, gathered);
+    dem_pair_law_backward<T>(gathered, spring.typed_data(), normal_stiffness.typed_data(),
+                             tangential_stiffness.typed_data(), friction_coefficient.typed_data(),
+                             time_step.typed_data()[0], spring_bar.typed_data(), pair_force_bar.typed_data(),
+                             slots, begin, end, spring_out->typed_data(), kn_out->typed_data(),
+                             kt_out->typed_data(), mu_out->typed_data(), share);
+  });
   // Pass 2, in slot order: each slot's shares to its two spheres.
   T* x_out = position_out->typed_data();
   T* v_out = velocity_out->typed_data();
@@ -332,7 +339,8 @@ MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF64, ffi::F64)
                                     .Ret<ffi::Buffer<dtype>>()     \
                                     .Ret<ffi::Buffer<dtype>>()     \
                                     .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>());
+                                    .Ret<ffi::Buffer<dtype>>()     \
+                                    .Ctx<ffi::ThreadPool>());
 
 MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF32, ffi::F32)
 MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF64, ffi::F64)

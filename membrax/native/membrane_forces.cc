@@ -26,6 +26,7 @@
 
 #include "contact_law.h"
 #include "dual.h"
+#include "parallel.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -348,13 +349,21 @@ __attribute__((always_inline)) inline T tangent_dot_value(DualVec<T> a, DualVec<
   return a.x.d * v.x.v + a.y.d * v.y.v + a.z.d * v.z.v;
 }
 
-// The triangles' corner forces on x + ū ε: their tangents (J ū), component-first, and the scalar sums.
-// The stretching model is a template argument, so that the loop evaluates one model's formula.
+// Over one range of triangles, per unit t_m: Σ A₀ (∂w/∂E):dE (stretch), Σ E A₀ (∂²w/∂E∂ν):dE (poisson),
+// Σ ū·∂(6V)/∂x (volume); in order, so that a range's sums do not depend on the thread that ran it.
+template <typename T>
+struct TriangleSums {
+  T stretch = 0, poisson = 0, volume = 0;
+};
+
+// The triangles' corner forces on x + ū ε for triangles [begin, end): their tangents (J ū),
+// component-first, and the range's sums. The stretching model is a template argument, so that the loop
+// evaluates one model's formula. `modulus` here is E_m t_m (the scale of the forces).
 template <typename T, bool kNeoHookean>
-void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict corner,
-                       const T* __restrict inverse, const T* __restrict area, int64_t num_triangles, T modulus,
-                       T thickness, T pressure, T poisson, T* __restrict out, T* __restrict partial,
-                       ScalarSums<T>* sums) {
+TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict corner,
+                                  const T* __restrict inverse, const T* __restrict area, int64_t num_triangles,
+                                  int64_t begin, int64_t end, T modulus, T poisson, T pressure,
+                                  T* __restrict out, T* __restrict partial) {
   using D = Dual<T>;
   using membrax::cross;
   using membrax::dot;
@@ -368,7 +377,7 @@ void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32
   // Per-element partial sums, added up after the loop. (No `omp simd`: it turns the Vec3 temporaries into
   // per-lane arrays in memory, and GCC then gives up; after inlining, plain -O3 vectorises the loop.)
 #pragma GCC ivdep
-  for (int64_t t = 0; t < n; ++t) {
+  for (int64_t t = begin; t < end; ++t) {
     const DualVec<T> x1 = load_node(x, u, 3 * int64_t(corner[t]));
     const DualVec<T> x2 = load_node(x, u, 3 * int64_t(corner[n + t]));
     const DualVec<T> x3 = load_node(x, u, 3 * int64_t(corner[2 * n + t]));
@@ -401,7 +410,7 @@ void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32
       nu22 = T(2) * shear_unit_nu * e22.v + lame_unit_nu * trace.v;
       nu12 = T(4) * shear_unit_nu * e12.v;
     }
-    const T scale = modulus * thickness * area[t];
+    const T scale = modulus * area[t];
     const D c11 = scale * u11, c22 = scale * u22, c12 = scale * u12;
     const DualVec<T> cross23 = cross(x2, x3), cross31 = cross(x3, x1), cross12 = cross(x1, x2);
     const DualVec<T> pull1 = c11 * f1 + (T(0.5) * c12) * f2;
@@ -419,30 +428,27 @@ void triangle_tangents(const T* __restrict x, const T* __restrict u, const int32
     partial[n + t] = scale * (nu11 * e11.d + nu22 * e22.d + nu12 * e12.d);
     partial[2 * n + t] = volume_rate;
   }
-  T stretch = 0, poisson_sum = 0, volume = 0;
-  for (int64_t t = 0; t < n; ++t) {
-    stretch += partial[t];
-    poisson_sum += partial[n + t];
-    volume += partial[2 * n + t];
+  TriangleSums<T> sums;
+  for (int64_t t = begin; t < end; ++t) {
+    sums.stretch += partial[t];
+    sums.poisson += partial[n + t];
+    sums.volume += partial[2 * n + t];
   }
-  sums->modulus += -thickness * stretch;
-  sums->thickness += -modulus * stretch;
-  sums->poisson += -poisson_sum;
-  sums->pressure += -volume / T(6);
+  return sums;
 }
 
-// The hinges' bending forces on x + ū ε: tangents (component-first) and ū·∂F/∂k_b.
+// The bending forces of hinges [begin, end) on x + ū ε: tangents (component-first); returns the
+// range's ū·∂F/∂k_b, summed in order.
 template <typename T>
-void hinge_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict vertex,
-                    const T* __restrict weight, const T* __restrict rest, int64_t num_hinges, T stiffness,
-                    T* __restrict out,
-                    T* __restrict partial, ScalarSums<T>* sums) {
+T hinge_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict vertex,
+                 const T* __restrict weight, const T* __restrict rest, int64_t num_hinges, int64_t begin,
+                 int64_t end, T stiffness, T* __restrict out, T* __restrict partial) {
   using D = Dual<T>;
   using membrax::cross;
   using membrax::dot;
   const int64_t n = num_hinges;
 #pragma GCC ivdep
-  for (int64_t e = 0; e < n; ++e) {
+  for (int64_t e = begin; e < end; ++e) {
     const DualVec<T> a = load_node(x, u, 3 * int64_t(vertex[e]));
     const DualVec<T> b = load_node(x, u, 3 * int64_t(vertex[n + e]));
     const DualVec<T> c = load_node(x, u, 3 * int64_t(vertex[2 * n + e]));
@@ -472,8 +478,8 @@ void hinge_tangents(const T* __restrict x, const T* __restrict u, const int32_t*
     partial[e] = -T(2) * weight[e] * (angle.v - rest[e]) * angle.d;
   }
   T bending = 0;
-  for (int64_t e = 0; e < n; ++e) bending += partial[e];
-  sums->bending += bending;
+  for (int64_t e = begin; e < end; ++e) bending += partial[e];
+  return bending;
 }
 
 // The cap fans' pressure forces on x + ū ε (cap_forces): tangents added to the nodes, ū·∂F/∂p.
@@ -529,8 +535,8 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
                                     ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
                                     ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
                                     ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars,
-                                    ffi::Buffer<dtype> cotangent, int64_t model, int64_t bending_derivative,
-                                    ffi::ResultBuffer<dtype> position_cotangent,
+                                    ffi::Buffer<dtype> cotangent, ffi::ThreadPool pool, int64_t model,
+                                    int64_t bending_derivative, ffi::ResultBuffer<dtype> position_cotangent,
                                     ffi::ResultBuffer<dtype> scalars_cotangent) {
   using T = ffi::NativeType<dtype>;
   const int64_t num_nodes = position.element_count() / 3;
@@ -553,17 +559,35 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   scratch.resize(size_t(12 * most));
   partial_sums.resize(size_t(3 * most));
   T* partial = partial_sums.data();
+  // The element loops run in two halves on two threads (parallel.h): XLA runs the reverse pass's kernels
+  // one after another, so a second core would otherwise idle through them.
   const auto triangles = model == 0 ? triangle_tangents<T, true> : triangle_tangents<T, false>;
-  triangles(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles, modulus,
-            thickness, pressure, poisson, scratch.data(), partial, &sums);
+  T* per_corner = scratch.data();
+  TriangleSums<T> halves[2];
+  membrax::two_halves(pool, num_triangles, [&](int half, int64_t begin, int64_t end) {
+    halves[half] = triangles(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(),
+                             num_triangles, begin, end, modulus * thickness, poisson, pressure, per_corner,
+                             partial);
+  });
+  const T stretch = halves[0].stretch + halves[1].stretch;
+  sums.modulus = -thickness * stretch;
+  sums.thickness = -modulus * stretch;
+  sums.poisson = -(halves[0].poisson + halves[1].poisson);
+  sums.pressure = -(halves[0].volume + halves[1].volume) / T(6);
   add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, tangent);
   // k_b = f_b E t³/(72(1 − ν²)) (D/6). At f_b = 0 the hinges add nothing but ∂/∂f_b, so they run only
   // when that derivative is asked for (bending_derivative); every other output has the factor f_b.
   const T plate = thickness * thickness * thickness / (T(72) * (T(1) - poisson * poisson));
   const T stiffness = bending_factor * modulus * plate;
-  if (bending_factor != T(0) || bending_derivative != 0)
-    hinge_tangents<T>(x, u, hinge_index.typed_data(), edge_weight.typed_data(), rest_dihedral.typed_data(),
-                      num_hinges, stiffness, scratch.data(), partial, &sums);
+  if (bending_factor != T(0) || bending_derivative != 0) {
+    T bending[2] = {0, 0};
+    membrax::two_halves(pool, num_hinges, [&](int half, int64_t begin, int64_t end) {
+      bending[half] = hinge_tangents<T>(x, u, hinge_index.typed_data(), edge_weight.typed_data(),
+                                        rest_dihedral.typed_data(), num_hinges, begin, end, stiffness,
+                                        per_corner, partial);
+    });
+    sums.bending = bending[0] + bending[1];
+  }
   if (bending_factor != T(0)) add_to_nodes<T>(scratch.data(), hinge_index.typed_data(), 4, num_hinges, tangent);
   cap_tangents<T>(x, u, bottom_ring.typed_data(), bottom_ring.element_count(), false, pressure, tangent, &sums);
   cap_tangents<T>(x, u, top_ring.typed_data(), top_ring.element_count(), true, pressure, tangent, &sums);
@@ -614,6 +638,7 @@ MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF64, ffi::F64)
                                     .Arg<ffi::Buffer<ffi::S32>>()              \
                                     .Arg<ffi::Buffer<dtype>>()                 \
                                     .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Ctx<ffi::ThreadPool>()                    \
                                     .Attr<int64_t>("model")                    \
                                     .Attr<int64_t>("bending_derivative")       \
                                     .Ret<ffi::Buffer<dtype>>()                 \

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "contact_law.h"
+#include "parallel.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -35,12 +36,13 @@ using membrax::Vec3;
 // carries to the outputs as the JAX law does). Other slots give zero force and a zero spring.
 template <typename T>
 void touching_slots(const T* __restrict node_x, const T* __restrict sphere_x, const T* __restrict radius,
-                    const int32_t* __restrict idx, int64_t num_nodes, int64_t capacity, int64_t num_spheres,
-                    T half_thickness, uint8_t* __restrict touching) {
-  // Slot k of every node, then k + 1: the inner loop runs over nodes and vectorises.
+                    const int32_t* __restrict idx, int64_t node_begin, int64_t node_end, int64_t capacity,
+                    int64_t num_spheres, T half_thickness, uint8_t* __restrict touching) {
+  // Slot k of every node in [node_begin, node_end), then k + 1: the inner loop runs over nodes and
+  // vectorises.
   for (int64_t k = 0; k < capacity; ++k) {
 #pragma omp simd
-    for (int64_t node = 0; node < num_nodes; ++node) {
+    for (int64_t node = node_begin; node < node_end; ++node) {
       const int64_t j = node * capacity + k;
       const int32_t raw = idx[j];
       const bool valid = raw < num_spheres;
@@ -128,7 +130,7 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
 
   thread_local std::vector<uint8_t> touching;
   touching.resize(size_t(m));
-  touching_slots<T>(x, xs, radius, id, num_nodes, capacity, num_spheres, half_thickness, touching.data());
+  touching_slots<T>(x, xs, radius, id, 0, num_nodes, capacity, num_spheres, half_thickness, touching.data());
   // In slot order, so that each node's force is summed in the order of the JAX law.
   for (int64_t j = 0; j < m; ++j) {
     if (!touching[j]) continue;
@@ -208,14 +210,16 @@ enum SlotGathered { kBranchIn = 0, kRelativeIn = 3, kSpringIn = 6, kAngularIn = 
 enum SlotShare { kBranch = 0, kRelative = 3, kAngular = 6, kSpring = 9, kOverlap = 12, kDt, kNormalStiffness,
                  kTangentialStiffness, kFriction, kShares };
 
-// Pass 2, vectorised: the law of each touching slot run backwards, from the gathered rows to the shares.
+// Pass 2, vectorised: the law of each touching slot in [begin, end) run backwards, from the gathered rows
+// to the shares.
 // (Not inlined: inlined into the handler, GCC 12 leaves the loop scalar.)
 template <typename T>
-__attribute__((noinline)) void slot_laws_backward(const T* __restrict in, int64_t count, T dt, T normal_stiffness, T tangential_stiffness,
-                        T friction, T* __restrict share) {
+__attribute__((noinline)) void slot_laws_backward(const T* __restrict in, int64_t count, int64_t begin, int64_t end,
+                                                  T dt, T normal_stiffness, T tangential_stiffness, T friction,
+                                                  T* __restrict share) {
   auto row = [count, in](int q, int64_t t) { return membrax::column3(in, q, count, t); };
 #pragma GCC ivdep
-  for (int64_t t = 0; t < count; ++t) {
+  for (int64_t t = begin; t < end; ++t) {
     const Vec3<T> b = row(kBranchIn, t), w = row(kAngularIn, t), torque_bar = row(kTorqueBarIn, t);
     const SlotCotangents<T> bar = slot_law_backward<T>(
         b, row(kRelativeIn, t), row(kSpringIn, t), in[kOverlapIn * count + t], dt, normal_stiffness,
@@ -252,7 +256,8 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
                                 ffi::ResultBuffer<dtype> sphere_position_out,
                                 ffi::ResultBuffer<dtype> sphere_velocity_out,
                                 ffi::ResultBuffer<dtype> sphere_angular_out, ffi::ResultBuffer<dtype> radius_out,
-                                ffi::ResultBuffer<dtype> spring_out, ffi::ResultBuffer<dtype> scalars_out) {
+                                ffi::ResultBuffer<dtype> spring_out, ffi::ResultBuffer<dtype> scalars_out,
+                                ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
   const int64_t num_nodes = node_position.element_count() / 3;
   const int64_t num_spheres = sphere_radius.element_count();
@@ -302,7 +307,13 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
 
   thread_local std::vector<uint8_t> touching;
   touching.resize(size_t(m));
-  touching_slots<T>(x, xs, radius, id, num_nodes, capacity, num_spheres, half_thickness, touching.data());
+  // Passes 0–2 run in two halves on two threads (parallel.h): XLA runs the reverse pass's kernels one after
+  // another, so a second core would otherwise idle through them. Each half writes its own slots' rows.
+  // (Pointers, not the thread_local vectors: the lambda may run on a pool thread, which has its own.)
+  uint8_t* touching_rows = touching.data();
+  membrax::two_halves(pool, num_nodes, [&](int, int64_t begin, int64_t end) {
+    touching_slots<T>(x, xs, radius, id, begin, end, capacity, num_spheres, half_thickness, touching_rows);
+  });
   // The touching slots in order, compacted without a branch.
   thread_local std::vector<int64_t> slots;
   slots.resize(size_t(m) + 1);
@@ -317,8 +328,9 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   scratch.resize(size_t((kGathered + kShares) * count));
   T* in = scratch.data();
   T* share = in + kGathered * count;
-  // Pass 1: each touching slot's inputs, component-first.
-  for (int64_t t = 0; t < count; ++t) {
+  // Pass 1: each touching slot's inputs, component-first; then pass 2.
+  membrax::two_halves(pool, count, [&](int, int64_t begin, int64_t end) {
+  for (int64_t t = begin; t < end; ++t) {
     const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
     const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
     const Vec3<T> b = kinematics.branch;
@@ -337,7 +349,8 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
     }
     in[kOverlapIn * count + t] = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
   }
-  slot_laws_backward<T>(in, count, dt, normal_stiffness, tangential_stiffness, friction, share);
+  slot_laws_backward<T>(in, count, begin, end, dt, normal_stiffness, tangential_stiffness, friction, share);
+  });
   // Pass 3, in slot order: the shares to the nodes, the spheres and the scalars.
   for (int64_t t = 0; t < count; ++t) {
     const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
@@ -406,7 +419,8 @@ MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF64, ffi::F64)
                                     .Ret<ffi::Buffer<dtype>>()            \
                                     .Ret<ffi::Buffer<dtype>>()            \
                                     .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>());
+                                    .Ret<ffi::Buffer<dtype>>()            \
+                                    .Ctx<ffi::ThreadPool>());
 
 MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF32, ffi::F32)
 MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF64, ffi::F64)
