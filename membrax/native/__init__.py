@@ -27,7 +27,10 @@ the JAX formulas spread over hundreds of small fusions per step and made reverse
 50–60× the forward pass at paper size (``benchmarks/bench_gradients.py``). The JAX formulas' derivatives
 remain the definition: the tests hold each backward kernel to ``jax.vjp`` of the JAX code to round-off,
 and that derivative is used on other backends and for arguments a backward kernel does not cover (the
-membrane mesh's rest geometry).
+membrane mesh's rest geometry). XLA runs the reverse pass's kernels one after another, so the membrane,
+node–sphere and pair backward kernels split their element loops in two fixed halves, the second offered
+to XLA's intra-op thread pool (``parallel.h``); each half sums its own elements in order, so the result
+does not depend on which thread ran it.
 """
 
 from __future__ import annotations
