@@ -383,20 +383,26 @@ def test_compiled_backward_kernels_give_the_reference_cotangents(case):
     step): equal to round-off (float64, 1e-12 of the largest entry), and really the compiled rule (its FFI
     target is in the program: a silent fallback to the reference would pass the comparison)."""
     target, compiled, reference, values = _cotangent_cases()[case]
+    pullback = _check_cotangents(target, compiled, reference, values, seed=case)
+    assert f"membrax_{target}_f64" in pullback.lower(*values).as_text()
+
+
+def _check_cotangents(target, compiled, reference, values, seed):
+    """Asserts the compiled pullback of random cotangents equals ``jax.vjp`` of the reference (float64,
+    1e-12 of the largest entry) for at least six arguments; returns the jitted compiled pullback."""
     outputs = compiled(*values)
-    rng = np.random.default_rng(case)
+    rng = np.random.default_rng(seed)
     cotangents = jax.tree.map(lambda out: jnp.asarray(rng.normal(size=out.shape)), outputs)
-    got = jax.vjp(compiled, *values)[1](cotangents)
+    pullback = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](cotangents))
     want = jax.vjp(reference, *values)[1](cotangents)
     checked = 0
-    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+    for g, w in zip(jax.tree.leaves(pullback(*values)), jax.tree.leaves(want), strict=True):
         if jnp.dtype(w.dtype) == jax.dtypes.float0:
             continue
         assert _relative_error(g, w) < 1e-12, (target, checked)
         checked += 1
     assert checked >= 6
-    program = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](cotangents)).lower(*values).as_text()
-    assert f"membrax_{target}_f64" in program
+    return pullback
 
 
 @pytest.mark.parametrize("case", [0, 2, 4])  # membrane forces, node–sphere, sphere pairs
@@ -409,19 +415,8 @@ def test_backward_kernels_in_two_halves_give_the_reference_cotangents_and_the_sa
     # Triangles (about 2 per node), node–sphere slots, pair slots: each split into halves.
     elements = {0: lambda: 2 * values[0].shape[0], 2: lambda: values[6].size, 4: lambda: values[6].shape[0]}
     assert elements[case]() > 2 * 4096
-    outputs = compiled(*values)
-    rng = np.random.default_rng(case)
-    cotangents = jax.tree.map(lambda out: jnp.asarray(rng.normal(size=out.shape)), outputs)
-    pullback = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](cotangents))
+    pullback = _check_cotangents(target, compiled, reference, values, seed=case)
     got = pullback(*values)
-    want = jax.vjp(reference, *values)[1](cotangents)
-    checked = 0
-    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
-        if jnp.dtype(w.dtype) == jax.dtypes.float0:
-            continue
-        assert _relative_error(g, w) < 1e-12, (target, checked)
-        checked += 1
-    assert checked >= 6
     for _ in range(4):
         again = pullback(*values)
         for g, a in zip(jax.tree.leaves(got), jax.tree.leaves(again), strict=True):
