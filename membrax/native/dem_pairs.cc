@@ -254,8 +254,7 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
   scratch.resize(size_t((kGathered + kShares) * slots));
   T* gathered = scratch.data();
   T* share = gathered + kGathered * slots;
-  // Passes 0 and 1 run in two halves on two threads (parallel.h): XLA runs the reverse pass's kernels one
-  // after another, so a second core would otherwise idle through them. Each half writes its own slots.
+  // Passes 0 and 1 in two halves on two threads (parallel.h); each half writes its own slots.
   membrax::two_halves(pool, slots, [&](int, int64_t begin, int64_t end) {
     dem_pair_gather<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
                        angular_velocity.typed_data(), radius.typed_data(), id, totals_bar.typed_data(), n, slots,

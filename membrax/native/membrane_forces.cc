@@ -349,8 +349,8 @@ __attribute__((always_inline)) inline T tangent_dot_value(DualVec<T> a, DualVec<
   return a.x.d * v.x.v + a.y.d * v.y.v + a.z.d * v.z.v;
 }
 
-// Over one range of triangles, per unit t_m: Σ A₀ (∂w/∂E):dE (stretch), Σ E A₀ (∂²w/∂E∂ν):dE (poisson),
-// Σ ū·∂(6V)/∂x (volume); in order, so that a range's sums do not depend on the thread that ran it.
+// One range of triangles' sums, added in order: Σ A₀ (∂w/∂E per unit E):dE (stretch), Σ E_m t_m A₀
+// (its ν-derivative):dE (poisson), Σ ū·∂(6V)/∂x (volume); dE the strain's tangent along ū.
 template <typename T>
 struct TriangleSums {
   T stretch = 0, poisson = 0, volume = 0;
@@ -358,11 +358,11 @@ struct TriangleSums {
 
 // The triangles' corner forces on x + ū ε for triangles [begin, end): their tangents (J ū),
 // component-first, and the range's sums. The stretching model is a template argument, so that the loop
-// evaluates one model's formula. `modulus` here is E_m t_m (the scale of the forces).
+// evaluates one model's formula. membrane_stiffness = E_m t_m.
 template <typename T, bool kNeoHookean>
 TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict corner,
                                   const T* __restrict inverse, const T* __restrict area, int64_t num_triangles,
-                                  int64_t begin, int64_t end, T modulus, T poisson, T pressure,
+                                  int64_t begin, int64_t end, T membrane_stiffness, T poisson, T pressure,
                                   T* __restrict out, T* __restrict partial) {
   using D = Dual<T>;
   using membrax::cross;
@@ -410,7 +410,7 @@ TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, 
       nu22 = T(2) * shear_unit_nu * e22.v + lame_unit_nu * trace.v;
       nu12 = T(4) * shear_unit_nu * e12.v;
     }
-    const T scale = modulus * area[t];
+    const T scale = membrane_stiffness * area[t];
     const D c11 = scale * u11, c22 = scale * u22, c12 = scale * u12;
     const DualVec<T> cross23 = cross(x2, x3), cross31 = cross(x3, x1), cross12 = cross(x1, x2);
     const DualVec<T> pull1 = c11 * f1 + (T(0.5) * c12) * f2;
@@ -559,8 +559,7 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   scratch.resize(size_t(12 * most));
   partial_sums.resize(size_t(3 * most));
   T* partial = partial_sums.data();
-  // The element loops run in two halves on two threads (parallel.h): XLA runs the reverse pass's kernels
-  // one after another, so a second core would otherwise idle through them.
+  // The element loops in two halves on two threads (parallel.h); the sums added in the halves' order.
   const auto triangles = model == 0 ? triangle_tangents<T, true> : triangle_tangents<T, false>;
   T* per_corner = scratch.data();
   TriangleSums<T> halves[2];

@@ -307,9 +307,8 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
 
   thread_local std::vector<uint8_t> touching;
   touching.resize(size_t(m));
-  // Passes 0–2 run in two halves on two threads (parallel.h): XLA runs the reverse pass's kernels one after
-  // another, so a second core would otherwise idle through them. Each half writes its own slots' rows.
-  // (Pointers, not the thread_local vectors: the lambda may run on a pool thread, which has its own.)
+  // Which slots touch, then passes 1 and 2, each in two halves on two threads (parallel.h); each half
+  // writes its own rows. (Pointers, not the thread_local vectors: a pool thread has its own.)
   uint8_t* touching_rows = touching.data();
   membrax::two_halves(pool, num_nodes, [&](int, int64_t begin, int64_t end) {
     touching_slots<T>(x, xs, radius, id, begin, end, capacity, num_spheres, half_thickness, touching_rows);
@@ -328,28 +327,29 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   scratch.resize(size_t((kGathered + kShares) * count));
   T* in = scratch.data();
   T* share = in + kGathered * count;
-  // Pass 1: each touching slot's inputs, component-first; then pass 2.
+  // Pass 1: each touching slot's inputs, component-first; then pass 2, its law backwards.
   membrax::two_halves(pool, count, [&](int, int64_t begin, int64_t end) {
-  for (int64_t t = begin; t < end; ++t) {
-    const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
-    const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
-    const Vec3<T> b = kinematics.branch;
-    // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
-    const Vec3<T> torque_bar = membrax::row3(tau_bar, sphere);
-    // τ̄·(−b × F) = F·(b × τ̄)
-    const Vec3<T> force_bar =
-        (membrax::row3(f_node_bar, node) - membrax::row3(f_sphere_bar, sphere)) + cross(b, torque_bar);
-    const Vec3<T> rows[7] = {b, kinematics.relative, {old_spring[j], old_spring[m + j], old_spring[2 * m + j]},
-                             kinematics.spin,
-                             force_bar, torque_bar, {s_bar[j], s_bar[m + j], s_bar[2 * m + j]}};
-    for (int q = 0; q < 7; ++q) {
-      in[(3 * q) * count + t] = rows[q].x;
-      in[(3 * q + 1) * count + t] = rows[q].y;
-      in[(3 * q + 2) * count + t] = rows[q].z;
+    for (int64_t t = begin; t < end; ++t) {
+      const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
+      const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
+      const Vec3<T> b = kinematics.branch;
+      // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
+      const Vec3<T> torque_bar = membrax::row3(tau_bar, sphere);
+      // τ̄·(−b × F) = F·(b × τ̄)
+      const Vec3<T> force_bar =
+          (membrax::row3(f_node_bar, node) - membrax::row3(f_sphere_bar, sphere)) + cross(b, torque_bar);
+      const Vec3<T> rows[7] = {b, kinematics.relative, {old_spring[j], old_spring[m + j], old_spring[2 * m + j]},
+                               kinematics.spin,
+                               force_bar, torque_bar, {s_bar[j], s_bar[m + j], s_bar[2 * m + j]}};
+      for (int q = 0; q < 7; ++q) {
+        in[(3 * q) * count + t] = rows[q].x;
+        in[(3 * q + 1) * count + t] = rows[q].y;
+        in[(3 * q + 2) * count + t] = rows[q].z;
+      }
+      in[kOverlapIn * count + t] = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
     }
-    in[kOverlapIn * count + t] = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
-  }
-  slot_laws_backward<T>(in, count, begin, end, dt, normal_stiffness, tangential_stiffness, friction, share);
+    slot_laws_backward<T>(in, count, begin, end, dt, normal_stiffness, tangential_stiffness, friction,
+                          share);
   });
   // Pass 3, in slot order: the shares to the nodes, the spheres and the scalars.
   for (int64_t t = 0; t < count; ++t) {

@@ -1,4 +1,6 @@
-// Two-way parallel loops on XLA's intra-op thread pool, for kernels that would otherwise leave a core idle.
+// Two-way parallel loops on XLA's intra-op thread pool, for the backward kernels: XLA:CPU runs the reverse
+// pass's kernels one after another (it runs the forward's independent kernels side by side), so without
+// this the second core idles through them (README, "where the time went").
 //
 // two_halves(pool, n, body) runs body(0, 0, n/2) on the calling thread and offers body(1, n/2, n) to the pool
 // (xla::ffi::ThreadPool, the pool XLA:CPU runs its own parallel work on). Whichever thread claims the
@@ -6,7 +8,8 @@
 // caller runs it too. So the caller waits only for a half that is already running: no deadlock when the
 // pool is busy, has one thread, or runs tasks in the caller (FFI's contract allows all three). The halves
 // are fixed index ranges, so a body that writes per-index outputs and sums each half in order gives the
-// same bits whichever thread ran which half.
+// same bits whichever thread ran which half; below kMinParallelElements the caller runs the same two
+// halves itself, so small and large inputs sum alike.
 
 #ifndef MEMBRAX_PARALLEL_H_
 #define MEMBRAX_PARALLEL_H_
