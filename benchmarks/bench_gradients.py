@@ -39,9 +39,11 @@ SIZES = {
 }
 
 
-def child(
-    dtype: str, mode: str, size: str, steps: int, window: int, stage: str, consolidation_steps: int
-) -> dict:
+def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str, consolidation_steps: int):
+    """(forward, reverse, θ): y(θ) and (y, dy/dθ), both jitted, for the rollout described above.
+
+    Sets ``jax_enable_x64`` for float64, so call it once per process. Shared with ``profile_gradients.py``.
+    """
     import jax
 
     if dtype == "float64":
@@ -66,20 +68,31 @@ def child(
         )
     record = test.make_record(test.mesh, test.initial_volume)  # (areas from the as-built size: cost only)
 
-    def output(theta):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation's platens)
+    def output(theta, checkpointed):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation)
         values = {"membrane_modulus_kpa": theta[0], "cell_pressure_kpa": theta[1]}
         params, _, start = apply_parameters(values, base, test.mesh, state)
 
         def body(s, _):
             return jax.lax.fori_loop(0, window, lambda i, x: step(x, params), s), None
 
-        if mode == "reverse":
+        if checkpointed:
             body = jax.checkpoint(body)
         final, _ = jax.lax.scan(body, start, None, length=steps // window)
         return record(final, params).internal_axial_stress[0]
 
     theta = jnp.asarray([config.membrane_modulus_kpa, config.cell_pressure_kpa])
-    function = jax.jit(output if mode == "forward" else jax.value_and_grad(output))
+    forward = jax.jit(lambda t: output(t, False))
+    reverse = jax.jit(jax.value_and_grad(lambda t: output(t, True)))
+    return forward, reverse, theta
+
+
+def child(
+    dtype: str, mode: str, size: str, steps: int, window: int, stage: str, consolidation_steps: int
+) -> dict:
+    import jax
+
+    forward, reverse, theta = rollout_functions(dtype, size, steps, window, stage, consolidation_steps)
+    function = forward if mode == "forward" else reverse
     start = time.perf_counter()
     jax.block_until_ready(function(theta))
     compile_s = time.perf_counter() - start

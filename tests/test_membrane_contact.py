@@ -305,6 +305,11 @@ def test_remap_node_history_follows_sphere_ids():
         old_idx, new_idx, jnp.moveaxis(history, -1, 0), num_spheres, components_first=True
     )
     np.testing.assert_array_equal(springs, np.moveaxis(expected, -1, 0))
+    # The carry goes through a table of source slots, int8 up to 126 old slots and int32 past them: an old
+    # table padded to 130 slots (ids beyond the fourth are padding) carries the same values.
+    wide_old = jnp.pad(old_idx, ((0, 0), (0, 126)), constant_values=num_spheres)
+    wide_history = jnp.pad(history, ((0, 0), (0, 126), (0, 0)), constant_values=-5.0)
+    np.testing.assert_array_equal(remap_node_history(wide_old, new_idx, wide_history, num_spheres), expected)
 
 
 def test_remap_of_springs_is_linear_and_its_gradient_carries_back_by_the_same_ids():

@@ -63,7 +63,6 @@ SI units: m, s, N, N·m, kg.
 
 from __future__ import annotations
 
-import functools
 import math
 from typing import NamedTuple
 
@@ -639,32 +638,44 @@ def remap_node_history(old_idx, new_idx, old_history, num_spheres: int, componen
       (n_nodes, K_new, ...) history (or (C, n_nodes, K_new)): the old value of the same (node, sphere)
       pair, zero elsewhere.
     """
+    sources = _slot_sources(old_idx, new_idx, num_spheres)
     if components_first:
-        return _carry_components(old_idx, new_idx, old_history, num_spheres)
-    return _carry_rows(old_idx, new_idx, old_history, num_spheres)
+        return _carry_components(sources, old_history)
+    return _carry_rows(sources, old_history)
 
 
-def _slot_match(old_idx, new_idx, num_spheres):
-    """(n_nodes, K_new, K_old) bool: new slot i and old slot j of a row hold the same (real) sphere."""
-    return (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx < num_spheres)[:, :, None]
+def _slot_sources(old_idx, new_idx, num_spheres):
+    """Which old slot holds each new slot's (real) sphere: (n_nodes, K_new), K_old where none does.
+
+    int8 (int32 past 126 old slots). A row's ids are distinct, so a new slot matches one old slot at most.
+    """
+    match = (new_idx[:, :, None] == old_idx[:, None, :]) & (new_idx < num_spheres)[:, :, None]
+    k_old = old_idx.shape[1]
+    sources = jnp.where(jnp.any(match, axis=-1), jnp.argmax(match, axis=-1), k_old)
+    return sources.astype(jnp.int8 if k_old < 127 else jnp.int32)
 
 
-# Both carries checkpointed: reverse mode recomputes the 0/1 match from the integer tables instead of
-# keeping it (n_nodes, K, K) per step; the carry is linear in the history, so nothing else is needed.
-@functools.partial(jax.checkpoint, static_argnums=(3,))
-def _carry_rows(old_idx, new_idx, old_history, num_spheres):
-    match = _slot_match(old_idx, new_idx, num_spheres)
+def _slot_match(sources, k_old: int, dtype):
+    """(n_nodes, K_new, K_old) 0/1 of ``dtype``: new slot i takes old slot j."""
+    return (sources[:, :, None] == jnp.arange(k_old, dtype=sources.dtype)[None, None, :]).astype(dtype)
+
+
+# Both carries checkpointed, from the one small source table: reverse mode keeps it per step (not the two
+# integer tables it came from, nor the (n_nodes, K, K) match), and the carry is linear in the history.
+@jax.checkpoint
+def _carry_rows(sources, old_history):
     flat = old_history.reshape((*old_history.shape[:2], -1))
-    carried = jnp.einsum("nij,njc->nic", match.astype(flat.dtype), flat)
-    return carried.reshape(new_idx.shape + old_history.shape[2:])
+    match = _slot_match(sources, flat.shape[1], flat.dtype)
+    carried = jnp.einsum("nij,njc->nic", match, flat)
+    return carried.reshape(sources.shape + old_history.shape[2:])
 
 
-@functools.partial(jax.checkpoint, static_argnums=(3,))
-def _carry_components(old_idx, new_idx, old_history, num_spheres):
+@jax.checkpoint
+def _carry_components(sources, old_history):
     # An elementwise product and a sum over the short old-slot axis, in the (C, n_nodes, K) layout the
     # kernels use: moving the component axis last (as _carry_rows wants) made XLA give the springs a
     # transposed layout at the rebuild's cond and copy them back and forth on every step.
-    match = _slot_match(old_idx, new_idx, num_spheres).astype(old_history.dtype)
+    match = _slot_match(sources, old_history.shape[-1], old_history.dtype)
     return jnp.sum(match[None] * old_history[:, :, None, :], axis=-1)
 
 

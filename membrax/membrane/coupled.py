@@ -339,9 +339,32 @@ def _advance_nodes_kernel(*args):
     )
 
 
+def _advance_nodes_residuals(args, outputs):
+    """What ``membrane_nodes_backward`` reads, for reverse mode to keep (``native.with_reference``).
+
+    The total force F (the first output, in place of the two forces it sums), the velocities, masses, mask
+    and scalars; not the positions and compensations, which the backward kernel does not read.
+    """
+    membrane_force, contact_force, position, compensation, *rest = args
+    force = outputs[0]
+    same = membrane_force.shape == force.shape and membrane_force.dtype == force.dtype
+    absent = native.Absent.like
+    return (
+        force if same else membrane_force,
+        absent(contact_force) if same else contact_force,
+        absent(position),
+        absent(compensation),
+        *rest,
+    )
+
+
 def _advance_nodes_backward(args, perturbed, cotangents):
-    """The compiled reverse-mode rule (``membrane_nodes_backward``)."""
+    """The compiled reverse-mode rule (``membrane_nodes_backward``), from the residuals above.
+
+    From the arguments themselves too: the two forces are summed here, as the forward kernel sums them.
+    """
     del perturbed  # it covers every differentiable argument
+    args = tuple(jnp.zeros(a.shape, a.dtype) if isinstance(a, native.Absent) else a for a in args)
     *vectors, mass, scalars = _advance_nodes_inputs(*args)
     dtype = mass.dtype
     rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
@@ -349,7 +372,8 @@ def _advance_nodes_backward(args, perturbed, cotangents):
         "membrane_nodes_backward",
         dtype,
         (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
-        *vectors,
+        vectors[0] + vectors[1],  # F (the contact force is an Absent's zeros when F is kept)
+        vectors[4],
         mass,
         args[6].astype(dtype),
         scalars,
@@ -361,7 +385,7 @@ def _advance_nodes_backward(args, perturbed, cotangents):
 
 
 _compiled_advance_nodes = native.with_reference(
-    _advance_nodes_kernel, _advance_nodes_reference, _advance_nodes_backward
+    _advance_nodes_kernel, _advance_nodes_reference, _advance_nodes_backward, _advance_nodes_residuals
 )
 
 

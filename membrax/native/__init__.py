@@ -50,7 +50,16 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 
-__all__ = ["available", "build", "cache_dir", "call", "enabled_for", "pack_cotangents", "with_reference"]
+__all__ = [
+    "Absent",
+    "available",
+    "build",
+    "cache_dir",
+    "call",
+    "enabled_for",
+    "pack_cotangents",
+    "with_reference",
+]
 
 _SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
 _HEADERS = ("contact_law.h", "dual.h", "parallel.h")
@@ -183,7 +192,21 @@ class _Perturbed:
     flags: tuple
 
 
-def with_reference(kernel, reference, backward=None):
+@jax.tree_util.register_static
+@dataclasses.dataclass(frozen=True)
+class Absent:
+    """An argument a backward kernel does not read, left out of the residuals: only its shape and dtype."""
+
+    shape: tuple
+    dtype: object
+
+    @classmethod
+    def like(cls, array):
+        """The shape and dtype of ``array``."""
+        return cls(tuple(array.shape), jnp.dtype(array.dtype))
+
+
+def with_reference(kernel, reference, backward=None, keep=None):
     """``kernel`` on the CPU and ``reference`` on other backends, with the derivatives of ``reference``.
 
     Both take the same positional arguments and return the same arrays; ``reference`` is the JAX
@@ -195,6 +218,11 @@ def with_reference(kernel, reference, backward=None):
     ``cotangents`` the outputs' (dense arrays); it returns the arguments' cotangents, or None where it
     does not cover a perturbed argument, and then the reference's derivative is used. The tests hold it
     to the reference's ``jax.vjp``.
+
+    ``keep(args, outputs)``, when given with ``backward``, says what reverse mode keeps on the CPU: the
+    arguments as ``backward`` will receive them, those it does not read replaced by :class:`Absent` or by
+    an output that carries what it needs. Through a checkpointed rollout every kept array is stored once per
+    step, so this is memory traffic saved. ``backward`` must then cover every argument (never None).
     """
 
     @jax.custom_vjp
@@ -220,7 +248,10 @@ def with_reference(kernel, reference, backward=None):
         args = jax.tree.map(lambda leaf: leaf.value, primals, is_leaf=is_primal)
         perturbed = jax.tree.map(lambda leaf: leaf.perturbed, primals, is_leaf=is_primal)
         flat, structure = jax.tree.flatten(perturbed)
-        return compiled(*args), (args, _Perturbed((tuple(flat), structure)))
+        outputs = compiled(*args)
+        if keep is not None and jax.default_backend() == "cpu":
+            args = keep(args, outputs)
+        return outputs, (args, _Perturbed((tuple(flat), structure)))
 
     def backward_marked(residuals, cotangents):
         args, marks = residuals
@@ -235,6 +266,8 @@ def with_reference(kernel, reference, backward=None):
         result = None
         if jax.default_backend() == "cpu":
             result = backward(args, perturbed, cotangents)
+            if result is None and keep is not None:
+                raise RuntimeError("a backward kernel with slimmed residuals must cover every argument")
         return reference_backward(args, cotangents) if result is None else tuple(result)
 
     compiled.defvjp(forward_marked, backward_marked, symbolic_zeros=True)

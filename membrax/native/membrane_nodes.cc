@@ -74,8 +74,7 @@ ffi::Error membrane_nodes(ffi::Buffer<dtype> membrane_force, ffi::Buffer<dtype> 
 // The backward kernel of advance: the outputs' cotangents (F̄, v̄', x̄', c̄') to the inputs'. The new
 // compensation c' = (Δt v' + c) − (x' − x) has a zero derivative (x' = x + Δt v' + c), as in JAX's.
 template <typename T>
-void advance_backward(const T* __restrict membrane_force, const T* __restrict contact_force,
-                      const T* __restrict velocity, const T* __restrict mass, const T* __restrict free,
+void advance_backward(const T* __restrict total_force, const T* __restrict velocity, const T* __restrict mass, const T* __restrict free,
                       const T* __restrict force_bar, const T* __restrict velocity_bar,
                       const T* __restrict position_bar, int64_t num_nodes, T dt, T local, T viscous,
                       T* __restrict force_out, T* __restrict position_out, T* __restrict velocity_out,
@@ -89,7 +88,7 @@ void advance_backward(const T* __restrict membrane_force, const T* __restrict co
     const bool moves = free[node] != T(0);
     for (int c = 0; c < 3; ++c) {
       const int64_t k = 3 * node + c;
-      const T f = membrane_force[k] + contact_force[k];
+      const T f = total_force[k];
       const T v = velocity[k];
       const T sign = v > T(0) ? T(1) : (v < T(0) ? T(-1) : T(0));
       const T force_sign = f > T(0) ? T(1) : (f < T(0) ? T(-1) : T(0));
@@ -120,21 +119,21 @@ void advance_backward(const T* __restrict membrane_force, const T* __restrict co
   scalars_out[2] = sum_viscous;
 }
 
-// Inputs: those of membrane_nodes, then the cotangents of its four outputs (n, 3).
+// Inputs: the total force F = F_membrane + F_contact (membrane_nodes' first output, which reverse mode
+// keeps instead of the two forces and the positions, which this kernel does not read), velocity (n, 3),
+// mass (n,), free (n,), scalars (3,); then the cotangents of the four outputs (n, 3).
 // Outputs: the cotangents of the (membrane and contact) force, position and compensation (all three
 // equal to the summed ones), velocity (n, 3), mass (n,) and scalars (3,) = Δt, α, γ.
 template <ffi::DataType dtype>
-ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> membrane_force, ffi::Buffer<dtype> contact_force,
-                                   ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation,
-                                   ffi::Buffer<dtype> velocity, ffi::Buffer<dtype> mass, ffi::Buffer<dtype> free,
-                                   ffi::Buffer<dtype> scalars, ffi::Buffer<dtype> force_bar,
-                                   ffi::Buffer<dtype> velocity_bar, ffi::Buffer<dtype> position_bar,
-                                   ffi::Buffer<dtype> compensation_bar, ffi::ResultBuffer<dtype> force_out,
-                                   ffi::ResultBuffer<dtype> position_out, ffi::ResultBuffer<dtype> velocity_out,
-                                   ffi::ResultBuffer<dtype> mass_out, ffi::ResultBuffer<dtype> scalars_out) {
+ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> total_force, ffi::Buffer<dtype> velocity,
+                                   ffi::Buffer<dtype> mass, ffi::Buffer<dtype> free, ffi::Buffer<dtype> scalars,
+                                   ffi::Buffer<dtype> force_bar, ffi::Buffer<dtype> velocity_bar,
+                                   ffi::Buffer<dtype> position_bar, ffi::Buffer<dtype> compensation_bar,
+                                   ffi::ResultBuffer<dtype> force_out, ffi::ResultBuffer<dtype> position_out,
+                                   ffi::ResultBuffer<dtype> velocity_out, ffi::ResultBuffer<dtype> mass_out,
+                                   ffi::ResultBuffer<dtype> scalars_out) {
   const int64_t n = mass.element_count();
-  for (const auto* vector : {&membrane_force, &contact_force, &position, &compensation, &velocity, &force_bar,
-                             &velocity_bar, &position_bar, &compensation_bar}) {
+  for (const auto* vector : {&total_force, &velocity, &force_bar, &velocity_bar, &position_bar, &compensation_bar}) {
     if (vector->element_count() != size_t(3 * n))
       return ffi::Error::InvalidArgument("membrane_nodes_backward: (n, 3) arrays must match the n masses");
   }
@@ -144,11 +143,10 @@ ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> membrane_force, ffi::Buffe
   thread_local std::vector<ffi::NativeType<dtype>> partial;
   partial.resize(size_t(12 * n));
   auto* p = partial.data();
-  advance_backward(membrane_force.typed_data(), contact_force.typed_data(), velocity.typed_data(),
-                   mass.typed_data(), free.typed_data(), force_bar.typed_data(), velocity_bar.typed_data(),
-                   position_bar.typed_data(), n, s[0], s[1], s[2], force_out->typed_data(),
-                   position_out->typed_data(), velocity_out->typed_data(), mass_out->typed_data(), p,
-                   p + 3 * n, p + 6 * n, p + 9 * n, scalars_out->typed_data());
+  advance_backward(total_force.typed_data(), velocity.typed_data(), mass.typed_data(), free.typed_data(),
+                   force_bar.typed_data(), velocity_bar.typed_data(), position_bar.typed_data(), n, s[0], s[1],
+                   s[2], force_out->typed_data(), position_out->typed_data(), velocity_out->typed_data(),
+                   mass_out->typed_data(), p, p + 3 * n, p + 6 * n, p + 9 * n, scalars_out->typed_data());
   return ffi::Error::Success();
 }
 
@@ -176,9 +174,6 @@ MEMBRAX_NODES_HANDLER(MembraxMembraneNodesF64, ffi::F64)
 #define MEMBRAX_NODES_BACKWARD_HANDLER(name, dtype)                     \
   XLA_FFI_DEFINE_HANDLER_SYMBOL(name, membrane_nodes_backward<dtype>,   \
                                 ffi::Ffi::Bind()                        \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
                                     .Arg<ffi::Buffer<dtype>>()          \
                                     .Arg<ffi::Buffer<dtype>>()          \
                                     .Arg<ffi::Buffer<dtype>>()          \
