@@ -112,13 +112,19 @@ def child(
     }
 
 
-def main() -> None:
+def rollout_parser(steps: int) -> argparse.ArgumentParser:
+    """The rollout's options (size, steps, window, stage, consolidation steps), shared with the profiler."""
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", choices=tuple(SIZES), default="paper")
-    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--steps", type=int, default=steps)
     parser.add_argument("--window", type=int, default=50)
     parser.add_argument("--stage", choices=("shear", "consolidation"), default="shear")
     parser.add_argument("--consolidation-steps", type=int, default=5000)
+    return parser
+
+
+def main() -> None:
+    parser = rollout_parser(steps=2000)
     parser.add_argument("--child", nargs=2, metavar=("DTYPE", "MODE"))
     args = parser.parse_args()
     if args.child:

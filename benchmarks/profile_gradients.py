@@ -19,7 +19,6 @@ Run: ``python benchmarks/profile_gradients.py [--size small|paper] [--stage shea
 [--steps 500] [--window 50] [--consolidation-steps 5000] [--top 0]``.
 """
 
-import argparse
 import collections
 import glob
 import gzip
@@ -29,7 +28,7 @@ import sys
 import tempfile
 import time
 
-from bench_gradients import SIZES, rollout_functions
+from bench_gradients import rollout_functions, rollout_parser
 from harness import run_each_dtype
 
 PHASES = ("first", "recompute", "backward", "loop")
@@ -117,12 +116,7 @@ def child(dtype, size, steps, window, stage, consolidation_steps, top) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser()
-    parser.add_argument("--size", choices=tuple(SIZES), default="paper")
-    parser.add_argument("--steps", type=int, default=500)
-    parser.add_argument("--window", type=int, default=50)
-    parser.add_argument("--stage", choices=("shear", "consolidation"), default="shear")
-    parser.add_argument("--consolidation-steps", type=int, default=5000)
+    parser = rollout_parser(steps=500)
     parser.add_argument("--top", type=int, default=0)
     parser.add_argument("--child")
     args = parser.parse_args()
