@@ -152,9 +152,9 @@ def main() -> None:
     for dtype, row in zip(("float32", "float64"), rows, strict=True):
         if row["top"]:
             print(f"\n{dtype}: costliest operations of the reverse pass (total ms over the traced call)")
-            print(f"{'operation':<40}{'kernel or shape':<36}{'phase':<11}{'calls':>7}{'ms':>9}")
+            print(f"{'operation':<40}{'kernel or shape':<41}{'phase':<11}{'calls':>7}{'ms':>9}")
             for name, what, phase, count, ms in row["top"]:
-                print(f"{name[:39]:<40}{what[:35]:<36}{phase:<11}{count:>7}{ms:>9.1f}")
+                print(f"{name[:39]:<40}{what[:40]:<41}{phase:<11}{count:>7}{ms:>9.1f}")
     sys.stdout.flush()
 
 
