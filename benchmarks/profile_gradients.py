@@ -24,7 +24,6 @@ import glob
 import gzip
 import json
 import re
-import sys
 import tempfile
 import time
 
@@ -99,12 +98,12 @@ def child(dtype, size, steps, window, stage, consolidation_steps, top) -> dict:
         if not begin <= event["ts"] <= end or event["tid"] == call["tid"] or event["name"] not in table:
             continue
         op_name, target, shape = table[event["name"]]
-        if re.match(r"(while|cond|call|conditional)", event["name"]):
+        if re.match(r"(while|cond|call)", event["name"]):
             continue  # containers: their insides are counted
-        kind = "kernels" if target else "xla"
-        sums[f"{phase_of(op_name)} {kind}"] += event["dur"] / 1e3
-        per_op[(event["name"], target or shape, phase_of(op_name))][0] += 1
-        per_op[(event["name"], target or shape, phase_of(op_name))][1] += event["dur"] / 1e3
+        phase, milliseconds = phase_of(op_name), event["dur"] / 1e3
+        sums[f"{phase} {'kernels' if target else 'xla'}"] += milliseconds
+        per_op[(event["name"], target or shape, phase)][0] += 1
+        per_op[(event["name"], target or shape, phase)][1] += milliseconds
     costliest = sorted(per_op.items(), key=lambda item: -item[1][1])[:top]
     return {
         "forward_s": times["forward"],
@@ -155,7 +154,6 @@ def main() -> None:
             print(f"{'operation':<40}{'kernel or shape':<41}{'phase':<11}{'calls':>7}{'ms':>9}")
             for name, what, phase, count, ms in row["top"]:
                 print(f"{name[:39]:<40}{what[:40]:<41}{phase:<11}{count:>7}{ms:>9.1f}")
-    sys.stdout.flush()
 
 
 if __name__ == "__main__":

@@ -364,6 +364,8 @@ def _advance_nodes_backward(args, perturbed, cotangents):
     From the arguments themselves too: the two forces are summed here, as the forward kernel sums them.
     """
     del perturbed  # it covers every differentiable argument
+    total_kept = isinstance(args[1], native.Absent)  # the first slot then holds F itself
+    # Zeros stand in for what was not kept: only their shapes and dtypes reach the cotangents' packing.
     args = tuple(jnp.zeros(a.shape, a.dtype) if isinstance(a, native.Absent) else a for a in args)
     *vectors, mass, scalars = _advance_nodes_inputs(*args)
     dtype = mass.dtype
@@ -372,7 +374,7 @@ def _advance_nodes_backward(args, perturbed, cotangents):
         "membrane_nodes_backward",
         dtype,
         (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
-        vectors[0] + vectors[1],  # F (the contact force is an Absent's zeros when F is kept)
+        vectors[0] if total_kept else vectors[0] + vectors[1],  # F, summed as the forward kernel sums it
         vectors[4],
         mass,
         args[6].astype(dtype),

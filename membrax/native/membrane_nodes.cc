@@ -74,8 +74,8 @@ ffi::Error membrane_nodes(ffi::Buffer<dtype> membrane_force, ffi::Buffer<dtype> 
 // The backward kernel of advance: the outputs' cotangents (F̄, v̄', x̄', c̄') to the inputs'. The new
 // compensation c' = (Δt v' + c) − (x' − x) has a zero derivative (x' = x + Δt v' + c), as in JAX's.
 template <typename T>
-void advance_backward(const T* __restrict total_force, const T* __restrict velocity, const T* __restrict mass, const T* __restrict free,
-                      const T* __restrict force_bar, const T* __restrict velocity_bar,
+void advance_backward(const T* __restrict total_force, const T* __restrict velocity, const T* __restrict mass,
+                      const T* __restrict free, const T* __restrict force_bar, const T* __restrict velocity_bar,
                       const T* __restrict position_bar, int64_t num_nodes, T dt, T local, T viscous,
                       T* __restrict force_out, T* __restrict position_out, T* __restrict velocity_out,
                       T* __restrict mass_out, T* __restrict dt_partial, T* __restrict local_partial,
@@ -133,7 +133,8 @@ ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> total_force, ffi::Buffer<d
                                    ffi::ResultBuffer<dtype> velocity_out, ffi::ResultBuffer<dtype> mass_out,
                                    ffi::ResultBuffer<dtype> scalars_out) {
   const int64_t n = mass.element_count();
-  for (const auto* vector : {&total_force, &velocity, &force_bar, &velocity_bar, &position_bar, &compensation_bar}) {
+  for (const auto* vector :
+       {&total_force, &velocity, &force_bar, &velocity_bar, &position_bar, &compensation_bar}) {
     if (vector->element_count() != size_t(3 * n))
       return ffi::Error::InvalidArgument("membrane_nodes_backward: (n, 3) arrays must match the n masses");
   }
