@@ -15,6 +15,11 @@ Each phase is split into the compiled kernels (``membrax.native``, FFI calls) an
 in milliseconds per step of thread time (two threads can overlap, so the columns can add up to more than
 the traced wall time, which tracing also lengthens). ``--top N`` lists the N costliest operations.
 
+The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are asynchronous
+(:mod:`membrax.native`): the trace shows only their launch under their names, so the ``kernels`` columns of
+``first`` and ``recompute`` count the node update and those launches, and their loops, which run in
+unnamed pool tasks, are in no column.
+
 Run: ``python benchmarks/profile_gradients.py [--size small|paper] [--stage shear|consolidation]
 [--steps 500] [--window 50] [--consolidation-steps 5000] [--top 0]``.
 """

@@ -194,6 +194,88 @@ def test_node_sphere_kernel_gradients_and_vmap():
         assert _relative_error(batched[k], single) < 1e-12
 
 
+def test_forward_kernels_run_asynchronously_with_the_same_bits_and_report_bad_sizes():
+    """The forward kernels of the membrane forces, the node–sphere law and the sphere pairs run on XLA's
+    thread pool, so that XLA goes on with independent work meanwhile (parallel.h, ``on_pool``). Two
+    independent calls in one program, which XLA may now run side by side, give the bits of each call alone;
+    a call with inconsistent sizes fails with the kernel's message (the future's error path)."""
+    case = _node_sphere_case()
+    other = _node_sphere_case(seed=8)
+
+    def both(first, second):
+        return node_sphere_forces(**first), node_sphere_forces(**second)
+
+    together = jax.jit(both)(case, other)
+    alone = (jax.jit(node_sphere_forces)(**case), jax.jit(node_sphere_forces)(**other))
+    for single, paired in zip(alone, together, strict=True):
+        for field in single._fields:
+            assert np.array_equal(np.asarray(getattr(single, field)), np.asarray(getattr(paired, field))), (
+                field
+            )
+
+    f64, n, num_spheres, capacity, slots = jnp.float64, 8, 4, 3, 6
+
+    def zeros(*shape, dtype=f64):
+        return jnp.zeros(shape, dtype)
+
+    def struct(*shape):
+        return jax.ShapeDtypeStruct(shape, f64)
+
+    calls = {  # each with one wrong size: 4 scalars for 5, and a (2, C − 1) neighbour list for (2, C)
+        "node_sphere_forces": (
+            (struct(n, 3), struct(num_spheres, 3), struct(num_spheres, 3), struct(3, n, capacity)),
+            (
+                zeros(n, 3),
+                zeros(n, 3),
+                zeros(num_spheres, 3),
+                zeros(num_spheres, 3),
+                zeros(num_spheres, 3),
+                zeros(num_spheres),
+                zeros(n, capacity, dtype=jnp.int32),
+                zeros(3, n, capacity),
+                zeros(4),
+            ),
+            {},
+        ),
+        "membrane_forces": (
+            struct(n, 3),
+            (
+                zeros(n, 3),
+                zeros(3, dtype=jnp.int32),
+                zeros(1, 2, 2),
+                zeros(1),
+                zeros(0, dtype=jnp.int32),
+                zeros(0),
+                zeros(0),
+                zeros(2, dtype=jnp.int32),
+                zeros(2, dtype=jnp.int32),
+                zeros(4),
+            ),
+            {"model": np.int64(0)},
+        ),
+        "dem_pairs": (
+            (struct(num_spheres, 6), struct(slots, 3), struct(slots, 3)),
+            (
+                zeros(num_spheres, 3),
+                zeros(num_spheres, 3),
+                zeros(num_spheres, 3),
+                zeros(num_spheres, 3),
+                zeros(num_spheres),
+                zeros(2, slots - 1, dtype=jnp.int32),
+                zeros(slots, 3),
+                zeros(slots),
+                zeros(slots),
+                zeros(slots),
+                zeros(1),
+            ),
+            {},
+        ),
+    }
+    for name, (results, args, attributes) in calls.items():
+        with pytest.raises(Exception, match=f"{name}: "):
+            jax.block_until_ready(native.call(name, f64, results, *args, **attributes))
+
+
 def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
     """A compiler that fails: one warning, no kernels, and the JAX numbers."""
     script = textwrap.dedent(

@@ -31,6 +31,13 @@ membrane mesh's rest geometry). XLA runs the reverse pass's kernels one after an
 node–sphere and pair backward kernels split their element loops in two fixed halves, the second offered
 to XLA's intra-op thread pool (``parallel.h``); each half sums its own elements in order, so the result
 does not depend on which thread ran it.
+
+Threads. The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are
+asynchronous FFI handlers: each checks its arguments, runs its loop as a task on XLA's intra-op thread
+pool and returns a future, so XLA goes on with independent work meanwhile and the three kernels of a
+step run side by side (``parallel.h``, ``on_pool``). Their arithmetic is the synchronous one's, bit for
+bit. A trace (``jax.profiler``) then shows only their launch under the kernel's name; the loop runs in
+an unnamed pool task.
 """
 
 from __future__ import annotations

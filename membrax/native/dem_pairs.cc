@@ -1,6 +1,7 @@
 // The DEM's sphere–sphere contacts over a neighbour list, summed per sphere, in one pass.
 //
-// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py. For each slot (i, j) =
+// An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
+// parallel.h), compiled on first use by membrax/native.py. For each slot (i, j) =
 // idx[:, k] (padded with N) it gathers the two spheres (b = (x_j − x_i) + (c_j − c_i), positions with
 // their compensation), applies the Cundall–Strack law (contact_law.h, sphere_pair; the reference is
 // membrax.contact.pair_contact), zeroes the padded slots and sums per sphere: j receives (F, T_j), i
@@ -58,55 +59,66 @@ void dem_pair_law(const T* __restrict position, const T* __restrict compensation
 }
 
 template <ffi::DataType dtype>
-ffi::Error dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation, ffi::Buffer<dtype> velocity,
-                     ffi::Buffer<dtype> angular_velocity, ffi::Buffer<dtype> radius, ffi::Buffer<ffi::S32> idx,
-                     ffi::Buffer<dtype> spring, ffi::Buffer<dtype> normal_stiffness,
-                     ffi::Buffer<dtype> tangential_stiffness, ffi::Buffer<dtype> friction_coefficient,
-                     ffi::Buffer<dtype> time_step, ffi::ResultBuffer<dtype> totals,
-                     ffi::ResultBuffer<dtype> new_spring, ffi::ResultBuffer<dtype> pair_force) {
+ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation, ffi::Buffer<dtype> velocity,
+                      ffi::Buffer<dtype> angular_velocity, ffi::Buffer<dtype> radius, ffi::Buffer<ffi::S32> idx,
+                      ffi::Buffer<dtype> spring, ffi::Buffer<dtype> normal_stiffness,
+                      ffi::Buffer<dtype> tangential_stiffness, ffi::Buffer<dtype> friction_coefficient,
+                      ffi::Buffer<dtype> time_step, ffi::ResultBuffer<dtype> totals,
+                      ffi::ResultBuffer<dtype> new_spring, ffi::ResultBuffer<dtype> pair_force,
+                      ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
   const int64_t n = radius.element_count();
   const int64_t slots = spring.element_count() / 3;
   for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
     if (rows->element_count() != size_t(3 * n))
-      return ffi::Error::InvalidArgument("dem_pairs: sphere arrays must be (N, 3) with N the radii's length");
+      return membrax::failed(
+          ffi::Error::InvalidArgument("dem_pairs: sphere arrays must be (N, 3) with N the radii's length"));
   }
   for (const auto* scalar : {&normal_stiffness, &tangential_stiffness, &friction_coefficient}) {
     if (scalar->element_count() != size_t(slots))
-      return ffi::Error::InvalidArgument("dem_pairs: per-slot parameters must be (C,)");
+      return membrax::failed(ffi::Error::InvalidArgument("dem_pairs: per-slot parameters must be (C,)"));
   }
-  if (idx.element_count() != size_t(2 * slots)) return ffi::Error::InvalidArgument("dem_pairs: idx must be (2, C)");
-  thread_local std::vector<T> scratch;
-  scratch.resize(size_t(6 * slots));
-  T* torque_i = scratch.data();
-  T* torque_j = torque_i + 3 * slots;
-  T* force = pair_force->typed_data();
+  if (idx.element_count() != size_t(2 * slots))
+    return membrax::failed(ffi::Error::InvalidArgument("dem_pairs: idx must be (2, C)"));
+  const T* x = position.typed_data();
+  const T* xc = compensation.typed_data();
+  const T* v = velocity.typed_data();
+  const T* w = angular_velocity.typed_data();
+  const T* r = radius.typed_data();
+  const T* old_spring = spring.typed_data();
+  const T* kn = normal_stiffness.typed_data();
+  const T* kt = tangential_stiffness.typed_data();
+  const T* mu = friction_coefficient.typed_data();
+  const T dt = time_step.typed_data()[0];
   const int32_t* id = idx.typed_data();
-  dem_pair_law<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
-                  angular_velocity.typed_data(), radius.typed_data(), id, spring.typed_data(),
-                  normal_stiffness.typed_data(), tangential_stiffness.typed_data(),
-                  friction_coefficient.typed_data(), time_step.typed_data()[0], n, slots, force,
-                  new_spring->typed_data(), torque_i, torque_j);
+  T* force = pair_force->typed_data();
+  T* springs = new_spring->typed_data();
   T* total = totals->typed_data();
-  std::fill(total, total + 6 * n, T(0));
-  // As the reference's one segment sum: first every slot's share of j, then every slot's share of i.
-  for (int64_t k = 0; k < slots; ++k) {
-    if (id[k] >= n) continue;
-    T* row = total + 6 * int64_t(id[slots + k]);
-    for (int c = 0; c < 3; ++c) {
-      row[c] += force[3 * k + c];
-      row[3 + c] += torque_j[3 * k + c];
+  return membrax::on_pool(pool, [=]() {
+    thread_local std::vector<T> scratch;
+    scratch.resize(size_t(6 * slots));
+    T* torque_i = scratch.data();
+    T* torque_j = torque_i + 3 * slots;
+    dem_pair_law<T>(x, xc, v, w, r, id, old_spring, kn, kt, mu, dt, n, slots, force, springs, torque_i, torque_j);
+    std::fill(total, total + 6 * n, T(0));
+    // As the reference's one segment sum: first every slot's share of j, then every slot's share of i.
+    for (int64_t k = 0; k < slots; ++k) {
+      if (id[k] >= n) continue;
+      T* row = total + 6 * int64_t(id[slots + k]);
+      for (int c = 0; c < 3; ++c) {
+        row[c] += force[3 * k + c];
+        row[3 + c] += torque_j[3 * k + c];
+      }
     }
-  }
-  for (int64_t k = 0; k < slots; ++k) {
-    if (id[k] >= n) continue;
-    T* row = total + 6 * int64_t(id[k]);
-    for (int c = 0; c < 3; ++c) {
-      row[c] -= force[3 * k + c];
-      row[3 + c] += torque_i[3 * k + c];
+    for (int64_t k = 0; k < slots; ++k) {
+      if (id[k] >= n) continue;
+      T* row = total + 6 * int64_t(id[k]);
+      for (int c = 0; c < 3; ++c) {
+        row[c] -= force[3 * k + c];
+        row[3 + c] += torque_i[3 * k + c];
+      }
     }
-  }
-  return ffi::Error::Success();
+  });
 }
 
 
@@ -308,7 +320,8 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
                                     .Arg<ffi::Buffer<dtype>>()  \
                                     .Ret<ffi::Buffer<dtype>>()  \
                                     .Ret<ffi::Buffer<dtype>>()  \
-                                    .Ret<ffi::Buffer<dtype>>());
+                                    .Ret<ffi::Buffer<dtype>>()  \
+                                    .Ctx<ffi::ThreadPool>());
 
 MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF32, ffi::F32)
 MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF64, ffi::F64)

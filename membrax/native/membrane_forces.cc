@@ -1,6 +1,7 @@
 // Membrane nodal forces −∂(W_stretch + f_b W_bend + p V)/∂x in one pass over triangles and hinges.
 //
-// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the formulas are those
+// An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
+// parallel.h), compiled on first use by membrax/native.py; the formulas are those
 // of membrax/membrane/mesh.py, which remains the reference (see membrax.membrane.mesh.nodal_forces).
 // A second handler, membrane_forces_backward, is their reverse-mode rule (below). The per-element loops are written branch-free so that the
 // compiler vectorises them; each writes its corner forces into a component-first scratch array, and a
@@ -266,40 +267,48 @@ bool consistent_sizes(const ffi::Buffer<dtype>& position, const ffi::Buffer<ffi:
 }
 
 template <ffi::DataType dtype>
-ffi::Error membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
-                           ffi::Buffer<dtype> inverse, ffi::Buffer<dtype> area,
-                           ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
-                           ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
-                           ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars, int64_t model,
-                           ffi::ResultBuffer<dtype> force) {
+ffi::Future membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
+                            ffi::Buffer<dtype> inverse, ffi::Buffer<dtype> area,
+                            ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
+                            ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
+                            ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars, ffi::ThreadPool pool,
+                            int64_t model, ffi::ResultBuffer<dtype> force) {
   using T = ffi::NativeType<dtype>;
   const int64_t num_nodes = position.element_count() / 3;
   const int64_t num_triangles = area.element_count();
   const int64_t num_hinges = edge_weight.element_count();
   if (!consistent_sizes(position, corner_index, inverse, area, hinge_index, edge_weight, rest_dihedral, scalars)) {
-    return ffi::Error::InvalidArgument("membrane_forces: inconsistent array sizes");
+    return membrax::failed(ffi::Error::InvalidArgument("membrane_forces: inconsistent array sizes"));
   }
   const T* x = position.typed_data();
   const T* s = scalars.typed_data();
   const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4];
   T* f = force->typed_data();
-  std::fill(f, f + 3 * num_nodes, T(0));
-
-  thread_local std::vector<T> scratch;
-  scratch.resize(size_t(12 * std::max(num_triangles, num_hinges)));
-  triangle_forces<T>(x, corner_index.typed_data(), inverse.typed_data(), area.typed_data(), num_triangles,
-                     modulus, thickness, pressure, poisson, model, scratch.data());
-  add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, f);
-  if (bending_factor != T(0)) {  // a zero factor multiplies the whole bending term: nothing to add
-    const T stiffness = bending_factor * modulus * thickness * thickness * thickness /
-                        (T(12) * (T(1) - poisson * poisson)) / T(6);  // k_b = D/6
-    hinge_forces<T>(x, hinge_index.typed_data(), edge_weight.typed_data(), rest_dihedral.typed_data(),
-                    num_hinges, stiffness, scratch.data());
-    add_to_nodes<T>(scratch.data(), hinge_index.typed_data(), 4, num_hinges, f);
-  }
-  cap_forces<T>(x, bottom_ring.typed_data(), bottom_ring.element_count(), false, pressure, f);
-  cap_forces<T>(x, top_ring.typed_data(), top_ring.element_count(), true, pressure, f);
-  return ffi::Error::Success();
+  const int32_t* corner = corner_index.typed_data();
+  const int32_t* hinge = hinge_index.typed_data();
+  const T* inverse_data = inverse.typed_data();
+  const T* area_data = area.typed_data();
+  const T* weight = edge_weight.typed_data();
+  const T* dihedral = rest_dihedral.typed_data();
+  const int32_t* bottom = bottom_ring.typed_data();
+  const int32_t* top = top_ring.typed_data();
+  const int64_t bottom_count = bottom_ring.element_count(), top_count = top_ring.element_count();
+  return membrax::on_pool(pool, [=]() {
+    std::fill(f, f + 3 * num_nodes, T(0));
+    thread_local std::vector<T> scratch;
+    scratch.resize(size_t(12 * std::max(num_triangles, num_hinges)));
+    triangle_forces<T>(x, corner, inverse_data, area_data, num_triangles, modulus, thickness, pressure, poisson,
+                       model, scratch.data());
+    add_to_nodes<T>(scratch.data(), corner, 3, num_triangles, f);
+    if (bending_factor != T(0)) {  // a zero factor multiplies the whole bending term: nothing to add
+      const T stiffness = bending_factor * modulus * thickness * thickness * thickness /
+                          (T(12) * (T(1) - poisson * poisson)) / T(6);  // k_b = D/6
+      hinge_forces<T>(x, hinge, weight, dihedral, num_hinges, stiffness, scratch.data());
+      add_to_nodes<T>(scratch.data(), hinge, 4, num_hinges, f);
+    }
+    cap_forces<T>(x, bottom, bottom_count, false, pressure, f);
+    cap_forces<T>(x, top, top_count, true, pressure, f);
+  });
 }
 
 
@@ -617,6 +626,7 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
                                     .Arg<ffi::Buffer<ffi::S32>>()              \
                                     .Arg<ffi::Buffer<ffi::S32>>()              \
                                     .Arg<ffi::Buffer<dtype>>()                 \
+                                    .Ctx<ffi::ThreadPool>()                    \
                                     .Attr<int64_t>("model")                    \
                                     .Ret<ffi::Buffer<dtype>>());
 

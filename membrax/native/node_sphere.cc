@@ -1,6 +1,7 @@
 // Node–sphere contacts of the membrane: forces, torques and the tangential springs, one pass per slot.
 //
-// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the law is that of
+// An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
+// parallel.h), compiled on first use by membrax/native.py; the law is that of
 // membrax/membrane/contact.py (node_sphere_forces), which remains the reference; node_sphere_backward
 // (below) is its reverse-mode rule. For each slot (node n, candidate k) with sphere i = idx[n, k] < N:
 //   b = x_n − x_i, δ = R_i + t_m/2 − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on the node),
@@ -91,12 +92,13 @@ inline Vec3<T> slot_law(Vec3<T> b, Vec3<T> relative, Vec3<T> s, T overlap, T dt,
 }
 
 template <ffi::DataType dtype>
-ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity,
-                              ffi::Buffer<dtype> sphere_position, ffi::Buffer<dtype> sphere_velocity,
-                              ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
-                              ffi::Buffer<ffi::S32> idx, ffi::Buffer<dtype> spring, ffi::Buffer<dtype> scalars,
-                              ffi::ResultBuffer<dtype> node_force, ffi::ResultBuffer<dtype> sphere_force,
-                              ffi::ResultBuffer<dtype> sphere_torque, ffi::ResultBuffer<dtype> new_spring) {
+ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity,
+                               ffi::Buffer<dtype> sphere_position, ffi::Buffer<dtype> sphere_velocity,
+                               ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
+                               ffi::Buffer<ffi::S32> idx, ffi::Buffer<dtype> spring, ffi::Buffer<dtype> scalars,
+                               ffi::ResultBuffer<dtype> node_force, ffi::ResultBuffer<dtype> sphere_force,
+                               ffi::ResultBuffer<dtype> sphere_torque, ffi::ResultBuffer<dtype> new_spring,
+                               ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
   const int64_t num_nodes = node_position.element_count() / 3;
   const int64_t num_spheres = sphere_radius.element_count();
@@ -104,7 +106,7 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
   if (dims.size() != 2 || dims[0] != num_nodes || scalars.element_count() != 5 ||
       spring.element_count() != size_t(3 * num_nodes * dims[1]) ||
       sphere_position.element_count() != size_t(3 * num_spheres)) {
-    return ffi::Error::InvalidArgument("node_sphere_forces: inconsistent array sizes");
+    return membrax::failed(ffi::Error::InvalidArgument("node_sphere_forces: inconsistent array sizes"));
   }
   const int64_t capacity = dims[1];
   const int64_t m = num_nodes * capacity;
@@ -123,34 +125,35 @@ ffi::Error node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtyp
   T* on_node = node_force->typed_data();
   T* on_sphere = sphere_force->typed_data();
   T* torque = sphere_torque->typed_data();
-  std::fill(springs, springs + 3 * m, T(0));
-  std::fill(on_node, on_node + 3 * num_nodes, T(0));
-  std::fill(on_sphere, on_sphere + 3 * num_spheres, T(0));
-  std::fill(torque, torque + 3 * num_spheres, T(0));
+  return membrax::on_pool(pool, [=]() {
+    std::fill(springs, springs + 3 * m, T(0));
+    std::fill(on_node, on_node + 3 * num_nodes, T(0));
+    std::fill(on_sphere, on_sphere + 3 * num_spheres, T(0));
+    std::fill(torque, torque + 3 * num_spheres, T(0));
 
-  thread_local std::vector<uint8_t> touching;
-  touching.resize(size_t(m));
-  touching_slots<T>(x, xs, radius, id, 0, num_nodes, capacity, num_spheres, half_thickness, touching.data());
-  // In slot order, so that each node's force is summed in the order of the JAX law.
-  for (int64_t j = 0; j < m; ++j) {
-    if (!touching[j]) continue;
-    const int64_t node = j / capacity, sphere = id[j];
-    const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
-    const Vec3<T> b = kinematics.branch, relative = kinematics.relative;
-    const Vec3<T> s = {old_spring[j], old_spring[m + j], old_spring[2 * m + j]};
-    const T overlap = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
-    Vec3<T> updated;
-    const Vec3<T> force =
-        slot_law<T>(b, relative, s, overlap, dt, normal_stiffness, tangential_stiffness, friction, &updated);
-    const Vec3<T> torque_on_sphere = cross(b, T(-1) * force);
-    springs[j] = updated.x;
-    springs[m + j] = updated.y;
-    springs[2 * m + j] = updated.z;
-    membrax::add3(on_node, node, force);
-    membrax::add3(on_sphere, sphere, T(-1) * force);
-    membrax::add3(torque, sphere, torque_on_sphere);
-  }
-  return ffi::Error::Success();
+    thread_local std::vector<uint8_t> touching;
+    touching.resize(size_t(m));
+    touching_slots<T>(x, xs, radius, id, 0, num_nodes, capacity, num_spheres, half_thickness, touching.data());
+    // In slot order, so that each node's force is summed in the order of the JAX law.
+    for (int64_t j = 0; j < m; ++j) {
+      if (!touching[j]) continue;
+      const int64_t node = j / capacity, sphere = id[j];
+      const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
+      const Vec3<T> b = kinematics.branch, relative = kinematics.relative;
+      const Vec3<T> s = {old_spring[j], old_spring[m + j], old_spring[2 * m + j]};
+      const T overlap = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
+      Vec3<T> updated;
+      const Vec3<T> force =
+          slot_law<T>(b, relative, s, overlap, dt, normal_stiffness, tangential_stiffness, friction, &updated);
+      const Vec3<T> torque_on_sphere = cross(b, T(-1) * force);
+      springs[j] = updated.x;
+      springs[m + j] = updated.y;
+      springs[2 * m + j] = updated.z;
+      membrax::add3(on_node, node, force);
+      membrax::add3(on_sphere, sphere, T(-1) * force);
+      membrax::add3(torque, sphere, torque_on_sphere);
+    }
+  });
 }
 
 
@@ -391,7 +394,8 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
                                     .Ret<ffi::Buffer<dtype>>()   \
                                     .Ret<ffi::Buffer<dtype>>()   \
                                     .Ret<ffi::Buffer<dtype>>()   \
-                                    .Ret<ffi::Buffer<dtype>>());
+                                    .Ret<ffi::Buffer<dtype>>()   \
+                                    .Ctx<ffi::ThreadPool>());
 
 MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF32, ffi::F32)
 MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF64, ffi::F64)

@@ -1,15 +1,22 @@
-// Two-way parallel loops on XLA's intra-op thread pool, for the backward kernels: XLA:CPU runs the reverse
-// pass's kernels one after another (it runs the forward's independent kernels side by side), so without
-// this the second core idles through them (README, "where the time went").
+// The kernels' use of XLA's intra-op thread pool (xla::ffi::ThreadPool, the pool XLA:CPU runs its own
+// parallel work on), in two ways:
 //
-// two_halves(pool, n, body) runs body(0, 0, n/2) on the calling thread and offers body(1, n/2, n) to the pool
-// (xla::ffi::ThreadPool, the pool XLA:CPU runs its own parallel work on). Whichever thread claims the
-// second half first runs it; if no pool thread has claimed it when the caller finishes the first, the
-// caller runs it too. So the caller waits only for a half that is already running: no deadlock when the
-// pool is busy, has one thread, or runs tasks in the caller (FFI's contract allows all three). The halves
-// are fixed index ranges, so a body that writes per-index outputs and sums each half in order gives the
-// same bits whichever thread ran which half; below kMinParallelElements the caller runs the same two
-// halves itself, so small and large inputs sum alike.
+// on_pool(pool, work), for the forward kernels: the handler checks its arguments, then runs work() as a
+// pool task and returns a future (an asynchronous FFI handler). XLA's executor goes on meanwhile with
+// the other operations that are ready, such as an independent kernel: the membrane forces, the
+// node–sphere law and the sphere pairs of one step run side by side. Without it XLA ran them one after
+// another in the recomputation of a checkpointed window, and the sphere pairs alone everywhere (README,
+// "where the time goes"). The arithmetic is unchanged, so are the bits.
+//
+// two_halves(pool, n, body), for the backward kernels, which XLA runs one after another and whose
+// element loops are long: body(0, 0, n/2) runs on the calling thread and body(1, n/2, n) is offered to
+// the pool. Whichever thread claims the second half first runs it; if no pool thread has claimed it
+// when the caller finishes the first, the caller runs it too. So the caller waits only for a half that
+// is already running: no deadlock when the pool is busy, has one thread, or runs tasks in the caller
+// (FFI's contract allows all three). The halves are fixed index ranges, so a body that writes
+// per-index outputs and sums each half in order gives the same bits whichever thread ran which half;
+// below kMinParallelElements the caller runs the same two halves itself, so small and large inputs sum
+// alike.
 
 #ifndef MEMBRAX_PARALLEL_H_
 #define MEMBRAX_PARALLEL_H_
@@ -18,6 +25,7 @@
 #include <cstdint>
 #include <memory>
 #include <thread>
+#include <utility>
 
 #include "xla/ffi/api/ffi.h"
 
@@ -52,6 +60,28 @@ void two_halves(xla::ffi::ThreadPool& pool, int64_t n, const Body& body) {
     return;
   }
   while (state->load(std::memory_order_acquire) != 2) std::this_thread::yield();
+}
+
+// Runs work() as a pool task and returns the future that XLA's executor waits on. work() must touch
+// only what outlives the handler's return: the buffers' data and values captured by copy, not the
+// handler's Buffer objects or the pool (both are views of the call, which ends before the task does).
+template <typename Work>
+xla::ffi::Future on_pool(xla::ffi::ThreadPool& pool, Work work) {
+  xla::ffi::Promise promise;
+  xla::ffi::Future future(promise);
+  pool.Schedule([promise, work]() mutable {
+    work();
+    promise.SetAvailable();
+  });
+  return future;
+}
+
+// A future that has already failed with error (a handler's argument checks).
+inline xla::ffi::Future failed(xla::ffi::Error error) {
+  xla::ffi::Promise promise;
+  xla::ffi::Future future(promise);
+  promise.SetError(std::move(error));
+  return future;
 }
 
 }  // namespace membrax
