@@ -196,22 +196,28 @@ def test_node_sphere_kernel_gradients_and_vmap():
 
 def test_forward_kernels_run_asynchronously_with_the_same_bits_and_report_bad_sizes():
     """The forward kernels of the membrane forces, the node–sphere law and the sphere pairs run on XLA's
-    thread pool, so that XLA goes on with independent work meanwhile (parallel.h, ``on_pool``). Two
-    independent calls in one program, which XLA may now run side by side, give the bits of each call alone;
-    a call with inconsistent sizes fails with the kernel's message (the future's error path)."""
-    case = _node_sphere_case()
-    other = _node_sphere_case(seed=8)
+    thread pool from 8,192 elements on, so that XLA goes on with independent work meanwhile (parallel.h,
+    ``on_pool``). Two independent node–sphere calls over 8,400 slots in one program, which XLA may run side
+    by side, give the JAX law's numbers and, to the bit, those of each call alone (a task that shared
+    scratch or read a finished call's arguments would show here); a call with inconsistent sizes fails with
+    the kernel's message (the future's error path)."""
+    case = _node_sphere_case(num_nodes=2100)
+    other = _node_sphere_case(seed=8, num_nodes=2100)
+    assert case["candidates"].size >= 8192  # kMinAsyncElements: handed to the pool
 
     def both(first, second):
         return node_sphere_forces(**first), node_sphere_forces(**second)
 
     together = jax.jit(both)(case, other)
     alone = (jax.jit(node_sphere_forces)(**case), jax.jit(node_sphere_forces)(**other))
-    for single, paired in zip(alone, together, strict=True):
+    for inputs, single, paired in zip((case, other), alone, together, strict=True):
+        reference = _reference_node_sphere_forces(**inputs)
         for field in single._fields:
             assert np.array_equal(np.asarray(getattr(single, field)), np.asarray(getattr(paired, field))), (
                 field
             )
+            tolerance = 1e-10 if field == "sphere_torque" else 1e-12
+            assert _relative_error(getattr(paired, field), getattr(reference, field)) < tolerance, field
 
     f64, n, num_spheres, capacity, slots = jnp.float64, 8, 4, 3, 6
 

@@ -94,12 +94,13 @@ ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensati
   T* force = pair_force->typed_data();
   T* springs = new_spring->typed_data();
   T* total = totals->typed_data();
-  return membrax::on_pool(pool, [=]() {
+  return membrax::on_pool(pool, slots, [=]() {
     thread_local std::vector<T> scratch;
     scratch.resize(size_t(6 * slots));
     T* torque_i = scratch.data();
     T* torque_j = torque_i + 3 * slots;
-    dem_pair_law<T>(x, xc, v, w, r, id, old_spring, kn, kt, mu, dt, n, slots, force, springs, torque_i, torque_j);
+    dem_pair_law<T>(x, xc, v, w, r, id, old_spring, kn, kt, mu, dt, n, slots, force, springs, torque_i,
+                    torque_j);
     std::fill(total, total + 6 * n, T(0));
     // As the reference's one segment sum: first every slot's share of j, then every slot's share of i.
     for (int64_t k = 0; k < slots; ++k) {

@@ -293,7 +293,7 @@ ffi::Future membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> c
   const int32_t* bottom = bottom_ring.typed_data();
   const int32_t* top = top_ring.typed_data();
   const int64_t bottom_count = bottom_ring.element_count(), top_count = top_ring.element_count();
-  return membrax::on_pool(pool, [=]() {
+  return membrax::on_pool(pool, std::max(num_triangles, num_hinges), [=]() {
     std::fill(f, f + 3 * num_nodes, T(0));
     thread_local std::vector<T> scratch;
     scratch.resize(size_t(12 * std::max(num_triangles, num_hinges)));

@@ -125,7 +125,7 @@ ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dty
   T* on_node = node_force->typed_data();
   T* on_sphere = sphere_force->typed_data();
   T* torque = sphere_torque->typed_data();
-  return membrax::on_pool(pool, [=]() {
+  return membrax::on_pool(pool, m, [=]() {
     std::fill(springs, springs + 3 * m, T(0));
     std::fill(on_node, on_node + 3 * num_nodes, T(0));
     std::fill(on_sphere, on_sphere + 3 * num_spheres, T(0));
