@@ -34,10 +34,10 @@ does not depend on which thread ran it.
 
 Threads. The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are
 asynchronous FFI handlers: each checks its arguments, runs its loop as a task on XLA's intra-op thread
-pool and returns a future, so XLA goes on with independent work meanwhile and the three kernels of a
-step run side by side (``parallel.h``, ``on_pool``). Their arithmetic is the synchronous one's, bit for
-bit. A trace (``jax.profiler``) then shows only their launch under the kernel's name; the loop runs in
-an unnamed pool task.
+pool (from 8,192 elements on; smaller loops run in the caller) and returns a future, so XLA goes on with
+independent work meanwhile and the three kernels of a step run side by side (``parallel.h``,
+``on_pool``). Their arithmetic is the synchronous one's, bit for bit. A trace (``jax.profiler``) then
+shows only their launch under the kernel's name; the loop runs in an unnamed pool task.
 """
 
 from __future__ import annotations
