@@ -1,7 +1,7 @@
 // Membrane nodal forces −∂(W_stretch + f_b W_bend + p V)/∂x in one pass over triangles and hinges.
 //
 // An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
-// parallel.h), compiled on first use by membrax/native.py; the formulas are those
+// parallel.h), compiled on first use by membrax/native/__init__.py; the formulas are those
 // of membrax/membrane/mesh.py, which remains the reference (see membrax.membrane.mesh.nodal_forces).
 // A second handler, membrane_forces_backward, is their reverse-mode rule (below). The per-element loops are written branch-free so that the
 // compiler vectorises them; each writes its corner forces into a component-first scratch array, and a

@@ -1,6 +1,6 @@
 // One step of the membrane's free nodes: total force, damping, velocity and compensated position update.
 //
-// An XLA FFI handler for the CPU, compiled on first use by membrax/native.py; the reference is
+// An XLA FFI handler for the CPU, compiled on first use by membrax/native/__init__.py; the reference is
 // membrax/membrane_dem.py (_advance_nodes_reference), which also supplies the derivatives. Per node and
 // component, with F = F_membrane + F_contact:
 //   F_d = F − α |F| sign(v) − γ m v                 (membrax.integrate.apply_damping)

@@ -1,7 +1,7 @@
 // Node–sphere contacts of the membrane: forces, torques and the tangential springs, one pass per slot.
 //
 // An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
-// parallel.h), compiled on first use by membrax/native.py; the law is that of
+// parallel.h), compiled on first use by membrax/native/__init__.py; the law is that of
 // membrax/membrane/contact.py (node_sphere_forces), which remains the reference; node_sphere_backward
 // (below) is its reverse-mode rule. For each slot (node n, candidate k) with sphere i = idx[n, k] < N:
 //   b = x_n − x_i, δ = R_i + t_m/2 − |b|, n̂ = b/|b|, F_n = k_n max(δ, 0) n̂ (on the node),
