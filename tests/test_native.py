@@ -567,3 +567,156 @@ def test_membrane_forces_differentiated_in_the_rest_geometry_use_the_reference_r
     want = jax.grad(lambda a: work(reference, a))(area)
     assert _relative_error(got, want) < 1e-12
     assert float(jnp.sum(area * got)) == pytest.approx(float(work(forces, area)), rel=1e-12)
+
+
+def _node_step_case(seed=5, num_spheres=30, capacity=3):
+    """node_step's arguments on a deformed cylinder: spheres just inside it, some nodes pressed into them
+    (t_m/2 = 2 mm, overlaps from −1 to 2 mm), carried springs, padded candidate slots, clamped rings."""
+    from membrax.membrane import coupled
+    from membrax.spheres import integrate
+
+    mesh, position = _deformed_cylinder(seed=seed)
+    position = np.asarray(position)
+    rng = np.random.default_rng(seed)
+    num_nodes = position.shape[0]
+    pick = rng.choice(num_nodes, num_spheres, replace=False)
+    radius = rng.uniform(0.008, 0.012, num_spheres)
+    inward = position[pick] * np.array([1.0, 1.0, 0.0])
+    inward /= np.linalg.norm(inward, axis=1, keepdims=True)
+    thickness = 0.004
+    reach = radius + thickness / 2 - rng.uniform(-0.001, 0.002, num_spheres)
+    centre = position[pick] - inward * reach[:, None]
+    gap = np.linalg.norm(position[:, None, :] - centre[None], axis=2) - radius[None]
+    candidates = np.argsort(gap, axis=1)[:, :capacity].astype(np.int32)
+    candidates[::5, -1] = num_spheres  # padding
+    args = (
+        jnp.asarray(position),
+        jnp.asarray(rng.normal(0.0, 0.05, (num_nodes, 3))),
+        jnp.asarray(centre),
+        jnp.asarray(rng.normal(0.0, 0.05, (num_spheres, 3))),
+        jnp.asarray(rng.normal(0.0, 5.0, (num_spheres, 3))),
+        jnp.asarray(radius),
+        jnp.asarray(candidates),
+        jnp.asarray(rng.normal(0.0, 20.0, (3, num_nodes, capacity))),
+        1e-5,
+        MembraneContactParams.default(),
+        thickness,
+        mesh,
+        1.4e6,  # E_m
+        thickness,
+        2e4,  # p
+        membrane.LATEX_POISSON_RATIO,
+        0.7,  # f_b
+        jnp.asarray(rng.normal(0.0, 1e-18, (num_nodes, 3))),
+        jnp.asarray(rng.uniform(5e-4, 1.5e-3, num_nodes)),
+        jnp.asarray(membrane.free_node_mask(mesh)),
+        integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0)),
+    )
+    return coupled, args
+
+
+@pytest.mark.parametrize("model", ["neo_hookean", "svk"])
+def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_their_forward_bits(model):
+    """``coupled.node_step`` runs the node–sphere law, the membrane forces and the node update as one
+    reverse-mode rule whose three backward kernels add their shares of the nodes' cotangents in place.
+    Its forward must be the three compiled functions' to the bit (the same kernels), its cotangents those
+    of ``jax.vjp`` of the three JAX definitions composed, for every argument at once (float64, 1e-12 of the
+    largest entry), and all three backward kernels must be in the program."""
+    from membrax.membrane import contact
+
+    coupled, args = _node_step_case()
+    mesh = args[11]
+
+    def without_mesh(function):  # the rest geometry is not differentiated here (see the next test)
+        return lambda *a: function(*a[:11], mesh, *a[11:], model=model)
+
+    values = args[:11] + args[12:]
+    got = jax.jit(without_mesh(coupled.node_step))(*values)
+    position, velocity, *_, dt = args[:9]
+    contact_outputs = jax.jit(contact._compiled_node_sphere_forces)(*args[:11])
+    internal = jax.jit(membrane._COMPILED_NODAL_FORCES[model])(position, *args[11:17])
+    compensation, mass, free, damping = args[17:]
+    update = jax.jit(coupled._compiled_advance_nodes)(
+        internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
+    )
+    for g, w in zip(got, (*contact_outputs, *update), strict=True):
+        assert np.array_equal(np.asarray(g), np.asarray(w))
+    pullback = _check_cotangents(
+        "node_step",
+        without_mesh(coupled.node_step),
+        without_mesh(coupled._node_step_reference),
+        values,
+        seed=7,
+    )
+    program = pullback.lower(*values).as_text()
+    for target in ("membrane_nodes_backward", "membrane_forces_backward", "node_sphere_backward"):
+        assert f"membrax_{target}_f64" in program
+
+    # vmap over two moduli (the kernels run once per member, their aliases in each) equals a loop.
+    def loss(modulus):
+        changed = (*values[:11], modulus, *values[12:])
+        return sum(jnp.sum(out**2) for out in without_mesh(coupled.node_step)(*changed)[4:7])
+
+    moduli = jnp.asarray([1.4e6, 2.1e6])
+    batched = jax.jit(jax.vmap(jax.value_and_grad(loss)))(moduli)
+    for k in range(2):
+        one = jax.jit(jax.value_and_grad(loss))(moduli[k])
+        assert _relative_error(batched[0][k], one[0]) < 1e-14
+        assert _relative_error(batched[1][k], one[1]) < 1e-12
+
+
+def test_node_step_differentiated_in_the_rest_geometry_uses_the_reference_rule():
+    """Where the mesh's rest geometry is differentiated, node_step keeps all its arguments and takes the
+    JAX definitions' rule: the rest areas' cotangent against ``jax.vjp`` of the composed definitions
+    (float64, 1e-12 of the largest entry), with the positions' and moduli's beside it."""
+    coupled, args = _node_step_case(seed=6)
+    outputs = coupled.node_step(*args)
+    rng = np.random.default_rng(8)
+    cotangents = tuple(jnp.asarray(rng.normal(size=out.shape)) for out in outputs)
+
+    def pulled(function, area, position, modulus):
+        def run(a, x, e):
+            changed = (x, *args[1:11], dataclasses.replace(args[11], reference_area=a), e, *args[13:])
+            return function(*changed)
+
+        return jax.vjp(run, area, position, modulus)[1](cotangents)
+
+    reference = jax.tree_util.Partial(coupled._node_step_reference, model="neo_hookean")
+    got = jax.jit(lambda *v: pulled(coupled.node_step, *v))(args[11].reference_area, args[0], args[12])
+    want = pulled(reference, args[11].reference_area, args[0], args[12])
+    for g, w in zip(got, want, strict=True):
+        assert _relative_error(g, w) < 1e-12
+
+
+def test_node_step_cotangents_in_float32_hold_the_float64_ones():
+    """What users run: node_step's compiled rule in float32 against the float64 reference rule (the JAX
+    definitions'), every floating argument, within float32's round-off grown by the step's sums (1e-4 of
+    the largest entry; the contact law's sliding branch and the membrane's dual numbers lose a few digits)."""
+    coupled, args = _node_step_case(seed=9)
+    mesh = args[11]
+
+    def as32(value):
+        if isinstance(value, jnp.ndarray) and value.dtype == jnp.float64:
+            return value.astype(jnp.float32)
+        return value
+
+    def without_mesh(function, the_mesh):
+        return lambda *a: function(*a[:11], the_mesh, *a[11:], model="neo_hookean")
+
+    values64 = args[:11] + args[12:]
+    values32 = jax.tree.map(as32, values64)
+    mesh32 = jax.tree.map(as32, mesh)
+    outputs = without_mesh(coupled._node_step_reference, mesh)(*values64)
+    rng = np.random.default_rng(10)
+    cotangents64 = tuple(jnp.asarray(rng.normal(size=out.shape)) for out in outputs)
+    want = jax.vjp(without_mesh(coupled._node_step_reference, mesh), *values64)[1](cotangents64)
+    compiled = without_mesh(coupled.node_step, mesh32)
+    got = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](jax.tree.map(as32, cotangents64)))(*values32)
+    checked = 0
+    for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+        if jnp.dtype(w.dtype) == jax.dtypes.float0:
+            continue
+        assert g.dtype == jnp.float32 or g.ndim == 0  # Python-float arguments have weak float64 cotangents
+        assert _relative_error(np.asarray(g, np.float64), w) < 1e-4, checked
+        checked += 1
+    assert checked >= 10

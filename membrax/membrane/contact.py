@@ -378,6 +378,11 @@ def _kernel_node_sphere_forces(*args):
     )
 
 
+# node_sphere_backward's in-place updates: the springs' cotangent (argument 12) becomes the springs' (result
+# 6), and the node position's and velocity's addends (13, 14) the nodes' cotangents (results 0, 1).
+NODE_SPHERE_BACKWARD_ALIASES = {12: 6, 13: 0, 14: 1}
+
+
 def _backward_node_sphere_forces(args, perturbed, cotangents):
     """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
     del perturbed  # it covers every differentiable argument
@@ -385,6 +390,7 @@ def _backward_node_sphere_forces(args, perturbed, cotangents):
     dtype = flat[0].dtype
     *bodies, spring, scalars = flat
     shapes = tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat)
+    zeros = jnp.zeros_like(bodies[0])  # the node addends: this law's shares alone
     flat_cotangents = native.call(
         "node_sphere_backward",
         dtype,
@@ -394,6 +400,9 @@ def _backward_node_sphere_forces(args, perturbed, cotangents):
         spring,
         scalars,
         *(jnp.asarray(c, dtype) for c in cotangents),
+        zeros,
+        zeros,
+        input_output_aliases=NODE_SPHERE_BACKWARD_ALIASES,
     )
     return native.pack_cotangents(_kernel_inputs, args, flat_cotangents)
 

@@ -40,12 +40,19 @@ axial force "including forces from the membrane that are transmitted through the
 the platen") and the membrane alone pulls R − F_ring contacts: the spheres receive more than the ram
 when the membrane is in axial tension (the paper's internal σ1 above the external one, its Table 3).
 
+Reverse mode. On the CPU kernels (:mod:`membrax.native`), steps 1, 2 and 4 are one reverse-mode rule,
+:func:`node_step`: the same forward kernels, so the same numbers, and backward kernels chained so that
+each adds its share of the nodes' position and velocity cotangents to the last one's in place, where three
+separate rules left XLA to add three (n, 3) cotangents and copy them into a rollout's loop carry on every
+step. Elsewhere (other backends and dtypes, or the kernels off) the three functions run as written above.
+
 Scope: one specimen (``particles.num_members == 1``), the platens being walls 0 and 1 and no lateral
 walls; batches of specimens are the business of :mod:`membrax.sweep`. SI units: m, s, N, Pa, kg.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -57,6 +64,7 @@ import scipy.sparse.linalg
 from membrax import native, pytree
 from membrax.config import TriaxialConfig
 from membrax.errors import ErrorCode
+from membrax.membrane import contact as contact_lib
 from membrax.membrane import mesh as membrane_lib
 from membrax.membrane.contact import (
     MembraneContactParams,
@@ -92,6 +100,7 @@ __all__ = [
     "grown_candidate_capacities",
     "membrane_critical_time_step",
     "membrane_dem",
+    "node_step",
     "platen_heights",
     "platen_reaction",
 ]
@@ -339,12 +348,13 @@ def _advance_nodes_kernel(*args):
     )
 
 
-def _advance_nodes_residuals(args, outputs):
+def _advance_nodes_residuals(args, outputs, perturbed):
     """What ``membrane_nodes_backward`` reads, for reverse mode to keep (``native.with_reference``).
 
     The total force F (the first output, in place of the two forces it sums), the velocities, masses, mask
     and scalars; not the positions and compensations, which the backward kernel does not read.
     """
+    del perturbed  # the backward kernel covers every argument
     membrane_force, contact_force, position, compensation, *rest = args
     force = outputs[0]
     same = membrane_force.shape == force.shape and membrane_force.dtype == force.dtype
@@ -356,6 +366,11 @@ def _advance_nodes_residuals(args, outputs):
         absent(compensation),
         *rest,
     )
+
+
+# membrane_nodes_backward never reads the compensation's cotangent (argument 8; x' and c' share one):
+# its buffer takes the positions' cotangent (result 1), which saves XLA a copy into the loop's carry.
+NODES_BACKWARD_ALIASES = {8: 1}
 
 
 def _advance_nodes_backward(args, perturbed, cotangents):
@@ -380,6 +395,7 @@ def _advance_nodes_backward(args, perturbed, cotangents):
         args[6].astype(dtype),
         scalars,
         *(jnp.asarray(c, dtype) for c in cotangents),
+        input_output_aliases=NODES_BACKWARD_ALIASES,
     )
     # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
     flat = (force, force, position, position, velocity, mass_bar, scalars_bar)
@@ -389,6 +405,222 @@ def _advance_nodes_backward(args, perturbed, cotangents):
 _compiled_advance_nodes = native.with_reference(
     _advance_nodes_kernel, _advance_nodes_reference, _advance_nodes_backward, _advance_nodes_residuals
 )
+
+
+# Steps 1, 2 and 4 of the module docstring for every node, as one reverse-mode rule on the CPU. Run as
+# three separate rules, their backward kernels each return a cotangent of the node positions (and two of
+# the velocities), which XLA then adds in passes over the whole mesh and copies into the loop's carry;
+# chained here, each kernel adds its share in place to the one before (the kernels' addends).
+def node_step(
+    node_position,
+    node_velocity,
+    sphere_position,
+    sphere_velocity,
+    sphere_angular_velocity,
+    sphere_radius,
+    candidates,
+    spring,
+    dt,
+    contact: MembraneContactParams,
+    contact_thickness,
+    mesh: MembraneMesh,
+    modulus,
+    thickness,
+    cell_pressure,
+    poisson_ratio,
+    bending_factor,
+    compensation,
+    mass,
+    free,
+    damping: DampingParams,
+    model: str = "neo_hookean",
+):
+    """The node–sphere contacts, the membrane forces and the node update of one step, on the CPU kernels.
+
+    The same numbers as :func:`membrax.membrane.contact.node_sphere_forces` (its first argument through
+    ``contact_thickness``), :func:`membrax.membrane.mesh.nodal_forces` (at ``node_position``, ``mesh``
+    through ``bending_factor``) and :func:`advance_nodes` (those forces, ``node_position``,
+    ``compensation``, ``node_velocity``, ``mass``, ``free``, ``dt``, ``damping``), from the same kernels, so
+    the same bits. Reverse mode runs their three backward kernels one after the other, each adding its
+    share of the nodes' cotangents to the last one's in place; it gives the three functions' derivatives
+    to round-off (``tests/test_native.py``), also under ``vmap``, and falls back to the JAX definitions'
+    where the mesh's rest geometry is differentiated. For float32 and float64 where
+    :func:`membrax.native.enabled_for`.
+
+    Returns:
+      (contact node force, sphere force, sphere torque, new springs, total node force F, velocity,
+      position, compensation), as the three functions return them.
+    """
+    args = (
+        node_position,
+        node_velocity,
+        sphere_position,
+        sphere_velocity,
+        sphere_angular_velocity,
+        sphere_radius,
+        candidates,
+        spring,
+        dt,
+        contact,
+        contact_thickness,
+        mesh,
+        modulus,
+        thickness,
+        cell_pressure,
+        poisson_ratio,
+        bending_factor,
+        compensation,
+        mass,
+        free,
+        damping,
+    )
+    return _COMPILED_NODE_STEP[model](*args)
+
+
+_CONTACT_ARGUMENTS = slice(0, 11)  # node_sphere_forces' arguments among node_step's
+_MESH, _BENDING_FACTOR, _COMPENSATION = 11, 16, 17
+
+
+def _node_step_parts(args):
+    """node_step's arguments split: the contact law's, the membrane forces' (less the model), the update's."""
+    (position, velocity, *_, dt) = args[:9]
+    mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor = args[11:17]
+    compensation, mass, free, damping = args[17:]
+    membrane = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+    return args[_CONTACT_ARGUMENTS], membrane, (position, compensation, velocity, mass, free, dt, damping)
+
+
+def _node_step_reference(*args, model):
+    contact, membrane, (position, compensation, velocity, mass, free, dt, damping) = _node_step_parts(args)
+    contact_outputs = contact_lib._reference_outputs(*contact)
+    internal = membrane_lib._reference_nodal_forces(*membrane, model)
+    update = _advance_nodes_reference(
+        internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
+    )
+    return (*contact_outputs, *update)
+
+
+def _node_step_kernel(*args, model):
+    contact, membrane, (position, compensation, velocity, mass, free, dt, damping) = _node_step_parts(args)
+    contact_outputs = contact_lib._kernel_node_sphere_forces(*contact)
+    internal = membrane_lib._kernel_nodal_forces(*membrane, model)
+    update = _advance_nodes_kernel(
+        internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
+    )
+    return (*contact_outputs, *update)
+
+
+def _mesh_perturbed(perturbed):
+    return any(jax.tree.leaves(perturbed[_MESH]))
+
+
+def _node_step_residuals(args, outputs, perturbed):
+    """What reverse mode keeps: the arguments but the compensation, which no kernel reads, and F."""
+    if _mesh_perturbed(perturbed):  # the reference's rule, from all the arguments
+        return args, None
+    kept = list(args)
+    kept[_COMPENSATION] = native.Absent.like(args[_COMPENSATION])
+    return tuple(kept), outputs[4]
+
+
+def _node_step_backward(residuals, perturbed, cotangents, model):
+    """The three backward kernels, chained: node update, membrane forces, node–sphere law."""
+    args, total_force = residuals
+    if total_force is None:
+        return native.reference_vjp(functools.partial(_node_step_reference, model=model), args, cotangents)
+    args = tuple(jnp.zeros(a.shape, a.dtype) if isinstance(a, native.Absent) else a for a in args)
+    contact, membrane, update = _node_step_parts(args)
+    position = args[0]
+    dtype = position.dtype
+    (
+        node_force_bar,
+        sphere_force_bar,
+        torque_bar,
+        spring_bar,
+        total_bar,
+        velocity_bar,
+        position_bar,
+        compensation_bar,
+    ) = (jnp.asarray(c, dtype) for c in cotangents)
+    # 4. The node update (its forces stand in by F, which is all its backward kernel reads of them).
+    update_args = (total_force, jnp.zeros_like(total_force), *update)
+    *vectors, mass, scalars = _advance_nodes_inputs(*update_args)
+    rows = jax.ShapeDtypeStruct(position.shape, dtype)
+    force_bar, update_position_bar, update_velocity_bar, mass_bar, update_scalars_bar = native.call(
+        "membrane_nodes_backward",
+        dtype,
+        (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
+        vectors[0],
+        vectors[4],
+        mass,
+        update[4].astype(dtype),
+        scalars,
+        total_bar,
+        velocity_bar,
+        position_bar,
+        compensation_bar,
+        input_output_aliases=NODES_BACKWARD_ALIASES,
+    )
+    # 2. The membrane forces: J ū added to the positions' cotangent through x' = x + c + Δt v' (ū = F̄).
+    membrane_position, membrane_scalars = membrane_lib._kernel_inputs(*membrane)
+    position_sum, membrane_scalars_bar = native.call(
+        "membrane_forces_backward",
+        dtype,
+        (rows, jax.ShapeDtypeStruct(membrane_scalars.shape, dtype)),
+        membrane_position,
+        *membrane_lib._mesh_inputs(membrane[1], dtype),
+        membrane_scalars,
+        force_bar,
+        position_bar,  # the update's position cotangent (its kernel copies it): J ū is added in place
+        input_output_aliases={11: 0},
+        model=np.int64(membrane_lib.STRETCHING_MODELS.index(model)),
+        bending_derivative=np.int64(bool(perturbed[_BENDING_FACTOR])),
+    )
+    # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).
+    *bodies, contact_spring, contact_scalars = contact_lib._kernel_inputs(*contact)
+    contact_flat = native.call(
+        "node_sphere_backward",
+        dtype,
+        tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in (*bodies, contact_spring, contact_scalars)),
+        *bodies,
+        contact[6].astype(jnp.int32),
+        contact_spring,
+        contact_scalars,
+        force_bar + node_force_bar,
+        sphere_force_bar,
+        torque_bar,
+        spring_bar,
+        position_sum,
+        update_velocity_bar,
+        input_output_aliases=contact_lib.NODE_SPHERE_BACKWARD_ALIASES,
+    )
+    # The arguments' cotangents: the node position's and velocity's are whole in the contact's; the
+    # membrane's and the update's packings add the rest (the scalars; Δt is shared).
+    contact_bar = native.pack_cotangents(contact_lib._kernel_inputs, contact, contact_flat)
+    membrane_bar = native.pack_cotangents(
+        membrane_lib._kernel_inputs, membrane, (jnp.zeros_like(position), membrane_scalars_bar)
+    )
+    zeros = jnp.zeros_like(position)
+    update_bar = native.pack_cotangents(
+        _advance_nodes_inputs,
+        update_args,
+        (force_bar, force_bar, zeros, update_position_bar, zeros, mass_bar, update_scalars_bar),
+    )
+    _, _, _, compensation_grad, _, mass_grad, free_grad, dt_grad, damping_grad = update_bar
+    contact_bar = list(contact_bar)
+    contact_bar[8] = contact_bar[8] + dt_grad
+    return (*contact_bar, *membrane_bar[1:], compensation_grad, mass_grad, free_grad, damping_grad)
+
+
+_COMPILED_NODE_STEP = {
+    model: native.with_reference(
+        functools.partial(_node_step_kernel, model=model),
+        functools.partial(_node_step_reference, model=model),
+        functools.partial(_node_step_backward, model=model),
+        _node_step_residuals,
+    )
+    for model in membrane_lib.STRETCHING_MODELS
+}
 
 
 def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):
@@ -495,34 +727,69 @@ def membrane_dem(
     def step_fn(state: CoupledState, params: CoupledParams) -> CoupledState:
         spheres, nodes = state.dem, state.membrane
         mp = params.membrane
-        contact = contact_forces(state, particles, params, dt)
-        internal = membrane_lib.nodal_forces(
-            nodes.position,
-            mesh,
-            mp.modulus,
-            mp.thickness,
-            mp.cell_pressure,
-            model=stretching_model,
-            bending_factor=mp.bending_factor,
-        )
         mass = mp.thickness * mass_per_thickness
-        node_force, velocity, position, compensation = advance_nodes(
-            internal,
-            contact.node_force,
-            nodes.position,
-            nodes.position_compensation,
-            nodes.velocity,
-            mass,
-            free,
-            dt,
-            params.dem.damping,
-        )
+        if native.enabled_for(nodes.position.dtype):  # steps 1, 2 and 4 in one reverse-mode rule
+            (
+                contact_node_force,
+                sphere_force,
+                sphere_torque,
+                contact_spring,
+                node_force,
+                velocity,
+                position,
+                compensation,
+            ) = node_step(
+                nodes.position,
+                nodes.velocity,
+                spheres.position,
+                spheres.velocity,
+                spheres.angular_velocity,
+                particles.radius,
+                nodes.candidates.idx,
+                nodes.spring,
+                dt,
+                mp.contact,
+                mp.contact_thickness,
+                mesh,
+                mp.modulus,
+                mp.thickness,
+                mp.cell_pressure,
+                membrane_lib.LATEX_POISSON_RATIO,
+                mp.bending_factor,
+                nodes.position_compensation,
+                mass,
+                free,
+                params.dem.damping,
+                model=stretching_model,
+            )
+        else:
+            contact = contact_forces(state, particles, params, dt)
+            contact_node_force, sphere_force = contact.node_force, contact.sphere_force
+            sphere_torque, contact_spring = contact.sphere_torque, contact.spring
+            internal = membrane_lib.nodal_forces(
+                nodes.position,
+                mesh,
+                mp.modulus,
+                mp.thickness,
+                mp.cell_pressure,
+                model=stretching_model,
+                bending_factor=mp.bending_factor,
+            )
+            node_force, velocity, position, compensation = advance_nodes(
+                internal,
+                contact_node_force,
+                nodes.position,
+                nodes.position_compensation,
+                nodes.velocity,
+                mass,
+                free,
+                dt,
+                params.dem.damping,
+            )
         reaction = platen_reaction(node_force, mesh, nodes.position, mp.cell_pressure)
         # The ram holds the platen against the spheres and the membrane: the servo sees both.
         membrane_load = jnp.stack([-reaction[0, 2], reaction[1, 2]])[None, :]
-        spheres = dem_step(
-            spheres, params.dem, contact.sphere_force, contact.sphere_torque, wall_load=membrane_load
-        )
+        spheres = dem_step(spheres, params.dem, sphere_force, sphere_torque, wall_load=membrane_load)
 
         # Clamped rings ride on their platens (rigid vertical motion).
         platen_z = platen_heights(spheres.walls)
@@ -546,7 +813,7 @@ def membrane_dem(
 
         candidates, spring = update_candidates(
             nodes.candidates,
-            contact.spring,
+            contact_spring,
             position,
             spheres.position,
             particles.radius,
@@ -563,10 +830,10 @@ def membrane_dem(
                 spring=spring,
                 candidates=candidates,
                 node_force=node_force,
-                sphere_force=contact.sphere_force,
+                sphere_force=sphere_force,
                 platen_reaction=reaction,
                 ring_contact_force=jnp.stack(
-                    [jnp.sum(contact.node_force[ring], axis=0) for ring in (mesh.bottom_ring, mesh.top_ring)]
+                    [jnp.sum(contact_node_force[ring], axis=0) for ring in (mesh.bottom_ring, mesh.top_ring)]
                 ),
             ),
         )

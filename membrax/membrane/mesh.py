@@ -56,6 +56,7 @@ __all__ = [
     "pressure_energy",
     "total_energy",
     "nodal_forces",
+    "LATEX_POISSON_RATIO",
     "lumped_mass",
     "free_node_mask",
 ]
@@ -815,13 +816,17 @@ def total_energy(
     )
 
 
+#: ν of latex, the default of :func:`nodal_forces` (an incompressible rubber).
+LATEX_POISSON_RATIO = 0.5
+
+
 def nodal_forces(
     position,
     mesh: MembraneMesh,
     modulus,
     thickness,
     cell_pressure,
-    poisson_ratio=0.5,
+    poisson_ratio=LATEX_POISSON_RATIO,
     model="neo_hookean",
     bending_factor=1.0,
 ):
@@ -919,6 +924,8 @@ def _backward_nodal_forces(args, perturbed, cotangent, model):
         *_mesh_inputs(mesh, dtype),
         scalars,
         cotangent.astype(dtype),
+        jnp.zeros_like(position),  # the addend: J ū alone
+        input_output_aliases={11: 0},
         model=np.int64(STRETCHING_MODELS.index(model)),
         # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
         bending_derivative=np.int64(bool(perturbed[6])),

@@ -27,10 +27,12 @@ the JAX formulas spread over hundreds of small fusions per step and made reverse
 50–60× the forward pass at paper size (``benchmarks/bench_gradients.py``). The JAX formulas' derivatives
 remain the definition: the tests hold each backward kernel to ``jax.vjp`` of the JAX code to round-off,
 and that derivative is used on other backends and for arguments a backward kernel does not cover (the
-membrane mesh's rest geometry). XLA runs the reverse pass's kernels one after another, so the membrane,
-node–sphere and pair backward kernels split their element loops in two fixed halves, the second offered
-to XLA's intra-op thread pool (``parallel.h``); each half sums its own elements in order, so the result
-does not depend on which thread ran it.
+membrane mesh's rest geometry). Where several kernels read the same array, their backward kernels take
+an addend, the cotangent so far, which ``input_output_aliases`` (:func:`call`) lets them update in place
+(:func:`membrax.membrane.coupled.node_step`). XLA runs the reverse pass's kernels one after another, so
+the membrane, node–sphere and pair backward kernels split their element loops in two fixed halves, the
+second offered to XLA's intra-op thread pool (``parallel.h``); each half sums its own elements in order,
+so the result does not depend on which thread ran it.
 
 Threads. The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are
 asynchronous FFI handlers: each checks its arguments, runs its loop as a task on XLA's intra-op thread
@@ -65,6 +67,7 @@ __all__ = [
     "call",
     "enabled_for",
     "pack_cotangents",
+    "reference_vjp",
     "with_reference",
 ]
 
@@ -178,16 +181,23 @@ def enabled_for(dtype) -> bool:
     return jnp.dtype(dtype) in (jnp.float32, jnp.float64) and available()
 
 
-def call(name: str, dtype, results, *args, **attributes):
+def call(name: str, dtype, results, *args, input_output_aliases=None, **attributes):
     """Call the kernel ``name`` (``membrax_<name>_f32`` or ``_f64`` after ``dtype``) on ``args``.
 
     ``results`` is one ``jax.ShapeDtypeStruct`` or a tuple of them; ``attributes`` are the handler's static
-    attributes (numpy scalars). Under ``vmap`` the kernel runs once per batch member.
+    attributes (numpy scalars). ``input_output_aliases`` ({argument index: result index}) gives a result
+    its argument's buffer, for a kernel that updates that argument in place (XLA copies the argument first
+    if anything else still reads it). Under ``vmap`` the kernel runs once per batch member.
     """
     if not available():  # registers the targets on first use
         raise RuntimeError("the membrax CPU kernels are not available (see membrax.native.available)")
     suffix = "f32" if jnp.dtype(dtype) == jnp.float32 else "f64"
-    function = jax.ffi.ffi_call(f"membrax_{name}_{suffix}", results, vmap_method="sequential")
+    function = jax.ffi.ffi_call(
+        f"membrax_{name}_{suffix}",
+        results,
+        vmap_method="sequential",
+        input_output_aliases=input_output_aliases,
+    )
     return function(*args, **attributes)
 
 
@@ -226,10 +236,12 @@ def with_reference(kernel, reference, backward=None, keep=None):
     does not cover a perturbed argument, and then the reference's derivative is used. The tests hold it
     to the reference's ``jax.vjp``.
 
-    ``keep(args, outputs)``, when given with ``backward``, says what reverse mode keeps on the CPU: the
-    arguments as ``backward`` will receive them, those it does not read replaced by :class:`Absent` or by
-    an output that carries what it needs. Through a checkpointed rollout every kept array is stored once per
-    step, so this is memory traffic saved. ``backward`` must then cover every argument (never None).
+    ``keep(args, outputs, perturbed)``, when given with ``backward``, says what reverse mode keeps on the
+    CPU: the arguments as ``backward`` will receive them (any pytree), those it does not read replaced by
+    :class:`Absent` or by an output that carries what it needs. Through a checkpointed rollout every kept
+    array is stored once per step, so this is memory traffic saved. ``backward`` must then cover every
+    argument (never None); where it needs the reference's rule for some ``perturbed``, ``keep`` keeps all
+    the arguments for it and ``backward`` calls :func:`reference_vjp` itself.
     """
 
     @jax.custom_vjp
@@ -237,8 +249,7 @@ def with_reference(kernel, reference, backward=None, keep=None):
         return jax.lax.platform_dependent(*args, cpu=kernel, default=reference)
 
     def reference_backward(args, cotangents):
-        _, pullback = jax.vjp(reference, *args)
-        return pullback(cotangents)
+        return reference_vjp(reference, args, cotangents)
 
     if backward is None:
 
@@ -257,7 +268,7 @@ def with_reference(kernel, reference, backward=None, keep=None):
         flat, structure = jax.tree.flatten(perturbed)
         outputs = compiled(*args)
         if keep is not None and jax.default_backend() == "cpu":
-            args = keep(args, outputs)
+            args = keep(args, outputs, perturbed)
         return outputs, (args, _Perturbed((tuple(flat), structure)))
 
     def backward_marked(residuals, cotangents):
@@ -279,6 +290,12 @@ def with_reference(kernel, reference, backward=None, keep=None):
 
     compiled.defvjp(forward_marked, backward_marked, symbolic_zeros=True)
     return compiled
+
+
+def reference_vjp(reference, args, cotangents):
+    """The cotangents of ``args`` from those of ``reference(*args)``'s outputs, by ``jax.vjp``."""
+    _, pullback = jax.vjp(reference, *args)
+    return pullback(cotangents)
 
 
 def pack_cotangents(pack, args, flat_cotangents):

@@ -535,16 +535,19 @@ void cap_tangents(const T* x, const T* u, const int32_t* ring, int64_t count, bo
   sums->pressure += work_unit;
 }
 
-// Inputs: those of membrane_forces, then the forces' cotangent ū (N, 3). Attributes: model, and
-// bending_derivative (1: ū·∂F/∂f_b is wanted, so the hinges run even at f_b = 0).
-// Outputs: the position's cotangent J ū (N, 3) and the scalars' (5,): ū·∂F/∂(E_m, t_m, p, ν, f_b).
+// Inputs: those of membrane_forces, then the forces' cotangent ū (N, 3) and an addend a (N, 3).
+// Attributes: model, and bending_derivative (1: ū·∂F/∂f_b is wanted, so the hinges run even at f_b = 0).
+// Outputs: the position's cotangent a + J ū (N, 3) and the scalars' (5,): ū·∂F/∂(E_m, t_m, p, ν, f_b).
+// The addend is the positions' cotangent from the rest of the step: the caller may alias it to the
+// first output (XLA's input_output_aliases), and then J ū is added in place, with no separate sum.
 template <ffi::DataType dtype>
 ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> corner_index,
                                     ffi::Buffer<dtype> inverse, ffi::Buffer<dtype> area,
                                     ffi::Buffer<ffi::S32> hinge_index, ffi::Buffer<dtype> edge_weight,
                                     ffi::Buffer<dtype> rest_dihedral, ffi::Buffer<ffi::S32> bottom_ring,
                                     ffi::Buffer<ffi::S32> top_ring, ffi::Buffer<dtype> scalars,
-                                    ffi::Buffer<dtype> cotangent, ffi::ThreadPool pool, int64_t model,
+                                    ffi::Buffer<dtype> cotangent, ffi::Buffer<dtype> addend,
+                                    ffi::ThreadPool pool, int64_t model,
                                     int64_t bending_derivative, ffi::ResultBuffer<dtype> position_cotangent,
                                     ffi::ResultBuffer<dtype> scalars_cotangent) {
   using T = ffi::NativeType<dtype>;
@@ -552,7 +555,8 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   const int64_t num_triangles = area.element_count();
   const int64_t num_hinges = edge_weight.element_count();
   if (!consistent_sizes(position, corner_index, inverse, area, hinge_index, edge_weight, rest_dihedral, scalars) ||
-      cotangent.element_count() != position.element_count()) {
+      cotangent.element_count() != position.element_count() ||
+      addend.element_count() != position.element_count()) {
     return ffi::Error::InvalidArgument("membrane_forces_backward: inconsistent array sizes");
   }
   const T* x = position.typed_data();
@@ -560,7 +564,8 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   const T* s = scalars.typed_data();
   const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4];
   T* tangent = position_cotangent->typed_data();
-  std::fill(tangent, tangent + 3 * num_nodes, T(0));
+  const T* start = addend.typed_data();
+  if (start != tangent) std::copy(start, start + 3 * num_nodes, tangent);  // else aliased: add in place
   ScalarSums<T> sums;
 
   const int64_t most = std::max(num_triangles, num_hinges);
@@ -645,6 +650,7 @@ MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF64, ffi::F64)
                                     .Arg<ffi::Buffer<dtype>>()                 \
                                     .Arg<ffi::Buffer<ffi::S32>>()              \
                                     .Arg<ffi::Buffer<ffi::S32>>()              \
+                                    .Arg<ffi::Buffer<dtype>>()                 \
                                     .Arg<ffi::Buffer<dtype>>()                 \
                                     .Arg<ffi::Buffer<dtype>>()                 \
                                     .Ctx<ffi::ThreadPool>()                    \

@@ -123,7 +123,8 @@ void advance_backward(const T* __restrict total_force, const T* __restrict veloc
 // keeps instead of the two forces and the positions, which this kernel does not read), velocity (n, 3),
 // mass (n,), free (n,), scalars (3,); then the cotangents of the four outputs (n, 3).
 // Outputs: the cotangents of the (membrane and contact) force, position and compensation (all three
-// equal to the summed ones), velocity (n, 3), mass (n,) and scalars (3,) = Δt, α, γ.
+// equal to the summed ones), velocity (n, 3), mass (n,) and scalars (3,) = Δt, α, γ. The compensation's
+// cotangent is never read (x' and c' share the position's), so a caller may alias its buffer to an output.
 template <ffi::DataType dtype>
 ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> total_force, ffi::Buffer<dtype> velocity,
                                    ffi::Buffer<dtype> mass, ffi::Buffer<dtype> free, ffi::Buffer<dtype> scalars,

@@ -242,9 +242,13 @@ __attribute__((noinline)) void slot_laws_backward(const T* __restrict in, int64_
 }
 
 // Inputs: those of node_sphere_forces, then the cotangents of its outputs: node force (n, 3), sphere
-// force and torque (N, 3), springs (3, n, K). Outputs: the cotangents of node position and velocity
-// (n, 3), sphere position, velocity and angular velocity (N, 3), radius (N,), springs (3, n, K) and
-// scalars (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero outputs whatever their inputs.
+// force and torque (N, 3), springs (3, n, K); then two addends (n, 3) for the node position's and
+// velocity's cotangents. Outputs: the cotangents of node position and velocity (n, 3), each its addend
+// plus this law's share, sphere position, velocity and angular velocity (N, 3), radius (N,), springs
+// (3, n, K) and scalars (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero outputs whatever
+// their inputs. A caller may alias the two addends to the first two outputs and the springs' cotangent
+// to the springs' output (XLA's input_output_aliases): the shares are then added and the springs
+// written in place (a slot's spring cotangent is read in pass 1, before anything is written).
 // Passes: which slots touch (vectorised), their inputs gathered (serial), their laws run backwards
 // (vectorised), their shares summed per node and sphere in slot order (serial).
 template <ffi::DataType dtype>
@@ -254,6 +258,7 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
                                 ffi::Buffer<ffi::S32> idx, ffi::Buffer<dtype> spring, ffi::Buffer<dtype> scalars,
                                 ffi::Buffer<dtype> node_force_bar, ffi::Buffer<dtype> sphere_force_bar,
                                 ffi::Buffer<dtype> sphere_torque_bar, ffi::Buffer<dtype> spring_bar,
+                                ffi::Buffer<dtype> node_position_addend, ffi::Buffer<dtype> node_velocity_addend,
                                 ffi::ResultBuffer<dtype> node_position_out,
                                 ffi::ResultBuffer<dtype> node_velocity_out,
                                 ffi::ResultBuffer<dtype> sphere_position_out,
@@ -269,6 +274,8 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
       spring.element_count() != size_t(3 * num_nodes * dims[1]) ||
       spring_bar.element_count() != spring.element_count() ||
       node_force_bar.element_count() != size_t(3 * num_nodes) ||
+      node_position_addend.element_count() != size_t(3 * num_nodes) ||
+      node_velocity_addend.element_count() != size_t(3 * num_nodes) ||
       sphere_force_bar.element_count() != size_t(3 * num_spheres) ||
       sphere_torque_bar.element_count() != size_t(3 * num_spheres) ||
       sphere_position.element_count() != size_t(3 * num_spheres)) {
@@ -299,13 +306,15 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   T* r_out = radius_out->typed_data();
   T* s_out = spring_out->typed_data();
   T* scalar_out = scalars_out->typed_data();
-  std::fill(x_out, x_out + 3 * num_nodes, T(0));
-  std::fill(v_out, v_out + 3 * num_nodes, T(0));
+  // The addends start the node sums (nothing to do where they are aliased to the outputs).
+  const T* x_addend = node_position_addend.typed_data();
+  const T* v_addend = node_velocity_addend.typed_data();
+  if (x_addend != x_out) std::copy(x_addend, x_addend + 3 * num_nodes, x_out);
+  if (v_addend != v_out) std::copy(v_addend, v_addend + 3 * num_nodes, v_out);
   std::fill(xs_out, xs_out + 3 * num_spheres, T(0));
   std::fill(vs_out, vs_out + 3 * num_spheres, T(0));
   std::fill(ws_out, ws_out + 3 * num_spheres, T(0));
   std::fill(r_out, r_out + num_spheres, T(0));
-  std::fill(s_out, s_out + 3 * m, T(0));
   std::fill(scalar_out, scalar_out + 5, T(0));
 
   thread_local std::vector<uint8_t> touching;
@@ -354,6 +363,12 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
     slot_laws_backward<T>(in, count, begin, end, dt, normal_stiffness, tangential_stiffness, friction,
                           share);
   });
+  // Every spring cotangent is read (pass 1): zero the slots that do not touch; pass 3 writes the others.
+  for (int c = 0; c < 3; ++c) {
+    T* s_row = s_out + c * m;
+    for (int64_t j = 0; j < m; ++j)
+      if (!touches[j]) s_row[j] = T(0);
+  }
   // Pass 3, in slot order: the shares to the nodes, the spheres and the scalars.
   for (int64_t t = 0; t < count; ++t) {
     const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
@@ -410,6 +425,8 @@ MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF64, ffi::F64)
                                     .Arg<ffi::Buffer<dtype>>()            \
                                     .Arg<ffi::Buffer<dtype>>()            \
                                     .Arg<ffi::Buffer<ffi::S32>>()         \
+                                    .Arg<ffi::Buffer<dtype>>()            \
+                                    .Arg<ffi::Buffer<dtype>>()            \
                                     .Arg<ffi::Buffer<dtype>>()            \
                                     .Arg<ffi::Buffer<dtype>>()            \
                                     .Arg<ffi::Buffer<dtype>>()            \
