@@ -542,7 +542,7 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
         position_bar,
         compensation_bar,
     ) = (jnp.asarray(c, dtype) for c in cotangents)
-    # 4. The node update (its forces stand in by F, which is all its backward kernel reads of them).
+    # 4. The node update: F stands in for its two forces (its backward kernel reads only their sum).
     update_args = (total_force, jnp.zeros_like(total_force), *update)
     *vectors, mass, scalars = _advance_nodes_inputs(*update_args)
     rows = jax.ShapeDtypeStruct(position.shape, dtype)
@@ -596,11 +596,11 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     )
     # The arguments' cotangents: the node position's and velocity's are whole in the contact's; the
     # membrane's and the update's packings add the rest (the scalars; Δt is shared).
+    zeros = jnp.zeros_like(position)
     contact_bar = native.pack_cotangents(contact_lib._kernel_inputs, contact, contact_flat)
     membrane_bar = native.pack_cotangents(
-        membrane_lib._kernel_inputs, membrane, (jnp.zeros_like(position), membrane_scalars_bar)
+        membrane_lib._kernel_inputs, membrane, (zeros, membrane_scalars_bar)
     )
-    zeros = jnp.zeros_like(position)
     update_bar = native.pack_cotangents(
         _advance_nodes_inputs,
         update_args,
