@@ -378,33 +378,37 @@ def _kernel_node_sphere_forces(*args):
     )
 
 
-# node_sphere_backward's in-place updates: the springs' cotangent (argument 12) becomes the springs' (result
-# 6), and the node position's and velocity's addends (13, 14) the nodes' cotangents (results 0, 1).
-NODE_SPHERE_BACKWARD_ALIASES = {12: 6, 13: 0, 14: 1}
-
-
 def _backward_node_sphere_forces(args, perturbed, cotangents):
     """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
     del perturbed  # it covers every differentiable argument
+    zeros = jnp.zeros_like(args[0])  # the node addends: this law's shares alone
+    flat_cotangents = _backward_kernel(args, cotangents, zeros, jnp.zeros_like(args[0]))
+    return native.pack_cotangents(_kernel_inputs, args, flat_cotangents)
+
+
+def _backward_kernel(args, cotangents, position_addend, velocity_addend):
+    """``node_sphere_backward`` on :func:`node_sphere_forces`' arguments: its flat cotangents.
+
+    The node position's and velocity's are the addends plus this law's shares, in the addends' buffers,
+    and the springs' is written over the springs' cotangent (``cotangents[3]``): in-place updates
+    (``input_output_aliases``: arguments 13, 14 and 12 to results 0, 1 and 6).
+    """
     flat = _kernel_inputs(*args)
     dtype = flat[0].dtype
     *bodies, spring, scalars = flat
-    shapes = tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat)
-    zeros = jnp.zeros_like(bodies[0])  # the node addends: this law's shares alone
-    flat_cotangents = native.call(
+    return native.call(
         "node_sphere_backward",
         dtype,
-        shapes,
+        tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat),
         *bodies,
         args[6].astype(jnp.int32),
         spring,
         scalars,
         *(jnp.asarray(c, dtype) for c in cotangents),
-        zeros,
-        zeros,
-        input_output_aliases=NODE_SPHERE_BACKWARD_ALIASES,
+        position_addend.astype(dtype),
+        velocity_addend.astype(dtype),
+        input_output_aliases={12: 6, 13: 0, 14: 1},
     )
-    return native.pack_cotangents(_kernel_inputs, args, flat_cotangents)
 
 
 def _reference_outputs(*args):

@@ -368,11 +368,6 @@ def _advance_nodes_residuals(args, outputs, perturbed):
     )
 
 
-# membrane_nodes_backward never reads the compensation's cotangent (argument 8; x' and c' share one):
-# its buffer takes the positions' cotangent (result 1), which saves XLA a copy into the loop's carry.
-NODES_BACKWARD_ALIASES = {8: 1}
-
-
 def _advance_nodes_backward(args, perturbed, cotangents):
     """The compiled reverse-mode rule (``membrane_nodes_backward``), from the residuals above.
 
@@ -382,24 +377,36 @@ def _advance_nodes_backward(args, perturbed, cotangents):
     total_kept = isinstance(args[1], native.Absent)  # the first slot then holds F itself
     # Zeros stand in for what was not kept: only their shapes and dtypes reach the cotangents' packing.
     args = tuple(jnp.zeros(a.shape, a.dtype) if isinstance(a, native.Absent) else a for a in args)
+    force, position, velocity, mass_bar, scalars_bar = _advance_nodes_backward_kernel(
+        args, cotangents, total_kept
+    )
+    # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
+    flat = (force, force, position, position, velocity, mass_bar, scalars_bar)
+    return native.pack_cotangents(_advance_nodes_inputs, args, flat)
+
+
+def _advance_nodes_backward_kernel(args, cotangents, total_kept):
+    """``membrane_nodes_backward`` on :func:`advance_nodes`' arguments: (F̄, x̄, v̄, m̄, (Δt, α, γ)̄).
+
+    ``total_kept``: the first argument is F itself (else the two forces, summed here as the forward kernel
+    sums them). The kernel never reads the compensation's cotangent (x' and c' share the position's), so
+    its buffer takes the positions' cotangent (argument 8 to result 1), a copy into a loop's carry saved.
+    """
     *vectors, mass, scalars = _advance_nodes_inputs(*args)
     dtype = mass.dtype
     rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
-    force, position, velocity, mass_bar, scalars_bar = native.call(
+    return native.call(
         "membrane_nodes_backward",
         dtype,
         (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
-        vectors[0] if total_kept else vectors[0] + vectors[1],  # F, summed as the forward kernel sums it
+        vectors[0] if total_kept else vectors[0] + vectors[1],
         vectors[4],
         mass,
         args[6].astype(dtype),
         scalars,
         *(jnp.asarray(c, dtype) for c in cotangents),
-        input_output_aliases=NODES_BACKWARD_ALIASES,
+        input_output_aliases={8: 1},
     )
-    # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
-    flat = (force, force, position, position, velocity, mass_bar, scalars_bar)
-    return native.pack_cotangents(_advance_nodes_inputs, args, flat)
 
 
 _compiled_advance_nodes = native.with_reference(
@@ -544,55 +551,22 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     ) = (jnp.asarray(c, dtype) for c in cotangents)
     # 4. The node update: F stands in for its two forces (its backward kernel reads only their sum).
     update_args = (total_force, jnp.zeros_like(total_force), *update)
-    *vectors, mass, scalars = _advance_nodes_inputs(*update_args)
-    rows = jax.ShapeDtypeStruct(position.shape, dtype)
-    force_bar, update_position_bar, update_velocity_bar, mass_bar, update_scalars_bar = native.call(
-        "membrane_nodes_backward",
-        dtype,
-        (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
-        vectors[0],
-        vectors[4],
-        mass,
-        update[4].astype(dtype),
-        scalars,
-        total_bar,
-        velocity_bar,
-        position_bar,
-        compensation_bar,
-        input_output_aliases=NODES_BACKWARD_ALIASES,
+    force_bar, update_position_bar, update_velocity_bar, mass_bar, update_scalars_bar = (
+        _advance_nodes_backward_kernel(
+            update_args, (total_bar, velocity_bar, position_bar, compensation_bar), total_kept=True
+        )
     )
-    # 2. The membrane forces: J ū added to the positions' cotangent through x' = x + c + Δt v' (ū = F̄).
-    membrane_position, membrane_scalars = membrane_lib._kernel_inputs(*membrane)
-    position_sum, membrane_scalars_bar = native.call(
-        "membrane_forces_backward",
-        dtype,
-        (rows, jax.ShapeDtypeStruct(membrane_scalars.shape, dtype)),
-        membrane_position,
-        *membrane_lib._mesh_inputs(membrane[1], dtype),
-        membrane_scalars,
-        force_bar,
-        position_bar,  # the update's position cotangent (its kernel copies it): J ū is added in place
-        input_output_aliases={11: 0},
-        model=np.int64(membrane_lib.STRETCHING_MODELS.index(model)),
-        bending_derivative=np.int64(bool(perturbed[_BENDING_FACTOR])),
+    # 2. The membrane forces: J ū added in place to the update's position cotangent (ū = F̄; the update's
+    # kernel copied it to update_position_bar, the compensation's).
+    position_sum, membrane_scalars_bar = membrane_lib._backward_kernel(
+        membrane, force_bar, position_bar, bool(perturbed[_BENDING_FACTOR]), model
     )
     # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).
-    *bodies, contact_spring, contact_scalars = contact_lib._kernel_inputs(*contact)
-    contact_flat = native.call(
-        "node_sphere_backward",
-        dtype,
-        tuple(jax.ShapeDtypeStruct(a.shape, dtype) for a in (*bodies, contact_spring, contact_scalars)),
-        *bodies,
-        contact[6].astype(jnp.int32),
-        contact_spring,
-        contact_scalars,
-        force_bar + node_force_bar,
-        sphere_force_bar,
-        torque_bar,
-        spring_bar,
+    contact_flat = contact_lib._backward_kernel(
+        contact,
+        (force_bar + node_force_bar, sphere_force_bar, torque_bar, spring_bar),
         position_sum,
         update_velocity_bar,
-        input_output_aliases=contact_lib.NODE_SPHERE_BACKWARD_ALIASES,
     )
     # The arguments' cotangents: the node position's and velocity's are whole in the contact's; the
     # membrane's and the update's packings add the rest (the scalars; Δt is shared).

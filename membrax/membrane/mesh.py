@@ -911,26 +911,34 @@ def _backward_nodal_forces(args, perturbed, cotangent, model):
     J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
     (the reference's rule) when the mesh's rest geometry is differentiated.
     """
-    mesh = args[1]
     if any(jax.tree.leaves(perturbed[1])):
         return None
+    # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
+    flat = _backward_kernel(args, cotangent, jnp.zeros_like(args[0]), bool(perturbed[6]), model)
+    return native.pack_cotangents(_kernel_inputs, args, flat)
+
+
+def _backward_kernel(args, cotangent, addend, bending_derivative, model):
+    """``membrane_forces_backward`` on :func:`nodal_forces`' arguments (``args``, less the model).
+
+    Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b)) for ū = ``cotangent``; the first in the addend's
+    buffer (aliased), so a caller that passes the positions' cotangent so far has it updated in place.
+    """
     position, scalars = _kernel_inputs(*args)
     dtype = position.dtype
-    flat = native.call(
+    return native.call(
         "membrane_forces_backward",
         dtype,
         (jax.ShapeDtypeStruct(position.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
         position,
-        *_mesh_inputs(mesh, dtype),
+        *_mesh_inputs(args[1], dtype),
         scalars,
         cotangent.astype(dtype),
-        jnp.zeros_like(position),  # the addend: J ū alone
+        addend.astype(dtype),
         input_output_aliases={11: 0},
         model=np.int64(STRETCHING_MODELS.index(model)),
-        # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
-        bending_derivative=np.int64(bool(perturbed[6])),
+        bending_derivative=np.int64(bending_derivative),
     )
-    return native.pack_cotangents(_kernel_inputs, args, flat)
 
 
 _COMPILED_NODAL_FORCES = {
