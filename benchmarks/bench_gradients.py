@@ -10,9 +10,8 @@ of two stages (``--stage``):
 
 - ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps;
 - ``reverse``: (y, dy/dθ) by ``jax.value_and_grad`` of the same scan, each window wrapped in
-  ``jax.checkpoint`` and its loop unrolled by ``membrax.gradients.WINDOW_UNROLL``, as ``membrax.gradients``
-  runs them, so reverse mode stores N/W window-start states and recomputes one window's steps at a time
-  (θ = E_m and σc);
+  ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
+  at a time (θ = E_m and σc);
 
 each in its own process, once per dtype, printing compile time, run time (best of 3), peak RSS and the
 ratios reverse/forward. The issue's goals at paper size: memory ≤ 2×, time ≤ 4×.
@@ -52,7 +51,6 @@ def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str
     import jax.numpy as jnp
 
     from membrax.config import TriaxialConfig
-    from membrax.gradients import WINDOW_UNROLL
     from membrax.sensitivities import apply_parameters
     from membrax.stages import build_test
 
@@ -77,14 +75,8 @@ def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str
         def body(s, _):
             return jax.lax.fori_loop(0, window, lambda i, x: step(x, params), s), None
 
-        if checkpointed:  # the windows as membrax.gradients runs them
-
-            @jax.checkpoint
-            def body(s, _):
-                return jax.lax.fori_loop(
-                    0, window, lambda i, x: step(x, params), s, unroll=WINDOW_UNROLL
-                ), None
-
+        if checkpointed:
+            body = jax.checkpoint(body)
         final, _ = jax.lax.scan(body, start, None, length=steps // window)
         return record(final, params).internal_axial_stress[0]
 

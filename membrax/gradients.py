@@ -58,12 +58,6 @@ from membrax.stages import GEOMETRY_FIELDS, BatchedTest, build_batch
 
 __all__ = ["Rollout", "consolidation_rollout", "rollout_differences", "rollout_jacobian", "shearing_rollout"]
 
-# Steps per iteration of a checkpointed window's inner loop (``fori_loop``'s ``unroll``), for the recomputed
-# and the transposed steps alike. Two steps per iteration: bench_gradients' 500-step rollout (paper,
-# float32) took 1.94-2.00 s in reverse against 2.07-2.09 s with one, the same gradient (README, "Cost").
-# The forward runs are not unrolled (the simulator's loop is not: its gain was not stable across runs).
-WINDOW_UNROLL = 2
-
 
 @dataclasses.dataclass
 class Rollout:
@@ -113,9 +107,7 @@ class Rollout:
 
         @jax.checkpoint
         def window(s, _):
-            return jax.lax.fori_loop(
-                0, self.window, lambda _, x: step(x, params), s, unroll=WINDOW_UNROLL
-            ), None
+            return jax.lax.fori_loop(0, self.window, lambda _, x: step(x, params), s), None
 
         final, _ = jax.lax.scan(window, state, None, length=self.steps // self.window)
         reference = None
