@@ -381,8 +381,9 @@ def _kernel_node_sphere_forces(*args):
 def _backward_node_sphere_forces(args, perturbed, cotangents):
     """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
     del perturbed  # it covers every differentiable argument
-    zeros = jnp.zeros_like(args[0])  # the node addends: this law's shares alone
-    flat_cotangents = _backward_kernel(args, cotangents, zeros, jnp.zeros_like(args[0]))
+    # The node addends are zero (this law's shares alone), two buffers: each is written in place.
+    position_addend, velocity_addend = jnp.zeros_like(args[0]), jnp.zeros_like(args[0])
+    flat_cotangents = _backward_kernel(args, cotangents, position_addend, velocity_addend)
     return native.pack_cotangents(_kernel_inputs, args, flat_cotangents)
 
 
