@@ -862,6 +862,21 @@ def grow_candidates(
     return state.set(membrane=nodes.set(candidates=new, spring=spring))
 
 
+@functools.partial(jax.jit, static_argnames="model")
+def _stiffness_product(vector, position, mesh, modulus, thickness, cell_pressure, bending_factor, model):
+    """K v, K = ∇²(W_stretch + W_bend + p V) at ``position``, by reverse over reverse mode.
+
+    Jitted once per mesh size, not once per mesh: the mesh and parameters are arguments, not constants.
+    """
+
+    def energy(x):
+        return membrane_lib.total_energy(
+            x, mesh, modulus, thickness, cell_pressure, model=model, bending_factor=bending_factor
+        )
+
+    return jax.grad(lambda x: jnp.vdot(jax.grad(energy)(x), vector))(position)
+
+
 def membrane_critical_time_step(
     mesh: MembraneMesh,
     params: MembraneParams,
@@ -883,24 +898,13 @@ def membrane_critical_time_step(
     mass = np.asarray(membrane_lib.lumped_mass(mesh, params.thickness, latex_density), dtype=float)
     free = membrane_lib.free_node_mask(mesh)
 
-    def energy(x):
-        return membrane_lib.total_energy(
-            x,
-            mesh,
-            params.modulus,
-            params.thickness,
-            params.cell_pressure,
-            model=stretching_model,
-            bending_factor=params.bending_factor,
-        )
-
-    hvp = jax.jit(lambda v: jax.grad(lambda x: jnp.vdot(jax.grad(energy)(x), v))(position))
     scale = np.repeat(1.0 / np.sqrt(mass), 3) * np.repeat(free, 3)  # M^-1/2, clamped rows removed
+    stiffness = (params.modulus, params.thickness, params.cell_pressure, params.bending_factor)
 
     def matvec(vector):
-        vector = np.asarray(vector).ravel() * scale
-        product = np.asarray(hvp(jnp.asarray(vector.reshape(-1, 3), dtype=position.dtype))).ravel()
-        return product * scale
+        vector = jnp.asarray((np.asarray(vector).ravel() * scale).reshape(-1, 3), dtype=position.dtype)
+        product = _stiffness_product(vector, position, mesh, *stiffness, model=stretching_model)
+        return np.asarray(product).ravel() * scale
 
     size = 3 * mesh.num_nodes
     operator = scipy.sparse.linalg.LinearOperator((size, size), matvec=matvec, dtype=float)
