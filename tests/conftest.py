@@ -46,3 +46,36 @@ def precision(request):
     from ``helpers.tolerance(precision)``."""
     with jax.enable_x64(request.param == "float64"):
         yield np.dtype(request.param)
+
+
+#: The files that take longest on 2 cores (``--durations``, 2026-11-26: the gradient notebook 214 s, the
+#: gradient, sweep, run and loading tests 2–4 min each), handed out first. ``--dist loadfile`` gives each
+#: worker the next file in the queue when it runs low, and xdist's default queue puts the files with most
+#: tests first, so the one-item notebooks came last: a worker was still running the 3.5-min gradient
+#: notebook while the other had finished (wall 17 min 55 s against 30 min 48 s of CPU on 2 workers).
+LONG_FIRST = (
+    "notebooks/04_gradients.ipynb",
+    "tests/test_gradients.py",
+    "tests/test_sweep.py",
+    "tests/test_run.py",
+    "tests/test_loading.py",
+    "notebooks/02_reproduce_paper.ipynb",
+    "tests/test_sensitivity.py",
+    "tests/test_correct.py",
+    "tests/test_membrane_dem.py",
+    "tests/test_dem.py",
+    "notebooks/01_quickstart.ipynb",
+    "notebooks/03_parameter_study.ipynb",
+)
+
+
+def pytest_configure(config):
+    """Keep the collection order below for xdist's queue (its reorder by test count would undo it)."""
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    """The files of :data:`LONG_FIRST` first, in that order; the rest after, in their own order (stable)."""
+    rank = {path: k for k, path in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(LONG_FIRST)))
