@@ -48,16 +48,21 @@ def precision(request):
         yield np.dtype(request.param)
 
 
-#: The files that take longest on 2 cores (``--durations``, 2026-11-26: the gradient notebook 214 s, the
+#: The files that take longest on 2 cores (``--durations``, 2026-11-26: the gradient notebook 214–327 s, the
 #: gradient, sweep, run and loading tests 2–4 min each), handed out first. ``--dist loadfile`` gives each
 #: worker the next file in the queue when it runs low, and xdist's default queue puts the files with most
 #: tests first, so the one-item notebooks came last: a worker was still running the 3.5-min gradient
 #: notebook while the other had finished (wall 17 min 55 s against 30 min 48 s of CPU on 2 workers; in this
 #: order 15 min 48 s against 29 min 7 s).
+#: xdist hands each worker one file and then a second (``LoadScopeScheduling.schedule``), so the third
+#: file, the gradient notebook, queues behind the gradient tests on the first worker: it runs their rollout
+#: and inverse problem at the same sizes (on purpose) and, run after them, reads those programs from the
+#: persistent cache instead of compiling them beside them (alone: 5 min 38 s with a cold cache, 4 min 3 s
+#: after the tests).
 LONG_FIRST = (
-    "notebooks/04_gradients.ipynb",
     "tests/test_gradients.py",
     "tests/test_sweep.py",
+    "notebooks/04_gradients.ipynb",
     "tests/test_run.py",
     "tests/test_loading.py",
     "notebooks/02_reproduce_paper.ipynb",
