@@ -13,8 +13,9 @@ of two stages (``--stage``):
   ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
   at a time (θ = E_m and σc);
 
-each in its own process, once per dtype, printing compile time, run time (best of 3), peak RSS and the
-ratios reverse/forward. The issue's goals at paper size: memory ≤ 2×, time ≤ 4×.
+each in its own process, once per dtype, printing compile time, run time (best of 3), peak RSS, on an
+accelerator its own peak memory (``memory_stats``), and the ratios reverse/forward. The issue's goals at
+paper size: memory ≤ 2×, time ≤ 4×.
 
 This measures cost, not correctness, in the paper's mode (Cundall local damping), which has no derivative
 through this transient (its step jumps where a velocity changes sign; membrax.gradients): the gradient
@@ -23,7 +24,7 @@ runs the same kernels and the same work per step; its gradients are checked agai
 in ``tests/test_gradients.py``.
 
 Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--stage shear|consolidation] [--steps 2000]
-[--window 50] [--consolidation-steps 5000]``.
+[--window 50] [--consolidation-steps 5000] [--dtypes float32,float64]``.
 """
 
 import argparse
@@ -102,11 +103,15 @@ def child(
         out = jax.block_until_ready(function(theta))
         runs.append(time.perf_counter() - start)
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    # An accelerator's own memory (None on a CPU, whose arrays the RSS above already counts).
+    stats = jax.devices()[0].memory_stats() if jax.default_backend() != "cpu" else None
     value = out if mode == "forward" else out[0]
     return {
         "compile_s": compile_s,
         "run_s": min(runs),
         "peak_mb": peak_mb,
+        "device_peak_mb": stats["peak_bytes_in_use"] / 2**20 if stats else None,
+        "backend": jax.default_backend(),
         "value": float(value),
         "gradient": None if mode == "forward" else [float(g) for g in out[1]],
     }
@@ -126,6 +131,7 @@ def rollout_parser(steps: int) -> argparse.ArgumentParser:
 def main() -> None:
     parser = rollout_parser(steps=2000)
     parser.add_argument("--child", nargs=2, metavar=("DTYPE", "MODE"))
+    parser.add_argument("--dtypes", default="float32,float64", help="comma-separated dtypes to run")
     args = parser.parse_args()
     if args.child:
         print(
@@ -142,8 +148,9 @@ def main() -> None:
     print(
         f"{'dtype':<8}{'fwd compile':>12}{'fwd run (s)':>12}{'rev compile':>12}{'rev run (s)':>12}"
         f"{'time ×':>8}{'fwd RSS MB':>11}{'rev RSS MB':>11}{'memory ×':>10}"
+        f"{'fwd dev MB':>11}{'rev dev MB':>11}{'dev mem ×':>10}"
     )
-    for dtype in ("float32", "float64"):
+    for dtype in args.dtypes.split(","):
         rows = {}
         for mode in ("forward", "reverse"):
             command = [sys.executable, __file__, "--child", dtype, mode, "--size", args.size]
@@ -156,6 +163,12 @@ def main() -> None:
             f"{dtype:<8}{forward['compile_s']:>12.1f}{forward['run_s']:>12.2f}{reverse['compile_s']:>12.1f}"
             f"{reverse['run_s']:>12.2f}{reverse['run_s'] / forward['run_s']:>8.2f}{forward['peak_mb']:>11.0f}"
             f"{reverse['peak_mb']:>11.0f}{reverse['peak_mb'] / forward['peak_mb']:>10.2f}"
+            + (
+                f"{forward['device_peak_mb']:>11.0f}{reverse['device_peak_mb']:>11.0f}"
+                f"{reverse['device_peak_mb'] / forward['device_peak_mb']:>10.2f}"
+                if forward["device_peak_mb"]
+                else f"{'-':>11}{'-':>11}{'-':>10}"
+            )
         )
 
 

@@ -15,8 +15,11 @@ edge D/3, the reproduction's; ``paper``: 10 × 25, edge D/5) with one Δt and on
 - particle-steps/s (spheres + membrane nodes), peak resident memory, and the wall time the whole Table 1
   would take at the batched rate for ``--table-steps`` member-steps per case.
 
+On one GPU the one-device call is the batched call, and the serial column costs nine compiles:
+``--batched-only 1`` skips both (printed as nan).
+
 Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mode map|vmap]
-[--cpu-devices N]``.
+[--cpu-devices N] [--batched-only 1] [--dtypes float32,float64]``.
 """
 
 import argparse
@@ -24,10 +27,12 @@ import json
 import resource
 import time
 
-from harness import run_each_dtype, timed
+from harness import DTYPES, run_each_dtype, timed
 
 
-def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int, cpu_devices: int) -> dict:
+def measure(
+    dtype: str, size: str, steps: int, mode: str, table_steps: int, cpu_devices: int, batched_only: int
+) -> dict:
     import dataclasses
 
     import jax
@@ -67,21 +72,30 @@ def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int, cpu_
         batch.initial_state,
         budgets,
     )
-    one = dataclasses.replace(
-        batch,
-        num_devices=1,
-        **{
-            name: jax.tree.map(lambda x: x[:real], getattr(batch, name))
-            for name in ("params", "members", "initial_state")
-        },
+    nan = float("nan")
+    if batched_only:
+        # On one GPU the unsharded call is the same program, and the serial column costs nine compiles.
+        one_compile, one_time, serial_compile, serial_time = nan, nan, nan, nan
+    one = (
+        None
+        if batched_only
+        else dataclasses.replace(
+            batch,
+            num_devices=1,
+            **{
+                name: jax.tree.map(lambda x: x[:real], getattr(batch, name))
+                for name in ("params", "members", "initial_state")
+            },
+        )
     )
-    one_compile, one_time = rate(
-        lambda s, left, **kw: one._chunk(s, one.params, one.members, left, **kw),
-        one.initial_state,
-        budgets[:real],
-    )
-    serial_compile, serial_time = 0.0, 0.0
-    for test in batch.tests:
+    if one is not None:
+        one_compile, one_time = rate(
+            lambda s, left, **kw: one._chunk(s, one.params, one.members, left, **kw),
+            one.initial_state,
+            budgets[:real],
+        )
+        serial_compile, serial_time = 0.0, 0.0
+    for test in [] if batched_only else batch.tests:
         state = test.start_consolidation(test.initial_state)
 
         def alone(s, test=test):
@@ -111,6 +125,7 @@ def measure(dtype: str, size: str, steps: int, mode: str, table_steps: int, cpu_
         "serial_steps_per_s": member_steps / serial_time,
         "serial_particle_steps_per_s": member_steps * bodies / serial_time,
         "table1_wall_s_at_batched_rate": real * table_steps * sharded_time / member_steps,
+        "batched_s_per_step": sharded_time / (count * record_every),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
     }
 
@@ -125,6 +140,13 @@ def main() -> None:
     parser.add_argument(
         "--table-steps", type=int, default=30000, help="member-steps per case for the Table 1 wall estimate"
     )
+    parser.add_argument(
+        "--batched-only",
+        type=int,
+        default=0,
+        help="1: skip the one-device and serial columns (on one GPU the same program, and nine compiles)",
+    )
+    parser.add_argument("--dtypes", default=",".join(DTYPES), help="comma-separated dtypes to run")
     args = parser.parse_args()
     options = dict(
         size=args.size,
@@ -132,16 +154,18 @@ def main() -> None:
         mode=args.mode,
         table_steps=args.table_steps,
         cpu_devices=args.cpu_devices,
+        batched_only=args.batched_only,
     )
     if args.child:
         print(json.dumps(measure(args.child, **options)))
         return
-    for row in run_each_dtype(__file__, options):
+    for row in run_each_dtype(__file__, options, dtypes=args.dtypes.split(",")):
         print(
             f"{row['dtype']} {row['backend']} ×{row['devices']} ({row['mode']}), {row['members']} members of "
             f"{row['spheres']} spheres + {row['nodes']} nodes: build {row['build_s']:.1f} s\n"
             f"  batched: compile {row['batched_compile_s']:.1f} s, {row['batched_steps_per_s']:.0f} "
-            f"member-steps/s ({row['batched_particle_steps_per_s']:.3g} particle-steps/s)\n"
+            f"member-steps/s ({row['batched_particle_steps_per_s']:.3g} particle-steps/s), "
+            f"{1e3 * row['batched_s_per_step']:.2f} ms per batched step\n"
             f"  batched on 1 device: compile {row['one_device_compile_s']:.1f} s, "
             f"{row['one_device_steps_per_s']:.0f} member-steps/s\n"
             f"  serial : compile {row['serial_compile_s']:.1f} s (9 chunks), {row['serial_steps_per_s']:.0f} "

@@ -8,10 +8,10 @@ import time
 DTYPES = ("float32", "float64")
 
 
-def run_each_dtype(script: str, options: dict) -> list[dict]:
+def run_each_dtype(script: str, options: dict, dtypes=DTYPES) -> list[dict]:
     """Run ``script --child DTYPE --key value ...`` once per dtype; each child prints one JSON line."""
     rows = []
-    for dtype in DTYPES:
+    for dtype in dtypes:
         command = [sys.executable, script, "--child", dtype]
         for key, value in options.items():
             command += [f"--{key.replace('_', '-')}", str(value)]

@@ -1,0 +1,140 @@
+"""The GPU figures the README quotes, in one call on a lent GPU machine, inside a deadline.
+
+Runs, in turn, each as its own process with a timeout, writing its output under ``--out``:
+
+1. the environment (``nvidia-smi``, JAX's version and devices);
+2. ``bench_sweep.py --size paper --steps 300 --batched-only 1`` (Table 1's nine members as one ``vmap``
+   call: member-steps/s and ms per batched step) in float64, the dtype of ``membrax reproduce``;
+3. ``bench_gradients.py --stage consolidation`` in float32 (reverse/forward time, host and device memory);
+4. ``bench_dem.py`` (the rigid-wall DEM, single specimen and the 9-case batch folded, ``lax.map``, ``vmap``);
+5. ``membrax reproduce --size paper`` with the time left, its tables copied to ``--out``; if it cannot
+   finish, its progress log still says how far it got;
+6. step 2 in float32, with what is left.
+
+Step 5 is predicted from step 2's float64 rate (``REPRODUCE_BATCH_STEPS`` batched steps, the longest
+member's at paper size) and run before steps 3–4 when it fits only without them. The prediction is low:
+step 2 times consolidation steps, and on the one H200 measured (2026-11-26) the reproduction's shearing
+steps took 1.7× as long (predicted 307 s; the run reached 89 % of its steps in 449 s).
+
+On the lent machines the image's JAX is used and the packages it lacks travel as wheels (jax-md, e3nn-jax,
+jraph, ml_collections, meshio: ``pip download --no-deps`` into ``.whl/``, then
+``pip install --no-index --no-deps --target /tmp/site .whl/*.whl`` and ``PYTHONPATH=/tmp/site:$PWD``).
+
+Run on the device machine, in the repository root: ``python3 benchmarks/gpu_check.py --budget 540``; with
+``--size small`` it is a quick check of the script itself on any machine.
+"""
+
+import argparse
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+# Consolidation (10,000) then shearing (24,500 + 110,250) steps of the 10 kPa members, the last to finish
+# at paper size (README: membrax reproduce --size paper).
+REPRODUCE_BATCH_STEPS = 144_750
+
+
+def run(name: str, command: list[str], timeout: float, out: Path) -> tuple[int, str, float]:
+    """(exit status, output, seconds) of ``command`` killed after ``timeout`` s, output also in out/name."""
+    start = time.perf_counter()
+    print(f"\n$ {' '.join(command)}   (timeout {timeout:.0f} s)", flush=True)
+    if timeout < 10:
+        print("  skipped: no time left", flush=True)
+        return -1, "", 0.0
+    with open(out / name, "w") as log:
+        process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        chunks = []
+        try:
+            output, _ = process.communicate(timeout=timeout)
+            chunks.append(output)
+            status = process.returncode
+        except subprocess.TimeoutExpired:
+            process.kill()
+            output, _ = process.communicate()
+            chunks.append(output + f"\n[killed after {timeout:.0f} s]\n")
+            status = 124
+        text = "".join(chunks)
+        log.write(text)
+    seconds = time.perf_counter() - start
+    # Progress bars rewrite one line with carriage returns: show the last state of each line.
+    shown = "\n".join(line.split("\r")[-1] for line in text.splitlines())
+    print(shown[-4000:], flush=True)
+    print(f"  [{name}: status {status}, {seconds:.0f} s]", flush=True)
+    return status, text, seconds
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--budget", type=float, default=540.0, help="seconds for the whole check")
+    parser.add_argument("--size", default="paper", choices=("small", "paper"))
+    parser.add_argument("--out", default=os.environ.get("OUT", "gpu_check_out"))
+    args = parser.parse_args()
+    deadline = time.perf_counter() + args.budget
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    def left() -> float:
+        return deadline - time.perf_counter()
+
+    # Programs repeat across the steps (the members' set-up, the sweep's chunk): compile each once.
+    os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", "/tmp/membrax_gpu_check_cache")
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    python = sys.executable
+    env_lines = []
+    if shutil.which("nvidia-smi"):
+        query = ["nvidia-smi", "--query-gpu=name,memory.total,driver_version", "--format=csv,noheader"]
+        env_lines.append(subprocess.run(query, capture_output=True, text=True).stdout.strip())
+    probe = "import jax, numpy; print('jax', jax.__version__, 'numpy', numpy.__version__, jax.devices())"
+    env_lines.append(subprocess.run([python, "-c", probe], capture_output=True, text=True).stdout.strip())
+    (out / "env.txt").write_text("\n".join(env_lines) + "\n")
+    print("\n".join(env_lines), flush=True)
+
+    def bench(script: str, *options: str) -> list[str]:
+        return [python, str(HERE / script), "--size", args.size, *options]
+
+    sweep_steps = "300" if args.size == "paper" else "100"
+    sweep = ("bench_sweep.py", "--steps", sweep_steps, "--batched-only", "1", "--dtypes")
+    _, text, _ = run("bench_sweep.txt", bench(*sweep, "float64"), min(200.0, left() - 30), out)
+    match = re.search(r"float64 .*?([\d.]+) ms per batched step", text, re.S)
+    build = re.search(r"float64 .*?build ([\d.]+) s.*?compile ([\d.]+) s", text, re.S)
+    predicted = None
+    if match and build:
+        simulation = REPRODUCE_BATCH_STEPS * float(match.group(1)) / 1e3
+        predicted = simulation + float(build.group(1)) + float(build.group(2))
+        print(f"  membrax reproduce --size {args.size}: predicted {predicted:.0f} s (steps, build, compile)")
+
+    def reproduce() -> None:
+        folder = Path("/tmp") / f"reproduce_{args.size}"
+        shutil.rmtree(folder, ignore_errors=True)
+        run(
+            "reproduce.log",
+            [python, "-m", "membrax.cli", "reproduce", "--size", args.size, "--out", str(folder)],
+            left() - 10,
+            out,
+        )
+        for name in ("table2.md", "table3.md"):
+            if (folder / name).exists():
+                shutil.copy(folder / name, out / name)
+
+    benches_s = 250.0  # what steps 3-4 are given when reproduce waits for them
+    reproduce_first = predicted is not None and predicted < left() - 20 < predicted + benches_s
+    if reproduce_first:
+        reproduce()
+    gradient_steps = "2000" if args.size == "paper" else "200"
+    gradients = bench("bench_gradients.py", "--stage", "consolidation", "--steps", gradient_steps)
+    run("bench_gradients.txt", [*gradients, "--dtypes", "float32"], min(150.0, left() - 10), out)
+    dem_size = [] if args.size == "paper" else ["--width", "4", "--layers", "5", "--steps", "100"]
+    run("bench_dem.txt", [python, str(HERE / "bench_dem.py"), *dem_size], min(120.0, left() - 10), out)
+    if not reproduce_first:
+        reproduce()
+    run("bench_sweep_float32.txt", bench(*sweep, "float32"), min(200.0, left() - 5), out)
+    print(f"\nfiles in {out}: {sorted(p.name for p in out.iterdir())}; {left():.0f} s of the budget left")
+
+
+if __name__ == "__main__":
+    main()
