@@ -21,7 +21,8 @@ jraph, ml_collections, meshio: ``pip download --no-deps`` into ``.whl/``, then
 ``pip install --no-index --no-deps --target /tmp/site .whl/*.whl`` and ``PYTHONPATH=/tmp/site:$PWD``).
 
 Run on the device machine, in the repository root: ``python3 benchmarks/gpu_check.py --budget 540``; with
-``--size small`` it is a quick check of the script itself on any machine.
+``--size small`` it is a quick check of the script itself on any machine. ``--only reproduce`` gives the
+reproduction the whole budget (it did not fit beside the benchmarks in one 10-minute call on an H200).
 """
 
 import argparse
@@ -37,6 +38,7 @@ HERE = Path(__file__).resolve().parent
 # Consolidation (10,000) then shearing (24,500 + 110,250) steps of the 10 kPa members, the last to finish
 # at paper size (README: membrax reproduce --size paper).
 REPRODUCE_BATCH_STEPS = 144_750
+STEPS = ("sweep64", "reproduce", "gradients", "dem", "sweep32")
 
 
 def run(name: str, command: list[str], timeout: float, out: Path) -> tuple[int, str, float]:
@@ -73,7 +75,15 @@ def main() -> None:
     parser.add_argument("--budget", type=float, default=540.0, help="seconds for the whole check")
     parser.add_argument("--size", default="paper", choices=("small", "paper"))
     parser.add_argument("--out", default=os.environ.get("OUT", "gpu_check_out"))
+    parser.add_argument(
+        "--only",
+        default=",".join(STEPS),
+        help=f"comma-separated steps to run, of {','.join(STEPS)} (e.g. reproduce alone: it needs ≈ 510 s)",
+    )
     args = parser.parse_args()
+    steps = set(args.only.split(","))
+    if not steps <= set(STEPS):
+        parser.error(f"--only: unknown steps {sorted(steps - set(STEPS))}; choose from {','.join(STEPS)}")
     deadline = time.perf_counter() + args.budget
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -99,7 +109,9 @@ def main() -> None:
 
     sweep_steps = "300" if args.size == "paper" else "100"
     sweep = ("bench_sweep.py", "--steps", sweep_steps, "--batched-only", "1", "--dtypes")
-    _, text, _ = run("bench_sweep.txt", bench(*sweep, "float64"), min(200.0, left() - 30), out)
+    text = ""
+    if "sweep64" in steps:
+        _, text, _ = run("bench_sweep.txt", bench(*sweep, "float64"), min(200.0, left() - 30), out)
     match = re.search(r"float64 .*?([\d.]+) ms per batched step", text, re.S)
     build = re.search(r"float64 .*?build ([\d.]+) s.*?compile ([\d.]+) s", text, re.S)
     predicted = None
@@ -122,17 +134,23 @@ def main() -> None:
                 shutil.copy(folder / name, out / name)
 
     benches_s = 250.0  # what steps 3-4 are given when reproduce waits for them
-    reproduce_first = predicted is not None and predicted < left() - 20 < predicted + benches_s
+    reproduce_first = "reproduce" in steps and (
+        steps == {"reproduce"} or (predicted is not None and predicted < left() - 20 < predicted + benches_s)
+    )
     if reproduce_first:
         reproduce()
     gradient_steps = "2000" if args.size == "paper" else "200"
     gradients = bench("bench_gradients.py", "--stage", "consolidation", "--steps", gradient_steps)
-    run("bench_gradients.txt", [*gradients, "--dtypes", "float32"], min(150.0, left() - 10), out)
-    dem_size = [] if args.size == "paper" else ["--width", "4", "--layers", "5", "--steps", "100"]
-    run("bench_dem.txt", [python, str(HERE / "bench_dem.py"), *dem_size], min(120.0, left() - 10), out)
-    if not reproduce_first:
+    if "gradients" in steps:
+        run("bench_gradients.txt", [*gradients, "--dtypes", "float32"], min(150.0, left() - 10), out)
+    small_dem = ["--width", "4", "--layers", "5", "--steps", "100"]
+    dem_size = ["--steps", "300"] if args.size == "paper" else small_dem
+    if "dem" in steps:
+        run("bench_dem.txt", [python, str(HERE / "bench_dem.py"), *dem_size], min(120.0, left() - 10), out)
+    if "reproduce" in steps and not reproduce_first:
         reproduce()
-    run("bench_sweep_float32.txt", bench(*sweep, "float32"), min(200.0, left() - 5), out)
+    if "sweep32" in steps:
+        run("bench_sweep_float32.txt", bench(*sweep, "float32"), min(200.0, left() - 5), out)
     print(f"\nfiles in {out}: {sorted(p.name for p in out.iterdir())}; {left():.0f} s of the budget left")
 
 
