@@ -72,14 +72,10 @@ def measure(
         batch.initial_state,
         budgets,
     )
-    nan = float("nan")
-    if batched_only:
-        # On one GPU the unsharded call is the same program, and the serial column costs nine compiles.
-        one_compile, one_time, serial_compile, serial_time = nan, nan, nan, nan
-    one = (
-        None
-        if batched_only
-        else dataclasses.replace(
+    # On one GPU the unsharded call is the batched program again, and the serial column costs nine compiles.
+    one_compile = one_time = serial_compile = serial_time = float("nan")
+    if not batched_only:
+        one = dataclasses.replace(
             batch,
             num_devices=1,
             **{
@@ -87,24 +83,22 @@ def measure(
                 for name in ("params", "members", "initial_state")
             },
         )
-    )
-    if one is not None:
         one_compile, one_time = rate(
             lambda s, left, **kw: one._chunk(s, one.params, one.members, left, **kw),
             one.initial_state,
             budgets[:real],
         )
         serial_compile, serial_time = 0.0, 0.0
-    for test in [] if batched_only else batch.tests:
-        state = test.start_consolidation(test.initial_state)
+        for test in batch.tests:
+            state = test.start_consolidation(test.initial_state)
 
-        def alone(s, test=test):
-            return test.runner._chunk(s, test.params, num_records=count, record_every=record_every)
+            def alone(s, test=test):
+                return test.runner._chunk(s, test.params, num_records=count, record_every=record_every)
 
-        _, compile_and_run = timed(alone, state)
-        _, run = timed(alone, state)
-        serial_compile += compile_and_run - run
-        serial_time += run
+            _, compile_and_run = timed(alone, state)
+            _, run = timed(alone, state)
+            serial_compile += compile_and_run - run
+            serial_time += run
     member_steps = real * count * record_every
     bodies = batch.tests[0].particles.num_particles + batch.tests[0].mesh.num_nodes
     return {

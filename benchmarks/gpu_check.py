@@ -5,7 +5,8 @@ Runs, in turn, each as its own process with a timeout, writing its output under 
 1. the environment (``nvidia-smi``, JAX's version and devices);
 2. ``bench_sweep.py --size paper --steps 300 --batched-only 1`` (Table 1's nine members as one ``vmap``
    call: member-steps/s and ms per batched step) in float64, the dtype of ``membrax reproduce``;
-3. ``bench_gradients.py --stage consolidation`` in float32 (reverse/forward time, host and device memory);
+3. ``bench_gradients.py --stage consolidation`` in float32 (reverse/forward time; host, program and device
+   memory);
 4. ``bench_dem.py`` (the rigid-wall DEM, single specimen and the 9-case batch folded, ``lax.map``, ``vmap``);
 5. ``membrax reproduce --size paper`` with the time left, its tables copied to ``--out``; if it cannot
    finish, its progress log still says how far it got;
@@ -50,17 +51,13 @@ def run(name: str, command: list[str], timeout: float, out: Path) -> tuple[int, 
         return -1, "", 0.0
     with open(out / name, "w") as log:
         process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        chunks = []
         try:
-            output, _ = process.communicate(timeout=timeout)
-            chunks.append(output)
+            text, _ = process.communicate(timeout=timeout)
             status = process.returncode
         except subprocess.TimeoutExpired:
             process.kill()
-            output, _ = process.communicate()
-            chunks.append(output + f"\n[killed after {timeout:.0f} s]\n")
+            text = process.communicate()[0] + f"\n[killed after {timeout:.0f} s]\n"
             status = 124
-        text = "".join(chunks)
         log.write(text)
     seconds = time.perf_counter() - start
     # Progress bars rewrite one line with carriage returns: show the last state of each line.
