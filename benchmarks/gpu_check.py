@@ -75,7 +75,7 @@ def main() -> None:
     parser.add_argument(
         "--only",
         default=",".join(STEPS),
-        help=f"comma-separated steps to run, of {','.join(STEPS)} (e.g. reproduce alone: it needs ≈ 510 s)",
+        help=f"comma-separated steps to run, of {','.join(STEPS)} (reproduce alone: ≈ 510-560 s on an H200)",
     )
     args = parser.parse_args()
     steps = set(args.only.split(","))
