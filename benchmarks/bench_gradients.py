@@ -36,6 +36,8 @@ import subprocess
 import sys
 import time
 
+from harness import DTYPES
+
 SIZES = {
     "small": {"particles_across": 6, "layers": 10, "membrane_edges_per_diameter": 3.0},
     "paper": {},
@@ -143,7 +145,7 @@ def rollout_parser(steps: int) -> argparse.ArgumentParser:
 def main() -> None:
     parser = rollout_parser(steps=2000)
     parser.add_argument("--child", nargs=2, metavar=("DTYPE", "MODE"))
-    parser.add_argument("--dtypes", default="float32,float64", help="comma-separated dtypes to run")
+    parser.add_argument("--dtypes", default=",".join(DTYPES), help="comma-separated dtypes to run")
     args = parser.parse_args()
     if args.child:
         print(

@@ -42,13 +42,13 @@ REPRODUCE_BATCH_STEPS = 144_750
 STEPS = ("sweep64", "reproduce", "gradients", "dem", "sweep32")
 
 
-def run(name: str, command: list[str], timeout: float, out: Path) -> tuple[int, str, float]:
-    """(exit status, output, seconds) of ``command`` killed after ``timeout`` s, output also in out/name."""
+def run(name: str, command: list[str], timeout: float, out: Path) -> str:
+    """The output of ``command``, killed after ``timeout`` s; also written to out/name, with its status."""
     start = time.perf_counter()
     print(f"\n$ {' '.join(command)}   (timeout {timeout:.0f} s)", flush=True)
     if timeout < 10:
         print("  skipped: no time left", flush=True)
-        return -1, "", 0.0
+        return ""
     with open(out / name, "w") as log:
         process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
@@ -64,7 +64,7 @@ def run(name: str, command: list[str], timeout: float, out: Path) -> tuple[int, 
     shown = "\n".join(line.split("\r")[-1] for line in text.splitlines())
     print(shown[-4000:], flush=True)
     print(f"  [{name}: status {status}, {seconds:.0f} s]", flush=True)
-    return status, text, seconds
+    return text
 
 
 def main() -> None:
@@ -108,7 +108,7 @@ def main() -> None:
     sweep = ("bench_sweep.py", "--steps", sweep_steps, "--batched-only", "1", "--dtypes")
     text = ""
     if "sweep64" in steps:
-        _, text, _ = run("bench_sweep.txt", bench(*sweep, "float64"), min(200.0, left() - 30), out)
+        text = run("bench_sweep.txt", bench(*sweep, "float64"), min(200.0, left() - 30), out)
     match = re.search(r"float64 .*?([\d.]+) ms per batched step", text, re.S)
     build = re.search(r"float64 .*?build ([\d.]+) s.*?compile ([\d.]+) s", text, re.S)
     predicted = None
