@@ -11,7 +11,9 @@ of two stages (``--stage``):
 - ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps;
 - ``reverse``: (y, dy/dθ) by ``jax.value_and_grad`` of the same scan, each window wrapped in
   ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
-  at a time (θ = E_m and σc);
+  at a time (θ = E_m and σc); the windows are the library's (:func:`membrax.gradients.checkpoint_window`),
+  which on the JAX path (``MEMBRAX_NATIVE=0``, a GPU) checkpoints each step inside them too
+  (``--step-remat`` forces it on or off);
 
 each in its own process, once per dtype, printing compile time (lowering and compiling), run time (best
 of 3 after one warm-up), peak RSS, the compiled program's own buffers (XLA's ``memory_analysis``:
@@ -26,7 +28,7 @@ runs the same kernels and the same work per step; its gradients are checked agai
 in ``tests/test_gradients.py``.
 
 Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--stage shear|consolidation] [--steps 2000]
-[--window 50] [--consolidation-steps 5000] [--dtypes float32,float64]``.
+[--window 50] [--consolidation-steps 5000] [--step-remat auto|on|off] [--dtypes float32,float64]``.
 """
 
 import argparse
@@ -44,8 +46,19 @@ SIZES = {
 }
 
 
-def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str, consolidation_steps: int):
+def rollout_functions(
+    dtype: str,
+    size: str,
+    steps: int,
+    window: int,
+    stage: str,
+    consolidation_steps: int,
+    step_remat: str = "auto",
+):
     """(forward, reverse, θ): y(θ) and (y, dy/dθ), both jitted, for the rollout described above.
+
+    ``step_remat``: "auto" checkpoints each step inside the windows where the library does
+    (:func:`membrax.gradients.checkpoint_window`: on the JAX path), "on" and "off" force it.
 
     Sets ``jax_enable_x64`` for float64, so call it once per process. Shared with ``profile_gradients.py``.
     """
@@ -56,6 +69,7 @@ def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str
     import jax.numpy as jnp
 
     from membrax.config import TriaxialConfig
+    from membrax.gradients import checkpoint_window
     from membrax.sensitivities import apply_parameters
     from membrax.stages import build_test
 
@@ -77,12 +91,15 @@ def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str
         values = {"membrane_modulus_kpa": theta[0], "cell_pressure_kpa": theta[1]}
         params, _, start = apply_parameters(values, base, test.mesh, state)
 
-        def body(s, _):
-            return jax.lax.fori_loop(0, window, lambda i, x: step(x, params), s), None
+        if checkpointed:  # the library's windows (membrax.gradients), steps rematerialised as it chooses
+            remat = {"auto": None, "on": True, "off": False}[step_remat]
+            run = checkpoint_window(step, window, test.mesh.reference_position.dtype, remat)
+        else:
 
-        if checkpointed:
-            body = jax.checkpoint(body)
-        final, _ = jax.lax.scan(body, start, None, length=steps // window)
+            def run(s, p):
+                return jax.lax.fori_loop(0, window, lambda i, x: step(x, p), s)
+
+        final, _ = jax.lax.scan(lambda s, _: (run(s, params), None), start, None, length=steps // window)
         return record(final, params).internal_axial_stress[0]
 
     theta = jnp.asarray([config.membrane_modulus_kpa, config.cell_pressure_kpa])
@@ -92,11 +109,20 @@ def rollout_functions(dtype: str, size: str, steps: int, window: int, stage: str
 
 
 def child(
-    dtype: str, mode: str, size: str, steps: int, window: int, stage: str, consolidation_steps: int
+    dtype: str,
+    mode: str,
+    size: str,
+    steps: int,
+    window: int,
+    stage: str,
+    consolidation_steps: int,
+    step_remat: str = "auto",
 ) -> dict:
     import jax
 
-    forward, reverse, theta = rollout_functions(dtype, size, steps, window, stage, consolidation_steps)
+    forward, reverse, theta = rollout_functions(
+        dtype, size, steps, window, stage, consolidation_steps, step_remat
+    )
     function = forward if mode == "forward" else reverse
     start = time.perf_counter()
     function = function.lower(theta).compile()
@@ -132,13 +158,19 @@ def child(
 
 
 def rollout_parser(steps: int) -> argparse.ArgumentParser:
-    """The rollout's options (size, steps, window, stage, consolidation steps), shared with the profiler."""
+    """The rollout's options (size, steps, window, stage, consolidation steps, step remat); shared."""
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", choices=tuple(SIZES), default="paper")
     parser.add_argument("--steps", type=int, default=steps)
     parser.add_argument("--window", type=int, default=50)
     parser.add_argument("--stage", choices=("shear", "consolidation"), default="shear")
     parser.add_argument("--consolidation-steps", type=int, default=5000)
+    parser.add_argument(
+        "--step-remat",
+        choices=("auto", "on", "off"),
+        default="auto",
+        help="checkpoint each step inside the windows: auto = where membrax.gradients does (the JAX path)",
+    )
     return parser
 
 
@@ -150,13 +182,21 @@ def main() -> None:
     if args.child:
         print(
             json.dumps(
-                child(*args.child, args.size, args.steps, args.window, args.stage, args.consolidation_steps)
+                child(
+                    *args.child,
+                    args.size,
+                    args.steps,
+                    args.window,
+                    args.stage,
+                    args.consolidation_steps,
+                    args.step_remat,
+                )
             )
         )
         return
     print(
         f"gradient benchmark: {args.size} size, {args.stage}, {args.steps} steps, windows of {args.window} "
-        f"(jax.checkpoint)"
+        f"(jax.checkpoint; steps rematerialised: {args.step_remat})"
         + (f", after {args.consolidation_steps} steps of consolidation" if args.stage == "shear" else "")
     )
     print(
@@ -171,6 +211,7 @@ def main() -> None:
             command = [sys.executable, __file__, "--child", dtype, mode, "--size", args.size]
             command += ["--steps", str(args.steps), "--window", str(args.window), "--stage", args.stage]
             command += ["--consolidation-steps", str(args.consolidation_steps)]
+            command += ["--step-remat", args.step_remat]
             output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
             rows[mode] = json.loads(output.strip().splitlines()[-1])
         forward, reverse = rows["forward"], rows["reverse"]

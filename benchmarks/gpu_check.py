@@ -10,7 +10,9 @@ Runs, in turn, each as its own process with a timeout, writing its output under 
 4. ``bench_dem.py`` (the rigid-wall DEM, single specimen and the 9-case batch folded, ``lax.map``, ``vmap``);
 5. ``membrax reproduce --size paper`` with the time left, its tables copied to ``--out``; if it cannot
    finish, its progress log still says how far it got;
-6. step 2 in float32, with what is left.
+6. step 2 in float32, with what is left;
+7. step 3 with ``--step-remat off`` (the windows' steps not checkpointed one by one, as before
+   2026-11-26 on the JAX path), with what is left: the GPU's side of that change.
 
 Step 5 is predicted from step 2's float64 rate (``REPRODUCE_BATCH_STEPS`` batched steps, the longest
 member's at paper size) and run before steps 3–4 when it fits only without them. The prediction is low:
@@ -39,7 +41,7 @@ HERE = Path(__file__).resolve().parent
 # Consolidation (10,000) then shearing (24,500 + 110,250) steps of the 10 kPa members, the last to finish
 # at paper size (README: membrax reproduce --size paper).
 REPRODUCE_BATCH_STEPS = 144_750
-STEPS = ("sweep64", "reproduce", "gradients", "dem", "sweep32")
+STEPS = ("sweep64", "reproduce", "gradients", "dem", "sweep32", "gradients-off")
 
 
 def run(name: str, command: list[str], timeout: float, out: Path) -> str:
@@ -148,6 +150,9 @@ def main() -> None:
         reproduce()
     if "sweep32" in steps:
         run("bench_sweep_float32.txt", bench(*sweep, "float32"), min(200.0, left() - 5), out)
+    if "gradients-off" in steps:
+        off = [*gradients, "--dtypes", "float32", "--step-remat", "off"]
+        run("bench_gradients_off.txt", off, min(150.0, left() - 5), out)
     print(f"\nfiles in {out}: {sorted(p.name for p in out.iterdir())}; {left():.0f} s of the budget left")
 
 

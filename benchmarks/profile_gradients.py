@@ -72,10 +72,12 @@ def traced_events(folder: str) -> list[dict]:
         return [event for event in json.load(trace)["traceEvents"] if event.get("ph") == "X"]
 
 
-def child(dtype, size, steps, window, stage, consolidation_steps, top) -> dict:
+def child(dtype, size, steps, window, stage, consolidation_steps, top, step_remat="auto") -> dict:
     import jax
 
-    forward, reverse, theta = rollout_functions(dtype, size, steps, window, stage, consolidation_steps)
+    forward, reverse, theta = rollout_functions(
+        dtype, size, steps, window, stage, consolidation_steps, step_remat
+    )
     times = {}
     for name, function in (("forward", forward), ("reverse", reverse)):
         jax.block_until_ready(function(theta))
@@ -131,6 +133,7 @@ def main() -> None:
         "stage": args.stage,
         "consolidation_steps": args.consolidation_steps,
         "top": args.top,
+        "step_remat": args.step_remat,
     }
     if args.child:
         print(json.dumps(child(args.child, **options)))

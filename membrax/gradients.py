@@ -18,6 +18,8 @@ compiled call; :func:`rollout_differences` the same by central differences of th
 Memory: each member's rollout is a ``lax.scan`` over windows of ``window`` steps, each window wrapped in
 ``jax.checkpoint``, so reverse mode keeps steps/window window-start states and recomputes one window's
 steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward).
+Where the step runs the JAX code instead of the compiled kernels, each step is checkpointed too
+(:func:`checkpoint_window`).
 
 Which outputs have a derivative. The rollout is differentiable where the map θ → final state is: with
 ``viscous_damping`` (the smooth mode, :class:`membrax.config.TriaxialConfig`), the step is continuous and
@@ -45,6 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from membrax import native
 from membrax.config import TriaxialConfig
 from membrax.errors import OVERFLOWS, describe
 from membrax.sensitivities import (
@@ -56,7 +59,45 @@ from membrax.sensitivities import (
 )
 from membrax.stages import GEOMETRY_FIELDS, BatchedTest, build_batch
 
-__all__ = ["Rollout", "consolidation_rollout", "rollout_differences", "rollout_jacobian", "shearing_rollout"]
+__all__ = [
+    "Rollout",
+    "checkpoint_window",
+    "consolidation_rollout",
+    "rollout_differences",
+    "rollout_jacobian",
+    "shearing_rollout",
+]
+
+
+def checkpoint_window(step, window: int, dtype, rematerialize_steps: bool | None = None):
+    """``window`` steps of ``step(state, params)`` in a ``fori_loop``, as one ``jax.checkpoint`` window.
+
+    Reverse mode through a scan of these keeps each window's start state, and, while it goes back through
+    a window, what each of its steps' derivatives needs (the residuals). With the compiled kernels
+    (:func:`membrax.native.runs_kernels`) that is about 3.2 MB per paper-size float32 step, against a 2.35-MB
+    state. XLA's derivative of the JAX code (other backends, ``MEMBRAX_NATIVE=0``) keeps far more, about
+    70 MB per step (``benchmarks/bench_gradients.py``'s program buffers), so there each step is itself
+    checkpointed: the window's pass keeps the steps' input states alone and each step runs once more,
+    forward, just before its backward pass.
+
+    Args:
+      step: the time step, ``(state, params) → state``.
+      window: steps per window.
+      dtype: the simulation's float dtype (which path the step takes).
+      rematerialize_steps: checkpoint each step too; None (default) where the step runs the JAX code.
+
+    Returns:
+      ``(state, params) → state`` after ``window`` steps, checkpointed.
+    """
+    if rematerialize_steps is None:
+        rematerialize_steps = not native.runs_kernels(dtype)
+    inner = jax.checkpoint(step) if rematerialize_steps else step
+
+    @jax.checkpoint
+    def run(state, params):
+        return jax.lax.fori_loop(0, window, lambda _, s: inner(s, params), state)
+
+    return run
 
 
 @dataclasses.dataclass
@@ -103,11 +144,10 @@ class Rollout:
             geometry=geometry,
             clamp_position=state.membrane.clamp_position,
         )
-        step = template.make_step(mesh)
+        run = checkpoint_window(template.make_step(mesh), self.window, mesh.reference_position.dtype)
 
-        @jax.checkpoint
         def window(s, _):
-            return jax.lax.fori_loop(0, self.window, lambda _, x: step(x, params), s), None
+            return run(s, params), None
 
         final, _ = jax.lax.scan(window, state, None, length=self.steps // self.window)
         reference = None

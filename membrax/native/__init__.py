@@ -68,6 +68,7 @@ __all__ = [
     "enabled_for",
     "pack_cotangents",
     "reference_vjp",
+    "runs_kernels",
     "with_reference",
 ]
 
@@ -179,6 +180,15 @@ def available() -> bool:
 def enabled_for(dtype) -> bool:
     """Whether arrays of ``dtype`` go through the kernels: float32 or float64, and :func:`available`."""
     return jnp.dtype(dtype) in (jnp.float32, jnp.float64) and available()
+
+
+def runs_kernels(dtype) -> bool:
+    """Whether a step traced now for arrays of ``dtype`` runs the kernels: :func:`enabled_for` on the CPU.
+
+    Elsewhere (another default backend, ``MEMBRAX_NATIVE=0``, another dtype) it runs the JAX code, and
+    reverse mode is XLA's derivative of that code.
+    """
+    return enabled_for(dtype) and jax.default_backend() == "cpu"
 
 
 def call(name: str, dtype, results, *args, input_output_aliases=None, **attributes):
