@@ -8,7 +8,8 @@ of two stages (``--stage``):
   (:meth:`MembraneTest.start_shear`); θ acts on the shearing window only;
 - ``consolidation``: from the as-built state, both platens servo-controlled to σc A₀;
 
-- ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps;
+- ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps (a checkpoint is the plain loop
+  when nothing is differentiated);
 - ``reverse``: (y, dy/dθ) by ``jax.value_and_grad`` of the same scan, each window wrapped in
   ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
   at a time (θ = E_m and σc); the windows are the library's (:func:`membrax.gradients.checkpoint_window`),
@@ -87,24 +88,21 @@ def rollout_functions(
         )
     record = test.make_record(test.mesh, test.initial_volume)  # (areas from the as-built size: cost only)
 
-    def output(theta, checkpointed):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation)
+    # The library's windows (membrax.gradients.checkpoint_window: its unrolled loop, steps rematerialised
+    # as it chooses) for both passes: without differentiation a checkpoint is the plain loop, so the
+    # forward is the program Rollout.forward runs.
+    remat = {"auto": None, "on": True, "off": False}[step_remat]
+    run = checkpoint_window(step, window, test.mesh.reference_position.dtype, remat)
+
+    def output(theta):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation)
         values = {"membrane_modulus_kpa": theta[0], "cell_pressure_kpa": theta[1]}
         params, _, start = apply_parameters(values, base, test.mesh, state)
-
-        if checkpointed:  # the library's windows (membrax.gradients), steps rematerialised as it chooses
-            remat = {"auto": None, "on": True, "off": False}[step_remat]
-            run = checkpoint_window(step, window, test.mesh.reference_position.dtype, remat)
-        else:
-
-            def run(s, p):
-                return jax.lax.fori_loop(0, window, lambda i, x: step(x, p), s)
-
         final, _ = jax.lax.scan(lambda s, _: (run(s, params), None), start, None, length=steps // window)
         return record(final, params).internal_axial_stress[0]
 
     theta = jnp.asarray([config.membrane_modulus_kpa, config.cell_pressure_kpa])
-    forward = jax.jit(lambda t: output(t, False))
-    reverse = jax.jit(jax.value_and_grad(lambda t: output(t, True)))
+    forward = jax.jit(output)
+    reverse = jax.jit(jax.value_and_grad(output))
     return forward, reverse, theta
 
 
