@@ -9,11 +9,13 @@ of two stages (``--stage``):
 - ``consolidation``: from the as-built state, both platens servo-controlled to σc A₀;
 
 - ``forward``: y(θ) by one jitted ``lax.scan`` over windows of W steps (a checkpoint is the plain loop
-  when nothing is differentiated);
+  when nothing is differentiated), each window's loop unrolled by 2: the program
+  :attr:`membrax.gradients.Rollout.forward` runs;
 - ``reverse``: (y, dy/dθ) by ``jax.value_and_grad`` of the same scan, each window wrapped in
   ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
-  at a time (θ = E_m and σc); the windows are the library's (:func:`membrax.gradients.checkpoint_window`),
-  which on the JAX path (``MEMBRAX_NATIVE=0``, a GPU) checkpoints each step inside them too
+  at a time (θ = E_m and σc); the windows are the library's (:func:`membrax.gradients.checkpoint_window`):
+  a loop of ``--unroll`` steps per iteration, or with ``--unroll`` ≥ ``--window`` whole windows without
+  a loop; on the JAX path (``MEMBRAX_NATIVE=0``, a GPU) each step checkpointed inside them too
   (``--step-remat`` forces it on or off);
 
 each in its own process, once per dtype, printing compile time (lowering and compiling), run time (best
@@ -29,17 +31,16 @@ runs the same kernels and the same work per step; its gradients are checked agai
 in ``tests/test_gradients.py``.
 
 Run: ``python benchmarks/bench_gradients.py [--size small|paper] [--stage shear|consolidation] [--steps 2000]
-[--window 50] [--consolidation-steps 5000] [--step-remat auto|on|off] [--dtypes float32,float64]``.
+[--window 50] [--consolidation-steps 5000] [--step-remat auto|on|off] [--unroll 2]
+[--dtypes float32,float64]``.
 """
 
 import argparse
 import json
 import resource
-import subprocess
-import sys
 import time
 
-from harness import DTYPES
+from harness import DTYPES, run_child
 
 SIZES = {
     "small": {"particles_across": 6, "layers": 10, "membrane_edges_per_diameter": 3.0},
@@ -55,11 +56,15 @@ def rollout_functions(
     stage: str,
     consolidation_steps: int,
     step_remat: str = "auto",
+    unroll: int | None = None,
 ):
     """(forward, reverse, θ): y(θ) and (y, dy/dθ), both jitted, for the rollout described above.
 
     ``step_remat``: "auto" checkpoints each step inside the windows where the library does
     (:func:`membrax.gradients.checkpoint_window`: on the JAX path), "on" and "off" force it.
+    ``unroll``: steps per iteration of the reverse pass's windows' loops (None: the library's default,
+    :data:`membrax.gradients.UNROLL`; ≥ ``window``: whole windows, no loop); the forward's loops are
+    unrolled by that default whatever it is, as :attr:`membrax.gradients.Rollout.forward`'s.
 
     Sets ``jax_enable_x64`` for float64, so call it once per process. Shared with ``profile_gradients.py``.
     """
@@ -70,7 +75,7 @@ def rollout_functions(
     import jax.numpy as jnp
 
     from membrax.config import TriaxialConfig
-    from membrax.gradients import checkpoint_window
+    from membrax.gradients import UNROLL, checkpoint_window
     from membrax.sensitivities import apply_parameters
     from membrax.stages import build_test
 
@@ -88,39 +93,30 @@ def rollout_functions(
         )
     record = test.make_record(test.mesh, test.initial_volume)  # (areas from the as-built size: cost only)
 
-    # The library's windows (membrax.gradients.checkpoint_window: its unrolled loop, steps rematerialised
-    # as it chooses) for both passes: without differentiation a checkpoint is the plain loop, so the
-    # forward is the program Rollout.forward runs.
+    # The library's windows (membrax.gradients.checkpoint_window: steps rematerialised as it chooses) for
+    # both passes, each unrolled as the library's rollouts do: without differentiation a checkpoint is
+    # the plain loop, so the forward is the program Rollout.forward runs, and the reverse Rollout's.
     remat = {"auto": None, "on": True, "off": False}[step_remat]
-    run = checkpoint_window(step, window, test.mesh.reference_position.dtype, remat)
+    dtype_ = test.mesh.reference_position.dtype
 
-    def output(theta):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation)
+    def output(theta, unroll):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation)
+        run = checkpoint_window(step, window, dtype_, remat, unroll)
         values = {"membrane_modulus_kpa": theta[0], "cell_pressure_kpa": theta[1]}
         params, _, start = apply_parameters(values, base, test.mesh, state)
         final, _ = jax.lax.scan(lambda s, _: (run(s, params), None), start, None, length=steps // window)
         return record(final, params).internal_axial_stress[0]
 
     theta = jnp.asarray([config.membrane_modulus_kpa, config.cell_pressure_kpa])
-    forward = jax.jit(output)
-    reverse = jax.jit(jax.value_and_grad(output))
+    forward = jax.jit(lambda t: output(t, UNROLL))
+    reverse = jax.jit(jax.value_and_grad(lambda t: output(t, UNROLL if unroll is None else unroll)))
     return forward, reverse, theta
 
 
-def child(
-    dtype: str,
-    mode: str,
-    size: str,
-    steps: int,
-    window: int,
-    stage: str,
-    consolidation_steps: int,
-    step_remat: str = "auto",
-) -> dict:
+def child(dtype: str, mode: str, **options) -> dict:
+    """One pass (``mode``: forward or reverse) compiled, timed and measured; ``options``: the rollout's."""
     import jax
 
-    forward, reverse, theta = rollout_functions(
-        dtype, size, steps, window, stage, consolidation_steps, step_remat
-    )
+    forward, reverse, theta = rollout_functions(dtype, **options)
     function = forward if mode == "forward" else reverse
     start = time.perf_counter()
     function = function.lower(theta).compile()
@@ -155,12 +151,17 @@ def child(
     }
 
 
+OPTIONS = ("size", "steps", "window", "stage", "consolidation_steps", "step_remat", "unroll")
+
+
 def rollout_parser(steps: int) -> argparse.ArgumentParser:
-    """The rollout's options (size, steps, window, stage, consolidation steps, step remat); shared."""
+    """The rollout's options (:data:`OPTIONS`, :func:`rollout_functions`' arguments); shared."""
+    from membrax.gradients import UNROLL, WINDOW
+
     parser = argparse.ArgumentParser()
     parser.add_argument("--size", choices=tuple(SIZES), default="paper")
     parser.add_argument("--steps", type=int, default=steps)
-    parser.add_argument("--window", type=int, default=50)
+    parser.add_argument("--window", type=int, default=WINDOW)
     parser.add_argument("--stage", choices=("shear", "consolidation"), default="shear")
     parser.add_argument("--consolidation-steps", type=int, default=5000)
     parser.add_argument(
@@ -169,7 +170,18 @@ def rollout_parser(steps: int) -> argparse.ArgumentParser:
         default="auto",
         help="checkpoint each step inside the windows: auto = where membrax.gradients does (the JAX path)",
     )
+    parser.add_argument(
+        "--unroll",
+        type=int,
+        default=UNROLL,
+        help="steps per iteration of the reverse pass's windows' loops; >= --window: whole windows, no loop",
+    )
     return parser
+
+
+def rollout_options(args: argparse.Namespace) -> dict:
+    """:data:`OPTIONS` from parsed arguments, as keyword arguments of :func:`rollout_functions`."""
+    return {name: getattr(args, name) for name in OPTIONS}
 
 
 def main() -> None:
@@ -178,23 +190,11 @@ def main() -> None:
     parser.add_argument("--dtypes", default=",".join(DTYPES), help="comma-separated dtypes to run")
     args = parser.parse_args()
     if args.child:
-        print(
-            json.dumps(
-                child(
-                    *args.child,
-                    args.size,
-                    args.steps,
-                    args.window,
-                    args.stage,
-                    args.consolidation_steps,
-                    args.step_remat,
-                )
-            )
-        )
+        print(json.dumps(child(*args.child, **rollout_options(args))))
         return
     print(
         f"gradient benchmark: {args.size} size, {args.stage}, {args.steps} steps, windows of {args.window} "
-        f"(jax.checkpoint; steps rematerialised: {args.step_remat})"
+        f"(jax.checkpoint; steps rematerialised: {args.step_remat}; reverse windows unrolled: {args.unroll})"
         + (f", after {args.consolidation_steps} steps of consolidation" if args.stage == "shear" else "")
     )
     print(
@@ -206,12 +206,7 @@ def main() -> None:
     for dtype in args.dtypes.split(","):
         rows = {}
         for mode in ("forward", "reverse"):
-            command = [sys.executable, __file__, "--child", dtype, mode, "--size", args.size]
-            command += ["--steps", str(args.steps), "--window", str(args.window), "--stage", args.stage]
-            command += ["--consolidation-steps", str(args.consolidation_steps)]
-            command += ["--step-remat", args.step_remat]
-            output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
-            rows[mode] = json.loads(output.strip().splitlines()[-1])
+            rows[mode] = run_child(__file__, [dtype, mode], rollout_options(args))
         forward, reverse = rows["forward"], rows["reverse"]
         print(
             f"{dtype:<8}{forward['compile_s']:>12.1f}{forward['run_s']:>12.2f}{reverse['compile_s']:>12.1f}"

@@ -8,16 +8,18 @@ import time
 DTYPES = ("float32", "float64")
 
 
+def run_child(script: str, child: list, options: dict) -> dict:
+    """Run ``script --child CHILD... --key value ...`` (``options``' keys as flags); its last JSON line."""
+    command = [sys.executable, script, "--child", *child]
+    for key, value in options.items():
+        command += [f"--{key.replace('_', '-')}", str(value)]
+    output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
+    return json.loads(output.strip().splitlines()[-1])
+
+
 def run_each_dtype(script: str, options: dict, dtypes=DTYPES) -> list[dict]:
     """Run ``script --child DTYPE --key value ...`` once per dtype; each child prints one JSON line."""
-    rows = []
-    for dtype in dtypes:
-        command = [sys.executable, script, "--child", dtype]
-        for key, value in options.items():
-            command += [f"--{key.replace('_', '-')}", str(value)]
-        output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
-        rows.append(json.loads(output.strip().splitlines()[-1]))
-    return rows
+    return [run_child(script, [dtype], options) for dtype in dtypes]
 
 
 def timed(function, *args):

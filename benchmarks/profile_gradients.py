@@ -21,7 +21,7 @@ The forward kernels of the membrane forces, the node–sphere law and the sphere
 unnamed pool tasks, are in no column.
 
 Run: ``python benchmarks/profile_gradients.py [--size small|paper] [--stage shear|consolidation]
-[--steps 500] [--window 50] [--consolidation-steps 5000] [--top 0]``.
+[--steps 500] [--window 50] [--consolidation-steps 5000] [--unroll 2] [--top 0]``.
 """
 
 import collections
@@ -32,7 +32,7 @@ import re
 import tempfile
 import time
 
-from bench_gradients import rollout_functions, rollout_parser
+from bench_gradients import rollout_functions, rollout_options, rollout_parser
 from harness import run_each_dtype
 
 PHASES = ("first", "recompute", "backward", "loop")
@@ -72,12 +72,12 @@ def traced_events(folder: str) -> list[dict]:
         return [event for event in json.load(trace)["traceEvents"] if event.get("ph") == "X"]
 
 
-def child(dtype, size, steps, window, stage, consolidation_steps, top, step_remat="auto") -> dict:
+def child(dtype, top, **options) -> dict:
+    """The forward and reverse passes timed, and one reverse call traced and summed by phase."""
     import jax
 
-    forward, reverse, theta = rollout_functions(
-        dtype, size, steps, window, stage, consolidation_steps, step_remat
-    )
+    forward, reverse, theta = rollout_functions(dtype, **options)
+    steps = options["steps"]
     times = {}
     for name, function in (("forward", forward), ("reverse", reverse)):
         jax.block_until_ready(function(theta))
@@ -126,21 +126,14 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=0)
     parser.add_argument("--child")
     args = parser.parse_args()
-    options = {
-        "size": args.size,
-        "steps": args.steps,
-        "window": args.window,
-        "stage": args.stage,
-        "consolidation_steps": args.consolidation_steps,
-        "top": args.top,
-        "step_remat": args.step_remat,
-    }
+    options = {**rollout_options(args), "top": args.top}
     if args.child:
         print(json.dumps(child(args.child, **options)))
         return
     print(
         f"reverse-mode profile: {args.size} size, {args.stage}, {args.steps} steps, windows of "
-        f"{args.window}; thread time per step (ms), by phase of the reverse pass"
+        f"{args.window} (reverse windows unrolled: {args.unroll}); thread time per step (ms), by phase of "
+        "the reverse pass"
     )
     columns = [f"{phase} {kind}" for phase in PHASES for kind in ("kernels", "xla")]
     columns.remove("loop kernels")

@@ -37,7 +37,7 @@ import optax
 import scipy.optimize
 
 from membrax.config import TriaxialConfig
-from membrax.gradients import consolidation_rollout
+from membrax.gradients import WINDOW, consolidation_rollout
 from membrax.sensitivities import OUTPUTS
 
 __all__ = ["OBSERVED", "InverseProblem", "InverseResult", "invert", "invert_gradient_free"]
@@ -84,13 +84,13 @@ class InverseProblem:
         batched fields (several cell pressures, say); the parameters are shared by all.
       wrt: the parameters to recover, names from :data:`membrax.sensitivities.PARAMETERS`.
       steps: consolidation steps of the rollout.
-      window: checkpoint window, steps.
+      window: checkpoint window, steps (:data:`membrax.gradients.WINDOW`).
 
     Raises:
       ValueError: a configuration in the paper's mode, or an unknown parameter.
     """
 
-    def __init__(self, configs, wrt: Sequence[str], steps: int, window: int = 50):
+    def __init__(self, configs, wrt: Sequence[str], steps: int, window: int = WINDOW):
         configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
         if not all(c.viscous_damping for c in configs):
             raise ValueError(

@@ -17,7 +17,9 @@ compiled call; :func:`rollout_differences` the same by central differences of th
 
 Memory: each member's rollout is a ``lax.scan`` over windows of ``window`` steps, each window wrapped in
 ``jax.checkpoint``, so reverse mode keeps steps/window window-start states and recomputes one window's
-steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward).
+steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward);
+``unroll`` ≥ ``window`` runs each window without a loop, faster but slower to compile
+(:func:`checkpoint_window`).
 Where the step runs the JAX code instead of the compiled kernels, each step is checkpointed too
 (:func:`checkpoint_window`).
 
@@ -60,6 +62,8 @@ from membrax.sensitivities import (
 from membrax.stages import GEOMETRY_FIELDS, BatchedTest, build_batch
 
 __all__ = [
+    "UNROLL",
+    "WINDOW",
     "Rollout",
     "checkpoint_window",
     "consolidation_rollout",
@@ -69,28 +73,43 @@ __all__ = [
 ]
 
 
-def checkpoint_window(step, window: int, dtype, rematerialize_steps: bool | None = None, unroll: int = 2):
-    """``window`` steps of ``step(state, params)`` in a ``fori_loop``, as one ``jax.checkpoint`` window.
+WINDOW = 50
+"""Steps per ``jax.checkpoint`` window of the rollouts (the default of every rollout's ``window``)."""
+
+UNROLL = 2
+"""Steps per iteration of a window's loop (the default of :func:`checkpoint_window` and the rollouts)."""
+
+
+def checkpoint_window(
+    step, window: int, dtype, rematerialize_steps: bool | None = None, unroll: int = UNROLL
+):
+    """``window`` steps of ``step(state, params)`` as one ``jax.checkpoint`` window.
 
     Reverse mode through a scan of these keeps each window's start state, and, while it goes back through
     a window, what each of its steps' derivatives needs (the residuals). With the compiled kernels
-    (:func:`membrax.native.runs_kernels`) that is about 3.2 MB per paper-size float32 step, against a 2.35-MB
+    (:func:`membrax.native.runs_kernels`) that is about 2.5 MB per paper-size float32 step, against a 2.35-MB
     state. XLA's derivative of the JAX code (other backends, ``MEMBRAX_NATIVE=0``) keeps far more, about
     70 MB per step (``benchmarks/bench_gradients.py``'s program buffers), so there each step is itself
     checkpointed: the window's pass keeps the steps' input states alone and each step runs once more,
     forward, just before its backward pass.
 
-    The loop is unrolled by ``unroll`` steps. Unrolled by 2, 5.6 % came off the reverse pass (paper size,
-    float32, 500 steps of consolidation, runs alternated in one process: median 2.663 → 2.514 s; by 5,
-    2.501 s, with a third more compile time); presumably the loops' carry copies (the reverse pass's loops
-    copy the carried springs, positions and velocities each iteration), which were not traced again.
+    The window's loop (``fori_loop``) runs ``unroll`` steps per iteration: by 2, 5.6 % came off the
+    reverse pass against 1 (paper size, float32, 500 steps of consolidation, windows of 50, runs
+    alternated in one process: median 2.663 → 2.514 s). With ``unroll >= window`` the window has no loop
+    (a Python loop, unrolled whole). A loop keeps its steps' residuals in stacks, which XLA zero-fills,
+    writes one slice at a time, reads back and copies with the loop's carry; a whole window keeps each
+    residual in a buffer of its own. Whole windows of 10 took 9 % off the reverse pass against loop
+    windows of 50 (same script: median 2.37 → 2.16 s; 2,000 steps: 10–18 %) at the cost of 17–18 s more
+    compile time per differentiated program (31 against 10 s at paper size, 28 against 10 s at the
+    small one), 5× the window starts' memory, and a slower forward (0.549 against 0.524 s), so they pay
+    only for long or repeated reverse passes; forward runs keep the loop (:attr:`Rollout.forward`).
 
     Args:
       step: the time step, ``(state, params) → state``.
       window: steps per window.
       dtype: the simulation's float dtype (which path the step takes).
       rematerialize_steps: checkpoint each step too; None (default) where the step runs the JAX code.
-      unroll: steps per iteration of the window's loop.
+      unroll: steps per iteration of the window's loop; ``window`` or more: the whole window, no loop.
 
     Returns:
       ``(state, params) → state`` after ``window`` steps, checkpointed.
@@ -101,6 +120,10 @@ def checkpoint_window(step, window: int, dtype, rematerialize_steps: bool | None
 
     @jax.checkpoint
     def run(state, params):
+        if unroll >= window:  # the whole window: no loop, no residual stacks
+            for _ in range(window):
+                state = inner(state, params)
+            return state
         return jax.lax.fori_loop(0, window, lambda _, s: inner(s, params), state, unroll=unroll)
 
     return run
@@ -119,6 +142,8 @@ class Rollout:
       geometry: d(rest geometry)/d t_m per member (empty unless t_m is in ``wrt``).
       shear_steps: shearing time steps after the consolidation, a multiple of ``window`` (0: none).
       shear: (inertial number, ramp strain, symmetric) of the shearing (the configurations').
+      unroll: steps per iteration of the windows' loops in reverse mode (:func:`checkpoint_window`;
+        ≥ ``window``: whole windows); forward-only runs loop by :data:`UNROLL`.
     """
 
     batch: BatchedTest
@@ -129,13 +154,15 @@ class Rollout:
     geometry: dict
     shear_steps: int = 0
     shear: tuple = ()
+    unroll: int = UNROLL
 
-    def member_final(self, theta, params, member, state, geometry):
+    def member_final(self, theta, params, member, state, geometry, unroll=None):
         """One member's run at ``theta`` (P,): (final state, reference (height, volume), mesh, params).
 
         Consolidation for :attr:`steps`, then, if :attr:`shear_steps`, shearing from where it stopped
         (the platens switched to constant velocity, :meth:`MembraneTest.start_shear`, the reference the
-        state there); each a ``lax.scan`` over ``jax.checkpoint`` windows.
+        state there); each a ``lax.scan`` over ``jax.checkpoint`` windows, their loops unrolled by
+        ``unroll`` steps (:func:`checkpoint_window`; None: :attr:`unroll`).
         """
         template = self.batch.tests[0]
         mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
@@ -150,7 +177,10 @@ class Rollout:
             geometry=geometry,
             clamp_position=state.membrane.clamp_position,
         )
-        run = checkpoint_window(template.make_step(mesh), self.window, mesh.reference_position.dtype)
+        unroll = self.unroll if unroll is None else unroll
+        run = checkpoint_window(
+            template.make_step(mesh), self.window, mesh.reference_position.dtype, unroll=unroll
+        )
 
         def window(s, _):
             return run(s, params), None
@@ -166,15 +196,16 @@ class Rollout:
             final, _ = jax.lax.scan(window, final, None, length=self.shear_steps // self.window)
         return final, reference, mesh, params
 
-    def member_outputs(self, theta, params, member, state, geometry):
+    def member_outputs(self, theta, params, member, state, geometry, unroll=None):
         """One member's outputs (6,), Pa, at ``theta`` (P,) (§4.3's stresses at the end), and error bits."""
-        final, reference, mesh, params = self.member_final(theta, params, member, state, geometry)
+        final, reference, mesh, params = self.member_final(theta, params, member, state, geometry, unroll)
         outputs = measure_outputs(final, self.batch.tests[0], mesh, params, reference)
         return outputs, final.dem.error
 
-    def outputs_and_errors(self, theta):
-        """((B, 6) outputs in Pa, (B,) error bits) at ``theta`` (B, P)."""
-        return jax.vmap(self.member_outputs)(jnp.asarray(theta), *self.real_members(), self.geometry)
+    def outputs_and_errors(self, theta, unroll=None):
+        """((B, 6) outputs in Pa, (B,) error bits) at ``theta`` (B, P); ``unroll`` as :meth:`member_final`."""
+        member = functools.partial(self.member_outputs, unroll=unroll)
+        return jax.vmap(member)(jnp.asarray(theta), *self.real_members(), self.geometry)
 
     def real_members(self):
         """(params, members, start states) of the real members (the batch's padding dropped)."""
@@ -190,8 +221,12 @@ class Rollout:
 
     @functools.cached_property
     def forward(self):
-        """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout."""
-        return jax.jit(self.outputs_and_errors)
+        """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout, loops unrolled by 2.
+
+        Its windows' loops run :data:`UNROLL` steps per iteration whatever :attr:`unroll` is: a forward
+        runs faster so than through whole windows (:func:`checkpoint_window`).
+        """
+        return jax.jit(functools.partial(self.outputs_and_errors, unroll=UNROLL))
 
     @functools.cached_property
     def values_and_jacobians(self):
@@ -211,13 +246,17 @@ class Rollout:
         """The members' final states at their own parameters (to size the tables), stacked."""
 
         def one(*args):
-            return self.member_final(*args)[0]
+            return self.member_final(*args, unroll=UNROLL)[0]
 
         return jax.jit(jax.vmap(one))(jnp.asarray(self.theta0), *self.real_members(), self.geometry)
 
 
 def consolidation_rollout(
-    configs: Sequence[TriaxialConfig] | TriaxialConfig, wrt: Sequence[str], steps: int, window: int = 50
+    configs: Sequence[TriaxialConfig] | TriaxialConfig,
+    wrt: Sequence[str],
+    steps: int,
+    window: int = WINDOW,
+    unroll: int = UNROLL,
 ) -> Rollout:
     """The consolidation rollout of ``configs`` (one batch, one Δt and mesh topology) over ``wrt``.
 
@@ -230,12 +269,14 @@ def consolidation_rollout(
       wrt: parameter names, from :data:`membrax.sensitivities.PARAMETERS`.
       steps: time steps from the start of consolidation (rounded up to whole windows).
       window: steps per checkpoint window.
+      unroll: steps per iteration of the windows' loops in reverse mode; ≥ ``window``: whole windows,
+        faster to run and slower to compile (:func:`checkpoint_window`).
 
     Raises:
       ValueError: an unknown parameter, or steps or window below 1.
       membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
     """
-    return _rollout(configs, wrt, steps, 0, window)
+    return _rollout(configs, wrt, steps, 0, window, unroll)
 
 
 def shearing_rollout(
@@ -243,7 +284,8 @@ def shearing_rollout(
     wrt: Sequence[str],
     shear_steps: int,
     consolidation_steps: int,
-    window: int = 50,
+    window: int = WINDOW,
+    unroll: int = UNROLL,
 ) -> Rollout:
     """The rollout of ``configs`` through consolidation and then shearing, for the given steps of each.
 
@@ -259,6 +301,7 @@ def shearing_rollout(
       shear_steps: time steps of shearing (rounded up to whole windows), ≥ 1.
       consolidation_steps: time steps of consolidation before it (rounded up to whole windows), ≥ 1.
       window: steps per checkpoint window.
+      unroll: as :func:`consolidation_rollout`'s.
 
     Raises:
       ValueError: an unknown parameter, steps or window below 1, or configurations that shear differently.
@@ -266,10 +309,10 @@ def shearing_rollout(
     """
     if shear_steps < 1:
         raise ValueError(f"shear_steps = {shear_steps}: give a positive integer.")
-    return _rollout(configs, wrt, consolidation_steps, shear_steps, window)
+    return _rollout(configs, wrt, consolidation_steps, shear_steps, window, unroll)
 
 
-def _rollout(configs, wrt, steps: int, shear_steps: int, window: int) -> Rollout:
+def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: int = UNROLL) -> Rollout:
     from membrax.driver import SimulationError
 
     configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
@@ -292,7 +335,7 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int) -> Rollout
     else:
         geometry = {}
     theta0 = np.asarray([[float(getattr(c, name)) for name in wrt] for c in batch.configs])
-    rollout = Rollout(batch, wrt, steps, window, theta0, geometry, shear_steps, next(iter(shear)))
+    rollout = Rollout(batch, wrt, steps, window, theta0, geometry, shear_steps, next(iter(shear)), unroll)
     forward = rollout.forward
     for _ in range(8):
         _, errors = forward(jnp.asarray(theta0))

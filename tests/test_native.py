@@ -723,11 +723,13 @@ def test_node_step_cotangents_in_float32_hold_the_float64_ones():
 
 
 @pytest.mark.slow
-def test_rollout_gradient_on_the_jax_path_rematerialises_each_step_and_equals_the_kernels(monkeypatch):
-    """A checkpointed rollout's gradient is the same whichever path the step takes (float64, round-off).
+def test_rollout_gradient_is_the_same_through_whole_windows_loop_windows_and_the_jax_path(monkeypatch):
+    """A checkpointed rollout's gradient is the same whichever way its windows run (float64, round-off).
 
-    With the kernels switched off the step is XLA's JAX code and ``checkpoint_window`` checkpoints each
-    step inside its window (its residuals are ~20× the kernels' per step); the gradient must not move.
+    ``checkpoint_window`` runs each window as a loop (two steps per iteration, the default) or, with
+    ``unroll`` ≥ ``window``, whole, without a loop (no residual stacks); the gradient must not move. With
+    the kernels switched off the step is XLA's JAX code and each step is checkpointed inside the windows
+    (its residuals are ~20× the kernels' per step); nor there.
     """
     from helpers import SMALL_MEMBRANE_TEST
 
@@ -737,15 +739,17 @@ def test_rollout_gradient_on_the_jax_path_rematerialises_each_step_and_equals_th
     wrt = ("membrane_modulus_kpa", "membrane_friction_angle_deg")
     weights = jnp.asarray(np.random.default_rng(7).normal(size=(1, 6)))
 
-    def gradient_and_program(rollout):
+    def gradient_and_program(rollout, unroll=None):  # None: the rollout's own (a loop by 2)
         theta = jnp.asarray(rollout.theta0)
-        program = jax.jit(jax.grad(lambda t: jnp.sum(weights * rollout.outputs(t)))).lower(theta)
+        objective = lambda t: jnp.sum(weights * rollout.outputs_and_errors(t, unroll)[0])  # noqa: E731
+        program = jax.jit(jax.grad(objective)).lower(theta)
         jaxpr = str(jax.make_jaxpr(rollout.outputs)(theta))
         return np.asarray(program.compile()(theta)), program.as_text(), jaxpr.count("remat")
 
     with jax.enable_x64(True):
-        rollout = gradients.consolidation_rollout(config, wrt, steps=100)
+        rollout = gradients.consolidation_rollout(config, wrt, steps=100, window=5)
         kernels, kernel_program, kernel_checkpoints = gradient_and_program(rollout)
+        whole_windows, whole_program, _ = gradient_and_program(rollout, unroll=5)
         with monkeypatch.context() as patch:
             patch.setenv("MEMBRAX_NATIVE", "0")
             native.available.cache_clear()
@@ -757,3 +761,7 @@ def test_rollout_gradient_on_the_jax_path_rematerialises_each_step_and_equals_th
     assert jax_checkpoints == kernel_checkpoints + 1  # each step checkpointed inside the windows
     assert np.all(np.abs(kernels) > 0.0)
     assert _relative_error(jax_code, kernels) < 1e-9  # measured 2e-11 over 200 steps
+    assert _relative_error(whole_windows, kernels) < 1e-9
+    # a whole window calls its five steps' kernels; a loop window's body one step's (its unroll is a
+    # parameter of the scan until XLA compiles it)
+    assert whole_program.count("membrax_node_sphere") > kernel_program.count("membrax_node_sphere")
