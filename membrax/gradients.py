@@ -101,8 +101,9 @@ def checkpoint_window(
     residual in a buffer of its own. Whole windows of 10 took 9 % off the reverse pass against loop
     windows of 50 (same script: median 2.37 → 2.16 s; 2,000 steps: 10–18 %) at the cost of 17–18 s more
     compile time per differentiated program (31 against 10 s at paper size, 28 against 10 s at the
-    small one), 5× the window starts' memory, and a slower forward (0.549 against 0.524 s), so they pay
-    only for long or repeated reverse passes; forward runs keep the loop (:attr:`Rollout.forward`).
+    small one), five times as many window starts to keep, and a slower forward (0.549 against
+    0.524 s), so they pay only for long or repeated reverse passes; forward runs keep the loop
+    (:attr:`Rollout.forward`).
 
     Args:
       step: the time step, ``(state, params) → state``.
@@ -273,7 +274,7 @@ def consolidation_rollout(
         faster to run and slower to compile (:func:`checkpoint_window`).
 
     Raises:
-      ValueError: an unknown parameter, or steps or window below 1.
+      ValueError: an unknown parameter, or steps, window or unroll below 1.
       membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
     """
     return _rollout(configs, wrt, steps, 0, window, unroll)
@@ -304,7 +305,8 @@ def shearing_rollout(
       unroll: as :func:`consolidation_rollout`'s.
 
     Raises:
-      ValueError: an unknown parameter, steps or window below 1, or configurations that shear differently.
+      ValueError: an unknown parameter, steps, window or unroll below 1, or configurations that shear
+        differently.
       membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
     """
     if shear_steps < 1:
@@ -318,8 +320,8 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: in
     configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
     wrt = tuple(wrt)
     _check_wrt(wrt)
-    if steps < 1 or window < 1:
-        raise ValueError(f"steps = {steps}, window = {window}: give positive integers.")
+    if steps < 1 or window < 1 or unroll < 1:
+        raise ValueError(f"steps = {steps}, window = {window}, unroll = {unroll}: give positive integers.")
     shear = {(c.inertial_number, c.shear_ramp_strain, c.symmetric_loading) for c in configs}
     if shear_steps and len(shear) > 1:
         raise ValueError(

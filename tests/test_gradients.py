@@ -90,6 +90,20 @@ def test_spring_rotation_is_unchanged_for_physical_springs_and_bounded_for_round
             np.testing.assert_allclose(jacobian[:, k], difference, rtol=1e-6, atol=1e-9)
 
 
+def test_rollouts_name_the_bad_count_before_building_anything():
+    wrt = ("membrane_modulus_kpa",)
+    for counts, named in (
+        ({"steps": 0}, "steps = 0"),
+        ({"window": 0}, "window = 0"),
+        ({"unroll": 0}, "unroll = 0"),
+    ):
+        arguments = {"steps": 10, **counts}
+        with pytest.raises(ValueError, match=named):
+            gradients.consolidation_rollout(SMOOTH, wrt, **arguments)
+    with pytest.raises(ValueError, match="unroll = -1"):
+        gradients.shearing_rollout(SMOOTH, wrt, shear_steps=10, consolidation_steps=10, unroll=-1)
+
+
 @pytest.mark.slow
 def test_checkpointed_gradients_through_consolidation_and_shearing_match_central_differences_under_vmap():
     # two Table 1-like members in one compiled call (vmap): 10 kPa in 5 mm, 40 kPa in 2.5 mm; 1,000 steps of
