@@ -97,10 +97,10 @@ def rollout_functions(
     # both passes, each unrolled as the library's rollouts do: without differentiation a checkpoint is
     # the plain loop, so the forward is the program Rollout.forward runs, and the reverse Rollout's.
     remat = {"auto": None, "on": True, "off": False}[step_remat]
-    dtype_ = test.mesh.reference_position.dtype
+    float_dtype = test.mesh.reference_position.dtype
 
     def output(theta, unroll):  # θ = (E_m, σc) in kPa; σc also sets the servo target (consolidation)
-        run = checkpoint_window(step, window, dtype_, remat, unroll)
+        run = checkpoint_window(step, window, float_dtype, remat, unroll)
         values = {"membrane_modulus_kpa": theta[0], "cell_pressure_kpa": theta[1]}
         params, _, start = apply_parameters(values, base, test.mesh, state)
         final, _ = jax.lax.scan(lambda s, _: (run(s, params), None), start, None, length=steps // window)

@@ -17,11 +17,10 @@ compiled call; :func:`rollout_differences` the same by central differences of th
 
 Memory: each member's rollout is a ``lax.scan`` over windows of ``window`` steps, each window wrapped in
 ``jax.checkpoint``, so reverse mode keeps steps/window window-start states and recomputes one window's
-steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward);
-``unroll`` ≥ ``window`` runs each window without a loop, faster but slower to compile
-(:func:`checkpoint_window`).
-Where the step runs the JAX code instead of the compiled kernels, each step is checkpointed too
-(:func:`checkpoint_window`).
+steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward).
+With ``unroll`` ≥ ``window`` each window runs without a loop, faster but slower to compile; where the step
+runs the JAX code instead of the compiled kernels, each step is checkpointed too (both:
+:func:`checkpoint_window`).
 
 Which outputs have a derivative. The rollout is differentiable where the map θ → final state is: with
 ``viscous_damping`` (the smooth mode, :class:`membrax.config.TriaxialConfig`), the step is continuous and
