@@ -15,8 +15,8 @@ of two stages (``--stage``):
   ``jax.checkpoint``, so reverse mode stores N/W window-start states and recomputes one window's steps
   at a time (θ = E_m and σc); the windows are the library's (:func:`membrax.gradients.checkpoint_window`):
   a loop of ``--unroll`` steps per iteration, or with ``--unroll`` ≥ ``--window`` whole windows without
-  a loop; on the JAX path (``MEMBRAX_NATIVE=0``, a GPU) each step checkpointed inside them too
-  (``--step-remat`` forces it on or off);
+  a loop; on a CPU's JAX path (``MEMBRAX_NATIVE=0``) each step checkpointed inside them too, not on a
+  GPU, where it does not pay (``--step-remat`` forces it on or off);
 
 each in its own process, once per dtype, printing compile time (lowering and compiling), run time (best
 of 3 after one warm-up), peak RSS, the compiled program's own buffers (XLA's ``memory_analysis``:
@@ -61,7 +61,7 @@ def rollout_functions(
     """(forward, reverse, θ): y(θ) and (y, dy/dθ), both jitted, for the rollout described above.
 
     ``step_remat``: "auto" checkpoints each step inside the windows where the library does
-    (:func:`membrax.gradients.checkpoint_window`: on the JAX path), "on" and "off" force it.
+    (:func:`membrax.gradients.checkpoint_window`: on a CPU's JAX path), "on" and "off" force it.
     ``unroll``: steps per iteration of the reverse pass's windows' loops (None: the library's default,
     :data:`membrax.gradients.UNROLL`; ≥ ``window``: whole windows, no loop); the forward's loops are
     unrolled by that default whatever it is, as :attr:`membrax.gradients.Rollout.forward`'s.

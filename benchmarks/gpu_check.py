@@ -11,8 +11,12 @@ Runs, in turn, each as its own process with a timeout, writing its output under 
 5. ``membrax reproduce --size paper`` with the time left, its tables copied to ``--out``; if it cannot
    finish, its progress log still says how far it got;
 6. step 2 in float32, with what is left;
-7. step 3 with ``--step-remat off`` (the windows' steps not checkpointed one by one, as before
-   2026-11-26 on the JAX path), with what is left: the GPU's side of that change.
+7. step 3 with ``--step-remat on`` (the windows' steps checkpointed one by one, as on a CPU's JAX path;
+   on one H200 it cost 16 % more time and 12 % more program buffers, so a GPU's default is off);
+8. step 3 through whole windows (``--window 10 --unroll 10``: no loop inside a checkpoint window; on one
+   H200 its two passes did not finish in 180 s, 2026-11-26);
+9. ``tests/test_gradients.py``'s central-difference test (two members under ``vmap``, 2,000 steps, float64):
+   the checkpointed reverse pass checked on the GPU's JAX path, with what is left.
 
 Step 5 is predicted from step 2's float64 rate (``REPRODUCE_BATCH_STEPS`` batched steps, the longest
 member's at paper size) and run before steps 3–4 when it fits only without them. The prediction is low:
@@ -41,7 +45,16 @@ HERE = Path(__file__).resolve().parent
 # Consolidation (10,000) then shearing (24,500 + 110,250) steps of the 10 kPa members, the last to finish
 # at paper size (README: membrax reproduce --size paper).
 REPRODUCE_BATCH_STEPS = 144_750
-STEPS = ("sweep64", "reproduce", "gradients", "dem", "sweep32", "gradients-off")
+STEPS = (
+    "sweep64",
+    "reproduce",
+    "gradients",
+    "dem",
+    "sweep32",
+    "gradients-on",
+    "gradients-whole",
+    "test-gradients",
+)
 
 
 def run(name: str, command: list[str], timeout: float, out: Path) -> str:
@@ -150,9 +163,18 @@ def main() -> None:
         reproduce()
     if "sweep32" in steps:
         run("bench_sweep_float32.txt", bench(*sweep, "float32"), min(200.0, left() - 5), out)
-    if "gradients-off" in steps:
-        off = [*gradients, "--dtypes", "float32", "--step-remat", "off"]
-        run("bench_gradients_off.txt", off, min(150.0, left() - 5), out)
+    if "gradients-on" in steps:
+        on = [*gradients, "--dtypes", "float32", "--step-remat", "on"]
+        run("bench_gradients_on.txt", on, min(150.0, left() - 5), out)
+    if "gradients-whole" in steps:
+        whole = [*gradients, "--dtypes", "float32", "--window", "10", "--unroll", "10"]
+        run("bench_gradients_whole.txt", whole, min(180.0, left() - 5), out)
+    if "test-gradients" in steps:
+        test = "test_checkpointed_gradients_through_consolidation_and_shearing_match_central_differences"
+        # addopts cleared: the image has no nbmake, and this test needs none
+        where = str(HERE.parent / "tests" / "test_gradients.py")
+        pytest = [python, "-m", "pytest", "-o", "addopts=", "-q", "-p", "no:cacheprovider", where, "-k", test]
+        run("test_gradients.txt", pytest, left() - 5, out)
     print(f"\nfiles in {out}: {sorted(p.name for p in out.iterdir())}; {left():.0f} s of the budget left")
 
 

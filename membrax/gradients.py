@@ -19,7 +19,7 @@ Memory: each member's rollout is a ``lax.scan`` over windows of ``window`` steps
 ``jax.checkpoint``, so reverse mode keeps steps/window window-start states and recomputes one window's
 steps at a time (``benchmarks/bench_gradients.py`` measures the time and memory against the forward).
 With ``unroll`` ≥ ``window`` each window runs without a loop, faster but slower to compile; where the step
-runs the JAX code instead of the compiled kernels, each step is checkpointed too (both:
+runs the JAX code on a CPU instead of the compiled kernels, each step is checkpointed too (both:
 :func:`checkpoint_window`).
 
 Which outputs have a derivative. The rollout is differentiable where the map θ → final state is: with
@@ -87,10 +87,13 @@ def checkpoint_window(
     Reverse mode through a scan of these keeps each window's start state, and, while it goes back through
     a window, what each of its steps' derivatives needs (the residuals). With the compiled kernels
     (:func:`membrax.native.runs_kernels`) that is about 2.5 MB per paper-size float32 step, against a 2.35-MB
-    state. XLA's derivative of the JAX code (other backends, ``MEMBRAX_NATIVE=0``) keeps far more, about
-    70 MB per step (``benchmarks/bench_gradients.py``'s program buffers), so there each step is itself
-    checkpointed: the window's pass keeps the steps' input states alone and each step runs once more,
-    forward, just before its backward pass.
+    state. On a CPU without them (``MEMBRAX_NATIVE=0``, a dtype they lack), XLA's derivative of the JAX
+    code keeps far more, about 70 MB per step (``benchmarks/bench_gradients.py``'s program buffers), so
+    there each step is itself checkpointed: the window's pass keeps the steps' input states alone and each
+    step runs once more, forward, just before its backward pass. On a GPU, which runs the JAX code too,
+    that does not pay: on one H200 (paper size, float32, 2,000 steps of consolidation) checkpointing each
+    step made the reverse pass slower (2.57 → 2.99 s) and its program larger (261 → 294 MB of buffers,
+    device peak 268 → 301 MB), so there the steps are not checkpointed one by one.
 
     The window's loop (``fori_loop``) runs ``unroll`` steps per iteration: by 2, 5.6 % came off the
     reverse pass against 1 (paper size, float32, 500 steps of consolidation, windows of 50, runs
@@ -108,14 +111,15 @@ def checkpoint_window(
       step: the time step, ``(state, params) → state``.
       window: steps per window.
       dtype: the simulation's float dtype (which path the step takes).
-      rematerialize_steps: checkpoint each step too; None (default) where the step runs the JAX code.
+      rematerialize_steps: checkpoint each step too; None (default) where the step runs the JAX code on a
+        CPU.
       unroll: steps per iteration of the window's loop; ``window`` or more: the whole window, no loop.
 
     Returns:
       ``(state, params) → state`` after ``window`` steps, checkpointed.
     """
     if rematerialize_steps is None:
-        rematerialize_steps = not native.runs_kernels(dtype)
+        rematerialize_steps = jax.default_backend() == "cpu" and not native.runs_kernels(dtype)
     inner = jax.checkpoint(step) if rematerialize_steps else step
 
     @jax.checkpoint
