@@ -104,6 +104,38 @@ def test_rollouts_name_the_bad_count_before_building_anything():
         gradients.shearing_rollout(SMOOTH, wrt, shear_steps=10, consolidation_steps=10, unroll=-1)
 
 
+def test_windows_checkpoint_each_step_on_a_cpus_jax_path_alone_and_differentiate_alike(monkeypatch):
+    # a window of 4 steps x → a x: y = a⁴ x, dy/da = 4 a³ x, whichever way the window is checkpointed. Each
+    # step is checkpointed too where XLA's CPU derivative of the JAX code would keep ~70 MB per step
+    # (no kernels: MEMBRAX_NATIVE=0), not with the kernels, nor on a GPU (its compiler keeps ~3 MB: README)
+    from membrax import native
+
+    def checkpoints_and_gradient(rematerialize_steps=None):
+        run = gradients.checkpoint_window(lambda x, a: a * x, 4, jnp.float64, rematerialize_steps)
+        objective = lambda a: run(jnp.float64(3.0), a)  # noqa: E731
+        jaxpr = str(jax.make_jaxpr(jax.grad(objective))(jnp.float64(1.5)))
+        return jaxpr.count("remat"), float(jax.grad(objective)(jnp.float64(1.5)))
+
+    window_only, gradient = checkpoints_and_gradient(False)
+    each_step, gradient_each = checkpoints_and_gradient(True)
+    assert each_step > window_only
+    for value in (gradient, gradient_each):
+        assert value == pytest.approx(4 * 1.5**3 * 3.0, rel=1e-14)
+    cases = {"kernels": ("1", "cpu", window_only), "JAX code": ("0", "cpu", each_step)}
+    cases["GPU"] = ("1", "gpu", window_only)
+    for name, (kernels, backend, expected) in cases.items():
+        with monkeypatch.context() as patch:
+            patch.setenv("MEMBRAX_NATIVE", kernels)
+            patch.setattr(jax, "default_backend", lambda backend=backend: backend)
+            native.available.cache_clear()
+            try:
+                if name == "kernels" and not native.runs_kernels(jnp.float64):
+                    continue  # no compiler here: the kernels' case cannot be traced
+                assert checkpoints_and_gradient() == (expected, pytest.approx(gradient, rel=1e-14)), name
+            finally:
+                native.available.cache_clear()
+
+
 @pytest.mark.slow
 def test_checkpointed_gradients_through_consolidation_and_shearing_match_central_differences_under_vmap():
     # two Table 1-like members in one compiled call (vmap): 10 kPa in 5 mm, 40 kPa in 2.5 mm; 1,000 steps of
