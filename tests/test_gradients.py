@@ -121,9 +121,12 @@ def test_windows_checkpoint_each_step_on_a_cpus_jax_path_alone_and_differentiate
     assert each_step > window_only
     for value in (gradient, gradient_each):
         assert value == pytest.approx(4 * 1.5**3 * 3.0, rel=1e-14)
-    cases = {"kernels": ("1", "cpu", window_only), "JAX code": ("0", "cpu", each_step)}
-    cases["GPU"] = ("1", "gpu", window_only)
-    for name, (kernels, backend, expected) in cases.items():
+    cases = (
+        ("kernels", "1", "cpu", window_only),
+        ("JAX code", "0", "cpu", each_step),
+        ("GPU", "1", "gpu", window_only),
+    )
+    for name, kernels, backend, expected in cases:
         with monkeypatch.context() as patch:
             patch.setenv("MEMBRAX_NATIVE", kernels)
             patch.setattr(jax, "default_backend", lambda backend=backend: backend)
