@@ -168,7 +168,7 @@ def rollout_parser(steps: int) -> argparse.ArgumentParser:
         "--step-remat",
         choices=("auto", "on", "off"),
         default="auto",
-        help="checkpoint each step inside the windows: auto = where membrax.gradients does (the JAX path)",
+        help="checkpoint each step inside the windows: auto = as membrax.gradients does (a CPU's JAX path)",
     )
     parser.add_argument(
         "--unroll",

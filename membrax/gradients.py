@@ -119,7 +119,7 @@ def checkpoint_window(
       ``(state, params) → state`` after ``window`` steps, checkpointed.
     """
     if rematerialize_steps is None:
-        rematerialize_steps = jax.default_backend() == "cpu" and not native.runs_kernels(dtype)
+        rematerialize_steps = jax.default_backend() == "cpu" and not native.enabled_for(dtype)
     inner = jax.checkpoint(step) if rematerialize_steps else step
 
     @jax.checkpoint
@@ -225,7 +225,7 @@ class Rollout:
 
     @functools.cached_property
     def forward(self):
-        """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout, loops unrolled by 2.
+        """:meth:`outputs_and_errors` compiled (``jax.jit``), once per rollout.
 
         Its windows' loops run :data:`UNROLL` steps per iteration whatever :attr:`unroll` is: a forward
         runs faster so than through whole windows (:func:`checkpoint_window`).
