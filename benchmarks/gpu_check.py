@@ -21,7 +21,8 @@ Runs, in turn, each as its own process with a timeout, writing its output under 
 Step 5 is predicted from step 2's float64 rate (``REPRODUCE_BATCH_STEPS`` batched steps, the longest
 member's at paper size) and run before steps 3–4 when it fits only without them. The prediction is low:
 step 2 times consolidation steps, and on the one H200 measured (2026-11-26) the reproduction's shearing
-steps took 1.7× as long (predicted 307 s; the run reached 89 % of its steps in 449 s).
+steps took 1.7× as long (predicted 307 s; the run reached 89 % of its steps in 449 s). A later H200 with
+no compilation cache reached the same step in 562 s, and ``--resume`` finished it in 116 s more.
 
 On the lent machines the image's JAX is used and the packages it lacks travel as wheels (jax-md, e3nn-jax,
 jraph, ml_collections, meshio: ``pip download --no-deps`` into ``.whl/``, then
@@ -29,7 +30,8 @@ jraph, ml_collections, meshio: ``pip download --no-deps`` into ``.whl/``, then
 
 Run on the device machine, in the repository root: ``python3 benchmarks/gpu_check.py --budget 540``; with
 ``--size small`` it is a quick check of the script itself on any machine. ``--only reproduce`` gives the
-reproduction the whole budget (it did not fit beside the benchmarks in one 10-minute call on an H200).
+reproduction the whole budget (it did not fit beside the benchmarks in one 10-minute call on an H200);
+``--resume`` in a later call on the same machine continues it from its checkpoints in ``/tmp``.
 """
 
 import argparse
@@ -90,7 +92,13 @@ def main() -> None:
     parser.add_argument(
         "--only",
         default=",".join(STEPS),
-        help=f"comma-separated steps to run, of {','.join(STEPS)} (reproduce alone: ≈ 510-560 s on an H200)",
+        help=f"comma-separated steps to run, of {','.join(STEPS)} (reproduce alone: 620-680 s on an H200, "
+        "more than one 10-minute call: finish it with --resume)",
+    )
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an interrupted reproduction from its checkpoints (a later call on the same machine)",
     )
     args = parser.parse_args()
     steps = set(args.only.split(","))
@@ -134,14 +142,11 @@ def main() -> None:
 
     def reproduce() -> None:
         folder = Path("/tmp") / f"reproduce_{args.size}"
-        shutil.rmtree(folder, ignore_errors=True)
-        run(
-            "reproduce.log",
-            [python, "-m", "membrax.cli", "reproduce", "--size", args.size, "--out", str(folder)],
-            left() - 10,
-            out,
-        )
-        for name in ("table2.md", "table3.md"):
+        if not args.resume:
+            shutil.rmtree(folder, ignore_errors=True)
+        command = [python, "-m", "membrax.cli", "reproduce", "--size", args.size, "--out", str(folder)]
+        run("reproduce.log", command + ["--resume"] * args.resume, left() - 10, out)
+        for name in ("table2.md", "table3.md", "reproduction.md"):
             if (folder / name).exists():
                 shutil.copy(folder / name, out / name)
 
