@@ -104,12 +104,14 @@ def reproduce(
     )
     files["fig9"] = plots.save_fig9(ours, folder, paper=paper.paper_fig9_data())
     seconds = time.perf_counter() - started
+    # A resumed call times only its own part of the run.
+    timed = "this call (resumed from any checkpoints) ran the sweep in" if resume else "the sweep ran in"
     text = [
         f"# membrax reproduction ({size})\n",
         f"Specimen {base.particles_across} × {base.layers} layers, "
         f"membrane edge D/{base.membrane_edges_per_diameter:g}, "
         f"I = {base.inertial_number:g}, to {100 * base.target_axial_strain:g} % axial strain, "
-        f"{'float64' if base.float64 else 'float32'}; the sweep ran in {result.seconds:.0f} s, "
+        f"{'float64' if base.float64 else 'float32'}; {timed} {result.seconds:.0f} s, "
         f"everything in {seconds:.0f} s.\n",
         "Members' consolidation steps (rows σc, columns t_m):\n",
         "```\n" + str(dataset["consolidation_steps"].values.astype(int)) + "\n```\n",
