@@ -25,8 +25,17 @@ prediction error on cases it was not fitted on, the leave-one-case-out RMS of ``
 the JSON; the fit's RMS residual if there was no cross-validation), added in quadrature. For φ' it is
 propagated through sin φ' = (σ1 − σ3)/(σ1 + σ3), the axial and radial errors taken as independent.
 
+Outside the fitted range. The record's dimensionless groups and strains (:data:`CHECKED_INPUTS`) are
+checked against the ranges of the table the correction was fitted on; each one outside is warned about in
+a laboratory's words (:data:`QUANTITY_WORDS`), with its value and the fitted range. The band there is not
+the in-range one: with δ the largest distance outside a range, per row, in units of that range's width
+(in logarithms for the ratios of sizes and stiffnesses, :data:`LOG_DISTANCE`), the standard deviation is
+multiplied by 1 + δ (it doubles one range's width outside), and beyond δ = :data:`MAX_EXTRAPOLATION` the
+fitted method is withheld (NaN): a linear model carried further than the span it was fitted on is a guess.
+
 :func:`write_correction` writes the CSV and the plot (σ1, σ3, φ' side by side) atomically: a failure
-leaves no file half-written. ``membrax correct`` is :func:`correct_file`.
+leaves no file half-written. ``membrax correct`` is :func:`correct_file`: it never writes over the record
+it reads, and writes into the working folder by default, never beside a record inside the package.
 """
 
 from __future__ import annotations
@@ -53,6 +62,9 @@ __all__ = [
     "correct_record",
     "default_corrections",
     "example_record_path",
+    "extrapolation_distances",
+    "output_paths",
+    "range_warnings",
     "write_correction",
 ]
 
@@ -69,6 +81,31 @@ LABELS = {
 CHECKED_INPUTS = persistence.RANGE_INPUTS
 DEFAULT_MODEL_FILE = "default_corrections.json"
 EXAMPLE_RECORD_FILE = "example_record.csv"
+#: The example values the specimen's errors suggest (a 150 mm ballast test, the paper's latex).
+SPECIMEN_EXAMPLES = {
+    "specimen_diameter_mm": 150.0,
+    "particle_size_mm": 20.0,
+    "membrane_thickness_mm": 2.0,
+    "membrane_modulus_kpa": 1400.0,
+}
+#: A membrane modulus below this many kPa is refused as MPa written as kPa (latex is about 1400 kPa).
+SMALLEST_MEMBRANE_MODULUS_KPA = 10.0
+#: The checked quantities in a laboratory's words: (words, symbol, display scale, display unit).
+QUANTITY_WORDS = {
+    "axial_strain": ("axial strain", "ε_a", 100.0, " %"),
+    "thickness_ratio": ("membrane thickness / particle size", "t_m/D", 1.0, ""),
+    "stiffness_ratio": ("membrane stiffness / (cell pressure × particle size)", "E_m t_m/(σc D)", 1.0, ""),
+    "size_ratio": ("particle size / specimen diameter", "D/D_s", 1.0, ""),
+    "indentation_ratio": ("membrane indentation / particle size (Molenkamp & Luger)", "α/D", 1.0, ""),
+    "hoop_ratio": ("hoop stress / cell pressure (Henkel & Gilbert)", "2E_m t_m ε_θ/(D_s σc)", 1.0, ""),
+    "strain_ratio_change": ("radial / axial strain increment", "dε_r/dε_a", 1.0, ""),
+}
+#: Quantities whose distance outside the fitted range is counted in logarithms: positive ratios of sizes
+#: and stiffnesses, whose fitted ranges span factors (1.75 for D/D_s to 100 for E_m t_m/(σc D)). The
+#: strains and the hoop ratio, which start at or cross zero, are counted linearly.
+LOG_DISTANCE = ("thickness_ratio", "stiffness_ratio", "size_ratio", "indentation_ratio")
+#: Beyond this distance outside the fitted range (in the range's widths) the fitted correction is withheld.
+MAX_EXTRAPOLATION = 1.0
 
 
 class Specimen(NamedTuple):
@@ -88,7 +125,13 @@ class Specimen(NamedTuple):
 
     @classmethod
     def from_mm_kpa(cls, specimen_diameter_mm, particle_size_mm, membrane_thickness_mm, membrane_modulus_kpa):
-        """A specimen from the user-facing units, each checked to be a positive finite number."""
+        """A specimen from the user-facing units, each checked to be a positive finite number.
+
+        Raises:
+          ValueError: a value that is not a positive finite number, a particle size not below the specimen
+            diameter, a membrane thicker than a quarter of the diameter, or a modulus below
+            :data:`SMALLEST_MEMBRANE_MODULUS_KPA` (MPa written as kPa), each named with an example.
+        """
         values = {
             "specimen_diameter_mm": specimen_diameter_mm,
             "particle_size_mm": particle_size_mm,
@@ -98,8 +141,24 @@ class Specimen(NamedTuple):
         for name, value in values.items():
             if not (isinstance(value, numbers.Real) and np.isfinite(value) and value > 0):
                 raise ValueError(
-                    f"{name} = {value!r}; give a positive number (e.g. --{name.replace('_', '-')} 2)."
+                    f"{name} = {value!r}; give a positive number "
+                    f"(e.g. --{name.replace('_', '-')} {SPECIMEN_EXAMPLES[name]:g})."
                 )
+        if particle_size_mm >= specimen_diameter_mm:
+            raise ValueError(
+                f"particle_size_mm = {particle_size_mm:g} is not below specimen_diameter_mm = "
+                f"{specimen_diameter_mm:g}; give both in mm (the particle size is d50)."
+            )
+        if 4.0 * membrane_thickness_mm >= specimen_diameter_mm:
+            raise ValueError(
+                f"membrane_thickness_mm = {membrane_thickness_mm:g} is a quarter or more of "
+                f"specimen_diameter_mm = {specimen_diameter_mm:g}; give both in mm (a membrane is 0.3-5 mm)."
+            )
+        if membrane_modulus_kpa < SMALLEST_MEMBRANE_MODULUS_KPA:
+            raise ValueError(
+                f"membrane_modulus_kpa = {membrane_modulus_kpa:g}: no membrane is that soft; is it in MPa? "
+                f"Give it in kPa (latex is about 1400 kPa: --membrane-modulus-kpa 1400)."
+            )
         return cls(
             1e-3 * specimen_diameter_mm,
             1e-3 * particle_size_mm,
@@ -117,6 +176,9 @@ class CorrectedRecord(NamedTuple):
       std: {"sigma_1", "sigma_3", "friction_angle": array}, the fitted method's standard deviation.
       inputs: the fitted model's input columns (:func:`calibrate.datasets.measured_inputs`).
       warnings: messages for inputs outside the fitted range.
+      extrapolation: δ per row, the largest distance outside the fitted range
+        (:func:`extrapolation_distances`); the band is widened by 1 + δ and the fitted method withheld
+        (NaN) where δ > :data:`MAX_EXTRAPOLATION`.
     """
 
     record: object
@@ -126,6 +188,7 @@ class CorrectedRecord(NamedTuple):
     std: dict
     inputs: dict
     warnings: tuple
+    extrapolation: np.ndarray
 
 
 def default_corrections() -> persistence.Corrections:
@@ -149,20 +212,67 @@ def _prediction_rms(corrections) -> tuple[float, float]:
     return corrections.rms, corrections.rms
 
 
-def range_warnings(inputs: dict, input_ranges: dict) -> list[str]:
-    """A message for each checked input of the record that leaves the range the correction was fitted on."""
-    messages = []
+def extrapolation_distances(inputs: dict, input_ranges: dict) -> dict:
+    """Each checked input's distance outside its fitted range, per row, in units of the range's width.
+
+    δ = max(0, (low − x)/(high − low), (x − high)/(high − low)), with x, low and high replaced by their
+    logarithms for :data:`LOG_DISTANCE`; 0 inside the range and where x is undefined (NaN). A range of zero
+    width gives infinity outside it.
+
+    Args:
+      inputs: the record's input columns (:func:`calibrate.datasets.measured_inputs`).
+      input_ranges: {name: (low, high)} of the fitted table (:class:`calibrate.persistence.Corrections`).
+
+    Returns:
+      {name: float64 array over the rows} for each of :data:`CHECKED_INPUTS` with a known range.
+    """
+    distances = {}
     for name in CHECKED_INPUTS:
         if name not in input_ranges or None in input_ranges[name]:
             continue
-        low, high = input_ranges[name]
+        low, high = (float(v) for v in input_ranges[name])
         values = np.asarray(inputs[name], dtype=np.float64)
+        # Ranges are stored from float32 tables: a record on the bound is inside it.
+        low, high = low - 1e-12 * abs(low), high + 1e-12 * abs(high)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            if name in LOG_DISTANCE and low > 0.0:
+                values = np.log(np.where(values > 0.0, values, np.nan))
+                low, high = np.log(low), np.log(high)
+            outside = np.maximum(np.maximum(low - values, values - high), 0.0)
+            width = high - low
+            distance = outside / width if width > 0.0 else np.where(outside > 0.0, np.inf, 0.0)
+        distances[name] = np.where(np.isnan(values), 0.0, distance)
+    return distances
+
+
+def range_warnings(inputs: dict, input_ranges: dict) -> list[str]:
+    """A message in a laboratory's words for each checked input outside the correction's fitted range.
+
+    Each names the quantity, its symbol, the record's value (or span) and the fitted range, in the units a
+    laboratory reads (the axial strain in %), and the distance outside the range
+    (:func:`extrapolation_distances`).
+    """
+    messages = []
+    distances = extrapolation_distances(inputs, input_ranges)
+    for name, distance in distances.items():
+        if not np.any(distance > 0.0):
+            continue
+        words, symbol, scale, unit = QUANTITY_WORDS[name]
+        low, high = (scale * float(v) for v in input_ranges[name])
+        values = scale * np.asarray(inputs[name], dtype=np.float64)
         values = values[np.isfinite(values)]
-        if values.size and (values.min() < low - 1e-12 * abs(low) or values.max() > high + 1e-12 * abs(high)):
-            messages.append(
-                f"{name} of the record spans {values.min():.4g} to {values.max():.4g}, outside the fitted "
-                f"{low:.4g} to {high:.4g}: the fitted correction extrapolates there."
-            )
+        first, last = values.min(), values.max()
+        if np.isclose(first, last, rtol=1e-9):
+            value = f"= {first:.3g}{unit}"
+        else:
+            value = f"spans {first:.3g} to {last:.3g}{unit}"
+        scaled = " in logarithms" if name in LOG_DISTANCE else ""
+        rows = int(np.sum(distance > 0.0))
+        messages.append(
+            f"{words}, {symbol}, {value}; the correction was fitted on {low:.3g} to {high:.3g}{unit} "
+            f"({rows} of {distance.size} rows outside it, by up to {np.max(distance):.2g} of that range's "
+            f"width{scaled})."
+        )
     return messages
 
 
@@ -278,13 +388,37 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
         )
     arrays = jax.tree_util.tree_map(lambda a: np.asarray(a, dtype=np.float64), arrays)
     sigma_1, sigma_3, friction, std = arrays
+    # Outside the fitted range the band widens by 1 + δ; beyond MAX_EXTRAPOLATION the method is withheld.
+    distances = extrapolation_distances(inputs, corrections.input_ranges)
+    extrapolation = np.max(list(distances.values()), axis=0) if distances else np.zeros(cell.shape)
+    withheld = undefined | (extrapolation > MAX_EXTRAPOLATION)
     for values in (sigma_1, sigma_3, friction):
-        values["fitted"] = np.where(undefined, np.nan, values["fitted"])
-    std = {name: np.where(undefined, np.nan, value) for name, value in std.items()}
+        values["fitted"] = np.where(withheld, np.nan, values["fitted"])
+    std = {name: np.where(withheld, np.nan, value * (1.0 + extrapolation)) for name, value in std.items()}
     messages = range_warnings(inputs, corrections.input_ranges)
+    if messages:
+        messages.append(extrapolation_summary(extrapolation, undefined))
     for message in messages:
         warnings.warn(message, stacklevel=2)
-    return CorrectedRecord(record, sigma_1, sigma_3, friction, std, inputs, tuple(messages))
+    return CorrectedRecord(record, sigma_1, sigma_3, friction, std, inputs, tuple(messages), extrapolation)
+
+
+def extrapolation_summary(extrapolation, undefined) -> str:
+    """The rule applied outside the fitted range, and what it did to this record (module docstring)."""
+    largest = float(np.max(extrapolation))
+    beyond = int(np.sum((extrapolation > MAX_EXTRAPOLATION) & ~undefined))
+    text = (
+        "outside its fitted range the fitted correction's band is widened by the factor 1 + δ, δ being the "
+        "largest distance outside the range in units of its width"
+    )
+    if beyond:
+        return (
+            f"{text}; beyond δ = {MAX_EXTRAPOLATION:g} the fitted correction is withheld: {beyond} of "
+            f"{extrapolation.size} rows here (δ up to {largest:.2g}). The classical corrections are still "
+            "given; a correction fitted on sweeps that cover this test (membrax sweep, then membrax fit) "
+            "removes the warning."
+        )
+    return f"{text}: up to ×{1.0 + largest:.2f} here (withheld beyond δ = {MAX_EXTRAPOLATION:g})."
 
 
 def _csv_text(result: CorrectedRecord, header_lines) -> str:
@@ -302,6 +436,7 @@ def _csv_text(result: CorrectedRecord, header_lines) -> str:
     columns["sigma_1_fitted_std [kPa]"] = 1e-3 * result.std["sigma_1"]
     columns["sigma_3_fitted_std [kPa]"] = 1e-3 * result.std["sigma_3"]
     columns["friction_angle_fitted_std [deg]"] = result.std["friction_angle"]
+    columns["fitted_extrapolation [-]"] = result.extrapolation
     out = io.StringIO()
     for line in header_lines:
         out.write(f"# {line}\n")
@@ -341,6 +476,11 @@ def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
         "kuerbis_vaid": "C2:",
         "fitted": "C3-",
     }
+    labels = dict(LABELS)
+    if np.all(np.isnan(result.friction_angle["fitted"])):
+        labels["fitted"] += ": withheld, outside its fitted range"
+    elif np.any(result.extrapolation > 0.0):
+        labels["fitted"] += ", band widened outside its fitted range"
     truth = None
     if reference is not None:
         s1, s3 = (np.asarray(v, dtype=np.float64) for v in reference)
@@ -349,7 +489,7 @@ def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
         if truth is not None:
             axis.plot(strain, scale * truth[k], color="0.6", lw=4, alpha=0.6, label="internal (simulated)")
         for method in METHODS:
-            axis.plot(strain, scale * values[method], styles[method], label=LABELS[method])
+            axis.plot(strain, scale * values[method], styles[method], label=labels[method])
         fitted = scale * values["fitted"]
         axis.fill_between(
             strain, fitted - scale * spread, fitted + scale * spread, color="C3", alpha=0.25, lw=0
@@ -392,40 +532,75 @@ def write_correction(result: CorrectedRecord, csv_path, plot_path=None, header_l
     return written
 
 
-def correct_file(record_path, specimen: Specimen, model_path=None, out=None, plot: bool = True):
+def output_paths(record_path, out=None, plot: bool = True) -> tuple[Path, Path | None]:
+    """The CSV and plot ``membrax correct`` writes: ``out``, or ``<record>_corrected.csv`` in the working dir.
+
+    Raises:
+      ValueError: ``out`` does not end in ``.csv``, or the CSV or plot is the record itself (by resolved
+        path): the laboratory's raw record is never overwritten.
+    """
+    record_path = Path(record_path)
+    csv_path = Path(out) if out is not None else Path.cwd() / f"{record_path.stem}_corrected.csv"
+    if csv_path.suffix.lower() != ".csv":
+        raise ValueError(
+            f"--out {csv_path}: give a .csv file (the plot is written beside it as .png), e.g. "
+            f"--out {csv_path.with_suffix('.csv').name}."
+        )
+    plot_path = csv_path.with_suffix(".png") if plot else None
+    source = record_path.resolve()
+    for path in (csv_path, plot_path):
+        if path is not None and (path.resolve() == source or (path.exists() and path.samefile(source))):
+            raise ValueError(
+                f"--out {out}: {path} is the record being corrected; membrax never writes over a "
+                f"laboratory record. Give another name, e.g. --out {record_path.stem}_corrected.csv."
+            )
+    return csv_path, plot_path
+
+
+def correct_file(
+    record_path,
+    specimen: Specimen,
+    model_path=None,
+    out=None,
+    plot: bool = True,
+    dilation_positive: bool = False,
+):
     """``membrax correct``: read ``record_path``, correct it, write ``out`` (CSV) and its plot.
 
     Args:
-      record_path: the laboratory CSV (:func:`calibrate.lab.read_lab_record`).
+      record_path: the laboratory record, CSV or .xlsx (:func:`calibrate.lab.read_lab_record`).
       specimen: the :class:`Specimen`.
       model_path: a ``corrections.json`` of ``membrax fit`` (default the shipped correction).
-      out: the CSV to write (default ``<record>_corrected.csv`` beside the record); the plot is the same
-        name with ``.png``.
+      out: the CSV to write (default ``<record>_corrected.csv`` in the working folder); the plot is the same
+        name with ``.png``. Never the record itself (:func:`output_paths`).
       plot: write the plot.
+      dilation_positive: the record's volumetric or radial strain is written dilation positive.
 
     Returns:
       (the :class:`CorrectedRecord`, the paths written).
 
     Raises:
       FileNotFoundError, calibrate.lab.LabRecordError, ValueError: a missing or bad record or model file,
-        named with the fix; nothing is written.
+        or an output that would overwrite the record, named with the fix; nothing is written.
     """
-    record = lab.read_lab_record(record_path)
+    csv_path, plot_path = output_paths(record_path, out, plot)
+    record = lab.read_lab_record(record_path, dilation_positive=dilation_positive)
     corrections = default_corrections() if model_path is None else persistence.load_corrections(model_path)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # returned in the result; the caller reports them once
         result = correct_record(record, specimen, corrections)
-    record_path = Path(record_path)
-    out = Path(out) if out is not None else record_path.with_name(f"{record_path.stem}_corrected.csv")
     header = [
-        f"membrane corrections of {record_path.name} by membrax correct",
+        f"membrane corrections of {Path(record_path).name} by membrax correct",
         f"specimen diameter {1e3 * specimen.specimen_diameter:g} mm, particle size "
         f"{1e3 * specimen.particle_diameter:g} mm, membrane {1e3 * specimen.membrane_thickness:g} mm of "
         f"{1e-3 * specimen.membrane_modulus:g} kPa",
         f"fitted model {corrections.model.name!r} from {model_path or 'the shipped default'} "
-        f"(membrax {corrections.provenance.get('membrax_version', '?')}); std: one standard deviation",
+        f"(membrax {corrections.provenance.get('membrax_version', '?')}); std: one standard deviation, "
+        "widened by 1 + fitted_extrapolation outside the fitted range",
+        "conventions: compression positive; strains in %, stresses in kPa",
         *(f"source: {line}" for line in record.comments),
+        *(f"read: {line}" for line in record.notes),
         *(f"warning: {message}" for message in result.warnings),
     ]
-    paths = write_correction(result, out, out.with_suffix(".png") if plot else None, header)
+    paths = write_correction(result, csv_path, plot_path, header)
     return result, paths

@@ -1,11 +1,17 @@
-"""Laboratory test records: a CSV with units in its header, read and checked before anything is computed.
+"""Laboratory test records: a table with units in its header, read and checked before anything is computed.
 
 Contract. :func:`read_lab_record` reads a drained triaxial test record and returns a :class:`LabRecord` in
 SI units (Pa, strains as fractions, compression positive), or raises :class:`LabRecordError` naming the
-line, the column and the fix. The file:
+file, the line, the column and the fix. Nothing is guessed silently: what the reader did to a file
+(averaged repeated readings, read decimal commas, flipped a sign on request) is said in ``notes``.
 
+The file:
+
+- a text CSV, UTF-8 with or without a byte-order mark (a spreadsheet's "CSV UTF-8"), or UTF-16 with one;
+  columns separated by commas, or by semicolons or tabs, which may then carry decimal commas
+  (``0,25``); or an Excel workbook (``.xlsx``, its first sheet, read with openpyxl);
 - may start with comment lines beginning with ``#`` (e.g. ``# synthetic: produced by membrax``);
-- has one header line of comma-separated columns, each ``name [unit]``;
+- has one header line of columns, each ``name [unit]``;
 - then one row per reading, in loading order.
 
 Columns (other columns are ignored, so true internal stresses may sit beside them):
@@ -16,14 +22,27 @@ Columns (other columns are ignored, so true internal stresses may sit beside the
 - ``deviator_stress`` (q = σ1 − σ3) or ``axial_stress`` (σ1): ``Pa``, ``kPa`` or ``MPa``;
 - ``cell_pressure`` (σ3): ``Pa``, ``kPa`` or ``MPa``.
 
+Conventions: compression positive (a compressed specimen has ε_a > 0 and, while it contracts, ε_v > 0; a
+bulging one has ε_r < 0), strains in the unit its header names. A record written dilation (extension)
+positive is read with ``dilation_positive=True`` (``membrax correct --dilation-positive``), which negates
+the volumetric or radial strain.
+
 Checks, each with the line and column: a missing column; an unknown or missing unit; a value that is not a
 finite number; a strain in ``-`` whose magnitude exceeds 1 (percent written as a fraction); an axial strain
-that does not increase from row to row (unsorted, or an unloading branch); a negative cell pressure.
+that falls from row to row (unsorted, or an unloading branch) or below zero (extension positive); a
+negative cell pressure. Of the whole record: an axial strain under ``[%]`` that never exceeds
+:data:`SMALLEST_PERCENT_STRAIN` % (a fraction under a percent header), or under ``[-]`` that exceeds
+:data:`LARGEST_FRACTION_STRAIN` (percent under a fraction header); a volumetric strain that falls, or a
+radial strain that grows, over the first :data:`EARLY_READINGS` readings (a record written dilation
+positive: drained loading from an isotropic state starts by contracting, dε_v/dε_a = 1 − 2ν > 0).
+Readings that repeat the axial strain of the row before (a logger holding its reading) are averaged into
+one row, and the notes say how many.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import re
 from pathlib import Path
@@ -36,6 +55,19 @@ __all__ = ["LabRecord", "LabRecordError", "read_lab_record"]
 _STRESS_UNITS = {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6}
 _STRAIN_UNITS = {"-": 1.0, "%": 1e-2}
 _HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[\s*([^\]]*?)\s*\])?\s*$")
+#: An axial strain under a ``[%]`` header that never exceeds this many percent is taken for a fraction: a
+#: triaxial test to failure runs to several percent.
+SMALLEST_PERCENT_STRAIN = 0.2
+#: An axial strain under a ``[-]`` header above this (50 %) is taken for percent.
+LARGEST_FRACTION_STRAIN = 0.5
+#: The readings, the first of them the start, over which the sign of dε_v/dε_a (or dε_r/dε_a) is checked:
+#: the contraction at the start of a dense specimen can be short (0.02 % of axial strain in an FCC
+#: packing), so the check looks at the first readings rather than a strain window.
+EARLY_READINGS = 4
+#: The fix every unreadable file is told.
+SAVE_AS = "save it from the spreadsheet as 'CSV UTF-8' (or as .xlsx)"
+_ZIP_MAGIC = b"PK\x03\x04"
+_OLE_MAGIC = b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1"
 
 
 class LabRecordError(ValueError):
@@ -43,7 +75,11 @@ class LabRecordError(ValueError):
 
 
 class LabRecord(NamedTuple):
-    """A drained triaxial record in SI units (module docstring); every field a float64 array over rows."""
+    """A drained triaxial record in SI units (module docstring); every field a float64 array over rows.
+
+    ``comments`` are the file's ``#`` lines; ``notes`` say what the reader did to the file (module
+    docstring), for the user to see.
+    """
 
     axial_strain: np.ndarray
     volumetric_strain: np.ndarray
@@ -51,19 +87,121 @@ class LabRecord(NamedTuple):
     axial_stress: np.ndarray
     cell_pressure: np.ndarray
     comments: tuple
+    notes: tuple = ()
 
 
-def _where(path, line, column=None, name=None) -> str:
-    place = f"{path}, line {line}"
+class _Table(NamedTuple):
+    """A file's cells: ``rows`` are (place number, [cell text]); ``place`` is "line" or "sheet 'X', row"."""
+
+    rows: list
+    place: str
+    decimal_comma: bool
+    notes: list
+
+
+def _where(path, place, line, column=None, name=None) -> str:
+    where = f"{path}, {place} {line}"
     if column is not None:
-        place += f", column {column}"
+        where += f", column {column}"
     if name is not None:
-        place += f" ({name})"
-    return place
+        where += f" ({name})"
+    return where
 
 
-def read_lab_record(path) -> LabRecord:
+def _text_of(path: Path, data: bytes) -> str:
+    """The file's text (module docstring's encodings), or a :class:`LabRecordError` saying what it is."""
+    if data.startswith(_OLE_MAGIC):
+        raise LabRecordError(f"{path} is an Excel 97-2003 workbook (.xls), not a text CSV; {SAVE_AS}.")
+    if data.startswith((b"\xff\xfe", b"\xfe\xff")):
+        try:
+            return data.decode("utf-16")
+        except UnicodeDecodeError as error:
+            raise LabRecordError(
+                f"{path} has a UTF-16 mark but is not UTF-16 text ({error}); {SAVE_AS}."
+            ) from None
+    try:
+        text = data.decode("utf-8-sig")  # a byte-order mark, if any, is dropped
+    except UnicodeDecodeError as error:
+        binary = b"\x00" in data[:4096]
+        what = "not a text CSV (it holds binary data)" if binary else "not UTF-8 text"
+        raise LabRecordError(
+            f"{path} is {what}: byte 0x{data[error.start]:02x} at offset {error.start} cannot be read; "
+            f"{SAVE_AS}."
+        ) from None
+    if "\x00" in text:
+        raise LabRecordError(f"{path} is not a text CSV (it holds NUL bytes); {SAVE_AS}.")
+    return text
+
+
+def _csv_table(path: Path, text: str) -> _Table:
+    lines = text.splitlines()
+    start = 0
+    while start < len(lines) and (lines[start].startswith("#") or not lines[start].strip()):
+        start += 1
+    header = lines[start] if start < len(lines) else ""
+    # The header names the separator: a spreadsheet in a decimal-comma locale writes semicolons.
+    delimiter = ";" if ";" in header else "\t" if "\t" in header else ","
+    notes = []
+    if delimiter != ",":
+        name = "semicolons" if delimiter == ";" else "tabs"
+        notes.append(f"columns separated by {name}; decimal commas read as points")
+    rows = [
+        (number, next(csv.reader([line], delimiter=delimiter)) if not line.startswith("#") else [line])
+        for number, line in enumerate(lines, start=1)
+        if line.strip()
+    ]
+    return _Table(rows, "line", delimiter != ",", notes)
+
+
+def _cell_text(value) -> str:
+    """A worksheet cell as the text a CSV would hold (floats exactly, by ``repr``)."""
+    if value is None:
+        return ""
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def _xlsx_table(path: Path, data: bytes) -> _Table:
+    try:
+        import openpyxl
+    except ImportError:  # pragma: no cover - a dependency of membrax
+        raise LabRecordError(
+            f"{path} is an Excel workbook; install openpyxl to read it, or {SAVE_AS}."
+        ) from None
+    try:
+        # From bytes: openpyxl refuses a path by its suffix, and a workbook may be named anything.
+        workbook = openpyxl.load_workbook(io.BytesIO(data), read_only=True, data_only=True)
+    except Exception as error:  # openpyxl raises several kinds for a damaged or foreign zip
+        raise LabRecordError(
+            f"{path} is a zip file but not a readable .xlsx workbook ({type(error).__name__}: {error}); "
+            f"{SAVE_AS}."
+        ) from None
+    sheet = workbook.worksheets[0]
+    rows = []
+    for number, values in enumerate(sheet.iter_rows(values_only=True), start=1):
+        cells = [_cell_text(value) for value in values]
+        while cells and not cells[-1].strip():
+            cells.pop()
+        if cells:
+            rows.append((number, cells))
+    workbook.close()
+    notes = [f"read the first sheet, '{sheet.title}', of the workbook"]
+    return _Table(rows, f"sheet '{sheet.title}', row", False, notes)
+
+
+def _table(path: Path) -> _Table:
+    data = path.read_bytes()
+    if data.startswith(_ZIP_MAGIC):
+        return _xlsx_table(path, data)
+    return _csv_table(path, _text_of(path, data))
+
+
+def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
     """Read and check a laboratory record (module docstring).
+
+    Args:
+      path: the record: a CSV or an ``.xlsx`` workbook.
+      dilation_positive: the volumetric (or radial) strain is written dilation (extension) positive; it is
+        negated to membrax's compression-positive convention.
 
     Raises:
       FileNotFoundError: no such file. LabRecordError: the file breaks a rule of the module docstring.
@@ -71,22 +209,22 @@ def read_lab_record(path) -> LabRecord:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no laboratory record at '{path}'.")
-    lines = path.read_text().splitlines()
-    comments, start = [], 0
-    while start < len(lines) and (lines[start].startswith("#") or not lines[start].strip()):
-        if lines[start].startswith("#"):
-            comments.append(lines[start][1:].strip())
-        start += 1
-    if start >= len(lines):
+    table = _table(path)
+    place = table.place
+    comments = []
+    position = 0
+    while position < len(table.rows) and table.rows[position][1][0].lstrip().startswith("#"):
+        comments.append(table.rows[position][1][0].strip()[1:].strip())
+        position += 1
+    if position >= len(table.rows):
         raise LabRecordError(f"{path}: no header line; write one such as 'axial_strain [-],...'.")
-    header_line = start + 1
-    header = next(csv.reader([lines[start]]))
+    header_line, header = table.rows[position]
     columns = {}
     for index, cell in enumerate(header, start=1):
         match = _HEADER.match(cell)
         if not match:
             raise LabRecordError(
-                f"{_where(path, header_line, index)}: {cell!r} is not 'name [unit]'; "
+                f"{_where(path, place, header_line, index)}: {cell!r} is not 'name [unit]'; "
                 "e.g. 'cell_pressure [kPa]'."
             )
         columns[match.group(1)] = (index, match.group(2))
@@ -95,7 +233,7 @@ def read_lab_record(path) -> LabRecord:
         index, unit = columns[name]
         if unit is None or unit not in units:
             raise LabRecordError(
-                f"{_where(path, header_line, index, name)}: unknown unit {unit!r}; write one of "
+                f"{_where(path, place, header_line, index, name)}: unknown unit {unit!r}; write one of "
                 f"{', '.join(units)} in brackets, e.g. '{name} [{next(iter(units))}]'."
             )
         return index, units[unit], unit
@@ -105,7 +243,7 @@ def read_lab_record(path) -> LabRecord:
         if not found:
             choices = " or ".join(f"'{name}'" for name in names)
             raise LabRecordError(
-                f"{_where(path, header_line)} (header): no column {choices}; add it with its unit."
+                f"{_where(path, place, header_line)} (header): no column {choices}; add it with its unit."
             )
         return found[0]
 
@@ -120,41 +258,54 @@ def read_lab_record(path) -> LabRecord:
         "cell_pressure": unit_of("cell_pressure", _STRESS_UNITS),
     }
     values = {name: [] for name in wanted}
-    for line_number, line in enumerate(lines[start + 1 :], start=header_line + 1):
-        if not line.strip() or line.startswith("#"):
+    lines = []
+    for line_number, row in table.rows[position + 1 :]:
+        if row[0].lstrip().startswith("#"):
             continue
-        row = next(csv.reader([line]))
         for name, (index, scale, unit) in wanted.items():
             text = row[index - 1].strip() if index - 1 < len(row) else ""
             try:
-                value = float(text)
+                value = float(text.replace(",", ".") if table.decimal_comma else text)
             except ValueError:
                 value = math.nan
+            where = _where(path, place, line_number, index, name)
             if not math.isfinite(value):
                 raise LabRecordError(
-                    f"{_where(path, line_number, index, name)}: {text!r} is not a finite number; "
-                    "give a value or remove the row."
+                    f"{where}: {text!r} is not a finite number; give a value or remove the row."
                 )
             if unit == "-" and abs(value) > 1.0:
                 raise LabRecordError(
-                    f"{_where(path, line_number, index, name)}: {value:g} as a fraction is over 100 % "
-                    f"strain; if the column is in percent, write '{name} [%]' in the header."
+                    f"{where}: {value:g} as a fraction is over 100 % strain; if the column is in percent, "
+                    f"write '{name} [%]' in the header."
                 )
             if name == "cell_pressure" and value < 0.0:
                 raise LabRecordError(
-                    f"{_where(path, line_number, index, name)}: {value:g} {unit}; a cell pressure is >= 0 "
-                    "(compression positive)."
+                    f"{where}: {value:g} {unit}; a cell pressure is >= 0 (compression positive)."
                 )
-            if name == "axial_strain" and values[name] and value * scale <= values[name][-1]:
+            if name == "axial_strain" and values[name] and value * scale < values[name][-1]:
+                if value < 0.0 and max(values[name]) <= 0.0:
+                    raise LabRecordError(
+                        f"{where}: {value:g} after {values[name][-1] / scale:g}; the axial strain falls "
+                        "below zero as the specimen is compressed. membrax takes compression positive: write "
+                        "the axial strain of a compression test positive (flip the column's sign)."
+                    )
                 raise LabRecordError(
-                    f"{_where(path, line_number, index, name)}: {value:g} after "
-                    f"{values[name][-1] / scale:g}; the axial strain must increase row by row: sort the "
-                    "record, or cut the unloading branch."
+                    f"{where}: {value:g} after {values[name][-1] / scale:g}; the axial strain must not fall "
+                    "from row to row: sort the record by time, or cut the unloading branch."
                 )
             values[name].append(value * scale)
-    if len(values["axial_strain"]) < 2:
-        raise LabRecordError(f"{path}: fewer than 2 rows of readings; give the whole record.")
+        lines.append(line_number)
     data = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
+    notes = list(table.notes)
+    data, lines, notes = _average_repeats(data, lines, notes)
+    if data["axial_strain"].size < 2:
+        raise LabRecordError(f"{path}: fewer than 2 rows of readings; give the whole record.")
+    _check_strain_units(path, place, header_line, data["axial_strain"], wanted["axial_strain"])
+    if dilation_positive:
+        data[strain_name] = -data[strain_name]
+        notes.append(f"{strain_name} negated (--dilation-positive): membrax takes compression positive")
+    else:
+        _check_strain_sign(path, place, header_line, data, strain_name, wanted[strain_name][0])
     axial, cell = data["axial_strain"], data["cell_pressure"]
     if strain_name == "volumetric_strain":
         volumetric = data["volumetric_strain"]
@@ -163,4 +314,66 @@ def read_lab_record(path) -> LabRecord:
         radial = data["radial_strain"]
         volumetric = 1.0 - (1.0 - axial) * (1.0 - radial) ** 2
     axial_stress = data[stress_name] + (cell if stress_name == "deviator_stress" else 0.0)
-    return LabRecord(axial, volumetric, radial, axial_stress, cell, tuple(comments))
+    return LabRecord(axial, volumetric, radial, axial_stress, cell, tuple(comments), tuple(notes))
+
+
+def _average_repeats(data: dict, lines: list, notes: list):
+    """Rows whose axial strain repeats the row before's averaged into one (module docstring)."""
+    axial = data["axial_strain"]
+    if axial.size < 2:
+        return data, lines, notes
+    starts = np.concatenate([[True], np.diff(axial) > 0.0])
+    if np.all(starts):
+        return data, lines, notes
+    group = np.cumsum(starts) - 1
+    counts = np.bincount(group)
+    averaged = {name: np.bincount(group, weights=value) / counts for name, value in data.items()}
+    repeated = int(axial.size - counts.size)
+    notes.append(
+        f"{repeated} readings repeat the axial strain of the reading before (a logger holding its value); "
+        f"each run of equal axial strains is averaged into one row: {counts.size} rows of {axial.size}"
+    )
+    return averaged, [lines[i] for i in np.flatnonzero(starts)], notes
+
+
+def _check_strain_units(path, place, header_line, axial, spec) -> None:
+    """A fraction under a ``[%]`` header or percent under ``[-]`` (module docstring)."""
+    index, _, unit = spec
+    where = _where(path, place, header_line, index, f"axial_strain [{unit}]")
+    largest = float(np.max(axial))
+    if unit == "%" and largest <= SMALLEST_PERCENT_STRAIN / 100.0:
+        raise LabRecordError(
+            f"{where}: the axial strain never exceeds {100 * largest:.3g} %; a triaxial test to failure runs "
+            f"to several percent. Is the column a fraction under a [%] header? If so, write "
+            f"'axial_strain [-]' in the header."
+        )
+    if unit == "-" and largest > LARGEST_FRACTION_STRAIN:
+        raise LabRecordError(
+            f"{where}: the axial strain reaches {largest:g}, that is {100 * largest:.3g} %. Is the column in "
+            f"percent under a [-] header? If so, write 'axial_strain [%]' in the header."
+        )
+
+
+def _check_strain_sign(path, place, header_line, data, strain_name, index) -> None:
+    """A record written dilation positive (module docstring): the sign of dε/dε_a over the first readings."""
+    axial = data["axial_strain"][:EARLY_READINGS]
+    strain = data[strain_name][:EARLY_READINGS]
+    slope = float(np.polyfit(axial, strain, 1)[0]) if axial.size >= 2 else 0.0
+    # The slope and the last early reading agree: one noisy reading does not make a record suspect.
+    falls = slope < 0.0 and strain[-1] < strain[0]
+    where = _where(path, place, header_line, index, strain_name)
+    span = f"over the first {axial.size} readings, to {100 * axial[-1]:.3g} % axial strain"
+    fix = (
+        "membrax takes compression positive: if the file writes dilation positive, pass "
+        "--dilation-positive (read_lab_record(..., dilation_positive=True)) or flip the column's sign."
+    )
+    if strain_name == "volumetric_strain" and falls:
+        raise LabRecordError(
+            f"{where}: the volumetric strain falls while the specimen is compressed (dε_v/dε_a = {slope:.3g} "
+            f"{span}; a drained test starts by contracting). Is dilation written positive? " + fix
+        )
+    if strain_name == "radial_strain" and slope > 0.0 and strain[-1] > strain[0]:
+        raise LabRecordError(
+            f"{where}: the radial strain grows while the specimen is compressed (dε_r/dε_a = {slope:.3g} "
+            f"{span}; a compressed specimen bulges, ε_r < 0). Is bulging written positive? " + fix
+        )

@@ -191,7 +191,7 @@ def _run_config(config, out, resume: bool, progress: bool) -> int:
 
     try:
         result = run_test(config, out, resume=resume, progress=progress)
-    except RunError as error:
+    except (RunError, FileNotFoundError) as error:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
     print(result.summary)
@@ -317,20 +317,24 @@ def _correct(args: argparse.Namespace) -> int:
             args.membrane_thickness_mm,
             args.membrane_modulus_kpa,
         )
-        result, paths = correct_file(args.record, specimen, args.model, args.out, not args.no_plot)
+        result, paths = correct_file(
+            args.record, specimen, args.model, args.out, not args.no_plot, args.dilation_positive
+        )
     except (FileNotFoundError, ValueError) as error:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
     for message in result.warnings:
         print(f"membrax: warning: {message}", file=sys.stderr)
     strain = result.record.axial_strain
-    lines = ["mobilised φ' (°) by method", f"{'ε_a %':>6} " + " ".join(f"{m:>15}" for m in METHODS)]
+    lines = [f"read {args.record}: {line}" for line in result.record.notes]
+    lines += ["mobilised φ' (°) by method", f"{'ε_a %':>6} " + " ".join(f"{m:>15}" for m in METHODS)]
     for target in CORRECT_REPORT_STRAINS:
         if target > strain[-1] + 1e-12:
             continue
         i = int(np.argmin(np.abs(strain - target)))
         cells = [f"{result.friction_angle[m][i]:15.2f}" for m in METHODS[:-1]]
-        cells.append(f"{result.friction_angle['fitted'][i]:9.2f} ±{result.std['friction_angle'][i]:4.2f}")
+        fitted, spread = result.friction_angle["fitted"][i], result.std["friction_angle"][i]
+        cells.append(f"{fitted:9.2f} ±{spread:4.2f}" if np.isfinite(fitted) else f"{'withheld':>15}")
         lines.append(f"{100 * strain[i]:6.2f} " + " ".join(cells))
     lines.append("written: " + ", ".join(str(p) for p in paths))
     print("\n".join(lines))
@@ -403,13 +407,25 @@ SUBCOMMAND_HELP = {
     "correct": (
         "Correct a drained laboratory record for the membrane by five methods: uncorrected, ASTM\n"
         "D4767/D7181, Henkel & Gilbert, Kuerbis & Vaid, and the fitted DEM-based correction with a band\n"
-        "of one standard deviation. Writes a CSV and a plot of sigma_1, sigma_3 and phi' by method, and\n"
-        "warns where the record leaves the range the correction was fitted on.",
+        "of one standard deviation. Writes a CSV and a plot of sigma_1, sigma_3 and phi' by method\n"
+        "(default <record>_corrected.csv/.png in the working folder; never over the record itself).\n"
+        "\n"
+        "The record: a CSV (UTF-8, with or without a byte-order mark; commas, or semicolons with decimal\n"
+        "commas) or an .xlsx sheet; '#' comment lines, then a header naming each column and its unit:\n"
+        "  axial_strain [% or -]; volumetric_strain or radial_strain [% or -];\n"
+        "  deviator_stress or axial_stress [Pa, kPa or MPa]; cell_pressure [Pa, kPa or MPa].\n"
+        "Conventions: compression positive (the volumetric strain grows while the specimen contracts,\n"
+        "a bulging specimen has a negative radial strain); strains in the header's unit. A record that\n"
+        "looks otherwise is refused with the likely mistake named; --dilation-positive reads a record\n"
+        "whose volumetric or radial strain is written dilation positive. Readings repeating the axial\n"
+        "strain before them are averaged. Outside the range the correction was fitted on, each quantity\n"
+        "is warned about with its value and the range, the fitted band widens by 1 + (distance outside,\n"
+        "in range widths), and beyond one width the fitted column is withheld.",
         "examples:\n"
         "  membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20 \\\n"
         "      --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
-        "  membrax correct calibrate/data/example_record.csv --specimen-diameter-mm 175 \\\n"
-        "      --particle-size-mm 25 --membrane-thickness-mm 2 --membrane-modulus-kpa 1000 --out ex.csv\n"
+        "  membrax correct lab.xlsx --specimen-diameter-mm 300 --particle-size-mm 40 \\\n"
+        "      --membrane-thickness-mm 4 --membrane-modulus-kpa 1400 --dilation-positive --out test7.csv\n"
         "where the record's header gives each column's unit, e.g.\n"
         "  axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]",
     ),
@@ -512,18 +528,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     correct.add_argument(
         "record",
-        help="CSV: axial_strain, volumetric_ or radial_strain, deviator_ or "
-        "axial_stress, cell_pressure, each 'name [unit]' in the header",
+        help="CSV or .xlsx: axial_strain, volumetric_ or radial_strain, deviator_ or "
+        "axial_stress, cell_pressure, each 'name [unit]' in the header; compression positive",
     )
     for name, unit, what in (
         ("specimen-diameter-mm", "mm", "specimen diameter after consolidation"),
-        ("particle-size-mm", "mm", "characteristic particle size (e.g. d50)"),
+        ("particle-size-mm", "mm", "particle size d50: the sieve size half the mass passes"),
         ("membrane-thickness-mm", "mm", "membrane thickness"),
         ("membrane-modulus-kpa", "kPa", "membrane Young's modulus (latex ≈ 1400 kPa)"),
     ):
         correct.add_argument(f"--{name}", type=float, required=True, help=f"{what} ({unit})")
     correct.add_argument("--model", default=None, help="corrections.json of membrax fit (default: shipped)")
-    correct.add_argument("--out", default=None, help="CSV to write (default <record>_corrected.csv)")
+    correct.add_argument(
+        "--out", default=None, help="CSV to write (default <record>_corrected.csv in the working folder)"
+    )
+    correct.add_argument(
+        "--dilation-positive",
+        action="store_true",
+        help="the record's volumetric or radial strain is written dilation positive (membrax negates it)",
+    )
     correct.add_argument("--no-plot", action="store_true", help="write the CSV only")
     correct.set_defaults(func=_correct)
     demo.set_defaults(func=_demo)

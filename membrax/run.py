@@ -139,6 +139,7 @@ def run_test(
       RunError: the simulation blew up (non-finite values or runaway kinetic energy).
       FileNotFoundError: ``resume`` without a checkpoint in ``folder``.
     """
+    call_started = time.perf_counter()
     folder = Path(folder)
     if resume and not (folder / CHECKPOINT_NAME).exists():
         raise FileNotFoundError(
@@ -156,6 +157,9 @@ def run_test(
         batch = build_batch([config], num_devices=1, time_step=time_step, nodes_around=nodes_around)
         test = batch.tests[0]
         build_seconds = time.perf_counter() - started
+        resumed_from = (
+            int(io_lib.read_checkpoint_host(folder / CHECKPOINT_NAME)["member_steps"][0]) if resume else None
+        )
         after_chunk = None
         if config.vtk_every_steps > 0:
             if resume:
@@ -193,6 +197,7 @@ def run_test(
             build_seconds,
             elapsed,
             consolidation_tolerance(config),
+            None if resumed_from is None else (resumed_from, time.perf_counter() - call_started),
         )
 
 
@@ -208,7 +213,10 @@ def _write_partial(folder, records, config) -> None:
         io_lib.write_results(io_lib.records_to_dataset(shear, attrs=metadata), folder, "results_partial")
 
 
-def _finish(folder, config, test, records, shear_start, build_seconds, elapsed, tolerance) -> RunResult:
+def _finish(
+    folder, config, test, records, shear_start, build_seconds, elapsed, tolerance, resumed=None
+) -> RunResult:
+    """Write the results, figures and summary; ``resumed`` is (checkpoint step, this call's seconds)."""
     metadata = run_metadata(config, test, records, build_seconds, elapsed, tolerance)
     shear, consolidation = results_datasets(records, shear_start, metadata)
     files = {"consolidation": io_lib.write_results(consolidation, folder, "consolidation")}
@@ -225,8 +233,13 @@ def _finish(folder, config, test, records, shear_start, build_seconds, elapsed, 
         f"{metadata['num_particles']} spheres, {metadata['num_membrane_nodes']} membrane nodes, "
         f"σc = {config.cell_pressure_kpa:g} kPa, t_m = {config.membrane_thickness_mm:g} mm, "
         f"E_m = {config.membrane_modulus_kpa:g} kPa, I = {config.inertial_number:g}, dt = {test.dt:.3g} s, "
-        f"{metadata['consolidation_steps']} + {metadata['shear_steps']} steps in {elapsed:.0f} s "
-        f"({metadata['dtype']}, {metadata['jax_backend']}).\n\n"
+        f"{metadata['consolidation_steps']} + {metadata['shear_steps']} steps in {elapsed:.0f} s"
+        + (
+            ""
+            if resumed is None
+            else f" in all (resumed from the checkpoint at step {resumed[0]}: this call {resumed[1]:.0f} s)"
+        )
+        + f" ({metadata['dtype']}, {metadata['jax_backend']}).\n\n"
     )
     summary = header + summary
     (folder / "summary.md").write_text(summary + "\n")

@@ -712,6 +712,24 @@ def _last_member_value(chunks: list[dict], name: str, b: int) -> float:
     return float(np.asarray(values)[-1].ravel()[0])
 
 
+def phase_bar(phase: str, num: int, total: int, progress: bool):
+    """The tqdm bar of one phase of :func:`run_group`.
+
+    Consolidation ends on its criterion, not on its step cap: its bar counts steps with no total (no
+    made-up ETA) and shows the unbalanced-force ratio against its stop value. A phase with no steps to run
+    shows no bar; a single test's bar does not count members.
+    """
+    from tqdm.auto import tqdm
+
+    return tqdm(
+        total=None if phase == "consolidation" else total,
+        desc=phase if num == 1 else f"{phase} ({num} members)",
+        unit="step",
+        disable=not progress or total == 0,
+        leave=False,
+    )
+
+
 def run_group(
     batch: BatchedTest,
     folder: Path,
@@ -741,8 +759,6 @@ def run_group(
       RunError: a member blew up (error bits or runaway kinetic energy); ``error.records`` holds the
         records so far, as returned.
     """
-    from tqdm.auto import tqdm
-
     chunk_counter = [0] if chunk_counter is None else chunk_counter
 
     config = batch.configs[0]
@@ -814,9 +830,7 @@ def run_group(
             "shear_coarse": config.record_every_coarse,
         }[phase]
         total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
-        bar = tqdm(
-            total=total, desc=f"{phase} ({num} members)", unit="step", disable=not progress, leave=False
-        )
+        bar = phase_bar(phase, num, total, progress)
 
         def on_chunk(current, chunk, left, phase=phase, bar=bar, record_every=record_every):
             nonlocal budgets
@@ -833,7 +847,16 @@ def run_group(
                 )
             bar.update(chunk["valid"].shape[1] * record_every)
             postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}
-            if num == 1:
+            if phase == "consolidation":
+                # The worst member's unbalanced-force ratio against the stop value (tqdm sorts the keys).
+                ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
+                last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
+                postfix = {
+                    "unbalanced": f"{max(last, default=0.0):.1e}",
+                    "until": f"{min(tolerances):.0e}",
+                    **({} if num == 1 else {"active": postfix["active"]}),
+                }
+            elif num == 1:
                 # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
                 last = {name: float(chunk[name][0][chunk["valid"][0]][-1].ravel()[0]) for name in _PROGRESS}
                 external, internal = analysis.friction_angle_deg(

@@ -95,7 +95,7 @@ def test_the_fitted_correction_is_the_model_on_the_records_inputs_with_its_band(
     np.testing.assert_allclose(wider.std["sigma_1"], cell * math.hypot(CV_RMS, 0.03), rtol=1e-12)
 
 
-def test_a_record_outside_the_fitted_range_is_warned_about_by_name():
+def test_a_record_outside_the_fitted_range_is_warned_about_in_laboratory_words():
     record = _record()
     inputs = datasets.measured_inputs(
         record.axial_strain, record.radial_strain, np.full(41, -0.4), 20e3, 2e-3, 1.4e6, 0.02, 0.15
@@ -106,20 +106,88 @@ def test_a_record_outside_the_fitted_range_is_warned_about_by_name():
     with __import__("warnings").catch_warnings():
         __import__("warnings").simplefilter("error")
         assert correct.correct_record(record, SPECIMEN, _corrections(inside)).warnings == ()
-    outside = {"stiffness_ratio": (1.0, 5.0), "size_ratio": (0.1, 0.2)}
-    with pytest.warns(
-        UserWarning, match=r"stiffness_ratio of the record spans 7 to 7, outside the fitted 1 to 5"
-    ):
+    outside = {"stiffness_ratio": (1.0, 5.0), "size_ratio": (0.1, 0.2), "axial_strain": (0.0, 0.08)}
+    with pytest.warns(UserWarning, match=r"membrane stiffness / \(cell pressure × particle size\)"):
         result = correct.correct_record(record, SPECIMEN, _corrections(outside))
-    assert len(result.warnings) == 1
+    # the axial strain in %, counted linearly: (10 − 8)/8 = 0.25 of the range's width above it
+    assert result.warnings[0] == (
+        "axial strain, ε_a, spans 0 to 10 %; the correction was fitted on 0 to 8 % "
+        "(8 of 41 rows outside it, by up to 0.25 of that range's width)."
+    )
+    # ln(7/5)/ln(5/1) = 0.21 of the fitted range's width (in logarithms) above it
+    assert result.warnings[1] == (
+        "membrane stiffness / (cell pressure × particle size), E_m t_m/(σc D), = 7; the correction was "
+        "fitted on 1 to 5 (41 of 41 rows outside it, by up to 0.21 of that range's width in logarithms)."
+    )
+    assert result.warnings[2].startswith("outside its fitted range the fitted correction's band is widened")
+    assert "up to ×1.25 here" in result.warnings[2]
+
+
+def test_outside_the_fitted_range_the_band_widens_by_the_stated_rule_and_far_out_the_fit_is_withheld():
+    record = _record()
+    inside = correct.correct_record(record, SPECIMEN, _corrections({"stiffness_ratio": (1.0, 10.0)}))
+    # 7 is ln(7/5)/ln(5/1) of the range's width (in logarithms) above 1-5: the band is (1 + δ) times wider
+    delta = math.log(7.0 / 5.0) / math.log(5.0)
+    with pytest.warns(UserWarning):
+        near = correct.correct_record(record, SPECIMEN, _corrections({"stiffness_ratio": (1.0, 5.0)}))
+    # (the stored range is taken 1e-12 wider, as float32 tables' bounds are; hence 1e-10)
+    np.testing.assert_allclose(near.extrapolation, delta, rtol=1e-10)
+    for name in ("sigma_1", "sigma_3", "friction_angle"):
+        np.testing.assert_allclose(near.std[name], (1.0 + delta) * inside.std[name], rtol=1e-10)
+        assert np.all(near.std[name] > inside.std[name])
+    # the estimate itself is the same model, only its uncertainty grows
+    np.testing.assert_allclose(near.sigma_1["fitted"], inside.sigma_1["fitted"], rtol=1e-15)
+    # the axial strain is counted linearly, row by row: δ = (ε_a − 0.05)/0.05 beyond 5 %
+    with pytest.warns(UserWarning):
+        strain = correct.correct_record(record, SPECIMEN, _corrections({"axial_strain": (0.0, 0.05)}))
+    expected = np.maximum(record.axial_strain - 0.05, 0.0) / 0.05
+    np.testing.assert_allclose(strain.extrapolation, expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(strain.std["sigma_1"], (1.0 + expected) * inside.std["sigma_1"], rtol=1e-10)
+    # beyond one range width (7 against 1-2: ln(3.5)/ln(2) = 1.8) the fitted method is withheld, the
+    # classical ones are not
+    with pytest.warns(UserWarning, match="withheld: 41 of 41 rows"):
+        far = correct.correct_record(record, SPECIMEN, _corrections({"stiffness_ratio": (1.0, 2.0)}))
+    assert far.extrapolation[0] == pytest.approx(math.log(3.5) / math.log(2.0), rel=1e-10)
+    assert np.all(np.isnan(far.sigma_1["fitted"])) and np.all(np.isnan(far.std["friction_angle"]))
+    np.testing.assert_array_equal(far.friction_angle["astm"], inside.friction_angle["astm"])
+
+
+def test_a_standard_small_sand_test_is_told_the_shipped_correction_does_not_cover_it():
+    """38 mm specimen, 1 mm sand, 0.3 mm membrane, 100 kPa: t_m/D = 0.3 and D/D_s = 1/38, far from ballast."""
+    record = _record(cell=100e3)
+    sand = correct.Specimen.from_mm_kpa(38.0, 1.0, 0.3, 1400.0)
+    with pytest.warns(UserWarning):
+        result = correct.correct_record(record, sand)
+    text = "\n".join(result.warnings)
+    assert (
+        "membrane thickness / particle size, t_m/D, = 0.3; the correction was fitted on 0.04 to 0.2" in text
+    )
+    assert (
+        "particle size / specimen diameter, D/D_s, = 0.0263; the correction was fitted on 0.1 to 0.176"
+        in text
+    )
+    # D/D_s is ln(0.1/0.0263)/ln(0.176/0.1) = 2.4 range widths below its fitted range: withheld
+    assert np.all(result.extrapolation > correct.MAX_EXTRAPOLATION)
+    assert np.all(np.isnan(result.friction_angle["fitted"]))
+    assert "size_ratio" not in text and "thickness_ratio" not in text  # no internal names
 
 
 def test_specimen_units_are_converted_once_and_bad_values_refused():
     assert SPECIMEN == (0.15, 0.02, 0.002, 1.4e6)
-    with pytest.raises(ValueError, match=r"membrane_thickness_mm = -2.*positive"):
+    with pytest.raises(
+        ValueError, match=r"membrane_thickness_mm = -2.*positive.*--membrane-thickness-mm 2\)"
+    ):
         correct.Specimen.from_mm_kpa(150.0, 20.0, -2.0, 1400.0)
-    with pytest.raises(ValueError, match="specimen_diameter_mm = nan"):
+    with pytest.raises(ValueError, match=r"specimen_diameter_mm = nan.*--specimen-diameter-mm 150\)"):
         correct.Specimen.from_mm_kpa(math.nan, 20.0, 2.0, 1400.0)
+    with pytest.raises(ValueError, match=r"particle_size_mm = 200 is not below specimen_diameter_mm = 150"):
+        correct.Specimen.from_mm_kpa(150.0, 200.0, 2.0, 1400.0)
+    with pytest.raises(ValueError, match=r"membrane_thickness_mm = 40 is a quarter or more"):
+        correct.Specimen.from_mm_kpa(150.0, 20.0, 40.0, 1400.0)
+    with pytest.raises(
+        ValueError, match=r"membrane_modulus_kpa = 1.4: no membrane is that soft; is it in MPa"
+    ):
+        correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1.4)
 
 
 CLASSICAL = ("uncorrected", "astm", "henkel_gilbert", "kuerbis_vaid")
@@ -240,3 +308,112 @@ def test_the_calibration_grid_spans_the_ranges_the_correction_is_for():
     assert (min(values["membrane_thickness_mm"]), max(values["membrane_thickness_mm"])) == (1.0, 5.0)
     assert (min(values["membrane_modulus_kpa"]), max(values["membrane_modulus_kpa"])) == (700.0, 2800.0)
     assert max(ratios) >= 1 / 6 and min(ratios) == pytest.approx(1 / 10, rel=2e-3)
+
+
+def _argv(path, *more):
+    from calibrate import evaluate
+
+    values = evaluate.example_arguments(_example()[0].comments)
+    argv = ["correct", str(path)]
+    for flag, value in zip(evaluate.SPECIMEN_FLAGS, values, strict=True):
+        argv += [flag, f"{value!r}"]
+    return argv + list(more)
+
+
+def test_membrax_correct_never_writes_over_the_record(tmp_path, capsys, monkeypatch):
+    from membrax import cli
+
+    monkeypatch.chdir(tmp_path)
+    with correct.example_record_path() as shipped:
+        original = shipped.read_bytes()
+    record = tmp_path / "mine.csv"
+    record.write_bytes(original)
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "link.csv").symlink_to(record)
+    for out in ("mine.csv", str(record), "sub/../mine.csv", "link.csv"):
+        assert cli.main(_argv("mine.csv", "--out", out)) == 2
+        error = capsys.readouterr().err
+        assert "is the record being corrected; membrax never writes over a laboratory record" in error
+    assert cli.main(_argv("mine.csv", "--out", "mine.png")) == 2
+    assert "--out mine.png: give a .csv file" in capsys.readouterr().err
+    assert record.read_bytes() == original
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["link.csv", "mine.csv", "sub"]
+
+
+def test_membrax_correct_writes_into_the_working_folder_not_beside_a_packaged_record(
+    tmp_path, capsys, monkeypatch
+):
+    from membrax import cli
+
+    monkeypatch.chdir(tmp_path)
+    with correct.example_record_path() as shipped:
+        before = sorted(p.name for p in shipped.parent.iterdir())
+        assert cli.main(_argv(shipped)) == 0
+        assert sorted(p.name for p in shipped.parent.iterdir()) == before
+    written = ["example_record_corrected.csv", "example_record_corrected.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == written
+    assert f"written: {tmp_path / written[0]}, {tmp_path / written[1]}" in capsys.readouterr().out
+
+
+def _table(path):
+    lines = [line for line in path.read_text().splitlines() if not line.startswith("#")]
+    return lines[0], np.loadtxt(lines[1:], delimiter=",")
+
+
+def test_a_spreadsheet_twin_of_the_example_gives_the_same_corrected_numbers(tmp_path, capsys):
+    """The example as Excel writes it in a decimal-comma locale: a byte-order mark, semicolons, commas."""
+    from membrax import cli
+
+    with correct.example_record_path() as shipped:
+        text = shipped.read_text()
+    twin = "\n".join(
+        line if line.startswith("#") else line.replace(",", ";").replace(".", ",")
+        for line in text.splitlines()
+    )
+    (tmp_path / "twin.csv").write_text(twin + "\n", encoding="utf-8-sig")
+    (tmp_path / "clean.csv").write_text(text)
+    assert cli.main(_argv(tmp_path / "clean.csv", "--out", str(tmp_path / "a.csv"), "--no-plot")) == 0
+    assert cli.main(_argv(tmp_path / "twin.csv", "--out", str(tmp_path / "b.csv"), "--no-plot")) == 0
+    assert f"read {tmp_path / 'twin.csv'}: columns separated by semicolons" in capsys.readouterr().out
+    (header_a, a), (header_b, b) = _table(tmp_path / "a.csv"), _table(tmp_path / "b.csv")
+    assert header_a == header_b
+    np.testing.assert_array_equal(a, b)
+
+
+def test_a_dilation_positive_twin_of_the_example_is_caught_and_read_with_the_flag(tmp_path, capsys):
+    from membrax import cli
+
+    with correct.example_record_path() as shipped:
+        lines = shipped.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    flipped = lines[: header + 1]
+    for line in lines[header + 1 :]:
+        cells = line.split(",")
+        cells[1] = repr(-float(cells[1]))  # volumetric_strain [%], dilation positive
+        flipped.append(",".join(cells))
+    (tmp_path / "twin.csv").write_text("\n".join(flipped) + "\n")
+    out = tmp_path / "twin_corrected.csv"
+    assert cli.main(_argv(tmp_path / "twin.csv", "--out", str(out), "--no-plot")) == 2
+    error = capsys.readouterr().err
+    assert "the volumetric strain falls while the specimen is compressed" in error
+    assert "Is dilation written positive? membrax takes compression positive" in error
+    assert not out.exists()
+    assert cli.main(_argv(tmp_path / "twin.csv", "--out", str(out), "--no-plot", "--dilation-positive")) == 0
+    with correct.example_record_path() as shipped:
+        assert cli.main(_argv(shipped, "--out", str(tmp_path / "plain.csv"), "--no-plot")) == 0
+    np.testing.assert_allclose(_table(out)[1], _table(tmp_path / "plain.csv")[1], rtol=1e-7, atol=1e-12)
+
+
+def test_the_report_marks_a_withheld_fitted_correction(tmp_path, capsys):
+    from membrax import cli
+
+    with correct.example_record_path() as shipped:
+        argv = ["correct", str(shipped), "--out", str(tmp_path / "sand.csv"), "--no-plot"]
+        argv += ["--specimen-diameter-mm", "38", "--particle-size-mm", "1", "--membrane-thickness-mm", "0.3"]
+        assert cli.main([*argv, "--membrane-modulus-kpa", "1400"]) == 0
+    captured = capsys.readouterr()
+    assert "withheld" in captured.out and "nan" not in captured.out
+    assert "membrax: warning: particle size / specimen diameter, D/D_s, = 0.0263" in captured.err
+    header, table = _table(tmp_path / "sand.csv")
+    column = header.split(",").index("fitted_extrapolation [-]")
+    assert np.all(table[1:, column] > correct.MAX_EXTRAPOLATION)

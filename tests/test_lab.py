@@ -1,6 +1,7 @@
 """calibrate.lab: laboratory records read in SI units, and every bad file refused naming line, column, fix."""
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -77,10 +78,38 @@ BAD_FILES = [
     # unsorted or unloading
     (
         GOOD.replace("1.0,0.003", "0.4,0.003"),
-        r"line 6, column 1 \(axial_strain\): 0.4 after 0.5.*must increase",
+        r"line 6, column 1 \(axial_strain\): 0.4 after 0.5.*must not fall.*sort the record by time",
     ),
     # a negative pressure
     (GOOD.replace("30.5,10,", "30.5,-10,"), r"line 6, column 4 \(cell_pressure\): -10 kPa"),
+    # extension positive: the axial strain of a compression test written negative
+    (
+        GOOD.replace("0.5,0.002", "-0.5,0.002").replace("1.0,0.003", "-1.0,0.003"),
+        r"line 5, column 1 \(axial_strain\): -0.5 after 0.*falls below zero.*compression positive",
+    ),
+    # a fraction under a [%] header: 1 % written 0.01 never exceeds 0.2 %
+    (
+        GOOD.replace("0.5,0.002", "0.005,0.002").replace("1.0,0.003", "0.01,0.003"),
+        r"line 3, column 1 \(axial_strain \[%\]\): the axial strain never exceeds 0.01 %.*fraction under a "
+        r"\[%\] header\? If so, write 'axial_strain \[-\]'",
+    ),
+    # percent under a [-] header: 0.8 would be 80 %
+    (
+        GOOD.replace("axial_strain [%]", "axial_strain [-]").replace("1.0,0.003", "0.8,0.003"),
+        r"column 1 \(axial_strain \[-\]\): the axial strain reaches 0.8, that is 80 %.*in percent",
+    ),
+    # dilation written positive: the volumetric strain falls from the start of loading
+    (
+        GOOD.replace("0.5,0.002", "0.5,-0.002").replace("1.0,0.003", "1.0,-0.003"),
+        r"line 3, column 2 \(volumetric_strain\): the volumetric strain falls while the specimen is "
+        r"compressed.*Is dilation written positive\? membrax takes compression positive.*--dilation-positive",
+    ),
+    # bulging written positive
+    (
+        GOOD.replace("volumetric_strain [-]", "radial_strain [-]"),
+        r"column 2 \(radial_strain\): the radial strain grows while the specimen is compressed.*"
+        r"Is bulging written positive\?",
+    ),
 ]
 
 
@@ -100,10 +129,10 @@ def test_an_empty_or_missing_file_is_refused(tmp_path):
 
 
 @pytest.mark.parametrize(("text", "message"), BAD_FILES)
-def test_membrax_correct_names_each_bad_file_and_writes_nothing(tmp_path, capsys, text, message):
-    import re
-
+def test_membrax_correct_names_each_bad_file_and_writes_nothing(tmp_path, capsys, monkeypatch, text, message):
     from membrax import cli
+
+    monkeypatch.chdir(tmp_path)  # the default output folder
 
     path = _write(tmp_path, text)
     argv = ["correct", str(path), "--specimen-diameter-mm", "150", "--particle-size-mm", "20"]
@@ -111,3 +140,97 @@ def test_membrax_correct_names_each_bad_file_and_writes_nothing(tmp_path, capsys
     assert cli.main(argv) == 2
     assert re.search(message, capsys.readouterr().err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lab.csv"]  # nothing written, not even half
+
+
+def _rows(record):
+    return np.stack(
+        [record.axial_strain, record.volumetric_strain, record.axial_stress, record.cell_pressure]
+    )
+
+
+def test_a_spreadsheet_export_with_a_byte_order_mark_semicolons_and_decimal_commas_is_the_same_record(
+    tmp_path,
+):
+    clean = read_lab_record(_write(tmp_path, GOOD))
+    semicolons = GOOD.replace(",", ";").replace("0.5;", "0,5;").replace("30.5;", "30,5;")
+    semicolons = semicolons.replace("0.002;", "0,002;").replace("1.0;", "1,0;").replace("0.003;", "0,003;")
+    path = tmp_path / "excel.csv"
+    path.write_text(semicolons, encoding="utf-8-sig")  # Excel's "CSV UTF-8": a byte-order mark first
+    assert path.read_bytes().startswith(b"\xef\xbb\xbf")
+    exported = read_lab_record(path)
+    np.testing.assert_array_equal(_rows(exported), _rows(clean))
+    assert exported.notes == ("columns separated by semicolons; decimal commas read as points",)
+    assert clean.notes == ()
+    tabs = tmp_path / "tabs.txt"
+    tabs.write_text(GOOD.replace(",", "\t"), encoding="utf-16")  # "Unicode text": UTF-16 with its mark
+    np.testing.assert_array_equal(_rows(read_lab_record(tabs)), _rows(clean))
+
+
+def test_an_xlsx_sheet_is_the_same_record_as_its_csv(tmp_path):
+    import openpyxl
+
+    clean = read_lab_record(_write(tmp_path, GOOD))
+    book = openpyxl.Workbook()
+    sheet = book.active
+    sheet.title = "test 7"
+    for line in GOOD.splitlines():
+        cells = [line] if line.startswith("#") else line.split(",")
+        sheet.append([float(c) if c[0].isdigit() else c for c in cells])
+    book.save(tmp_path / "lab.xlsx")
+    record = read_lab_record(tmp_path / "lab.xlsx")
+    np.testing.assert_array_equal(_rows(record), _rows(clean))
+    assert record.comments == clean.comments
+    sheet["B5"] = "n/a"
+    book.save(tmp_path / "bad.xlsx")
+    with pytest.raises(
+        LabRecordError, match=r"bad.xlsx, sheet 'test 7', row 5, column 2 \(volumetric_strain\)"
+    ):
+        read_lab_record(tmp_path / "bad.xlsx")
+
+
+def test_repeated_axial_strains_are_averaged_and_counted(tmp_path):
+    # A logger holding its strain reading for three rows while the load creeps up: one row, their mean.
+    text = GOOD.replace(
+        "0.5,0.002,20.0,10,31.0\n", "0.5,0.002,20.0,10,31.0\n0.5,0.002,21.0,10,0\n0.5,0.005,23.0,10,0\n"
+    )
+    record = read_lab_record(_write(tmp_path, text))
+    np.testing.assert_allclose(record.axial_strain, [0.0, 0.005, 0.01], rtol=1e-15)
+    np.testing.assert_allclose(record.axial_stress, [1e4, 1e4 + 1e3 * (20 + 21 + 23) / 3, 4.05e4], rtol=1e-15)
+    np.testing.assert_allclose(record.volumetric_strain[1], 0.003, rtol=1e-12)
+    assert record.notes == (
+        "2 readings repeat the axial strain of the reading before (a logger holding its value); each run of "
+        "equal axial strains is averaged into one row: 3 rows of 5",
+    )
+
+
+def test_a_dilation_positive_record_is_read_with_the_flag_as_its_twin(tmp_path):
+    clean = read_lab_record(_write(tmp_path, GOOD))
+    twin = GOOD.replace("0.5,0.002", "0.5,-0.002").replace("1.0,0.003", "1.0,-0.003")
+    record = read_lab_record(_write(tmp_path, twin, "twin.csv"), dilation_positive=True)
+    np.testing.assert_array_equal(_rows(record), _rows(clean))
+    assert "volumetric_strain negated (--dilation-positive)" in record.notes[0]
+
+
+BINARY_FILES = [
+    # Excel 97-2003 (an OLE compound file), the issue's "byte 0xd0"
+    (
+        b"\xd0\xcf\x11\xe0\xa1\xb1\x1a\xe1" + bytes(600),
+        r"is an Excel 97-2003 workbook \(.xls\), not a text CSV",
+    ),
+    # a picture saved under .csv
+    (b"\x89PNG\r\n\x1a\n" + bytes(64), r"is not a text CSV \(it holds binary data\): byte 0x89 at offset 0"),
+    # a legacy-encoded text file (a degree sign in Latin-1)
+    (b"# 20 \xb0C\n" + GOOD.encode(), r"is not UTF-8 text: byte 0xb0 at offset 5"),
+    # a zip that is no workbook
+    (b"PK\x03\x04" + bytes(64), r"is a zip file but not a readable .xlsx workbook"),
+]
+
+
+@pytest.mark.parametrize(("data", "message"), BINARY_FILES)
+def test_a_file_that_is_not_a_text_csv_is_named_and_explained(tmp_path, data, message):
+    path = tmp_path / "lab.csv"
+    path.write_bytes(data)
+    with pytest.raises(
+        LabRecordError, match=f"{re.escape(str(path))} {message}.*save it from the spreadsheet"
+    ):
+        read_lab_record(path)

@@ -205,9 +205,15 @@ def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
     with pytest.raises(KeyboardInterrupt):
         run_test(config, tmp_path / "cut", progress=False, interrupt_after_chunks=5)
     assert (tmp_path / "cut" / CHECKPOINT_NAME).exists()
+    from membrax.io import read_checkpoint_host
+
+    step = int(read_checkpoint_host(tmp_path / "cut" / CHECKPOINT_NAME)["member_steps"][0])
     resumed = run_test(config, tmp_path / "cut", resume=True, progress=False)
     _compare(whole.results, resumed.results)
     _compare(whole.consolidation, resumed.consolidation)
+    # The resumed summary says so, from which step, and times this call apart from the whole run.
+    assert f"in all (resumed from the checkpoint at step {step}: this call " in resumed.summary
+    assert "resumed" not in whole.summary
     # Stage 1 servo-controls the ram: at its last record ram / A₀ = σc, with A₀ recovered by hand from the
     # recorded area A = A₀ (1 − ε_v) / (1 − ε_a).
     end = {
@@ -271,3 +277,22 @@ def test_cli_run_reports_bad_configuration_fields(tmp_path, capsys):
     good.write_text("layers = 5\n")
     assert cli.main(["run", str(good), "--set", "particles_across=-1", "--out", str(tmp_path / "o")]) == 2
     assert "particles_across" in capsys.readouterr().err
+    # --resume with nothing to resume: one line naming the missing checkpoint, exit 2, no traceback
+    assert cli.main(["run", str(good), "--out", str(tmp_path / "fresh"), "--resume"]) == 2
+    assert capsys.readouterr().err == (
+        f"membrax: no checkpoint at '{tmp_path / 'fresh' / CHECKPOINT_NAME}' to resume from; run without "
+        "--resume to start afresh.\n"
+    )
+
+
+def test_progress_bars_show_the_consolidation_criterion_not_its_step_cap_and_no_empty_phase():
+    from membrax.stages import phase_bar
+
+    consolidation = phase_bar("consolidation", 1, 200_000, progress=True)
+    assert consolidation.total is None and consolidation.desc == "consolidation"  # no 200000-step ETA
+    empty = phase_bar("shear_coarse", 1, 0, progress=True)
+    assert empty.disable  # a phase with no steps left draws no "0step" bar
+    sweep = phase_bar("shear_fine", 9, 4800, progress=True)
+    assert sweep.total == 4800 and sweep.desc == "shear_fine (9 members)" and not sweep.disable
+    for bar in (consolidation, empty, sweep):
+        bar.close()
