@@ -1,4 +1,4 @@
-"""The GPU figures the README quotes, in one call on a lent GPU machine, inside a deadline.
+"""The GPU figures docs/benchmarks.md quotes, in one call on a lent GPU machine, inside a deadline.
 
 Runs, in turn, each as its own process with a timeout, writing its output under ``--out``:
 
@@ -45,7 +45,7 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 # Consolidation (10,000) then shearing (24,500 + 110,250) steps of the 10 kPa members, the last to finish
-# at paper size (README: membrax reproduce --size paper).
+# at paper size (docs/benchmarks.md: membrax reproduce --size paper).
 REPRODUCE_BATCH_STEPS = 144_750
 STEPS = (
     "sweep64",

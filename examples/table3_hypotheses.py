@@ -34,7 +34,7 @@ import jax
 
 from membrax.devices import split_cpu_devices
 
-split_cpu_devices()  # one JAX device per core, before the rest of membrax (README, Sweeps)
+split_cpu_devices()  # one JAX device per core, before the rest of membrax (docs/model.md, Sweeps)
 
 import numpy as np  # noqa: E402
 

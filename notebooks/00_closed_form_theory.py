@@ -25,7 +25,7 @@
 # The assertions are hand checks: the notebook fails in CI if a number drifts.
 #
 # **Time**: no simulation, so the same at full size and in smoke mode (`MEMBRAX_SMOKE=1`, what CI sets):
-# 4 s measured on 2 CPU cores (see the README's "Notebooks" section).
+# 4 s measured on 2 CPU cores (see docs/benchmarks.md, "Notebooks").
 
 # %%
 import math

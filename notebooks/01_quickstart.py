@@ -32,7 +32,7 @@
 # sets) takes 4 × 5 layers to 1 %.
 #
 # **Time** (2 CPU cores, measured): smoke 28–48 s; full size 46 s (both mostly building and compiling
-# the test). See the README's "Notebooks" section.
+# the test). See docs/benchmarks.md, "Notebooks".
 
 # %%
 import os

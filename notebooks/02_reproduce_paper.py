@@ -107,7 +107,7 @@ table_2.round(2)  # columns: ours, paper_…, difference_… (ours − paper)
 # ## Table 3: principal stresses at the start of shearing, and the additional (membrane) stresses
 #
 # Δσ = internal − external. `additional_sigma3_centres_kpa` reads the paper's "right cylinder" through the
-# boundary spheres' centres rather than the platen's (README, protocol notes).
+# boundary spheres' centres rather than the platen's (docs/model.md, protocol notes).
 
 # %%
 table_3 = pd.DataFrame(paper.table_3(cases, particle_radius=BASE.particle_radius)).set_index(

@@ -206,8 +206,8 @@ _ = axes[1].legend(fontsize=7)
 # - A stiffer membrane carries more of the load: at each friction angle the additional axial stress grows
 #   with E_m (the membrane's tension, E_m t_m times its strain, pulls the platens together).
 # - Membrane friction is left unchecked: it acts only through the consolidation's path (consolidation is
-#   isotropic and ends with the membrane's contacts stuck, so d/dφ_m = 0 at the equilibrium, README
-#   "Gradients"), but over 10°–40° that path is not a small change (the table above).
+#   isotropic and ends with the membrane's contacts stuck, so d/dφ_m = 0 at the equilibrium,
+#   docs/gradients.md), but over 10°–40° that path is not a small change (the table above).
 
 # %%
 moduli = np.array(GRID["membrane_modulus_kpa"])

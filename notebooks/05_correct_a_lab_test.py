@@ -32,7 +32,7 @@
 # --membrane-thickness-mm 2 --membrane-modulus-kpa 1000`.
 #
 # **Time** (2 CPU cores): smoke mode (`MEMBRAX_SMOKE=1`, what CI sets) 7 s measured; full size adds the
-# leave-one-case-out cross-validation of two models, 2 min 39 s measured (see the README's "Notebooks").
+# leave-one-case-out cross-validation of two models, 2 min 39 s measured (docs/benchmarks.md, "Notebooks").
 
 # %%
 import os
@@ -95,7 +95,7 @@ refit_corrections = persistence.load_corrections(saved)
 # %% [markdown]
 # At full size the notebook also scores both models by leave-one-case-out cross-validation (what
 # `membrax fit` prints and what the correction's uncertainty band adds): each case is predicted by a fit
-# that never saw it. The README's table: axial 0.0709 (paper) against 0.0703 (rich), radial 0.0183
+# that never saw it. docs/calibration.md's table: axial 0.0709 (paper) against 0.0703 (rich), radial 0.0183
 # against 0.0161, in Δσ/σc.
 
 # %%
@@ -146,8 +146,8 @@ figure
 #   deviator correction is 4 E_m t_m ε_a/D for any ε_v: the same deviator as ASTM's.
 # - Henkel & Gilbert: σ3 + 2 E_m t_m ε_θ / D with D = D_s (1 − ε_r) and ε_θ = (D − D_s)/D_s, clipped at 0
 #   where the hoop would buckle.
-# - The fitted correction brings φ' closer to the internal φ' than any classical one (README: mean error
-#   0.15° against 1.0–1.4°).
+# - The fitted correction brings φ' closer to the internal φ' than any classical one
+#   (docs/calibration.md: mean error 0.15° against 1.0–1.4°).
 
 # %%
 eps_a, eps_v, eps_r = record.axial_strain, record.volumetric_strain, record.radial_strain
