@@ -41,13 +41,14 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
 
     from membrax import native
     from membrax.membrane import contact as membrane_contact
-    from membrax.membrane import mesh as membrane
+    from membrax.membrane import energies
+    from membrax.membrane.mesh import prism_mesh
     from membrax.spheres import packing
     from membrax.triaxial import membrane_cell as membrane_triaxial
 
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
     specimen = packing.fcc_specimen(diameter, 10, 25)
-    mesh = membrane.prism_mesh(
+    mesh = prism_mesh(
         np.asarray(specimen.outline_vertices),
         0.5 * thickness,
         specimen.height,
@@ -61,7 +62,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
         return jax.jit(lambda x: jax.lax.fori_loop(0, repeats, lambda _, y: y + 1e-12 * force_fn(y), x))
 
     def forces(x):
-        return membrane.nodal_forces(x, mesh, modulus, thickness, pressure)
+        return energies.nodal_forces(x, mesh, modulus, thickness, pressure)
 
     forces_once = jax.jit(forces)
     _, first = timed(forces_once, nodes)

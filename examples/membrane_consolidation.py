@@ -32,12 +32,12 @@ def render(state_file: pathlib.Path, out: pathlib.Path, thickness: float, cell_p
 
     from membrax import io, plots
     from membrax.membrane import measure as membrane_measure
-    from membrax.membrane import mesh as membrane
+    from membrax.membrane.mesh import prism_mesh
     from membrax.spheres import packing
 
     data = np.load(state_file)
     specimen = packing.fcc_specimen(0.025, 10, 25)
-    mesh = membrane.prism_mesh(
+    mesh = prism_mesh(
         np.asarray(specimen.outline_vertices),
         0.5 * thickness,
         specimen.height,

@@ -33,13 +33,13 @@ __version__ = "0.1.0"
 
 # name → the module that defines it; one place, pinned by tests/test_api.py.
 _API = {
-    "ConfigError": "membrax.config",
+    "ConfigError": "membrax.errors",
     "DEMO_CONFIG": "membrax.config",
     "SMOKE_CONFIG": "membrax.config",
     "TriaxialConfig": "membrax.config",
     "load_config": "membrax.config",
     "run_test": "membrax.run",
-    "RunError": "membrax.run",
+    "RunError": "membrax.errors",
     "RunResult": "membrax.run",
     "run_sweep": "membrax.sweep",
     "sensitivity": "membrax.sensitivities",
@@ -52,7 +52,7 @@ _API = {
     "dem": "membrax.spheres.integrate",
     "prism_mesh": "membrax.membrane.mesh",
     "ErrorCode": "membrax.errors",
-    "SimulationError": "membrax.driver",
+    "SimulationError": "membrax.errors",
 }
 _MODULES = {
     "analysis": "membrax.triaxial.analysis",

@@ -152,16 +152,16 @@ def rigid_wall_demo(width_spheres: int = 6, height_layers: int = 8, cell_pressur
     import time
 
     from membrax.spheres import packing
-    from membrax.triaxial import rigid as triaxial
+    from membrax.triaxial.rigid import peak, rigid_wall_test
 
     start = time.perf_counter()
     specimen = packing.fcc_specimen(paper.PARTICLE_DIAMETER_MM / 1000.0, width_spheres, height_layers)
-    test = triaxial.rigid_wall_test(specimen, cell_pressure_kpa * 1e3)
+    test = rigid_wall_test(specimen, cell_pressure_kpa * 1e3)
     state, consolidation = test.consolidate()
     consolidation_steps = int(state.step)
     state, shear = test.shear(state, target_axial_strain=0.01, inertial_number=1e-3)
-    love_weber, love_weber_strain = triaxial.peak(shear)
-    wall, wall_strain = triaxial.peak(shear, "wall_friction_angle")
+    love_weber, love_weber_strain = peak(shear)
+    wall, wall_strain = peak(shear, "wall_friction_angle")
     rowe_exact = float(theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, theory.FCC))
     rowe_paper = float(
         theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, theory.FCC_PAPER)
@@ -187,7 +187,8 @@ def rigid_wall_demo(width_spheres: int = 6, height_layers: int = 8, cell_pressur
 
 
 def _run_config(config, out, resume: bool, progress: bool) -> int:
-    from membrax.run import RunError, run_test
+    from membrax.errors import RunError
+    from membrax.run import run_test
 
     try:
         result = run_test(config, out, resume=resume, progress=progress)
@@ -208,7 +209,7 @@ def _load_config(args: argparse.Namespace):
 
 
 def _run(args: argparse.Namespace) -> int:
-    from membrax.config import ConfigError
+    from membrax.errors import ConfigError
 
     try:
         config = _load_config(args)
@@ -234,8 +235,7 @@ def _split_cpu(args: argparse.Namespace) -> bool:
 def _sweep(args: argparse.Namespace) -> int:
     if not _split_cpu(args):
         return 2
-    from membrax.config import ConfigError
-    from membrax.run import RunError
+    from membrax.errors import ConfigError, RunError
     from membrax.sweep import parse_grid, run_sweep
 
     try:
@@ -260,8 +260,8 @@ def _sweep(args: argparse.Namespace) -> int:
 def _reproduce(args: argparse.Namespace) -> int:
     if not _split_cpu(args):
         return 2
+    from membrax.errors import RunError
     from membrax.reproduce import reproduce
-    from membrax.run import RunError
 
     try:
         done = reproduce(
@@ -288,7 +288,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _sensitivity(args: argparse.Namespace) -> int:
-    from membrax.config import ConfigError
+    from membrax.errors import ConfigError
     from membrax.sensitivities import OUTPUTS, PARAMETERS, format_table, sensitivity
 
     try:

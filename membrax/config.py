@@ -44,11 +44,11 @@ from typing import Any
 
 import numpy as np
 
+from membrax.errors import ConfigError
 from membrax.validation import check_range
 
 __all__ = [
     "TriaxialConfig",
-    "ConfigError",
     "load_config",
     "config_from_dict",
     "config_to_dict",
@@ -137,27 +137,6 @@ UNIT_SUFFIXES = {
 
 #: The optional table that may hold every key of a TOML configuration file.
 TABLE_NAME = "triaxial"
-
-
-class ConfigError(ValueError):
-    """An invalid configuration: the message names each bad field, its accepted range or type and the fix.
-
-    Attributes:
-      errors: one message per problem, in the order found (unknown keys first, then fields in order).
-      source: where the configuration came from (a file path), or ``None``.
-    """
-
-    def __init__(self, errors: str | Iterable[str], source: str | os.PathLike | None = None):
-        self.errors = (errors,) if isinstance(errors, str) else tuple(errors)
-        self.source = None if source is None else os.fspath(source)
-        where = f" in {self.source}" if self.source is not None else ""
-        if len(self.errors) == 1:
-            prefix = f"{self.source}: " if self.source is not None else ""
-            message = f"{prefix}{self.errors[0]}"
-        else:
-            lines = "\n".join(f"  - {error}" for error in self.errors)
-            message = f"{len(self.errors)} problems in the triaxial configuration{where}:\n{lines}"
-        super().__init__(message)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,6 +16,12 @@ the host:
 Its users: :class:`ChunkRunner` (one state: the stages of :class:`membrax.triaxial.protocol.StagedTest`,
 interactive use) and :class:`membrax.stages.BatchedTest` (stacked members: every run of
 :mod:`membrax.run` and :mod:`membrax.sweep`).
+
+The compiled chunk body is written once, here, and every loop over time steps in membrax is one of its
+two pieces: :func:`advance` (``num_steps`` steps, a ``lax.fori_loop``) and :func:`record_blocks`
+(``num_records`` blocks, each advancing and recording, a ``lax.scan``). The runners, the sensitivities'
+relaxation and the gradient rollouts differ in what they carry (a step budget, a checkpointed window),
+not in the loop.
 """
 
 from __future__ import annotations
@@ -24,30 +30,56 @@ import math
 from collections.abc import Callable
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
-from membrax.errors import OVERFLOWS, ErrorCode, describe
+from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
 from membrax.spheres.neighbors import PairNeighborFn, remap_pair_history
 
 __all__ = [
+    "advance",
+    "record_blocks",
     "ChunkRunner",
     "drive",
-    "SimulationError",
     "concatenate_records",
     "run_phases",
-    "strain_rate_from_inertial_number",
     "two_rate_plan",
 ]
 
 
-class SimulationError(RuntimeError):
-    """A run stopped on an error bit; ``state`` and ``records`` hold what was computed before it."""
+def advance(step: Callable, state, params, num_steps: int, unroll: int = 1):
+    """``num_steps`` steps of ``step(state, params)``: the inner loop of every compiled chunk.
 
-    def __init__(self, message, state=None, records=None):
-        super().__init__(message)
-        self.state = state
-        self.records = records
+    Args:
+      step: the time step, ``(state, params) → state``.
+      state: the state to advance (any pytree).
+      params: the step's parameters (any pytree; traced).
+      num_steps: steps (static).
+      unroll: steps per iteration of the ``lax.fori_loop``; ``num_steps`` or more: a Python loop, the steps
+        written out with no loop at all (what a checkpointed gradient window may want,
+        :func:`membrax.gradients.checkpoint_window`).
+
+    Returns:
+      The state after ``num_steps`` steps.
+    """
+    if unroll >= num_steps:
+        for _ in range(num_steps):
+            state = step(state, params)
+        return state
+    return jax.lax.fori_loop(0, num_steps, lambda _, s: step(s, params), state, unroll=unroll)
+
+
+def record_blocks(block: Callable, carry, num_records: int):
+    """``num_records`` blocks of ``block(carry) → (carry, record)``: the outer loop of every compiled chunk.
+
+    Args:
+      block: one block, typically :func:`advance` by the record interval then a record of the state.
+      carry: what the blocks pass on (a state, or a state and its step budget).
+      num_records: blocks (static).
+
+    Returns:
+      (the final carry, the records stacked along a leading axis of ``num_records``).
+    """
+    return jax.lax.scan(lambda current, _: block(current), carry, None, length=num_records)
 
 
 def concatenate_records(chunks):
@@ -100,14 +132,11 @@ class ChunkRunner:
         self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
 
     def _chunk_impl(self, state, params, num_records: int, record_every: int):
-        def inner(_, s):
-            return self.step_fn(s, params)
-
-        def outer(s, _):
-            s = jax.lax.fori_loop(0, record_every, inner, s)
+        def block(s):
+            s = advance(self.step_fn, s, params, record_every)
             return s, self.record_fn(s, params)
 
-        return jax.lax.scan(outer, state, None, length=num_records)
+        return record_blocks(block, state, num_records)
 
     def reallocate(self, state, capacity_growth: float | None = None):
         """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
@@ -243,15 +272,6 @@ def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors,
         for member in accept(state, records, valid, left):
             left[member] = 0
     return state, left
-
-
-def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
-    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I (GDR MiDi 2004), 1/s.
-
-    Traceable: σ may be a JAX value (a rollout differentiated with respect to σc, :mod:`membrax.gradients`).
-    """
-    sqrt = jnp.sqrt if isinstance(confining_stress, jax.Array) else math.sqrt
-    return inertial_number / (particle_diameter * sqrt(density / confining_stress))
 
 
 def two_rate_plan(

@@ -1,4 +1,4 @@
-"""Error bits that ride in a simulation state: set inside ``jit``, read on the host between chunks.
+"""membrax's errors: the bits that ride in a simulation state, and the exceptions raised on the host.
 
 Contract. Every state that can fail carries an int32 ``error`` mask; a jitted step ORs in the bits of
 :class:`ErrorCode` (``jnp.where(condition, ErrorCode.NOT_FINITE, 0)``) and never raises. The host-side
@@ -6,13 +6,23 @@ chunk driver reads the mask after each compiled chunk: the overflow bits (:data:
 capacity and rerun the chunk", every other bit stops the run with :func:`describe`'s messages. This
 module is the one list of bits and messages (jax-md's ``partition.PartitionErrorCode`` is the model);
 it imports nothing from membrax, so every layer can use it.
+
+The exceptions, each carrying a message that names what to change:
+
+- :class:`ConfigError`: an invalid configuration (:mod:`membrax.config`), every bad field at once;
+- :class:`SimulationError`: a compiled run stopped on an error bit (:mod:`membrax.driver`), with the state
+  and records computed before it;
+- :class:`RunError`: a run or sweep stopped (non-finite values or runaway kinetic energy), with its records
+  so far (:mod:`membrax.stages`).
 """
 
 from __future__ import annotations
 
 import enum
+import os
+from collections.abc import Iterable
 
-__all__ = ["OVERFLOWS", "ErrorCode", "describe"]
+__all__ = ["OVERFLOWS", "ConfigError", "ErrorCode", "RunError", "SimulationError", "describe"]
 
 
 class ErrorCode(enum.IntFlag):
@@ -51,3 +61,44 @@ def describe(error: int) -> list[str]:
     """The messages of the bits set in ``error`` (an int or a 0-d integer array), lowest bit first."""
     error = int(error)
     return [message for bit, message in _MESSAGES.items() if error & bit]
+
+
+class ConfigError(ValueError):
+    """An invalid configuration: the message names each bad field, its accepted range or type and the fix.
+
+    Attributes:
+      errors: one message per problem, in the order found (unknown keys first, then fields in order).
+      source: where the configuration came from (a file path), or ``None``.
+    """
+
+    def __init__(self, errors: str | Iterable[str], source: str | os.PathLike | None = None):
+        self.errors = (errors,) if isinstance(errors, str) else tuple(errors)
+        self.source = None if source is None else os.fspath(source)
+        where = f" in {self.source}" if self.source is not None else ""
+        if len(self.errors) == 1:
+            prefix = f"{self.source}: " if self.source is not None else ""
+            message = f"{prefix}{self.errors[0]}"
+        else:
+            lines = "\n".join(f"  - {error}" for error in self.errors)
+            message = f"{len(self.errors)} problems in the triaxial configuration{where}:\n{lines}"
+        super().__init__(message)
+
+
+class SimulationError(RuntimeError):
+    """A run stopped on an error bit; ``state`` and ``records`` hold what was computed before it."""
+
+    def __init__(self, message, state=None, records=None):
+        super().__init__(message)
+        self.state = state
+        self.records = records
+
+
+class RunError(RuntimeError):
+    """The simulation stopped (non-finite values or runaway energy); the message says what to change.
+
+    ``records`` holds the records computed before the stop (:func:`run_group`'s by phase), or None.
+    """
+
+    def __init__(self, message, records=None):
+        super().__init__(message)
+        self.records = records

@@ -50,6 +50,7 @@ import numpy as np
 
 from membrax import native
 from membrax.config import TriaxialConfig
+from membrax.driver import advance, record_blocks
 from membrax.errors import OVERFLOWS, describe
 from membrax.sensitivities import (
     _check_wrt,
@@ -124,11 +125,8 @@ def checkpoint_window(
 
     @jax.checkpoint
     def run(state, params):
-        if unroll >= window:  # the whole window: no loop, no residual stacks
-            for _ in range(window):
-                state = inner(state, params)
-            return state
-        return jax.lax.fori_loop(0, window, lambda _, s: inner(s, params), state, unroll=unroll)
+        # unroll >= window: the whole window, no loop and no residual stacks
+        return advance(inner, state, params, window, unroll=unroll)
 
     return run
 
@@ -186,10 +184,10 @@ class Rollout:
             template.make_step(mesh), self.window, mesh.reference_position.dtype, unroll=unroll
         )
 
-        def window(s, _):
+        def window(s):
             return run(s, params), None
 
-        final, _ = jax.lax.scan(window, state, None, length=self.steps // self.window)
+        final, _ = record_blocks(window, state, self.steps // self.window)
         reference = None
         if self.shear_steps:
             inertial_number, ramp_strain, symmetric = self.shear
@@ -197,7 +195,7 @@ class Rollout:
                 final, inertial_number, ramp_strain, symmetric, cell_pressure=params.membrane.cell_pressure
             )
             reference = reference_size(final, mesh, params)
-            final, _ = jax.lax.scan(window, final, None, length=self.shear_steps // self.window)
+            final, _ = record_blocks(window, final, self.shear_steps // self.window)
         return final, reference, mesh, params
 
     def member_outputs(self, theta, params, member, state, geometry, unroll=None):
@@ -278,7 +276,7 @@ def consolidation_rollout(
 
     Raises:
       ValueError: an unknown parameter, or steps, window or unroll below 1.
-      membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
+      membrax.errors.SimulationError: the forward rollout failed (not finite, outside the box).
     """
     return _rollout(configs, wrt, steps, 0, window, unroll)
 
@@ -310,7 +308,7 @@ def shearing_rollout(
     Raises:
       ValueError: an unknown parameter, steps, window or unroll below 1, or configurations that shear
         differently.
-      membrax.driver.SimulationError: the forward rollout failed (not finite, outside the box).
+      membrax.errors.SimulationError: the forward rollout failed (not finite, outside the box).
     """
     if shear_steps < 1:
         raise ValueError(f"shear_steps = {shear_steps}: give a positive integer.")
@@ -318,7 +316,7 @@ def shearing_rollout(
 
 
 def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: int = UNROLL) -> Rollout:
-    from membrax.driver import SimulationError
+    from membrax.errors import SimulationError
 
     configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
     wrt = tuple(wrt)

@@ -66,7 +66,7 @@ import numpy as np
 
 from membrax import theory
 from membrax.config import TriaxialConfig
-from membrax.io import files as io_files
+from membrax.io.files import atomic_write_bytes, ensure_folder
 from membrax.triaxial import analysis
 
 __all__ = [
@@ -481,7 +481,7 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
     """
     rows_2, rows_3 = table_2(results), table_3(results, particle_radius)
     quantities_3 = (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
-    folder = io_files.ensure_folder(folder)
+    folder = ensure_folder(folder)
     note = (
         "Ours from membrax; paper from Tables 2 and 3 of the paper (– where it has no such case; its "
         "3.3 mm is the 3.33 mm membrane)."
@@ -499,7 +499,7 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
     paths = {}
     for name, text in texts.items():
         paths[name] = folder / name
-        io_files.atomic_write_bytes(paths[name], text.encode("utf-8"))
+        atomic_write_bytes(paths[name], text.encode("utf-8"))
     return paths
 
 

@@ -30,8 +30,8 @@ import time
 from pathlib import Path
 
 from membrax import paper, plots
-from membrax import sweep as sweep_lib
 from membrax.config import DEMO_CONFIG, TriaxialConfig
+from membrax.sweep import member_records, run_sweep
 
 __all__ = ["SIZES", "TABLE_3_PRECISION", "reproduce"]
 
@@ -84,12 +84,10 @@ def reproduce(
     started = time.perf_counter()
     folder = Path(folder if folder is not None else f"results_reproduce_{size}")
     base = TriaxialConfig(name=f"reproduce_{size}", **{**SIZES[size], **(overrides or {})})
-    result = sweep_lib.run_sweep(
-        base, None, folder, resume=resume, progress=progress, num_devices=num_devices
-    )
+    result = run_sweep(base, None, folder, resume=resume, progress=progress, num_devices=num_devices)
     dataset = result.dataset
     cases = {
-        (float(pressure), float(thickness)): sweep_lib.member_records(
+        (float(pressure), float(thickness)): member_records(
             dataset, cell_pressure_kpa=pressure, membrane_thickness_mm=thickness
         )
         for pressure in dataset["cell_pressure_kpa"].values

@@ -40,13 +40,13 @@ import jax
 import numpy as np
 
 from membrax import __version__, plots
-from membrax import io as io_lib
-from membrax import paper as paper_lib
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
-from membrax.membrane import measure as membrane_measure
+from membrax.errors import RunError
+from membrax.io import VTKSeries, read_checkpoint_host, records_to_dataset, write_results
+from membrax.membrane.measure import triangle_stretches
+from membrax.paper import PAPER_10KPA_5MM, paper_key
 from membrax.stages import (
     CHECKPOINT_NAME,
-    RunError,
     build_batch,
     build_test,
     consolidation_tolerance,
@@ -61,7 +61,6 @@ from membrax.triaxial.membrane_cell import MembraneTest
 
 __all__ = [
     "CHECKPOINT_NAME",
-    "RunError",
     "RunResult",
     "build_test",
     "consolidation_tolerance",
@@ -93,7 +92,7 @@ class RunResult:
 
 def _vtk_snapshot(series, state, test: MembraneTest) -> None:
     nodes, spheres = state.membrane, state.dem
-    stretch = np.asarray(membrane_measure.triangle_stretches(nodes.position, test.mesh)).T
+    stretch = np.asarray(triangle_stretches(nodes.position, test.mesh)).T
     series.add(
         int(state.step),
         float(state.step) * test.dt,
@@ -158,16 +157,16 @@ def run_test(
         test = batch.tests[0]
         build_seconds = time.perf_counter() - started
         resumed_from = (
-            int(io_lib.read_checkpoint_host(folder / CHECKPOINT_NAME)["member_steps"][0]) if resume else None
+            int(read_checkpoint_host(folder / CHECKPOINT_NAME)["member_steps"][0]) if resume else None
         )
         after_chunk = None
         if config.vtk_every_steps > 0:
             if resume:
                 # Snapshots after the checkpoint's step are dropped: the resumed run writes them again.
-                start = int(io_lib.read_checkpoint_host(folder / CHECKPOINT_NAME)["member_steps"][0])
-                series = io_lib.VTKSeries(folder / "vtk", "specimen", resume_step=start)
+                start = int(read_checkpoint_host(folder / CHECKPOINT_NAME)["member_steps"][0])
+                series = VTKSeries(folder / "vtk", "specimen", resume_step=start)
             else:
-                series = io_lib.VTKSeries(folder / "vtk", "specimen")
+                series = VTKSeries(folder / "vtk", "specimen")
                 series.truncate_after(-1)
                 state = batch.unstack(batch.initial_state)[0]
                 _vtk_snapshot(series, state, test)
@@ -205,12 +204,10 @@ def _write_partial(folder, records, config) -> None:
     metadata = {"membrax_version": __version__, "config": config_to_dict(config), "partial": True}
     consolidation = join_records(records["consolidation"])
     if consolidation:
-        io_lib.write_results(
-            io_lib.records_to_dataset(consolidation, attrs=metadata), folder, "consolidation"
-        )
+        write_results(records_to_dataset(consolidation, attrs=metadata), folder, "consolidation")
     shear = join_records(records["shear_fine"] + records["shear_coarse"])
     if shear:
-        io_lib.write_results(io_lib.records_to_dataset(shear, attrs=metadata), folder, "results_partial")
+        write_results(records_to_dataset(shear, attrs=metadata), folder, "results_partial")
 
 
 def _finish(
@@ -219,12 +216,12 @@ def _finish(
     """Write the results, figures and summary; ``resumed`` is (checkpoint step, this call's seconds)."""
     metadata = run_metadata(config, test, records, build_seconds, elapsed, tolerance)
     shear, consolidation = results_datasets(records, shear_start, metadata)
-    files = {"consolidation": io_lib.write_results(consolidation, folder, "consolidation")}
-    files["results"] = io_lib.write_results(shear, folder, "results")
+    files = {"consolidation": write_results(consolidation, folder, "consolidation")}
+    files["results"] = write_results(shear, folder, "results")
     files["figures"] = plots.save_test_figures(shear, folder)
     paper = (
-        paper_lib.PAPER_10KPA_5MM
-        if paper_lib.paper_key(config.cell_pressure_kpa, config.membrane_thickness_mm) == (10.0, 5.0)
+        PAPER_10KPA_5MM
+        if paper_key(config.cell_pressure_kpa, config.membrane_thickness_mm) == (10.0, 5.0)
         else None
     )
     summary = analysis.summary_table(shear, paper=paper)

@@ -51,9 +51,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax.config import TriaxialConfig
-from membrax.membrane import measure as membrane_measure
-from membrax.membrane import mesh as membrane_lib
+from membrax.membrane import energies
 from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
+from membrax.membrane.measure import measure_coupled
+from membrax.membrane.mesh import free_node_mask, inner_volume
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.walls import BOTTOM, TOP, platen_separation
 from membrax.stages import GEOMETRY_FIELDS, build_test
@@ -140,7 +141,7 @@ def consolidated(config: TriaxialConfig, tolerance: float = 1e-7, max_steps: int
 def _free_and_rings(mesh):
     """(free node ids, bottom ring ids, top ring ids)."""
     return (
-        np.flatnonzero(membrane_lib.free_node_mask(mesh)),
+        np.flatnonzero(free_node_mask(mesh)),
         np.asarray(mesh.bottom_ring),
         np.asarray(mesh.top_ring),
     )
@@ -223,7 +224,7 @@ class _System:
         self.size = 6 * self.num_spheres + 3 * self.free.size + 2
         self.geometry = _geometry_derivative(config, test) if "membrane_thickness_mm" in self.wrt else None
         self.dt = test.dt
-        self.node_mass_per_thickness = membrane_lib.lumped_mass(test.mesh, 1.0, LATEX_DENSITY)
+        self.node_mass_per_thickness = energies.lumped_mass(test.mesh, 1.0, LATEX_DENSITY)
 
     def apply(self, theta, state):
         """(params, step, mesh, state) at parameters ``theta`` (configuration units).
@@ -304,7 +305,7 @@ class _System:
 def reference_size(state, mesh, params):
     """(height between the platens (m), volume inside the membrane (m³)) of a membrane-test state."""
     height = platen_separation(state.dem.walls)[0]
-    volume = membrane_lib.inner_volume(state.membrane.position, mesh, params.membrane.contact_thickness)
+    volume = inner_volume(state.membrane.position, mesh, params.membrane.contact_thickness)
     return height, volume
 
 
@@ -317,9 +318,7 @@ def measure_outputs(state, test, mesh, params, reference=None):
     specimen.
     """
     height, volume = reference_size(state, mesh, params) if reference is None else reference
-    record = membrane_measure.measure_coupled(
-        state, test.particles, mesh, params, test.dt, height, volume, test.platen_area
-    )
+    record = measure_coupled(state, test.particles, mesh, params, test.dt, height, volume, test.platen_area)
     internal = jnp.stack([record.internal_axial_stress[0], record.internal_radial_stress[0]])
     external = jnp.stack([record.external_axial_stress[0], record.external_radial_stress[0]])
     return jnp.concatenate([external, internal, internal - external])
@@ -394,7 +393,7 @@ def continuation_differences(
     @jax.jit
     def advance(state, theta):  # θ traced: one compilation for every parameter and sign
         params, step, _, state = system.apply(theta, state)
-        return jax.lax.fori_loop(0, chunk_steps, lambda _, x: step(x, params), state)
+        return advance(step, state, params, chunk_steps)
 
     evaluate = jax.jit(lambda state, theta: system.evaluate(u0, theta, state))
     columns = []

@@ -45,14 +45,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import __version__, theory
-from membrax import io as io_lib
 from membrax.batch import stack
 from membrax.config import TriaxialConfig, config_to_dict, default_consolidation_tolerance
-from membrax.driver import SimulationError, drive
-from membrax.errors import OVERFLOWS, ErrorCode, describe
-from membrax.membrane import measure as membrane_measure
+from membrax.driver import advance, drive, record_blocks
+from membrax.errors import OVERFLOWS, ErrorCode, RunError, SimulationError, describe
+from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import grow_candidates, grown_candidate_capacities
+from membrax.membrane.measure import right_cylinder_stresses
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams
@@ -69,7 +69,6 @@ __all__ = [
     "PHASES",
     "RUNAWAY_KINETIC_FRACTION",
     "BatchedTest",
-    "RunError",
     "balanced_order",
     "build_batch",
     "build_test",
@@ -89,17 +88,6 @@ RUNAWAY_KINETIC_FRACTION = 0.05
 CONSOLIDATION_RECORD_EVERY = 100
 PHASES = ("consolidation", "shear_fine", "shear_coarse")
 CHECKPOINT_NAME = "checkpoint.npz"
-
-
-class RunError(RuntimeError):
-    """The simulation stopped (non-finite values or runaway energy); the message says what to change.
-
-    ``records`` holds the records computed before the stop (:func:`run_group`'s by phase), or None.
-    """
-
-    def __init__(self, message, records=None):
-        super().__init__(message)
-        self.records = records
 
 
 #: Configuration fields that may differ between the members of one compiled batch (traced values or
@@ -220,7 +208,7 @@ def rebase_to_shear_start(records: dict, start: dict) -> dict:
     out["axial_strain"] = (height0 - height) / height0
     out["volumetric_strain"] = (volume0 - volume) / volume0
     out["radial_strain"] = np.asarray(theory.radial_strain(out["axial_strain"], out["volumetric_strain"]))
-    area, external_axial, internal_axial, internal_radial = membrane_measure.right_cylinder_stresses(
+    area, external_axial, internal_axial, internal_radial = right_cylinder_stresses(
         np.asarray(records["ram_force"]),
         np.asarray(records["received_axial_force"]),
         np.asarray(records["membrane_radial_force"]) + np.asarray(records["clamp_radial_force"]),
@@ -344,18 +332,15 @@ class BatchedTest:
         step = template.make_step(mesh)
         record = template.make_record(mesh, member["initial_volume"])
 
-        def advance(s):
-            return jax.lax.fori_loop(0, record_every, lambda _, x: step(x, params), s)
-
-        def block(carry, _):
+        def block(carry):
             s, budget = carry
             active = budget > 0
             # A spent budget freezes the member: lax.cond skips its work under lax.map.
-            s = jax.lax.cond(active, advance, lambda x: x, s)
+            s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
             budget = jnp.where(active, budget - record_every, budget)
             return (s, budget), (record(s, params), active)
 
-        (state, left), (records, valid) = jax.lax.scan(block, (state, left), None, length=num_records)
+        (state, left), (records, valid) = record_blocks(block, (state, left), num_records)
         return state, left, records, valid
 
     def _chunk_impl(self, states, params, members, left, num_records: int, record_every: int):
@@ -771,8 +756,8 @@ def run_group(
     shear_volume = np.zeros(num)
     states = batch.initial_state
     if resume and checkpoint_path.exists():
-        host = io_lib.read_checkpoint_host(checkpoint_path)
-        states, host = io_lib.load_checkpoint(checkpoint_path, _template(batch, host["capacities"]))
+        host = read_checkpoint_host(checkpoint_path)
+        states, host = load_checkpoint(checkpoint_path, _template(batch, host["capacities"]))
         phase_index, elapsed = host["phase_index"], host["elapsed_s"]
         budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
         shear_height, shear_volume = np.asarray(host["shear_height"]), np.asarray(host["shear_volume"])
@@ -799,7 +784,7 @@ def run_group(
             joined = join_records(records[phase], axis=1)
             host[f"names_{phase}"] = list(joined)
             host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
-        io_lib.save_checkpoint(checkpoint_path, current, host)
+        save_checkpoint(checkpoint_path, current, host)
 
     while phase_index < len(PHASES):
         phase = PHASES[phase_index]
@@ -941,7 +926,7 @@ def results_datasets(records: dict, shear_start: dict, metadata: dict):
     ``records`` maps each of :data:`PHASES` to a list of chunk dicts; ``shear_start`` holds the height and
     volume at the start of shearing (strains are rebased on them); ``metadata`` becomes the attributes.
     """
-    consolidation = io_lib.records_to_dataset(join_records(records["consolidation"]), attrs=metadata)
+    consolidation = records_to_dataset(join_records(records["consolidation"]), attrs=metadata)
     shear = join_records(records["shear_fine"] + records["shear_coarse"])
     if not shear:
         return None, consolidation
@@ -950,4 +935,4 @@ def results_datasets(records: dict, shear_start: dict, metadata: dict):
     shear = {name: np.concatenate([last[name], value]) for name, value in shear.items()}
     shear = rebase_to_shear_start(shear, shear_start)
     shear.update(analysis.derived_quantities(shear))
-    return io_lib.records_to_dataset(shear, attrs=metadata), consolidation
+    return records_to_dataset(shear, attrs=metadata), consolidation

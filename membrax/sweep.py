@@ -53,7 +53,6 @@ import numpy as np
 import xarray as xr
 
 from membrax import __version__, paper
-from membrax import io as io_lib
 from membrax.config import (
     ConfigError,
     TriaxialConfig,
@@ -63,6 +62,7 @@ from membrax.config import (
     with_overrides,
 )
 from membrax.devices import cpu_cores
+from membrax.io import dataset_attrs_to_python, read_results, write_netcdf
 from membrax.stages import (
     BOOKKEEPING_FIELDS,
     build_batch,
@@ -307,9 +307,9 @@ def run_sweep(
                 order = list(range(len(group)))  # a folder written before members.json: grid order
             if resume and done_file.exists():
                 group = [group[i] for i in order]
-                shear_group = [io_lib.read_results(group_folder / f"shear_{k}.nc") for k in range(len(group))]
+                shear_group = [read_results(group_folder / f"shear_{k}.nc") for k in range(len(group))]
                 consolidation_group = [
-                    io_lib.read_results(group_folder / f"consolidation_{k}.nc") for k in range(len(group))
+                    read_results(group_folder / f"consolidation_{k}.nc") for k in range(len(group))
                 ]
             else:
                 build_start = time.perf_counter()
@@ -333,13 +333,13 @@ def run_sweep(
                         nodes_around=batch.nodes_around,
                     )
                     shear, consolidation = results_datasets(mine, shear_start[k], metadata)
-                    io_lib.write_netcdf(shear, group_folder / f"shear_{k}.nc")
-                    io_lib.write_netcdf(consolidation, group_folder / f"consolidation_{k}.nc")
+                    write_netcdf(shear, group_folder / f"shear_{k}.nc")
+                    write_netcdf(consolidation, group_folder / f"consolidation_{k}.nc")
                     shear_group.append(shear)
                     consolidation_group.append(consolidation)
-                io_lib.write_netcdf(xr.Dataset(attrs={"members": len(group)}), done_file)
+                write_netcdf(xr.Dataset(attrs={"members": len(group)}), done_file)
             for (index, _), shear, consolidation in zip(group, shear_group, consolidation_group, strict=True):
-                attrs = io_lib.dataset_attrs_to_python(shear)
+                attrs = dataset_attrs_to_python(shear)
                 indices.append(index)
                 shear_sets.append(shear)
                 consolidation_sets.append(consolidation)
@@ -360,8 +360,8 @@ def run_sweep(
     seconds = time.perf_counter() - started
     dataset.attrs["run_s"] = seconds
     files = {
-        "sweep": io_lib.write_netcdf(dataset, folder / "sweep.nc"),
-        "consolidation": io_lib.write_netcdf(consolidation, folder / "sweep_consolidation.nc"),
+        "sweep": write_netcdf(dataset, folder / "sweep.nc"),
+        "consolidation": write_netcdf(consolidation, folder / "sweep_consolidation.nc"),
     }
     _write_summary_csv(folder / "summary.csv", coordinates, dict.fromkeys(indices), dataset)
     files["summary"] = folder / "summary.csv"

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from membrax.validation import check_range
@@ -72,6 +73,7 @@ __all__ = [
     "rowe_stress_ratio",
     "stress_ratio",
     "stress_ratio_from_friction_angle",
+    "strain_rate_from_inertial_number",
 ]
 
 
@@ -177,6 +179,24 @@ def friction_angle_from_q_over_p(q_over_p):
     check_range("q_over_p", q_over_p, lower=0.0, upper=3.0, upper_open=True)
     q_over_p = _as_float(q_over_p)
     return jnp.arcsin(3.0 * q_over_p / (6.0 + q_over_p))
+
+
+def strain_rate_from_inertial_number(inertial_number, particle_diameter, density, confining_stress):
+    """Axial strain rate ε̇ = I / (d √(ρ/σ)) for an inertial number I, 1/s.
+
+    The inertial number I = ε̇ d √(ρ/σ) compares the time a grain takes to rearrange under the confining
+    stress σ with the loading time 1/ε̇ (GDR MiDi 2004, "On dense granular flows", Eur. Phys. J. E 14);
+    I ≲ 1e-3 is quasi-static. Traceable: σ may be a JAX value (a rollout differentiated with respect to
+    σc, :mod:`membrax.gradients`).
+
+    Args:
+      inertial_number: I, dimensionless.
+      particle_diameter: d, m.
+      density: ρ of the grains, kg/m³.
+      confining_stress: σ, Pa.
+    """
+    sqrt = jnp.sqrt if isinstance(confining_stress, jax.Array) else math.sqrt
+    return inertial_number / (particle_diameter * sqrt(density / confining_stress))
 
 
 def area_correction(initial_area, axial_strain, volumetric_strain=0.0):

@@ -47,7 +47,7 @@ def test_the_api_is_exactly_the_curated_names():
 
 
 def test_every_name_resolves_to_its_defining_module():
-    from membrax import config, devices, driver, errors, io, run, sensitivities, sweep
+    from membrax import config, devices, errors, io, run, sensitivities, sweep
     from membrax.membrane import mesh
     from membrax.spheres import integrate, packing
     from membrax.triaxial import membrane_cell, rigid
@@ -67,7 +67,9 @@ def test_every_name_resolves_to_its_defining_module():
         "dem": integrate,
         "prism_mesh": mesh,
         "ErrorCode": errors,
-        "SimulationError": driver,
+        "SimulationError": errors,
+        "RunError": errors,
+        "ConfigError": errors,
     }
     for name, module in homes.items():
         assert getattr(membrax, name) is getattr(module, name), name

@@ -23,7 +23,7 @@ LAYERS = (
     # specimen + membrane: geometry
     ("spheres.packing", "spheres.neighbors", "membrane.mesh"),
     # laws: contacts, walls and platens
-    ("spheres.contact", "spheres.walls", "membrane.contact"),
+    ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
     # step
     ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
     ("driver",),
@@ -141,3 +141,59 @@ def test_membrax_never_imports_calibrate_except_the_command_line():
             assert not any(m.split(".")[0] == "calibrate" for m in modules), (
                 f"membrax.{name} imports calibrate"
             )
+
+
+#: Where a loop over time steps may be written (``lax.fori_loop``, ``lax.scan``): the driver's one chunk
+#: body (:func:`membrax.driver.advance`, :func:`membrax.driver.record_blocks`). The candidate search of
+#: the node–sphere contact scans table columns, not time steps.
+LOOP_HOMES = {"fori_loop": {"driver"}, "scan": {"driver", "membrane.contact"}, "while_loop": set()}
+
+
+def _loop_calls(path: Path) -> set[str]:
+    """The ``lax`` loop primitives a file calls (``jax.lax.scan(...)``, ``lax.fori_loop(...)``)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and node.func.attr in LOOP_HOMES
+        ):
+            owner = node.func.value
+            if (isinstance(owner, ast.Attribute) and owner.attr == "lax") or (
+                isinstance(owner, ast.Name) and owner.id == "lax"
+            ):
+                found.add(node.func.attr)
+    return found
+
+
+def test_one_chunk_body_the_time_loops_live_in_the_driver():
+    calls = {name: _loop_calls(path) for name, path in FILES.items()}
+    for primitive, homes in LOOP_HOMES.items():
+        where = {name for name, found in calls.items() if primitive in found}
+        assert where == homes, f"lax.{primitive} is called in {sorted(where)}; only in {sorted(homes)}"
+
+
+def test_the_loop_reader_sees_both_spellings(tmp_path):
+    sample = tmp_path / "loops.py"
+    sample.write_text(
+        "import jax\nfrom jax import lax\n"
+        "def f(s):\n"
+        "    s = jax.lax.fori_loop(0, 3, g, s)\n"
+        "    return lax.scan(h, s, None, length=2)\n"
+        "def q(x):\n    return x.scan(1)\n"
+    )
+    assert _loop_calls(sample) == {"fori_loop", "scan"}
+
+
+def test_no_module_renames_a_membrax_module_on_import():
+    """``from membrax.membrane import mesh as membrane`` made one module answer to three names; a module
+    is imported under its own name, or its names are imported directly."""
+    renamed = []
+    for name, path in FILES.items():
+        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("membrax"):
+                for alias in node.names:
+                    module = f"{node.module}.{alias.name}".removeprefix("membrax.")
+                    if alias.asname and alias.asname != alias.name and module in LAYER:
+                        renamed.append(f"membrax.{name}: {module} as {alias.asname}")
+    assert not renamed, renamed

@@ -107,7 +107,8 @@ def test_rollouts_name_the_bad_count_before_building_anything():
 def test_windows_checkpoint_each_step_on_a_cpus_jax_path_alone_and_differentiate_alike(monkeypatch):
     # a window of 4 steps x → a x: y = a⁴ x, dy/da = 4 a³ x, whichever way the window is checkpointed. Each
     # step is checkpointed too where XLA's CPU derivative of the JAX code would keep ~70 MB per step
-    # (no kernels: MEMBRAX_NATIVE=0), not with the kernels, nor on a GPU (its compiler keeps ~3 MB: README)
+    # (no kernels: MEMBRAX_NATIVE=0), not with the kernels, nor on a GPU (its compiler keeps ~3 MB,
+    # docs/gradients.md)
     from membrax import native
 
     def checkpoints_and_gradient(rematerialize_steps=None):

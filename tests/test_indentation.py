@@ -19,7 +19,7 @@ import pytest
 
 from membrax import theory
 from membrax.membrane import indentation
-from membrax.membrane import mesh as membrane
+from membrax.membrane.mesh import band_volume, flat_mesh
 
 DIAMETER = 0.025
 RADIUS = 0.5 * DIAMETER
@@ -30,7 +30,7 @@ PRESSURES = np.array([10e3, 40e3, 100e3])
 
 def _perturbed_sheet(seed):
     """A flat 40 × 30 mm sheet: interior nodes moved in x, y, z; outline nodes moved in z only."""
-    mesh = membrane.flat_mesh(0.04, 0.03, 0.005)
+    mesh = flat_mesh(0.04, 0.03, 0.005)
     rng = np.random.default_rng(seed)
     shift = 1e-3 * rng.standard_normal(mesh.reference_position.shape)
     shift[indentation.boundary_nodes(mesh), :2] = 0.0
@@ -53,7 +53,7 @@ def test_pressure_potential_gives_p_times_projected_area_and_consistent_nodal_lo
     np.testing.assert_allclose(total, [0.0, 0.0, -pressure * area], rtol=0.0, atol=1e-10 * pressure * area)
 
     interior = np.setdiff1d(np.arange(mesh.num_nodes), indentation.boundary_nodes(mesh))
-    cone = -pressure * jax.grad(membrane.band_volume)(position, mesh)
+    cone = -pressure * jax.grad(band_volume)(position, mesh)
     shifted = -jax.grad(indentation.sheet_pressure_energy)(position, mesh, pressure, -0.3)
     scale = pressure * area / interior.size
     np.testing.assert_allclose(np.asarray(force[interior]), np.asarray(cone[interior]), atol=1e-10 * scale)
@@ -61,7 +61,7 @@ def test_pressure_potential_gives_p_times_projected_area_and_consistent_nodal_lo
 
 
 def test_boundary_nodes_of_flat_mesh_are_its_outline():
-    mesh = membrane.flat_mesh(0.04, 0.03, 0.005)
+    mesh = flat_mesh(0.04, 0.03, 0.005)
     position = np.asarray(mesh.reference_position)
     outline = indentation.boundary_nodes(mesh)
     rows = position.reshape(-1, mesh.bottom_ring.shape[0], 3)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from membrax import io
-from membrax.membrane import mesh as membrane
+from membrax.membrane.mesh import cylinder_mesh
 from membrax.spheres import packing
 
 RADIUS = 0.13
@@ -22,7 +22,7 @@ EDGE = 0.04
 
 @pytest.fixture(scope="module")
 def mesh():
-    return membrane.cylinder_mesh(RADIUS, HEIGHT, EDGE)
+    return cylinder_mesh(RADIUS, HEIGHT, EDGE)
 
 
 @pytest.fixture(scope="module")

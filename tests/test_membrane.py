@@ -7,8 +7,15 @@ import pytest
 from helpers import central_difference, tolerance
 from scipy.optimize import minimize
 
-from membrax.membrane import coupled
-from membrax.membrane import mesh as membrane
+from membrax.membrane import coupled, energies
+from membrax.membrane.mesh import (
+    cylinder_mesh,
+    enclosed_volume,
+    flat_mesh,
+    offset_polygon,
+    prism_mesh,
+    rounded_offset_path,
+)
 
 
 def _stretched(mesh, stretch_x, stretch_y):
@@ -55,10 +62,10 @@ def _prismatoid_volume(position, mesh):
 
 def test_paper_size_mesh_count_and_orientation():
     # paper specimen: D ≈ 0.25 m (membrane mid-surface radius 0.1265 m), H = 0.449 m, edge 5 mm
-    mesh = membrane.cylinder_mesh(0.1265, 0.449, 0.005)
+    mesh = cylinder_mesh(0.1265, 0.449, 0.005)
     assert mesh.bottom_ring.shape == (159,)
     assert mesh.num_triangles == 33072  # 2 · 159 · 104 bands
-    small = membrane.cylinder_mesh(1.0, 2.0, 0.3)
+    small = cylinder_mesh(1.0, 2.0, 0.3)
     x = np.asarray(small.reference_position)
     tri = np.asarray(small.triangles)
     normal = np.cross(x[tri[:, 1]] - x[tri[:, 0]], x[tri[:, 2]] - x[tri[:, 0]])
@@ -76,22 +83,22 @@ def test_paper_size_mesh_count_and_orientation():
 
 @pytest.mark.parametrize(("stretch_x", "stretch_y"), [(1.3, 1.3), (1.5, 1.0), (1.2, 0.9)])
 def test_patch_neo_hookean_energy_matches_law(stretch_x, stretch_y):
-    mesh = membrane.flat_mesh(0.3, 0.2, 0.05)
+    mesh = flat_mesh(0.3, 0.2, 0.05)
     modulus, thickness = 1.4e6, 2e-3
     area = float(jnp.sum(mesh.reference_area))
     law = (modulus / 6.0) * (stretch_x**2 + stretch_y**2 + 1.0 / (stretch_x * stretch_y) ** 2 - 3.0)
     position = _stretched(mesh, stretch_x, stretch_y) @ _rotation(0.4, 0.7).T  # rotation-invariant
-    energy = membrane.stretching_energy(position, mesh, modulus, thickness)
+    energy = energies.stretching_energy(position, mesh, modulus, thickness)
     np.testing.assert_allclose(float(energy), law * thickness * area, rtol=1e-8)
 
 
 def test_patch_svk_energy_matches_law():
-    mesh = membrane.flat_mesh(0.3, 0.2, 0.05)
+    mesh = flat_mesh(0.3, 0.2, 0.05)
     modulus, thickness, nu, stretch_x, stretch_y = 1.4e6, 2e-3, 0.3, 1.05, 0.98
     e11, e22 = (stretch_x**2 - 1.0) / 2.0, (stretch_y**2 - 1.0) / 2.0
     shear, lame = modulus / (2.0 * (1.0 + nu)), modulus * nu / (1.0 - nu**2)
     law = shear * (e11**2 + e22**2) + 0.5 * lame * (e11 + e22) ** 2
-    energy = membrane.stretching_energy(
+    energy = energies.stretching_energy(
         _stretched(mesh, stretch_x, stretch_y), mesh, modulus, thickness, model="svk", poisson_ratio=nu
     )
     np.testing.assert_allclose(
@@ -100,16 +107,16 @@ def test_patch_svk_energy_matches_law():
 
 
 def test_patch_rigid_motion_gives_no_force(precision):
-    mesh = membrane.flat_mesh(0.3, 0.2, 0.05)
+    mesh = flat_mesh(0.3, 0.2, 0.05)
     modulus, thickness = 1.4e6, 2e-3
     force_scale = modulus * thickness * 0.05 * 0.1  # E t a × 10 % strain
     moved = mesh.reference_position @ _rotation(0.9, -0.6).T + jnp.asarray([0.3, -1.0, 2.0])[None, :]
-    grad = jax.grad(membrane.stretching_energy)(moved, mesh, modulus, thickness)
+    grad = jax.grad(energies.stretching_energy)(moved, mesh, modulus, thickness)
     assert grad.dtype == precision
     # Round-off of positions near 2 m over a 5 cm edge: 40 ulp of strain, so the table's tolerance × 40.
     assert float(jnp.max(jnp.abs(grad))) < 40 * tolerance(precision) * force_scale
     # a stretched patch: interior nodes carry no net force (uniform stress), the boundary ones do
-    grad = jax.grad(membrane.stretching_energy)(_stretched(mesh, 1.1, 1.0), mesh, modulus, thickness)
+    grad = jax.grad(energies.stretching_energy)(_stretched(mesh, 1.1, 1.0), mesh, modulus, thickness)
     assert float(jnp.max(jnp.abs(grad))) > 1e-2 * force_scale
 
 
@@ -126,7 +133,7 @@ def test_closed_cylinder_inflation_matches_thin_shell_theory():
     mid-height ring is compared at 2 %.
     """
     radius, height, modulus, thickness, pressure = 1.0, 6.0, 100.0, 0.01, -1e-3  # pR/(Et) = 1e-3
-    mesh = membrane.cylinder_mesh(radius, height, 2.0 * np.pi * radius / 48)
+    mesh = cylinder_mesh(radius, height, 2.0 * np.pi * radius / 48)
     n = mesh.num_nodes
     free = np.ones((n, 3), dtype=bool)
     free[np.asarray(mesh.bottom_ring), 2] = False
@@ -136,7 +143,7 @@ def test_closed_cylinder_inflation_matches_thin_shell_theory():
 
     def energy(displacement):  # displacement in units of R, energy in units of E t R²
         position = start.at[free_index].add(radius * displacement).reshape(n, 3)
-        return membrane.total_energy(position, mesh, modulus, thickness, pressure) / (modulus * thickness)
+        return energies.total_energy(position, mesh, modulus, thickness, pressure) / (modulus * thickness)
 
     value_and_grad = jax.jit(jax.value_and_grad(energy))
 
@@ -161,11 +168,11 @@ def test_closed_cylinder_inflation_matches_thin_shell_theory():
 
 
 def test_pressure_forces_close_and_cap_carries_p_times_area(precision):
-    mesh = membrane.cylinder_mesh(0.1, 0.3, 0.03)
+    mesh = cylinder_mesh(0.1, 0.3, 0.03)
     key = jax.random.PRNGKey(0)
     position = mesh.reference_position + 0.003 * jax.random.normal(key, mesh.reference_position.shape)
     pressure = 50e3
-    force = -jax.grad(membrane.pressure_energy)(position, mesh, pressure)
+    force = -jax.grad(energies.pressure_energy)(position, mesh, pressure)
     scale = pressure * 0.1 * 0.3
     assert force.dtype == precision
     rtol = tolerance(precision)
@@ -207,25 +214,22 @@ def test_pressure_forces_close_and_cap_carries_p_times_area(precision):
 
 def test_enclosed_volume_exact_for_polyhedron_and_converges_to_cylinder():
     radius, height = 0.125, 0.4
-    mesh = membrane.cylinder_mesh(radius, height, 0.02, z_bottom=0.05)
+    mesh = cylinder_mesh(radius, height, 0.02, z_bottom=0.05)
     n = mesh.bottom_ring.shape[0]
     half = np.pi / n
     # each layer is an antiprism of regular n-gons: V = H n R² sin(π/n)(1 + 2 cos(π/n))/3
     exact = height * n * radius**2 * np.sin(half) * (1.0 + 2.0 * np.cos(half)) / 3.0
-    volume = float(membrane.enclosed_volume(mesh.reference_position, mesh))
+    volume = float(enclosed_volume(mesh.reference_position, mesh))
     np.testing.assert_allclose(volume, exact, rtol=1e-12)
     np.testing.assert_allclose(volume, _prismatoid_volume(mesh.reference_position, mesh), rtol=1e-12)
     # origin-independent (closed surface)
     shifted = mesh.reference_position + jnp.asarray([1.0, -2.0, 3.0])[None, :]
-    np.testing.assert_allclose(float(membrane.enclosed_volume(shifted, mesh)), exact, rtol=1e-12)
+    np.testing.assert_allclose(float(enclosed_volume(shifted, mesh)), exact, rtol=1e-12)
     errors = []
     for edge in (0.04, 0.02, 0.01):
-        fine = membrane.cylinder_mesh(radius, height, edge)
+        fine = cylinder_mesh(radius, height, edge)
         errors.append(
-            abs(
-                float(membrane.enclosed_volume(fine.reference_position, fine)) / (np.pi * radius**2 * height)
-                - 1
-            )
+            abs(float(enclosed_volume(fine.reference_position, fine)) / (np.pi * radius**2 * height) - 1)
         )
     assert errors[0] > errors[1] > errors[2] and errors[2] < 2e-3
     np.testing.assert_allclose(errors[1] / errors[2], 4.0, rtol=0.05)  # second order in the edge length
@@ -234,10 +238,10 @@ def test_enclosed_volume_exact_for_polyhedron_and_converges_to_cylinder():
 def test_octagonal_prism_volume_is_exact():
     angles = (np.arange(8) + 0.5) * np.pi / 4
     outline = 0.12 * np.column_stack([np.cos(angles), np.sin(angles)])
-    mesh = membrane.prism_mesh(outline, 0.001, 0.3, 0.02)
-    volume = float(membrane.enclosed_volume(mesh.reference_position, mesh))
+    mesh = prism_mesh(outline, 0.001, 0.3, 0.02)
+    volume = float(enclosed_volume(mesh.reference_position, mesh))
     np.testing.assert_allclose(volume, _prismatoid_volume(mesh.reference_position, mesh), rtol=1e-12)
-    polygon = membrane.offset_polygon(outline, 0.001)
+    polygon = offset_polygon(outline, 0.001)
     # the offset octagon's apothem is the outline's plus the offset
     np.testing.assert_allclose(
         np.linalg.norm(polygon[0] + polygon[1]) / 2.0, 0.12 * np.cos(np.pi / 8) + 0.001
@@ -257,8 +261,8 @@ def test_rounded_offset_path_is_the_minkowski_sum_of_the_core_with_a_disc():
     angles = (np.arange(8) + 0.5) * np.pi / 4
     outline = 0.12 * np.column_stack([np.cos(angles), np.sin(angles)])
     offset, corner_radius = 0.0025, 0.0125
-    point_at, perimeter = membrane.rounded_offset_path(outline, offset, corner_radius)
-    core = membrane.offset_polygon(outline, -corner_radius)
+    point_at, perimeter = rounded_offset_path(outline, offset, corner_radius)
+    core = offset_polygon(outline, -corner_radius)
     core_side = np.linalg.norm(np.roll(core, -1, axis=0) - core, axis=1)
     rho = offset + corner_radius
     np.testing.assert_allclose(perimeter, core_side.sum() + 2 * np.pi * rho, rtol=1e-12)
@@ -276,10 +280,10 @@ def test_rounded_offset_path_is_the_minkowski_sum_of_the_core_with_a_disc():
     # Consecutive samples are equally spaced in arc length.
     steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
     np.testing.assert_allclose(steps, perimeter / 4001, rtol=1e-3)
-    mesh = membrane.prism_mesh(outline, offset, 0.3, 0.005, corner_radius=corner_radius)
+    mesh = prism_mesh(outline, offset, 0.3, 0.005, corner_radius=corner_radius)
     core_area = 0.5 * np.sum(core[:, 0] * np.roll(core[:, 1], -1) - np.roll(core[:, 0], -1) * core[:, 1])
     exact = 0.3 * (core_area + rho * core_side.sum() + np.pi * rho**2)
-    volume = float(membrane.enclosed_volume(mesh.reference_position, mesh))
+    volume = float(enclosed_volume(mesh.reference_position, mesh))
     assert 0.999 * exact < volume < exact  # inscribed: the chords cut the arcs
 
 
@@ -288,15 +292,15 @@ def test_rounded_offset_path_is_the_minkowski_sum_of_the_core_with_a_disc():
 
 @pytest.mark.parametrize("roll_axis", [0, 1])
 def test_bending_of_rolled_strip_matches_kirchhoff(roll_axis):
-    mesh = membrane.flat_mesh(1.0, 1.0, 0.025)
+    mesh = flat_mesh(1.0, 1.0, 0.025)
     modulus, thickness, radius = 1.0, 0.01, 1.0
     x = np.asarray(mesh.reference_position).copy()
     arc = x[:, roll_axis].copy()
     x[:, roll_axis] = radius * np.sin(arc / radius)  # isometric: no stretching
     x[:, 2] = radius * (1.0 - np.cos(arc / radius))
     position = jnp.asarray(x)
-    energy = float(membrane.bending_energy(position, mesh, modulus, thickness))
-    rigidity = float(membrane.bending_rigidity(modulus, thickness))
+    energy = float(energies.bending_energy(position, mesh, modulus, thickness))
+    rigidity = float(energies.bending_rigidity(modulus, thickness))
     area = float(jnp.sum(mesh.reference_area))
     np.testing.assert_allclose(energy, 0.5 * rigidity * area / radius**2, rtol=0.05)
     # the 2 % shortfall is the strip's border (edges on it carry no hinge); against the area covered by
@@ -306,16 +310,16 @@ def test_bending_of_rolled_strip_matches_kirchhoff(roll_axis):
     diamond_area = float(jnp.sum(3.0 * rest_length_sq / mesh.edge_weight)) / 3.0  # Σ Ā_e / 3
     np.testing.assert_allclose(energy, 0.5 * rigidity * diamond_area / radius**2, rtol=0.01)
     # rolling maps edges to chords, shorter by (a/R)²/24 ≈ 3e-5: a stretching energy negligible here
-    assert float(membrane.stretching_energy(position, mesh, modulus, thickness)) < 1e-3 * energy
+    assert float(energies.stretching_energy(position, mesh, modulus, thickness)) < 1e-3 * energy
 
 
 def test_rest_shape_has_no_energy_and_no_force(precision):
-    mesh = membrane.cylinder_mesh(0.125, 0.2, 0.02)
-    grad = jax.jit(jax.grad(membrane.total_energy))(mesh.reference_position, mesh, 1.4e6, 2e-3, 0.0)
+    mesh = cylinder_mesh(0.125, 0.2, 0.02)
+    grad = jax.jit(jax.grad(energies.total_energy))(mesh.reference_position, mesh, 1.4e6, 2e-3, 0.0)
     assert grad.dtype == precision
     rtol = tolerance(precision)  # a strain of round-off size: force ~ E t a × rtol, energy ~ E t A × rtol²
     assert float(jnp.max(jnp.abs(grad))) < rtol * 1.4e6 * 2e-3 * 0.02
-    energy = float(membrane.total_energy(mesh.reference_position, mesh, 1.4e6, 2e-3, 0.0))
+    energy = float(energies.total_energy(mesh.reference_position, mesh, 1.4e6, 2e-3, 0.0))
     assert abs(energy) < rtol**2 * 1.4e6 * 2e-3 * (2 * np.pi * 0.125 * 0.2)
 
 
@@ -323,31 +327,31 @@ def test_rest_shape_has_no_energy_and_no_force(precision):
 
 
 def test_parameter_gradients_match_central_differences():
-    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    mesh = cylinder_mesh(0.1, 0.2, 0.03)
     key = jax.random.PRNGKey(1)
     position = mesh.reference_position + 0.004 * jax.random.normal(key, mesh.reference_position.shape)
 
     def energy(modulus, thickness, pressure):
-        return membrane.total_energy(position, mesh, modulus, thickness, pressure)
+        return energies.total_energy(position, mesh, modulus, thickness, pressure)
 
     params = (1.4e6, 2e-3, 30e3)
     grads = jax.grad(energy, argnums=(0, 1, 2))(*params)
     for k in range(3):
         np.testing.assert_allclose(float(grads[k]), central_difference(energy, params, k), rtol=1e-6)
-    np.testing.assert_allclose(float(grads[2]), float(membrane.enclosed_volume(position, mesh)), rtol=1e-12)
+    np.testing.assert_allclose(float(grads[2]), float(enclosed_volume(position, mesh)), rtol=1e-12)
     # The energy is linear in the bending factor, with slope the plate bending energy.
-    by_factor = jax.grad(lambda factor: membrane.total_energy(position, mesh, *params, bending_factor=factor))
+    by_factor = jax.grad(lambda factor: energies.total_energy(position, mesh, *params, bending_factor=factor))
     np.testing.assert_allclose(
-        float(by_factor(0.3)), float(membrane.bending_energy(position, mesh, *params[:2])), rtol=1e-12
+        float(by_factor(0.3)), float(energies.bending_energy(position, mesh, *params[:2])), rtol=1e-12
     )
 
     # volume gradient w.r.t. positions along a random direction
     direction = jax.random.normal(jax.random.PRNGKey(2), position.shape)
-    grad_volume = jax.grad(membrane.enclosed_volume)(position, mesh)
+    grad_volume = jax.grad(enclosed_volume)(position, mesh)
     step = 1e-6
 
     def volume_at(s):
-        return float(membrane.enclosed_volume(position + s * direction, mesh))
+        return float(enclosed_volume(position + s * direction, mesh))
 
     finite = (volume_at(step) - volume_at(-step)) / (2.0 * step)
     np.testing.assert_allclose(float(jnp.sum(grad_volume * direction)), finite, rtol=1e-6)
@@ -358,7 +362,7 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
     # The closed-form derivatives of the triangles and hinges against the energy itself: the directional
     # derivative of U is −F·v, and the Hessian–vector product that membrane_critical_time_step iterates on
     # (coupled._stiffness_product, reverse over reverse) is the directional derivative of −F.
-    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    mesh = cylinder_mesh(0.1, 0.2, 0.03)
     key1, key2 = jax.random.split(jax.random.PRNGKey(3))
     position = mesh.reference_position * jnp.asarray([1.05, 1.05, 0.97])[None, :]
     position = position + 0.003 * jax.random.normal(key1, position.shape)
@@ -367,14 +371,14 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
     bending_factor = 1.0  # plate bending on, so the hinges' closed forms are checked too
 
     def energy(x):
-        return membrane.total_energy(x, mesh, *params, model=model, bending_factor=bending_factor)
+        return energies.total_energy(x, mesh, *params, model=model, bending_factor=bending_factor)
 
     def energy_at(s):
         return float(energy(position + s * direction))
 
     step = 1e-6
     force = jax.jit(
-        lambda x: membrane.nodal_forces(x, mesh, *params, model=model, bending_factor=bending_factor)
+        lambda x: energies.nodal_forces(x, mesh, *params, model=model, bending_factor=bending_factor)
     )
     finite = (energy_at(step) - energy_at(-step)) / (2.0 * step)
     np.testing.assert_allclose(-float(jnp.sum(force(position) * direction)), finite, rtol=1e-6)
@@ -385,7 +389,7 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
 
     # The derivative with respect to the rest frames D_m⁻¹ (a mesh quantity) is carried too.
     def energy_of_frames(inverse):
-        return membrane.stretching_energy(
+        return energies.stretching_energy(
             position, mesh.set(reference_inverse=inverse), *params[:2], model=model
         )
 
@@ -399,34 +403,34 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
 
 
 def test_jit_and_vmap_over_material_parameters_match_loop():
-    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    mesh = cylinder_mesh(0.1, 0.2, 0.03)
     position = mesh.reference_position * jnp.asarray([1.02, 1.02, 0.99])[None, :]
     moduli = jnp.asarray([1.0e6, 1.4e6, 2.0e6])
     thicknesses = jnp.asarray([1e-3, 2e-3, 4e-3])
 
     def energy(modulus, thickness):
-        return membrane.total_energy(position, mesh, modulus, thickness, 20e3)
+        return energies.total_energy(position, mesh, modulus, thickness, 20e3)
 
     batched = jax.jit(jax.vmap(energy))(moduli, thicknesses)
-    forces = jax.vmap(lambda e, t: membrane.nodal_forces(position, mesh, e, t, 20e3))(moduli, thicknesses)
+    forces = jax.vmap(lambda e, t: energies.nodal_forces(position, mesh, e, t, 20e3))(moduli, thicknesses)
     for k in range(3):
         np.testing.assert_allclose(float(batched[k]), float(energy(moduli[k], thicknesses[k])), rtol=1e-13)
-        single = membrane.nodal_forces(position, mesh, moduli[k], thicknesses[k], 20e3)
+        single = energies.nodal_forces(position, mesh, moduli[k], thicknesses[k], 20e3)
         np.testing.assert_allclose(np.asarray(forces[k]), np.asarray(single), rtol=1e-12, atol=1e-9)
 
 
 def test_float64_in_float64_out_and_lumped_mass():
-    mesh = membrane.cylinder_mesh(0.1, 0.2, 0.03)
+    mesh = cylinder_mesh(0.1, 0.2, 0.03)
     assert mesh.reference_position.dtype == jnp.float64
     modulus, thickness = jnp.float64(1.4e6), jnp.float64(2e-3)
     for value in (
-        membrane.stretching_energy(mesh.reference_position, mesh, modulus, thickness),
-        membrane.bending_energy(mesh.reference_position, mesh, modulus, thickness),
-        membrane.enclosed_volume(mesh.reference_position, mesh),
-        membrane.nodal_forces(mesh.reference_position, mesh, modulus, thickness, jnp.float64(1e4)),
+        energies.stretching_energy(mesh.reference_position, mesh, modulus, thickness),
+        energies.bending_energy(mesh.reference_position, mesh, modulus, thickness),
+        enclosed_volume(mesh.reference_position, mesh),
+        energies.nodal_forces(mesh.reference_position, mesh, modulus, thickness, jnp.float64(1e4)),
     ):
         assert value.dtype == jnp.float64
-    mass = membrane.lumped_mass(mesh, thickness, density=930.0)
+    mass = energies.lumped_mass(mesh, thickness, density=930.0)
     assert mass.dtype == jnp.float64 and mass.shape == (mesh.num_nodes,)
     np.testing.assert_allclose(
         float(jnp.sum(mass)), 930.0 * 2e-3 * float(jnp.sum(mesh.reference_area)), rtol=1e-13
@@ -434,6 +438,6 @@ def test_float64_in_float64_out_and_lumped_mass():
 
 
 def test_unknown_model_is_rejected():
-    mesh = membrane.flat_mesh(0.1, 0.1, 0.05)
+    mesh = flat_mesh(0.1, 0.1, 0.05)
     with pytest.raises(ValueError, match="model"):
-        membrane.stretching_energy(mesh.reference_position, mesh, 1.0, 1.0, model="mooney")
+        energies.stretching_energy(mesh.reference_position, mesh, 1.0, 1.0, model="mooney")

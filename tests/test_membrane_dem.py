@@ -8,8 +8,8 @@ import pytest
 
 from membrax.membrane import coupled as membrane_dem
 from membrax.membrane import measure as membrane_measure
-from membrax.membrane import mesh as membrane
 from membrax.membrane.contact import MembraneContactParams
+from membrax.membrane.mesh import cylinder_mesh
 from membrax.spheres import packing
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams, DEMParams, dem, make_particles
@@ -20,7 +20,7 @@ from membrax.triaxial.membrane_cell import membrane_test
 
 def _clamped_cylinder(radius, height, edge, modulus, thickness, cell_pressure, damping):
     """A membrane cylinder clamped to two fixed platens, two small spheres inside that touch nothing."""
-    mesh = membrane.cylinder_mesh(radius, height, edge)
+    mesh = cylinder_mesh(radius, height, edge)
     spheres = jnp.asarray([[-0.3 * radius, 0.0, 0.5 * height], [0.3 * radius, 0.0, 0.5 * height]])
     particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
     frame = pair_neighbor_fn(
@@ -166,7 +166,7 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
 def test_a_mesh_whose_rings_share_a_node_is_refused():
     # The rings are set with unique_indices in the step: a repeated node would make that set undefined.
     radius, height = 0.05, 0.1
-    mesh = membrane.cylinder_mesh(radius, height, 0.02)
+    mesh = cylinder_mesh(radius, height, 0.02)
     mesh = mesh.set(top_ring=mesh.top_ring.at[0].set(mesh.bottom_ring[0]))
     particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
     frame = pair_neighbor_fn(np.full(3, -0.1), np.full(3, 0.2), 0.01, 0.02, 0)

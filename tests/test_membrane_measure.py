@@ -5,9 +5,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from membrax.membrane import energies
 from membrax.membrane import measure as mm
-from membrax.membrane import mesh as membrane
 from membrax.membrane.coupled import platen_reaction
+from membrax.membrane.mesh import cylinder_mesh, flat_mesh
 
 # jitted once: eager dispatch of these many small ops is slower than one compilation
 distance_to_triangle = jax.jit(mm.point_triangle_distance)
@@ -16,7 +17,7 @@ stretches_of = jax.jit(mm.triangle_stretches)
 radial_strain_of = jax.jit(mm.radial_strain)
 indentation_of = jax.jit(mm.indentation_field, static_argnums=2)
 max_penetration_and_gradient = jax.jit(jax.value_and_grad(mm.max_sphere_penetration, argnums=2))
-membrane_forces = jax.jit(membrane.nodal_forces, static_argnames=("model",))
+membrane_forces = jax.jit(energies.nodal_forces, static_argnames=("model",))
 
 # ------------------------------------------------------------------------------------- point–triangle
 
@@ -129,7 +130,7 @@ def test_point_above_centroid_and_degenerate_triangles():
 
 
 def _sheet():
-    mesh = membrane.flat_mesh(0.4, 0.4, 0.1)
+    mesh = flat_mesh(0.4, 0.4, 0.1)
     return mesh, np.asarray(mesh.reference_position), np.asarray(mesh.triangles)
 
 
@@ -215,7 +216,7 @@ def _rotation(angle_z, angle_x):
 
 
 def test_triangle_stretches_biaxial_rotation_shear():
-    mesh = membrane.flat_mesh(0.3, 0.25, 0.05)
+    mesh = flat_mesh(0.3, 0.25, 0.05)
     x0 = mesh.reference_position
     biaxial = x0 * jnp.asarray([1.2, 0.9, 1.0])[None]
     major, minor = stretches_of(biaxial, mesh)
@@ -239,7 +240,7 @@ def test_triangle_stretches_biaxial_rotation_shear():
 
 
 def test_triangle_stretches_jit_and_vmap():
-    mesh = membrane.flat_mesh(0.3, 0.25, 0.05)  # a randomly perturbed sheet
+    mesh = flat_mesh(0.3, 0.25, 0.05)  # a randomly perturbed sheet
     x0 = mesh.reference_position
     rng = np.random.default_rng(0)
     positions = x0[None] + jnp.asarray(rng.normal(scale=5e-3, size=(3, *x0.shape)))
@@ -257,7 +258,7 @@ def test_triangle_stretches_jit_and_vmap():
 
 def test_mean_radius_of_the_rest_cylinder_and_radial_strain():
     radius, height = 0.1, 0.2
-    mesh = membrane.cylinder_mesh(radius, height, 0.01)
+    mesh = cylinder_mesh(radius, height, 0.01)
     n = mesh.bottom_ring.shape[0]
     x0 = mesh.reference_position
     # rings: regular n-gons, A = (n/2) R² sin(2π/n). Successive rings are turned by π/n, so each layer is
@@ -285,7 +286,7 @@ def test_mean_radius_of_the_rest_cylinder_and_radial_strain():
 
 def test_indentation_field():
     radius = 0.1
-    mesh = membrane.cylinder_mesh(radius, 0.2, 0.01)
+    mesh = cylinder_mesh(radius, 0.2, 0.01)
     n = mesh.bottom_ring.shape[0]
     rows = mesh.num_nodes // n
     x0 = mesh.reference_position
@@ -330,7 +331,7 @@ def test_indentation_field():
 
 def test_platen_reaction_closed_cylinder_under_internal_pressure():
     radius, pressure = 0.1, 1e4
-    mesh = membrane.cylinder_mesh(radius, 0.2, 0.01)
+    mesh = cylinder_mesh(radius, 0.2, 0.01)
     n = mesh.bottom_ring.shape[0]
     x0 = mesh.reference_position
     # internal pressure p (cell_pressure = −p) at the rest shape: no stretching or bending force

@@ -21,12 +21,13 @@ import numpy as np
 import pytest
 
 from membrax import native
-from membrax.membrane import mesh as membrane
+from membrax.membrane import energies
 from membrax.membrane.contact import (
     MembraneContactParams,
     _reference_node_sphere_forces,
     node_sphere_forces,
 )
+from membrax.membrane.mesh import cylinder_mesh, free_node_mask
 
 pytestmark = pytest.mark.skipif(
     not (os.environ.get("CXX") or shutil.which("g++") or shutil.which("c++")),
@@ -46,7 +47,7 @@ def test_kernels_build_and_register():
 
 
 def _deformed_cylinder(seed=0, dtype=jnp.float64, edge=0.02):
-    mesh = membrane.cylinder_mesh(0.1, 0.2, edge)
+    mesh = cylinder_mesh(0.1, 0.2, edge)
     rng = np.random.default_rng(seed)
     position = mesh.reference_position * jnp.asarray([1.03, 1.03, 0.98])[None, :] + jnp.asarray(
         rng.normal(0.0, 1e-3, mesh.reference_position.shape)
@@ -62,10 +63,10 @@ def _deformed_cylinder(seed=0, dtype=jnp.float64, edge=0.02):
 def test_membrane_forces_kernel_matches_jax(model, bending_factor):
     mesh, position = _deformed_cylinder()
     args = (position, mesh, 1.4e6, 0.005, 1e4, 0.45, bending_factor, model)
-    compiled = jax.jit(membrane.nodal_forces, static_argnums=(6,))(
+    compiled = jax.jit(energies.nodal_forces, static_argnums=(6,))(
         position, mesh, 1.4e6, 0.005, 1e4, 0.45, model, bending_factor
     )
-    reference = membrane._reference_nodal_forces(*args)
+    reference = energies._reference_nodal_forces(*args)
     assert _relative_error(compiled, reference) < 1e-12
     # Band and caps close the surface, so every energy is invariant under translation: Σ F = 0.
     assert np.max(np.abs(np.sum(compiled, axis=0))) < 1e-12 * compiled.shape[0] * np.max(np.abs(compiled))
@@ -75,13 +76,13 @@ def test_membrane_forces_kernel_float32_as_accurate_as_jax():
     """In float32 the kernel and XLA make errors of the same size against the float64 forces."""
     mesh64, position64 = _deformed_cylinder()
     mesh32, position32 = _deformed_cylinder(dtype=jnp.float32)
-    exact = membrane._reference_nodal_forces(position64, mesh64, 1.4e6, 0.005, 1e4, 0.5, 1.0, "neo_hookean")
+    exact = energies._reference_nodal_forces(position64, mesh64, 1.4e6, 0.005, 1e4, 0.5, 1.0, "neo_hookean")
 
     def call(fn):
         return fn(position32, mesh32, jnp.float32(1.4e6), jnp.float32(0.005), jnp.float32(1e4), 0.5)
 
-    compiled = call(lambda *a: membrane.nodal_forces(*a, bending_factor=jnp.float32(1.0)))
-    reference = call(lambda *a: membrane._reference_nodal_forces(*a, jnp.float32(1.0), "neo_hookean"))
+    compiled = call(lambda *a: energies.nodal_forces(*a, bending_factor=jnp.float32(1.0)))
+    reference = call(lambda *a: energies._reference_nodal_forces(*a, jnp.float32(1.0), "neo_hookean"))
     assert compiled.dtype == jnp.float32
     error_kernel = _relative_error(compiled.astype(jnp.float64), exact)
     error_jax = _relative_error(reference.astype(jnp.float64), exact)
@@ -98,11 +99,11 @@ def test_membrane_forces_kernel_gradients_and_vmap():
         return jnp.sum(direction * fn(x, mesh, modulus, 0.004, pressure, 0.5, 0.7, "neo_hookean"))
 
     def compiled(x, mesh, modulus, thickness, pressure, nu, bending, model):
-        return membrane.nodal_forces(x, mesh, modulus, thickness, pressure, nu, model, bending)
+        return energies.nodal_forces(x, mesh, modulus, thickness, pressure, nu, model, bending)
 
     for wrt in (0, 1, 2):
         got = jax.grad(work, argnums=1 + wrt)(compiled, position, 1.4e6, 2e4)
-        want = jax.grad(work, argnums=1 + wrt)(membrane._reference_nodal_forces, position, 1.4e6, 2e4)
+        want = jax.grad(work, argnums=1 + wrt)(energies._reference_nodal_forces, position, 1.4e6, 2e4)
         assert _relative_error(got, want) < 1e-12
     # The Hessian–vector product −∂F/∂x·v against a central difference of the kernel's forces.
     step = 1e-7
@@ -115,7 +116,7 @@ def test_membrane_forces_kernel_gradients_and_vmap():
     pressures = jnp.asarray([1e4, 5e4, 1e5])
     batched = jax.vmap(lambda p: compiled(position, mesh, 1.4e6, 0.004, p, 0.5, 0.0, "svk"))(pressures)
     for k, pressure in enumerate(pressures):
-        single = membrane._reference_nodal_forces(position, mesh, 1.4e6, 0.004, pressure, 0.5, 0.0, "svk")
+        single = energies._reference_nodal_forces(position, mesh, 1.4e6, 0.004, pressure, 0.5, 0.0, "svk")
         assert _relative_error(batched[k], single) < 1e-12
 
 
@@ -290,14 +291,15 @@ def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
         import jax
         jax.config.update("jax_enable_x64", True)
         from membrax import native
-        from membrax.membrane import mesh as membrane
+        from membrax.membrane import energies
+        from membrax.membrane.mesh import cylinder_mesh, free_node_mask
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             ok = native.available()
-        mesh = membrane.cylinder_mesh(0.1, 0.1, 0.03)
+        mesh = cylinder_mesh(0.1, 0.1, 0.03)
         x = mesh.reference_position * 1.01
-        same = bool((membrane.nodal_forces(x, mesh, 1e6, 0.003, 1e4)
-                     == membrane._reference_nodal_forces(x, mesh, 1e6, 0.003, 1e4, 0.5, 1.0,
+        same = bool((energies.nodal_forces(x, mesh, 1e6, 0.003, 1e4)
+                     == energies._reference_nodal_forces(x, mesh, 1e6, 0.003, 1e4, 0.5, 1.0,
                                                          "neo_hookean")).all())
         ours = [str(w.message) for w in caught if "membrax" in str(w.message)]
         print(ok, len(ours), "compiling the membrax kernels failed" in ours[0], same)
@@ -419,8 +421,8 @@ def _cotangent_cases(large=False):
     forces = [
         (
             "membrane_forces_backward",
-            lambda x, *scalars, model=model: membrane._COMPILED_NODAL_FORCES[model](x, mesh, *scalars),
-            lambda x, *scalars, model=model: membrane._reference_nodal_forces(x, mesh, *scalars, model),
+            lambda x, *scalars, model=model: energies._COMPILED_NODAL_FORCES[model](x, mesh, *scalars),
+            lambda x, *scalars, model=model: energies._reference_nodal_forces(x, mesh, *scalars, model),
             (position, 1.4e6, 0.004, 2e4, 0.45, 0.7),  # x, E_m, t_m, p, ν, f_b
         )
         for model in ("neo_hookean", "svk")
@@ -518,10 +520,10 @@ def test_membrane_backward_at_zero_bending_skips_the_hinges_only_when_their_deri
     differentiated, ū·∂F/∂f_b = ū·F_bend(f_b = 1) (the forces are linear in f_b) is not zero and matches;
     with f_b a constant, the positions' and E_m's cotangents still match."""
     mesh, position = _deformed_cylinder(seed=4)
-    compiled = membrane._COMPILED_NODAL_FORCES["neo_hookean"]
+    compiled = energies._COMPILED_NODAL_FORCES["neo_hookean"]
 
     def reference(x, *scalars):
-        return membrane._reference_nodal_forces(x, mesh, *scalars, "neo_hookean")
+        return energies._reference_nodal_forces(x, mesh, *scalars, "neo_hookean")
 
     scalars = (1.4e6, 0.004, 2e4, 0.45, 0.0)
     cotangent = jnp.asarray(np.random.default_rng(5).normal(size=position.shape))
@@ -553,14 +555,14 @@ def test_membrane_forces_differentiated_in_the_rest_geometry_use_the_reference_r
     Σ_t A₀ ∂(ū·F)/∂A₀ = ū·F_stretch, the stretching part alone (pressure and bending off)."""
     mesh, position = _deformed_cylinder(seed=2)
     direction = jnp.asarray(np.random.default_rng(3).normal(size=position.shape))
-    forces = membrane._COMPILED_NODAL_FORCES["svk"]
+    forces = energies._COMPILED_NODAL_FORCES["svk"]
 
     def work(fn, area):
         deformed = dataclasses.replace(mesh, reference_area=area)
         return jnp.sum(direction * fn(position, deformed, 1.4e6, 0.004, 0.0, 0.45, 0.0))
 
     def reference(x, m, *scalars):
-        return membrane._reference_nodal_forces(x, m, *scalars, "svk")
+        return energies._reference_nodal_forces(x, m, *scalars, "svk")
 
     area = mesh.reference_area
     got = jax.grad(lambda a: work(forces, a))(area)
@@ -605,11 +607,11 @@ def _node_step_case(seed=5, num_spheres=30, capacity=3):
         1.4e6,  # E_m
         thickness,
         2e4,  # p
-        membrane.LATEX_POISSON_RATIO,
+        energies.LATEX_POISSON_RATIO,
         0.7,  # f_b
         jnp.asarray(rng.normal(0.0, 1e-18, (num_nodes, 3))),
         jnp.asarray(rng.uniform(5e-4, 1.5e-3, num_nodes)),
-        jnp.asarray(membrane.free_node_mask(mesh)),
+        jnp.asarray(free_node_mask(mesh)),
         integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0)),
     )
     return coupled, args
@@ -634,7 +636,7 @@ def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_t
     got = jax.jit(without_mesh(coupled.node_step))(*values)
     position, velocity, *_, dt = args[:9]
     contact_outputs = jax.jit(contact._compiled_node_sphere_forces)(*args[:11])
-    internal = jax.jit(membrane._COMPILED_NODAL_FORCES[model])(position, *args[11:17])
+    internal = jax.jit(energies._COMPILED_NODAL_FORCES[model])(position, *args[11:17])
     compensation, mass, free, damping = args[17:]
     update = jax.jit(coupled._compiled_advance_nodes)(
         internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping

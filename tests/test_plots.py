@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from membrax import plots
-from membrax.membrane import mesh as membrane
+from membrax.membrane.mesh import cylinder_mesh, offset_polygon, prism_mesh
 from membrax.spheres import packing
 
 R = 0.13
@@ -44,7 +44,7 @@ def shoelace(loop):
 
 @pytest.fixture(scope="module")
 def cylinder():
-    return membrane.cylinder_mesh(R, HEIGHT, EDGE)
+    return cylinder_mesh(R, HEIGHT, EDGE)
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +57,7 @@ def specimen():
 @pytest.fixture(scope="module")
 def prism(specimen):
     """Membrane mid-surface t_m/2 outside the octagon outline, over the specimen height."""
-    return membrane.prism_mesh(np.asarray(specimen.outline_vertices), 0.5 * THICKNESS, specimen.height, 0.01)
+    return prism_mesh(np.asarray(specimen.outline_vertices), 0.5 * THICKNESS, specimen.height, 0.01)
 
 
 def _ring_count(mesh):
@@ -108,7 +108,7 @@ def test_cylinder_section_at_a_ring_is_the_ring(cylinder):
 def test_prism_section_area(specimen, prism):
     outline = np.asarray(specimen.outline_vertices)
     mesh = prism
-    octagon = membrane.offset_polygon(outline, 0.5 * THICKNESS)
+    octagon = offset_polygon(outline, 0.5 * THICKNESS)
     octagon_area = shoelace(octagon)
     # offset octagon by hand: flat faces at h + R + t/2 = 1.5D + R + t/2 = 51 mm from the axis, diagonal
     # faces at c/√2 + R + t/2; area = (2X)² − 2(2X − s)², X = 51 mm, s = √2·(c/√2 + R + t/2)

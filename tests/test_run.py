@@ -10,7 +10,7 @@ from helpers import tolerance
 
 from membrax import cli
 from membrax.config import TriaxialConfig
-from membrax.membrane import mesh as membrane_lib
+from membrax.membrane import energies
 from membrax.run import CHECKPOINT_NAME, run_test
 from membrax.spheres import packing
 from membrax.triaxial.membrane_cell import membrane_test
@@ -107,9 +107,7 @@ def _radial_balance(test, state, records):
     axis = np.asarray(state.membrane.clamp_position[0])[:, :2].mean(axis=0)
     offset = np.asarray(position)[:, :2] - axis
     outward = offset / np.linalg.norm(offset, axis=1)[:, None]
-    pressure_force = -np.asarray(
-        jax.grad(membrane_lib.pressure_energy)(position, test.mesh, test.cell_pressure)
-    )
+    pressure_force = -np.asarray(jax.grad(energies.pressure_energy)(position, test.mesh, test.cell_pressure))
     rings = np.concatenate([np.asarray(test.mesh.bottom_ring), np.asarray(test.mesh.top_ring)])
     node_force = np.asarray(state.membrane.node_force)
     clamps = -np.sum(node_force[rings, :2] * outward[rings])

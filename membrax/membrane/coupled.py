@@ -64,18 +64,21 @@ import scipy.sparse.linalg
 from membrax import native, pytree
 from membrax.config import TriaxialConfig
 from membrax.errors import ErrorCode
-from membrax.membrane import contact as contact_lib
-from membrax.membrane import mesh as membrane_lib
+from membrax.membrane import energies
 from membrax.membrane.contact import (
     MembraneContactParams,
     NodeCandidates,
+    _backward_kernel,
+    _kernel_inputs,
+    _kernel_node_sphere_forces,
+    _reference_outputs,
     build_candidates,
     candidate_errors,
     node_sphere_forces,
     remap_node_history,
     update_candidates,
 )
-from membrax.membrane.mesh import MembraneMesh
+from membrax.membrane.mesh import MembraneMesh, free_node_mask
 from membrax.spheres.integrate import (
     DampingParams,
     DEMParams,
@@ -499,8 +502,8 @@ def _node_step_parts(args):
 
 def _node_step_reference(*args, model):
     contact, membrane, (position, compensation, velocity, mass, free, dt, damping) = _node_step_parts(args)
-    contact_outputs = contact_lib._reference_outputs(*contact)
-    internal = membrane_lib._reference_nodal_forces(*membrane, model)
+    contact_outputs = _reference_outputs(*contact)
+    internal = energies._reference_nodal_forces(*membrane, model)
     update = _advance_nodes_reference(
         internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
     )
@@ -509,8 +512,8 @@ def _node_step_reference(*args, model):
 
 def _node_step_kernel(*args, model):
     contact, membrane, (position, compensation, velocity, mass, free, dt, damping) = _node_step_parts(args)
-    contact_outputs = contact_lib._kernel_node_sphere_forces(*contact)
-    internal = membrane_lib._kernel_nodal_forces(*membrane, model)
+    contact_outputs = _kernel_node_sphere_forces(*contact)
+    internal = energies._kernel_nodal_forces(*membrane, model)
     update = _advance_nodes_kernel(
         internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
     )
@@ -558,11 +561,11 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     )
     # 2. The membrane forces: J ū added in place to the update's position cotangent (ū = F̄; the update's
     # kernel copied it to update_position_bar, the compensation's).
-    position_sum, membrane_scalars_bar = membrane_lib._backward_kernel(
+    position_sum, membrane_scalars_bar = energies._backward_kernel(
         membrane, force_bar, position_bar, bool(perturbed[_BENDING_FACTOR]), model
     )
     # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).
-    contact_flat = contact_lib._backward_kernel(
+    contact_flat = _backward_kernel(
         contact,
         (force_bar + node_force_bar, sphere_force_bar, torque_bar, spring_bar),
         position_sum,
@@ -571,10 +574,8 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     # The arguments' cotangents: the node position's and velocity's are whole in the contact's; the
     # membrane's and the update's packings add the rest (the scalars; Δt is shared).
     zeros = jnp.zeros_like(position)
-    contact_bar = native.pack_cotangents(contact_lib._kernel_inputs, contact, contact_flat)
-    membrane_bar = native.pack_cotangents(
-        membrane_lib._kernel_inputs, membrane, (zeros, membrane_scalars_bar)
-    )
+    contact_bar = native.pack_cotangents(_kernel_inputs, contact, contact_flat)
+    membrane_bar = native.pack_cotangents(energies._kernel_inputs, membrane, (zeros, membrane_scalars_bar))
     update_bar = native.pack_cotangents(
         _advance_nodes_inputs,
         update_args,
@@ -593,7 +594,7 @@ _COMPILED_NODE_STEP = {
         functools.partial(_node_step_backward, model=model),
         _node_step_residuals,
     )
-    for model in membrane_lib.STRETCHING_MODELS
+    for model in energies.STRETCHING_MODELS
 }
 
 
@@ -656,8 +657,8 @@ def membrane_dem(
         sphere_subset = np.arange(num_spheres)
     sphere_subset = jnp.asarray(sphere_subset, dtype=jnp.int32)
     # Mass per unit thickness: lumped_mass is linear in t_m, which stays a traced parameter.
-    mass_per_thickness = membrane_lib.lumped_mass(mesh, 1.0, latex_density)
-    free = jnp.asarray(membrane_lib.free_node_mask(mesh))
+    mass_per_thickness = energies.lumped_mass(mesh, 1.0, latex_density)
+    free = jnp.asarray(free_node_mask(mesh))
     rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
     # The rings are set with unique_indices (checked here unless the mesh is traced, as in a vmapped rollout).
     if not isinstance(rings, jax.core.Tracer) and np.unique(np.asarray(rings)).size != rings.size:
@@ -728,7 +729,7 @@ def membrane_dem(
                 mp.modulus,
                 mp.thickness,
                 mp.cell_pressure,
-                membrane_lib.LATEX_POISSON_RATIO,
+                energies.LATEX_POISSON_RATIO,
                 mp.bending_factor,
                 nodes.position_compensation,
                 mass,
@@ -740,7 +741,7 @@ def membrane_dem(
             contact = contact_forces(state, particles, params, dt)
             contact_node_force, sphere_force = contact.node_force, contact.sphere_force
             sphere_torque, contact_spring = contact.sphere_torque, contact.spring
-            internal = membrane_lib.nodal_forces(
+            internal = energies.nodal_forces(
                 nodes.position,
                 mesh,
                 mp.modulus,
@@ -870,7 +871,7 @@ def _stiffness_product(vector, position, mesh, modulus, thickness, cell_pressure
     """
 
     def energy(x):
-        return membrane_lib.total_energy(
+        return energies.total_energy(
             x, mesh, modulus, thickness, cell_pressure, model=model, bending_factor=bending_factor
         )
 
@@ -895,8 +896,8 @@ def membrane_critical_time_step(
       dict with ``mesh``, ``contact`` and ``combined`` critical steps, s.
     """
     position = mesh.reference_position
-    mass = np.asarray(membrane_lib.lumped_mass(mesh, params.thickness, latex_density), dtype=float)
-    free = membrane_lib.free_node_mask(mesh)
+    mass = np.asarray(energies.lumped_mass(mesh, params.thickness, latex_density), dtype=float)
+    free = free_node_mask(mesh)
 
     scale = np.repeat(1.0 / np.sqrt(mass), 3) * np.repeat(free, 3)  # M^-1/2, clamped rows removed
     stiffness = (params.modulus, params.thickness, params.cell_pressure, params.bending_factor)

@@ -55,8 +55,9 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.optimize import minimize
 
-from membrax.membrane import mesh as membrane
+from membrax.membrane import energies
 from membrax.membrane.contact import node_sphere_normal_energy
+from membrax.membrane.mesh import MembraneMesh, flat_mesh
 
 __all__ = [
     "IndentationSolution",
@@ -112,7 +113,7 @@ def projected_volume(position, triangles, reference_height=0.0):
     return jnp.sum(area_xy * (mean_height - reference_height))
 
 
-def sheet_pressure_energy(position, mesh: membrane.MembraneMesh, pressure, reference_height=0.0):
+def sheet_pressure_energy(position, mesh: MembraneMesh, pressure, reference_height=0.0):
     """Load potential p V of a pressure on the upper face of an open sheet, J (positive p pushes down).
 
     V from :func:`projected_volume`; with the outline pinned, the forces on the free nodes do not depend
@@ -121,7 +122,7 @@ def sheet_pressure_energy(position, mesh: membrane.MembraneMesh, pressure, refer
     return pressure * projected_volume(position, mesh.triangles, reference_height)
 
 
-def boundary_nodes(mesh: membrane.MembraneMesh) -> np.ndarray:
+def boundary_nodes(mesh: MembraneMesh) -> np.ndarray:
     """Sorted ids of the nodes on the sheet's outline (ends of edges that belong to a single triangle)."""
     triangles = np.asarray(mesh.triangles)
     edges = np.sort(
@@ -174,7 +175,7 @@ def _sheet_on_sphere_tops(
     [0, width + a/2] × [0, length], m, a the mesh's column spacing (flat_mesh shifts odd rows by a/2);
     the callers centre their sphere arrays on it.
     """
-    flat = membrane.flat_mesh(width, length, target_edge_length)
+    flat = flat_mesh(width, length, target_edge_length)
     position = flat.reference_position.at[:, 2].set(0.5 * diameter + 0.5 * contact_offset_factor * thickness)
     mesh = dataclasses.replace(flat, reference_position=position)
     xy = np.asarray(position[:, :2])
@@ -316,8 +317,8 @@ def _scaled_energy(u, base, free_rows, mesh, spheres, radii, candidates, params,
     """Π / (E t L²) as a function of the scaled free displacements u (module docstring)."""
     pressure, modulus, thickness, stiffness, contact_thickness = (params[k] for k in range(5))
     x = _positions(u, base, free_rows, length)
-    total = membrane.stretching_energy(x, mesh, modulus, thickness)
-    total = total + membrane.bending_energy(x, mesh, modulus, thickness)
+    total = energies.stretching_energy(x, mesh, modulus, thickness)
+    total = total + energies.bending_energy(x, mesh, modulus, thickness)
     total = total + sheet_pressure_energy(x, mesh, pressure)
     total = total + node_sphere_normal_energy(x, spheres, radii, candidates, stiffness, contact_thickness)
     return total / (modulus * thickness * length * length)
@@ -327,7 +328,7 @@ _value_and_grad = jax.jit(jax.value_and_grad(_scaled_energy))
 
 
 def solve_sheet_on_spheres(
-    mesh: membrane.MembraneMesh,
+    mesh: MembraneMesh,
     sphere_position,
     sphere_radius,
     pressure,

@@ -73,9 +73,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import pytree, theory
-from membrax.membrane import mesh as membrane_lib
 from membrax.membrane.coupled import contact_forces
-from membrax.membrane.mesh import MembraneMesh, enclosed_volume
+from membrax.membrane.mesh import MembraneMesh, enclosed_volume, inner_volume
 from membrax.spheres.integrate import Particles, compute_forces
 from membrax.spheres.measure import (
     coordination_number,
@@ -547,7 +546,7 @@ def measure_coupled(
     pair_member = jnp.zeros(spheres.neighbors.idx.shape[1], dtype=jnp.int32)
     walls = spheres.walls
     height = platen_separation(walls)
-    volume = jnp.reshape(membrane_lib.inner_volume(nodes.position, mesh, mp.contact_thickness), (1,))
+    volume = jnp.reshape(inner_volume(nodes.position, mesh, mp.contact_thickness), (1,))
     membrane_dyad = jnp.sum(contact.slot_force[:, :, :, None] * contact.branch[:, :, None, :], axis=(0, 1))
     stress = (
         love_weber_stress(forces, particles, pair_member, volume)

@@ -1,23 +1,15 @@
-"""Latex membrane as a triangulated thin shell: mesh, stretching, bending and cell-pressure energies.
+"""Latex membrane as a triangulated thin shell: its topology, rest geometry and kinematics.
 
 Contract. A :class:`MembraneMesh` is built once on the host (numpy, deterministic) and holds the
-connectivity and every rest-state quantity the energies need. The energies are pure ``jnp`` functions of
-the current node positions (n_nodes, 3) and the material parameters; they are jittable and differentiable
-with respect to both, and conservative nodal forces are ``-jax.grad`` of :func:`total_energy`
-(:func:`nodal_forces`). SI units throughout: m, Pa, N, J, kg.
+connectivity and every rest-state quantity the membrane's laws need. The kinematics are pure ``jnp``
+functions of the current node positions (N, 3): the triangles' Green–Lagrange strains and triple products
+(:func:`triangle_invariants`), the hinges' bending angles (:func:`dihedral_angle`), the band's area and the
+volume it encloses with two flat caps (:func:`enclosed_volume`). They are jittable and differentiable; the
+energies and forces that read them are :mod:`membrax.membrane.energies`. SI units throughout: m, m², m³.
 
 The membrane is a band wrapping the specimen: rings of nodes stacked along z, the angle periodic, the
 bottom and top rings meant to be clamped to the platens (O-rings). Triangles are near equilateral and
 oriented so that (x₂ − x₁) × (x₃ − x₁) points away from the axis.
-
-Energies (reference: ``shared/reference/membrane-corrections.md`` §11):
-
-- stretching: constant-strain triangles (CST) with an incompressible neo-Hookean or a St Venant–Kirchhoff
-  law (:func:`stretching_energy`);
-- bending: Discrete Shells (Grinspun et al. 2003) calibrated to the plate rigidity, k_b = D/6
-  (:func:`bending_energy`);
-- cell pressure: the load potential +p V, V the volume enclosed by the band closed with two flat caps
-  (:func:`enclosed_volume`, :func:`pressure_energy`).
 
 Layout and speed: nodes are rows of an (N, 3) array; per-triangle and per-edge quantities gather rows and
 are then handled component-first (3, M) with :mod:`membrax.vector`, because XLA's CPU backend reduces over
@@ -26,14 +18,13 @@ a size-3 axis much more slowly than it adds three rows. All 2 × 2 algebra is wr
 
 from __future__ import annotations
 
-import functools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import native, pytree
+from membrax import pytree
 from membrax.fusion import materialize
 from membrax.validation import check_range
 from membrax.vector import cross, dot, scale
@@ -45,23 +36,20 @@ __all__ = [
     "flat_mesh",
     "offset_polygon",
     "rounded_offset_path",
-    "bending_rigidity",
-    "stretching_energy",
-    "bending_energy",
+    "gather_components",
+    "gathered_corners",
+    "gathered_hinges",
+    "triangle_invariants",
+    "green_strain",
+    "dihedral_angle",
     "surface_area",
     "inner_volume",
     "band_volume",
     "cap_volume",
     "enclosed_volume",
-    "pressure_energy",
-    "total_energy",
-    "nodal_forces",
-    "LATEX_POISSON_RATIO",
-    "lumped_mass",
+    "enclosed_volume_of",
     "free_node_mask",
 ]
-
-STRETCHING_MODELS = ("neo_hookean", "svk")
 
 
 @pytree.dataclass
@@ -198,7 +186,7 @@ def _assemble(position, triangles, bottom_ring, top_ring, dtype) -> MembraneMesh
     corner_index = triangles.T.reshape(-1)
     hinge_index = np.concatenate([edges[:, 0], edges[:, 1], opposite[:, 0], opposite[:, 1]])
     num_nodes = position.shape[0]
-    rest = np.asarray(_dihedral_angle(position[hinge_index].T))
+    rest = np.asarray(dihedral_angle(position[hinge_index].T))
     triangle_of = {}
     for t, (a, b, c) in enumerate(triangles.tolist()):
         for p, q in ((a, b), (b, c), (c, a)):
@@ -414,7 +402,7 @@ def flat_mesh(width: float, length: float, target_edge_length: float, dtype=None
 
 
 # ----------------------------------------------------------------------------------------------------------
-# Energies (traced)
+# Geometry and kinematics (traced): gathers, triangle strains, hinge angles, areas and volumes
 # ----------------------------------------------------------------------------------------------------------
 
 
@@ -454,30 +442,30 @@ def _gather_components_backward(incidence, cotangent):
 gather_components.defvjp(_gather_components_forward, _gather_components_backward)
 
 
-def _gathered_corners(position, mesh: MembraneMesh):
+def gathered_corners(position, mesh: MembraneMesh):
     """Triangle corners component-first, (3, 3T): first corners of all triangles, then second, third."""
     return gather_components(position, mesh.corner_index, mesh.corner_incidence)
 
 
 def _corners(position, mesh: MembraneMesh):
     """Triangle corners component-first: three (3, T) arrays."""
-    return jnp.split(_gathered_corners(position, mesh), 3, axis=1)
+    return jnp.split(gathered_corners(position, mesh), 3, axis=1)
 
 
-def _gathered_hinges(position, mesh: MembraneMesh):
-    """Hinge vertices component-first, (3, 4E): a, b, c, d of all hinges (see :func:`_dihedral_angle`)."""
+def gathered_hinges(position, mesh: MembraneMesh):
+    """Hinge vertices component-first, (3, 4E): a, b, c, d of all hinges (see :func:`dihedral_angle`)."""
     return gather_components(position, mesh.hinge_index, mesh.hinge_incidence)
 
 
 @jax.custom_vjp
-def _triangle_invariants(corners, inverse):
+def triangle_invariants(corners, inverse):
     """Green–Lagrange strain (E₁₁, E₂₂, E₁₂) and triple product x₁·(x₂ × x₃) of each triangle, (T,) each.
 
     Reverse mode uses the closed-form derivative below (forward mode is not defined, as for
     :func:`gather_components`).
 
     Args:
-      corners: (3, 3T) the gathered corners (:func:`_gathered_corners`).
+      corners: (3, 3T) the gathered corners (:func:`gathered_corners`).
       inverse: (T, 2, 2) the rest frames D_m⁻¹.
     """
     x1, x2, x3 = jnp.split(corners, 3, axis=1)
@@ -485,7 +473,7 @@ def _triangle_invariants(corners, inverse):
 
 
 def _triangle_invariants_forward(corners, inverse):
-    return _triangle_invariants(corners, inverse), (corners, inverse)
+    return triangle_invariants(corners, inverse), (corners, inverse)
 
 
 def _triangle_invariants_backward(residuals, cotangents):
@@ -519,7 +507,7 @@ def _triangle_invariants_backward(residuals, cotangents):
     return d_corners.reshape(corners.shape), d_inverse
 
 
-_triangle_invariants.defvjp(_triangle_invariants_forward, _triangle_invariants_backward)
+triangle_invariants.defvjp(_triangle_invariants_forward, _triangle_invariants_backward)
 
 
 def _deformation_columns(x1, x2, x3, inverse):
@@ -537,73 +525,9 @@ def _green_strain_of(x1, x2, x3, inverse):
     return 0.5 * (dot(f1, f1) - 1.0), 0.5 * (dot(f2, f2) - 1.0), 0.5 * dot(f1, f2)
 
 
-def _green_strain(position, mesh: MembraneMesh):
+def green_strain(position, mesh: MembraneMesh):
     """Green–Lagrange strain (E₁₁, E₂₂, E₁₂) of each triangle at the given node positions."""
-    return _triangle_invariants(_gathered_corners(position, mesh), mesh.reference_inverse)[:3]
-
-
-def stretching_energy(
-    position, mesh: MembraneMesh, modulus, thickness, model="neo_hookean", poisson_ratio=0.5
-):
-    """In-plane strain energy of the membrane with constant-strain triangles, J.
-
-    Per triangle, with D_m the rest edge matrix in the triangle's plane and D_s = [x₂ − x₁, x₃ − x₁] (3 × 2):
-    F = D_s D_m⁻¹, C = FᵀF, E = (C − I)/2 (reference §11; standard finite elements), and
-
-    - ``"neo_hookean"`` (incompressible, plane stress, thickness t = t₀/√det C):
-      W = t₀ A₀ (μ/2)(tr C + 1/det C − 3), μ = E_m/3 (so ν = ½);
-    - ``"svk"`` (St Venant–Kirchhoff, plane stress): W = t₀ A₀ [μ tr(E²) + (λ*/2)(tr E)²],
-      μ = E_m/(2(1+ν)), λ* = E_m ν/(1−ν²).
-
-    Why neo-Hookean: latex is a rubber, near incompressible, and the membrane reaches tens of percent
-    strain where bulging; the neo-Hookean law is the simplest finite-strain rubber law and reduces to
-    E_m, ν = ½ at small strain. SVK is kept for small strains (below ~10 %) and other ν.
-
-    Wrinkling: a membrane cannot carry compression. Here compression resistance comes from the bending
-    energy (:func:`bending_energy`), which lets the mesh wrinkle at its own resolution; a tension-field
-    (relaxed) energy is not implemented, so wrinkles finer than the mesh are not resolved.
-
-    The neo-Hookean bracket is evaluated through E as (4(tr E)² + 8 tr E det E − 4 det E)/det C, an exact
-    rewriting that avoids the cancellation of tr C + 1/det C − 3 at small strain (≈ 10 % error in float32
-    at 10⁻³ strain otherwise).
-
-    Args:
-      position: (N, 3) current node positions, m.
-      mesh: the membrane.
-      modulus: E_m, Pa (scalar; traced, differentiable).
-      thickness: t₀, m (scalar; traced, differentiable).
-      model: ``"neo_hookean"`` or ``"svk"`` (static).
-      poisson_ratio: ν of the SVK law (the neo-Hookean law is incompressible).
-
-    Returns:
-      Scalar energy, J.
-    """
-    return _stretching_energy_of(
-        _green_strain(position, mesh), mesh, modulus, thickness, model, poisson_ratio
-    )
-
-
-def _stretching_energy_of(strain, mesh: MembraneMesh, modulus, thickness, model, poisson_ratio):
-    """:func:`stretching_energy` from the triangles' Green–Lagrange strain (E₁₁, E₂₂, E₁₂), (T,) each."""
-    if model not in STRETCHING_MODELS:
-        raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
-    e11, e22, e12 = strain
-    trace = e11 + e22
-    if model == "neo_hookean":
-        determinant = e11 * e22 - e12 * e12
-        det_c = 1.0 + 2.0 * trace + 4.0 * determinant
-        bracket = (4.0 * trace * trace + 8.0 * trace * determinant - 4.0 * determinant) / det_c
-        density = (modulus / 6.0) * bracket  # (μ/2)(...) with μ = E/3
-    else:
-        shear = modulus / (2.0 * (1.0 + poisson_ratio))
-        lame = modulus * poisson_ratio / (1.0 - poisson_ratio * poisson_ratio)
-        density = shear * (e11 * e11 + e22 * e22 + 2.0 * e12 * e12) + 0.5 * lame * trace * trace
-    return thickness * jnp.sum(mesh.reference_area * density)
-
-
-def bending_rigidity(modulus, thickness, poisson_ratio=0.5):
-    """Plate bending rigidity D = E t³ / (12 (1 − ν²)), N·m (Kirchhoff plate theory)."""
-    return modulus * thickness**3 / (12.0 * (1.0 - poisson_ratio * poisson_ratio))
+    return triangle_invariants(gathered_corners(position, mesh), mesh.reference_inverse)[:3]
 
 
 def _dihedral_and_gradient(hinges, with_gradient=True):
@@ -656,7 +580,7 @@ def _dihedral_and_gradient(hinges, with_gradient=True):
 
 
 @jax.custom_vjp
-def _dihedral_angle(hinges):
+def dihedral_angle(hinges):
     """Signed bending angle θ of each hinge, rad, from the gathered hinge vertices (3, 4E) (a, b, c, d).
 
     See :func:`_dihedral_and_gradient` for the angle and its closed-form gradient, which reverse mode
@@ -678,34 +602,7 @@ def _dihedral_angle_backward(gradient, cotangent):
     return ((gradient * cotangent[None, None]).reshape(gradient.shape[0], -1),)
 
 
-_dihedral_angle.defvjp(_dihedral_angle_forward, _dihedral_angle_backward)
-
-
-def bending_energy(position, mesh: MembraneMesh, modulus, thickness, poisson_ratio=0.5):
-    """Discrete Shells bending energy (Grinspun, Hirani, Desbrun & Schröder 2003), J.
-
-        E_b = Σ_{interior edges e} k_b · 3|ē_e|²/Ā_e · (θ_e − θ̄_e)²,   k_b = D/6,   D = E t³/(12(1 − ν²)),
-
-    ē_e, Ā_e the rest edge length and summed rest area of the two adjacent triangles, θ_e the angle
-    between their normals (θ̄_e at rest). k_b = D/6 is calibrated so that a near-equilateral mesh rolled
-    into a cylinder of radius R stores the Kirchhoff energy (D/2)·Area/R² (reference §11: the sum tends to
-    3.00·Area/R² for both edge orientations). On doubly curved shapes the match is only approximate (a
-    sphere gives ≈ 1.02 × the Kirchhoff energy with ν = 0, reference §11).
-
-    Args:
-      position: (N, 3) current node positions, m.
-      mesh: the membrane.
-      modulus: E_m, Pa.
-      thickness: t_m, m.
-      poisson_ratio: ν in D (½ for latex).
-
-    Returns:
-      Scalar energy, J.
-    """
-    angle = _dihedral_angle(_gathered_hinges(position, mesh))
-    stiffness = bending_rigidity(modulus, thickness, poisson_ratio) / 6.0
-    change = angle - mesh.rest_dihedral
-    return stiffness * jnp.sum(mesh.edge_weight * change * change)
+dihedral_angle.defvjp(_dihedral_angle_forward, _dihedral_angle_backward)
 
 
 def surface_area(position, mesh: MembraneMesh):
@@ -734,7 +631,7 @@ def inner_volume(position, mesh: MembraneMesh, thickness):
 
 def band_volume(position, mesh: MembraneMesh):
     """(1/6) Σ_triangles x₁·(x₂ × x₃) over the band alone, m³ (origin-dependent: the band is open)."""
-    triple = _triangle_invariants(_gathered_corners(position, mesh), mesh.reference_inverse)[3]
+    triple = triangle_invariants(gathered_corners(position, mesh), mesh.reference_inverse)[3]
     return jnp.sum(triple) / 6.0
 
 
@@ -765,198 +662,13 @@ def enclosed_volume(position, mesh: MembraneMesh):
     exactly the platen's face. The surface is closed for any node positions, so V is exact and independent
     of the origin; for rings lying in planes it is the exact volume of the polyhedron.
     """
-    return _enclosed_volume_of(band_volume(position, mesh), position, mesh)
+    return enclosed_volume_of(band_volume(position, mesh), position, mesh)
 
 
-def _enclosed_volume_of(band, position, mesh: MembraneMesh):
+def enclosed_volume_of(band, position, mesh: MembraneMesh):
     """:func:`enclosed_volume` from the band's own term (:func:`band_volume`)."""
     return (
         band
         + cap_volume(position, mesh.bottom_ring, upward=False)
         + cap_volume(position, mesh.top_ring, upward=True)
     )
-
-
-def pressure_energy(position, mesh: MembraneMesh, cell_pressure):
-    """Potential of the cell pressure, Π_p = +p V, J (reference §11).
-
-    The cell fluid does work −p dV on the specimen, so its potential is +p V and the nodal force
-    −p ∂V/∂x = −p Σ_f A_f n_f/3 points inward for p > 0 (a negative p is an internal pressure). On the end
-    rings the force includes the cap share; with the rings clamped to the platens it is a reaction.
-
-    Args:
-      position: (N, 3) node positions, m.
-      mesh: the membrane (band and end rings).
-      cell_pressure: p, Pa.
-    """
-    return cell_pressure * enclosed_volume(position, mesh)
-
-
-def total_energy(
-    position,
-    mesh: MembraneMesh,
-    modulus,
-    thickness,
-    cell_pressure,
-    poisson_ratio=0.5,
-    model="neo_hookean",
-    bending_factor=1.0,
-):
-    """Stretching + bending + pressure potential of the membrane, J (see the three terms).
-
-    ``bending_factor`` scales the bending energy: 1 is the plate's E t³/12(1 − ν²), 0 a pure membrane
-    (a mesh with no bending stiffness, which may be what the paper's finite-difference mesh was).
-    """
-    # One pass over the triangles gives both the strain and the band's volume term.
-    *strain, triple = _triangle_invariants(_gathered_corners(position, mesh), mesh.reference_inverse)
-    return (
-        _stretching_energy_of(strain, mesh, modulus, thickness, model, poisson_ratio)
-        + bending_factor * bending_energy(position, mesh, modulus, thickness, poisson_ratio)
-        + cell_pressure * _enclosed_volume_of(jnp.sum(triple) / 6.0, position, mesh)
-    )
-
-
-#: ν of latex, the default of :func:`nodal_forces` (an incompressible rubber).
-LATEX_POISSON_RATIO = 0.5
-
-
-def nodal_forces(
-    position,
-    mesh: MembraneMesh,
-    modulus,
-    thickness,
-    cell_pressure,
-    poisson_ratio=LATEX_POISSON_RATIO,
-    model="neo_hookean",
-    bending_factor=1.0,
-):
-    """Conservative nodal forces −∂(total energy)/∂x, (N, 3), N.
-
-    On the CPU, in float32 or float64, the forces come from a compiled kernel (:mod:`membrax.native`,
-    ``membrane_forces.cc``) that evaluates the same formulas in one pass over the triangles and hinges,
-    and skips the hinges when ``bending_factor`` is 0. The JAX expression −∇(total energy) is used
-    everywhere else and is the definition the tests hold the kernel to (agreement to round-off). Reverse
-    mode (``jax.grad``, ``jax.vjp``) runs a compiled backward kernel on the CPU
-    (``membrane_forces_backward``): the forces are −∇Φ, so their Jacobian is symmetric and Jᵀū is the
-    directional derivative J ū, evaluated on dual numbers, with ū·∂F/∂(E_m, t_m, p, ν, f_b) from the same
-    pass; it gives the JAX expression's derivatives to round-off (``tests/test_native.py``). When the
-    mesh's rest geometry is differentiated, the JAX expression's own derivatives are used.
-    """
-    if model not in STRETCHING_MODELS:
-        raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
-    position = jnp.asarray(position)
-    args = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
-    if native.enabled_for(position.dtype):
-        return _COMPILED_NODAL_FORCES[model](*args)
-    return _reference_nodal_forces(*args, model)
-
-
-def _reference_nodal_forces(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
-):
-    """−∇(total energy) by ``jax.grad``: the definition of :func:`nodal_forces`."""
-    return -jax.grad(total_energy)(
-        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model, bending_factor
-    )
-
-
-def _kernel_inputs(position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor):
-    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b)."""
-    dtype = position.dtype
-    scalars = jnp.stack(
-        [
-            jnp.asarray(value, dtype)
-            for value in (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
-        ]
-    )
-    return position, scalars
-
-
-def _mesh_inputs(mesh, dtype):
-    """The kernel's mesh inputs, in its order after the positions."""
-    return (
-        mesh.corner_index,
-        mesh.reference_inverse.astype(dtype),
-        mesh.reference_area.astype(dtype),
-        mesh.hinge_index,
-        mesh.edge_weight.astype(dtype),
-        mesh.rest_dihedral.astype(dtype),
-        mesh.bottom_ring,
-        mesh.top_ring,
-    )
-
-
-def _kernel_nodal_forces(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
-):
-    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`_reference_nodal_forces`)."""
-    position, scalars = _kernel_inputs(
-        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
-    )
-    dtype = position.dtype
-    return native.call(
-        "membrane_forces",
-        dtype,
-        jax.ShapeDtypeStruct(position.shape, dtype),
-        position,
-        *_mesh_inputs(mesh, dtype),
-        scalars,
-        model=np.int64(STRETCHING_MODELS.index(model)),
-    )
-
-
-def _backward_nodal_forces(args, perturbed, cotangent, model):
-    """The compiled reverse-mode rule (``membrane_forces_backward``).
-
-    J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
-    (the reference's rule) when the mesh's rest geometry is differentiated.
-    """
-    if any(jax.tree.leaves(perturbed[1])):
-        return None
-    # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
-    flat = _backward_kernel(args, cotangent, jnp.zeros_like(args[0]), bool(perturbed[6]), model)
-    return native.pack_cotangents(_kernel_inputs, args, flat)
-
-
-def _backward_kernel(args, cotangent, addend, bending_derivative, model):
-    """``membrane_forces_backward`` on :func:`nodal_forces`' arguments (``args``, less the model).
-
-    Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b)) for ū = ``cotangent``; the first in the addend's
-    buffer (aliased), so a caller that passes the positions' cotangent so far has it updated in place.
-    """
-    position, scalars = _kernel_inputs(*args)
-    dtype = position.dtype
-    return native.call(
-        "membrane_forces_backward",
-        dtype,
-        (jax.ShapeDtypeStruct(position.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
-        position,
-        *_mesh_inputs(args[1], dtype),
-        scalars,
-        cotangent.astype(dtype),
-        addend.astype(dtype),
-        input_output_aliases={11: 0},
-        model=np.int64(STRETCHING_MODELS.index(model)),
-        bending_derivative=np.int64(bending_derivative),
-    )
-
-
-_COMPILED_NODAL_FORCES = {
-    model: native.with_reference(
-        functools.partial(_kernel_nodal_forces, model=model),
-        functools.partial(_reference_nodal_forces, model=model),
-        functools.partial(_backward_nodal_forces, model=model),
-    )
-    for model in STRETCHING_MODELS
-}
-
-
-def lumped_mass(mesh: MembraneMesh, thickness, density=1000.0):
-    """Node masses, (N,), kg: each triangle's rest mass A₀ t ρ shared equally by its three nodes.
-
-    Latex density is about 920–1000 kg/m³.
-    """
-    share = (density * thickness / 3.0) * mesh.reference_area
-    flat = jnp.concatenate([share, share, share])
-    nodes = jnp.concatenate([mesh.triangles[:, 0], mesh.triangles[:, 1], mesh.triangles[:, 2]])
-    return jax.ops.segment_sum(flat, nodes, num_segments=mesh.num_nodes)

@@ -6,7 +6,7 @@
 // elements it runs work() itself). XLA's executor goes on meanwhile with the other operations that
 // are ready, such as an independent kernel: the membrane forces, the node–sphere law and the sphere
 // pairs of one step run side by side. Without it XLA ran them one after another in the recomputation
-// of a checkpointed window, and the sphere pairs alone everywhere (README, "where the time goes"). The
+// of a checkpointed window, and the sphere pairs alone everywhere (docs/gradients.md). The
 // arithmetic is unchanged, so are the bits.
 //
 // two_halves(pool, n, body), for the backward kernels, which XLA runs one after another and whose

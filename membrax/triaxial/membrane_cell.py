@@ -36,9 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax.config import TriaxialConfig
-from membrax.driver import ChunkRunner, strain_rate_from_inertial_number
-from membrax.membrane import measure as membrane_measure
-from membrax.membrane import mesh as membrane_lib
+from membrax.driver import ChunkRunner
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import (
     LATEX_DENSITY,
@@ -50,6 +48,8 @@ from membrax.membrane.coupled import (
     membrane_critical_time_step,
     membrane_dem,
 )
+from membrax.membrane.measure import measure_coupled
+from membrax.membrane.mesh import MembraneMesh, inner_volume, prism_mesh
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
@@ -62,6 +62,7 @@ from membrax.spheres.integrate import (
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, Specimen
 from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
+from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
 
@@ -98,7 +99,7 @@ class MembraneTest(StagedTest):
 
     specimen: Specimen
     particles: object
-    mesh: membrane_lib.MembraneMesh
+    mesh: MembraneMesh
     params: CoupledParams
     dt: float
     critical_dt: dict
@@ -304,7 +305,7 @@ def membrane_test(
         lower, upper, cutoff=diameter, skin=skin_fraction * diameter, margin=0.5 * diameter
     )
     neighbors = frame.allocate(position)
-    mesh = membrane_lib.prism_mesh(
+    mesh = prism_mesh(
         np.asarray(specimen.outline_vertices),
         0.5 * contact_thickness,
         specimen.height,
@@ -336,9 +337,7 @@ def membrane_test(
 
     def make_record(member_mesh, member_volume):
         def record(s, p):
-            return membrane_measure.measure_coupled(
-                s, particles, member_mesh, p, dt, height, member_volume, platen_area
-            )
+            return measure_coupled(s, particles, member_mesh, p, dt, height, member_volume, platen_area)
 
         return record
 
@@ -349,7 +348,7 @@ def membrane_test(
         dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
     )
     height = float(specimen.height)
-    volume = float(membrane_lib.inner_volume(state.membrane.position, mesh, contact_thickness))
+    volume = float(inner_volume(state.membrane.position, mesh, contact_thickness))
 
     record = make_record(mesh, volume)
 

@@ -26,8 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import batch
-from membrax.driver import ChunkRunner, strain_rate_from_inertial_number
-from membrax.spheres import measure as measure_lib
+from membrax.driver import ChunkRunner
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
@@ -38,9 +37,11 @@ from membrax.spheres.integrate import (
     dem,
     make_particles,
 )
+from membrax.spheres.measure import measure
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, Specimen
 from membrax.spheres.walls import TOP, ramp_acceleration, set_control, triaxial_walls
+from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
 
@@ -204,7 +205,7 @@ def rigid_wall_test(
     v0 = jnp.asarray(initial_volume, position.dtype)
 
     def record(s, p):
-        return measure_lib.measure(s, particles, p, dt, h0, v0, wall_friction=wall_friction)
+        return measure(s, particles, p, dt, h0, v0, wall_friction=wall_friction)
 
     runner = ChunkRunner(step_fn, frame, record, particles.num_particles)
     return RigidWallTest(
