@@ -51,6 +51,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax.config import TriaxialConfig
+from membrax.driver import advance
 from membrax.membrane import energies
 from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
 from membrax.membrane.measure import measure_coupled
@@ -391,7 +392,7 @@ def continuation_differences(
     u0 = jnp.zeros(system.size)
 
     @jax.jit
-    def advance(state, theta):  # θ traced: one compilation for every parameter and sign
+    def relax_chunk(state, theta):  # θ traced: one compilation for every parameter and sign
         params, step, _, state = system.apply(theta, state)
         return advance(step, state, params, chunk_steps)
 
@@ -407,7 +408,7 @@ def continuation_differences(
             theta = jnp.asarray(theta)
             state = equilibrium.state
             for _ in range(max_chunks):
-                state = advance(state, theta)
+                state = relax_chunk(state, theta)
                 residual, measured = (np.asarray(a) for a in evaluate(state, theta))
                 if np.max(np.abs(residual[:-2])) < tolerance * load:
                     break
