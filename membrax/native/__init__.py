@@ -73,7 +73,7 @@ __all__ = [
 ]
 
 _SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
-_HEADERS = ("contact_law.h", "dual.h", "parallel.h")
+_HEADERS = ("contact_law.h", "dual.h", "ffi_bind.h", "parallel.h")
 # Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
 _KERNELS = {
     "membrane_forces": "MembraxMembraneForces",  # membrane.nodal_forces

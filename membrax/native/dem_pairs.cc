@@ -20,6 +20,7 @@
 
 #include "contact_law.h"
 #include "parallel.h"
+#include "ffi_bind.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -305,55 +306,25 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
 
 }  // namespace
 
-#define MEMBRAX_DEM_PAIRS_HANDLER(name, dtype)                 \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, dem_pairs<dtype>,         \
-                                ffi::Ffi::Bind()                \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<ffi::S32>>() \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()  \
-                                    .Ret<ffi::Buffer<dtype>>()  \
-                                    .Ret<ffi::Buffer<dtype>>()  \
-                                    .Ret<ffi::Buffer<dtype>>()  \
-                                    .Ctx<ffi::ThreadPool>());
+using membrax::Index;
+using membrax::Real;
+
+#define MEMBRAX_DEM_PAIRS_HANDLER(name, dtype)                       \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                     \
+      name, dem_pairs<dtype>,                                        \
+      (membrax::Rets<dtype, 3>::To(                                  \
+           membrax::Args<dtype, Real, Real, Real, Real, Real, Index, \
+                         Real, Real, Real, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
 
 MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF32, ffi::F32)
 MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF64, ffi::F64)
 
-#define MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(name, dtype)           \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, dem_pairs_backward<dtype>,   \
-                                ffi::Ffi::Bind()                   \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<ffi::S32>>()  \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Arg<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ret<ffi::Buffer<dtype>>()     \
-                                    .Ctx<ffi::ThreadPool>());
+#define MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(name, dtype)                    \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                           \
+      name, dem_pairs_backward<dtype>,                                     \
+      (membrax::Rets<dtype, 9>::To(                                        \
+           membrax::Args<dtype, Real, Real, Real, Real, Real, Index, Real, \
+                         Real, Real, Real, Real, Real, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
 
 MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF32, ffi::F32)
 MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF64, ffi::F64)

@@ -16,6 +16,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "ffi_bind.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -154,42 +155,25 @@ ffi::Error membrane_nodes_backward(ffi::Buffer<dtype> total_force, ffi::Buffer<d
 
 }  // namespace
 
-#define MEMBRAX_NODES_HANDLER(name, dtype)                     \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, membrane_nodes<dtype>,   \
-                                ffi::Ffi::Bind()               \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Arg<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>() \
-                                    .Ret<ffi::Buffer<dtype>>());
+using membrax::Index;
+using membrax::Real;
+
+#define MEMBRAX_NODES_HANDLER(name, dtype)              \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                        \
+      name, membrane_nodes<dtype>,                      \
+      (membrax::Rets<dtype, 4>::To(                     \
+           membrax::Args<dtype, Real, Real, Real, Real, \
+                         Real, Real, Real, Real>::To(ffi::Ffi::Bind()))));
 
 MEMBRAX_NODES_HANDLER(MembraxMembraneNodesF32, ffi::F32)
 MEMBRAX_NODES_HANDLER(MembraxMembraneNodesF64, ffi::F64)
 
-#define MEMBRAX_NODES_BACKWARD_HANDLER(name, dtype)                     \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, membrane_nodes_backward<dtype>,   \
-                                ffi::Ffi::Bind()                        \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Arg<ffi::Buffer<dtype>>()          \
-                                    .Ret<ffi::Buffer<dtype>>()          \
-                                    .Ret<ffi::Buffer<dtype>>()          \
-                                    .Ret<ffi::Buffer<dtype>>()          \
-                                    .Ret<ffi::Buffer<dtype>>()          \
-                                    .Ret<ffi::Buffer<dtype>>());
+#define MEMBRAX_NODES_BACKWARD_HANDLER(name, dtype)           \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                              \
+      name, membrane_nodes_backward<dtype>,                   \
+      (membrax::Rets<dtype, 5>::To(                           \
+           membrax::Args<dtype, Real, Real, Real, Real, Real, \
+                         Real, Real, Real, Real>::To(ffi::Ffi::Bind()))));
 
 MEMBRAX_NODES_BACKWARD_HANDLER(MembraxMembraneNodesBackwardF32, ffi::F32)
 MEMBRAX_NODES_BACKWARD_HANDLER(MembraxMembraneNodesBackwardF64, ffi::F64)

@@ -23,6 +23,7 @@
 
 #include "contact_law.h"
 #include "parallel.h"
+#include "ffi_bind.h"
 #include "xla/ffi/api/ffi.h"
 
 namespace ffi = xla::ffi;
@@ -394,54 +395,25 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
 
 }  // namespace
 
-#define MEMBRAX_NODE_SPHERE_HANDLER(name, dtype)                 \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, node_sphere_forces<dtype>, \
-                                ffi::Ffi::Bind()                 \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<ffi::S32>>()\
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Arg<ffi::Buffer<dtype>>()   \
-                                    .Ret<ffi::Buffer<dtype>>()   \
-                                    .Ret<ffi::Buffer<dtype>>()   \
-                                    .Ret<ffi::Buffer<dtype>>()   \
-                                    .Ret<ffi::Buffer<dtype>>()   \
-                                    .Ctx<ffi::ThreadPool>());
+using membrax::Index;
+using membrax::Real;
+
+#define MEMBRAX_NODE_SPHERE_HANDLER(name, dtype)              \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                              \
+      name, node_sphere_forces<dtype>,                        \
+      (membrax::Rets<dtype, 4>::To(                           \
+           membrax::Args<dtype, Real, Real, Real, Real, Real, \
+                         Real, Index, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
 
 MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF32, ffi::F32)
 MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF64, ffi::F64)
 
-#define MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(name, dtype)                 \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(name, node_sphere_backward<dtype>,        \
-                                ffi::Ffi::Bind()                          \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<ffi::S32>>()         \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Arg<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ret<ffi::Buffer<dtype>>()            \
-                                    .Ctx<ffi::ThreadPool>());
+#define MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(name, dtype)                        \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                                 \
+      name, node_sphere_backward<dtype>,                                         \
+      (membrax::Rets<dtype, 8>::To(                                              \
+           membrax::Args<dtype, Real, Real, Real, Real, Real, Real, Index, Real, \
+                         Real, Real, Real, Real, Real, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
 
 MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF32, ffi::F32)
 MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF64, ffi::F64)
