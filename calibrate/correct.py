@@ -245,15 +245,15 @@ def extrapolation_distances(inputs: dict, input_ranges: dict) -> dict:
     return distances
 
 
-def range_warnings(inputs: dict, input_ranges: dict) -> list[str]:
+def range_warnings(inputs: dict, input_ranges: dict, distances: dict | None = None) -> list[str]:
     """A message in a laboratory's words for each checked input outside the correction's fitted range.
 
     Each names the quantity, its symbol, the record's value (or span) and the fitted range, in the units a
     laboratory reads (the axial strain in %), and the distance outside the range
-    (:func:`extrapolation_distances`).
+    (:func:`extrapolation_distances`; pass them when already computed).
     """
     messages = []
-    distances = extrapolation_distances(inputs, input_ranges)
+    distances = extrapolation_distances(inputs, input_ranges) if distances is None else distances
     for name, distance in distances.items():
         if not np.any(distance > 0.0):
             continue
@@ -395,7 +395,7 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
     for values in (sigma_1, sigma_3, friction):
         values["fitted"] = np.where(withheld, np.nan, values["fitted"])
     std = {name: np.where(withheld, np.nan, value * (1.0 + extrapolation)) for name, value in std.items()}
-    messages = range_warnings(inputs, corrections.input_ranges)
+    messages = range_warnings(inputs, corrections.input_ranges, distances)
     if messages:
         messages.append(extrapolation_summary(extrapolation, undefined))
     for message in messages:

@@ -258,7 +258,6 @@ def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
         "cell_pressure": unit_of("cell_pressure", _STRESS_UNITS),
     }
     values = {name: [] for name in wanted}
-    lines = []
     for line_number, row in table.rows[position + 1 :]:
         if row[0].lstrip().startswith("#"):
             continue
@@ -294,10 +293,9 @@ def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
                     "from row to row: sort the record by time, or cut the unloading branch."
                 )
             values[name].append(value * scale)
-        lines.append(line_number)
     data = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
     notes = list(table.notes)
-    data, lines, notes = _average_repeats(data, lines, notes)
+    data, notes = _average_repeats(data, notes)
     if data["axial_strain"].size < 2:
         raise LabRecordError(f"{path}: fewer than 2 rows of readings; give the whole record.")
     _check_strain_units(path, place, header_line, data["axial_strain"], wanted["axial_strain"])
@@ -317,14 +315,14 @@ def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
     return LabRecord(axial, volumetric, radial, axial_stress, cell, tuple(comments), tuple(notes))
 
 
-def _average_repeats(data: dict, lines: list, notes: list):
+def _average_repeats(data: dict, notes: list):
     """Rows whose axial strain repeats the row before's averaged into one (module docstring)."""
     axial = data["axial_strain"]
     if axial.size < 2:
-        return data, lines, notes
+        return data, notes
     starts = np.concatenate([[True], np.diff(axial) > 0.0])
     if np.all(starts):
-        return data, lines, notes
+        return data, notes
     group = np.cumsum(starts) - 1
     counts = np.bincount(group)
     averaged = {name: np.bincount(group, weights=value) / counts for name, value in data.items()}
@@ -333,7 +331,7 @@ def _average_repeats(data: dict, lines: list, notes: list):
         f"{repeated} readings repeat the axial strain of the reading before (a logger holding its value); "
         f"each run of equal axial strains is averaged into one row: {counts.size} rows of {axial.size}"
     )
-    return averaged, [lines[i] for i in np.flatnonzero(starts)], notes
+    return averaged, notes
 
 
 def _check_strain_units(path, place, header_line, axial, spec) -> None:
