@@ -17,7 +17,7 @@ import argparse
 import json
 import resource
 
-from harness import run_each_dtype, timed
+from harness import print_table, run_each_dtype, timed
 
 CASES = 9
 
@@ -133,18 +133,12 @@ def main():
         f"dt = {first['dt']:.3e} s, "
         f"device {first['device']}, {CASES}-case batch"
     )
-    header = (
-        f"{'dtype':<8}{'compile s':>10}{'steps/s':>9}{'particle-steps/s':>18}"
-        f"{'9 serial':>10}{'folded':>9}{'map':>8}{'vmap':>8}{'peak MB':>9}"
+    print_table(
+        rows,
+        "compile s|steps/s|particle-steps/s|9 serial|folded|map|vmap|peak MB",
+        "{compile_s:>10.1f}{steps_per_s:>9.0f}{particle_steps_per_s:>18.3e}{serial_sim_steps_per_s:>10.0f}"
+        "{folded_sim_steps_per_s:>9.0f}{map_sim_steps_per_s:>8.0f}{vmap_sim_steps_per_s:>8.0f}{peak_memory_mb:>9.0f}",
     )
-    print(header)
-    print("-" * len(header))
-    for r in rows:
-        print(
-            f"{r['dtype']:<8}{r['compile_s']:>10.1f}{r['steps_per_s']:>9.0f}{r['particle_steps_per_s']:>18.3e}"
-            f"{r['serial_sim_steps_per_s']:>10.0f}{r['folded_sim_steps_per_s']:>9.0f}"
-            f"{r['map_sim_steps_per_s']:>8.0f}{r['vmap_sim_steps_per_s']:>8.0f}{r['peak_memory_mb']:>9.0f}"
-        )
     print("9 serial / folded / map / vmap: simulation steps per second over the 9 cases (higher is better).")
 
 

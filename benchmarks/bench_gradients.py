@@ -76,8 +76,8 @@ def rollout_functions(
 
     from membrax.config import TriaxialConfig
     from membrax.gradients import UNROLL, checkpoint_window
+    from membrax.runner import build_test
     from membrax.sensitivities import apply_parameters
-    from membrax.stages import build_test
 
     config = TriaxialConfig(**SIZES[size], cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)
     test = build_test(config)

@@ -28,7 +28,7 @@ import argparse
 import json
 import resource
 
-from harness import best_of, run_each_dtype, timed
+from harness import best_of, print_table, run_each_dtype, timed
 
 
 def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
@@ -87,15 +87,14 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     spring = jnp.zeros((3, nodes.shape[0], capacity), nodes.dtype)  # component-first, as the state carries it
     zeros_nodes = jnp.zeros_like(nodes)
     zeros_spheres = jnp.zeros_like(spheres)
+    resting_spheres = membrane_contact.ContactSpheres(
+        position=spheres, velocity=zeros_spheres, angular_velocity=zeros_spheres, radius=radius
+    )
     contact = in_loop(
         lambda x: (
             membrane_contact.node_sphere_forces(
-                x,
-                zeros_nodes,
-                spheres,
-                zeros_spheres,
-                zeros_spheres,
-                radius,
+                membrane_contact.ContactNodes(position=x, velocity=zeros_nodes),
+                resting_spheres,
                 candidates.idx,
                 spring,
                 1e-5,
@@ -111,8 +110,8 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     contact_rate = repeats / total_contact
     test = membrane_triaxial.membrane_test(
         specimen,
-        cell_pressure_kpa=10.0,
-        membrane_thickness_mm=1e3 * thickness,
+        cell_pressure=1e4,
+        membrane_thickness=thickness,
         edges_per_diameter=edges_per_diameter,
     )
     state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
@@ -158,19 +157,12 @@ def main():
         f"{first['boundary_spheres']} boundary spheres, K = {first['capacity']} "
         f"(max candidates found {first['max_candidates']}); CPU kernels: {first['kernels']}"
     )
-    header = (
-        f"{'dtype':<8}{'compile s':>10}{'membrane/s':>11}{'contact/s':>10}{'both/s':>8}"
-        f"{'rebuild ms':>11}{'step/s':>8}{'particle-steps/s':>17}{'peak MB':>9}"
+    print_table(
+        rows,
+        "compile s|membrane/s|contact/s|both/s|rebuild ms|step/s|particle-steps/s|peak MB",
+        "{compile_s:>10.1f}{membrane_forces_per_s:>11.0f}{contact_forces_per_s:>10.0f}{combined_per_s:>8.0f}"
+        "{rebuild_ms:>11.0f}{coupled_steps_per_s:>8.1f}{coupled_particle_steps_per_s:>17.3g}{peak_memory_mb:>9.0f}",
     )
-    print(header)
-    print("-" * len(header))
-    for r in rows:
-        print(
-            f"{r['dtype']:<8}{r['compile_s']:>10.1f}{r['membrane_forces_per_s']:>11.0f}"
-            f"{r['contact_forces_per_s']:>10.0f}{r['combined_per_s']:>8.0f}{r['rebuild_ms']:>11.0f}"
-            f"{r['coupled_steps_per_s']:>8.1f}{r['coupled_particle_steps_per_s']:>17.3g}"
-            f"{r['peak_memory_mb']:>9.0f}"
-        )
 
 
 if __name__ == "__main__":

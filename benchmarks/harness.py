@@ -1,6 +1,8 @@
-"""Shared benchmark plumbing: one fresh process per dtype (x64 is process-global) and a timer."""
+"""Shared benchmark plumbing: one fresh process per dtype (x64 is process-global), a timer and the table."""
 
 import json
+import re
+import string
 import subprocess
 import sys
 import time
@@ -35,3 +37,20 @@ def timed(function, *args):
 def best_of(function, *args, runs: int = 3) -> float:
     """Shortest of ``runs`` timed calls, s: a shared 2-core machine only ever adds time to a run."""
     return min(timed(function, *args)[1] for _ in range(runs))
+
+
+def print_table(rows: list[dict], titles: str, row_format: str) -> None:
+    """Print one line per dtype's ``rows`` under a header and a rule.
+
+    Each line is the dtype, then ``row_format.format(**row)``. ``titles`` names the fields of ``row_format``
+    in order, separated by "|"; each is right-aligned to its field's width (``{key:>WIDTH...}``), so that
+    the header cannot drift from the columns.
+    """
+    fields = [spec for _, _, spec, _ in string.Formatter().parse(row_format) if spec]
+    widths = [int(re.match(r">(\d+)", spec)[1]) for spec in fields]
+    columns = zip(titles.split("|"), widths, strict=True)
+    header = f"{'dtype':<8}" + "".join(f"{title:>{width}}" for title, width in columns)
+    print(header)
+    print("-" * len(header))
+    for row in rows:
+        print(f"{row['dtype']:<8}" + row_format.format(**row))

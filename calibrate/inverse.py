@@ -214,11 +214,7 @@ def invert(
 
 
 def invert_gradient_free(
-    problem: InverseProblem,
-    observed,
-    start: dict,
-    tolerance: float = 1e-10,
-    max_calls: int = 400,
+    problem: InverseProblem, observed, start: dict, tolerance: float = 1e-10, max_calls: int = 400
 ) -> InverseResult:
     """The same problem by Nelder–Mead (``scipy.optimize.minimize``), values only.
 

@@ -108,7 +108,7 @@ def main():
         specimen = packing.fcc_specimen(0.025, 10, 25)
         start = time.time()
         test = membrane_triaxial.membrane_test(
-            specimen, cell_pressure_kpa=args.cell_pressure_kpa, membrane_thickness_mm=args.thickness_mm
+            specimen, cell_pressure=1e3 * args.cell_pressure_kpa, membrane_thickness=1e-3 * args.thickness_mm
         )
         print(
             f"built in {time.time() - start:.0f} s: dt = {test.dt:.3e} s, critical steps {test.critical_dt}"

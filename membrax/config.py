@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from membrax import defaults
 from membrax.errors import ConfigError
 from membrax.validation import check_range
 
@@ -58,8 +59,8 @@ __all__ = [
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
     "SMOKE_CONFIG",
-    "DEFAULT_CONSOLIDATION_TOLERANCE",
-    "default_consolidation_tolerance",
+    "SI_SCALE",
+    "to_si",
 ]
 
 #: The demo preset (``membrax demo``; ``membrax reproduce --size small`` takes its specimen, membrane and
@@ -97,35 +98,6 @@ SMOKE_CONFIG = dict(
 )
 
 
-#: The unbalanced-force ratio that ends consolidation when none is given, by cell (``"rigid"`` walls or a
-#: ``"membrane"``) and precision (float64 or not): the one rule of ``RigidWallTest.consolidate``,
-#: ``MembraneTest.consolidate`` and :func:`membrax.run.consolidation_tolerance` (``consolidation_tolerance =
-#: 0``). float32's force round-off floors the ratio at ~2e-3 in a rigid cell (a 25 mm branch vector resolves
-#: 2e-9 m, 0.1 % of a contact overlap at 40 kPa, summed over 12 contacts) and at 1.1e-2 / 3e-3 / 1.2e-3 with
-#: the membrane at 10 / 40 / 100 kPa (paper size, issue 16), hence the looser float32 values.
-DEFAULT_CONSOLIDATION_TOLERANCE = {
-    ("rigid", True): 1e-3,
-    ("rigid", False): 5e-3,
-    ("membrane", True): 2e-3,
-    ("membrane", False): 2e-2,
-}
-
-
-def default_consolidation_tolerance(cell: str, float64: bool) -> float:
-    """The default unbalanced-force ratio ending consolidation (:data:`DEFAULT_CONSOLIDATION_TOLERANCE`).
-
-    Args:
-      cell: ``"rigid"`` or ``"membrane"``.
-      float64: whether the simulation runs in float64.
-
-    Raises:
-      ValueError: an unknown cell.
-    """
-    if cell not in ("rigid", "membrane"):
-        raise ValueError(f"cell = {cell!r}; it must be 'rigid' or 'membrane'.")
-    return DEFAULT_CONSOLIDATION_TOLERANCE[cell, bool(float64)]
-
-
 #: The unit suffixes of the field names and the units they stand for.
 UNIT_SUFFIXES = {
     "_kg_m3": "kg/m³",
@@ -134,6 +106,25 @@ UNIT_SUFFIXES = {
     "_mm": "mm",
     "_deg": "degrees",
 }
+
+#: The factor that takes a field of each unit suffix to SI (kPa → Pa, mm → m): the one conversion of the
+#: configuration's values (its SI properties and :func:`to_si`).
+SI_SCALE = {"_kpa": 1e3, "_mm": 1e-3}
+
+
+def to_si(field: str, value):
+    """A value of configuration field ``field`` in SI: ``value`` × :data:`SI_SCALE` of its unit suffix.
+
+    Works on floats and on traced JAX values alike (the sensitivities differentiate through it).
+
+    Raises:
+      ValueError: a field whose unit has no SI scale here (degrees, N/m and kg/m³ are taken as they are).
+    """
+    for suffix, scale in SI_SCALE.items():
+        if field.endswith(suffix):
+            return scale * value
+    raise ValueError(f"{field!r} has no SI conversion; fields ending in {', '.join(SI_SCALE)} do.")
+
 
 #: The optional table that may hold every key of a TOML configuration file.
 TABLE_NAME = "triaxial"
@@ -274,7 +265,7 @@ class TriaxialConfig:
         (0, 0.1]. Default 1e-3.
       shear_ramp_strain (float): axial strain (dimensionless) at which the platens reach full speed after
         a linear ramp from rest, in [0, 0.1]; 0 starts them at full speed (a step change, whose stress
-        wave shows as a spurious peak). Default 1e-2 (see membrax.triaxial.membrane_cell.DEFAULT_RAMP_STRAIN).
+        wave shows as a spurious peak). Default 1e-2 (see membrax.defaults.SHEAR_RAMP_STRAIN).
       symmetric_loading (bool): both platens close at half the rate each (true), or the bottom one
         stays and the top one closes at the full rate. Default true.
       membrane_contact_offset_factor (float): where membrane nodes touch spheres, as a fraction of
@@ -310,21 +301,21 @@ class TriaxialConfig:
     """
 
     name: str = "membrax"
-    particle_diameter_mm: float = 25.0
-    particles_across: int = 10
-    layers: int = 25
+    particle_diameter_mm: float = 1e3 * defaults.PARTICLE_DIAMETER
+    particles_across: int = defaults.PARTICLES_ACROSS
+    layers: int = defaults.LAYERS
     particle_density_kg_m3: float = 2650.0
-    friction_angle_deg: float = 25.0
+    friction_angle_deg: float = defaults.FRICTION_ANGLE_DEG
     particle_stiffness_n_m: float = 1.0e7
     cell_pressure_kpa: float = 10.0
     membrane_thickness_mm: float = 5.0
-    membrane_modulus_kpa: float = 1400.0
+    membrane_modulus_kpa: float = defaults.MEMBRANE_MODULUS / 1e3
     membrane_friction_angle_deg: float = 25.0
     membrane_edges_per_diameter: float = 5.0
     membrane_bending_factor: float = 0.0
     target_axial_strain: float = 0.10
     inertial_number: float = 1.0e-3
-    shear_ramp_strain: float = 1.0e-2
+    shear_ramp_strain: float = defaults.SHEAR_RAMP_STRAIN
     symmetric_loading: bool = True
     membrane_contact_offset_factor: float = 1.0
     imperfection_fraction: float = 0.0
@@ -366,27 +357,27 @@ class TriaxialConfig:
     @property
     def particle_diameter(self) -> float:
         """Sphere diameter, m."""
-        return self.particle_diameter_mm / 1000.0
+        return to_si("particle_diameter_mm", self.particle_diameter_mm)
 
     @property
     def particle_radius(self) -> float:
         """Sphere radius, m."""
-        return self.particle_diameter_mm / 2000.0
+        return 0.5 * self.particle_diameter
 
     @property
     def cell_pressure(self) -> float:
         """Cell pressure, Pa."""
-        return self.cell_pressure_kpa * 1000.0
+        return to_si("cell_pressure_kpa", self.cell_pressure_kpa)
 
     @property
     def membrane_thickness(self) -> float:
         """Membrane thickness, m."""
-        return self.membrane_thickness_mm / 1000.0
+        return to_si("membrane_thickness_mm", self.membrane_thickness_mm)
 
     @property
     def membrane_modulus(self) -> float:
         """Membrane Young's modulus, Pa."""
-        return self.membrane_modulus_kpa * 1000.0
+        return to_si("membrane_modulus_kpa", self.membrane_modulus_kpa)
 
     @property
     def membrane_edge_length(self) -> float:

@@ -13,7 +13,7 @@ The exceptions, each carrying a message that names what to change:
 - :class:`SimulationError`: a compiled run stopped on an error bit (:mod:`membrax.driver`), with the state
   and records computed before it;
 - :class:`RunError`: a run or sweep stopped (non-finite values or runaway kinetic energy), with its records
-  so far (:mod:`membrax.stages`).
+  so far (:mod:`membrax.runner`).
 """
 
 from __future__ import annotations

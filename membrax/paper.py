@@ -2,8 +2,8 @@
 
 The paper's numbers live here and nowhere else: its Table 1 grid (:data:`TABLE_1_GRID`, the default grid
 of :func:`membrax.sweep.run_sweep`), its fixed parameters (:data:`PARTICLE_DIAMETER_MM`,
-:data:`MEMBRANE_MODULUS_KPA`, :data:`INTERPARTICLE_FRICTION_DEG`; membrax's configuration defaults are these
-values, so they are read from :class:`membrax.config.TriaxialConfig` and checked against the paper in
+:data:`MEMBRANE_MODULUS_KPA`, :data:`INTERPARTICLE_FRICTION_DEG`; membrax's defaults are these values, so
+they are read from :mod:`membrax.defaults`, as the configuration's are, and checked against the paper in
 ``tests/test_paper.py``), its laboratory ballast (``BALLAST_*``), its Tables 2 and 3
 (:data:`PAPER_TABLE_2`, :data:`PAPER_TABLE_3`, :data:`PAPER_10KPA_5MM`) and its Fig. 9.
 
@@ -64,8 +64,7 @@ from pathlib import Path
 
 import numpy as np
 
-from membrax import theory
-from membrax.config import TriaxialConfig
+from membrax import defaults, theory
 from membrax.io.files import atomic_write_bytes, ensure_folder
 from membrax.triaxial import analysis
 
@@ -102,15 +101,15 @@ PAPER_THICKNESSES_MM = (2.5, 3.33, 5.0)
 TABLE_1_GRID = {"cell_pressure_kpa": PAPER_CELL_PRESSURES_KPA, "membrane_thickness_mm": PAPER_THICKNESSES_MM}
 
 # The paper's fixed parameters (its §3, Table 1; reference §12). membrax's defaults are the paper's, so the
-# one source is the configuration's default; tests/test_paper.py checks them against the paper's text.
+# one source is membrax.defaults (in SI); tests/test_paper.py checks them against the paper's text.
 #: Sphere diameter D, mm (25 mm granite spheres).
-PARTICLE_DIAMETER_MM = TriaxialConfig.particle_diameter_mm
+PARTICLE_DIAMETER_MM = 1e3 * defaults.PARTICLE_DIAMETER
 #: Latex membrane Young's modulus E_m, kPa (1400 kPa).
-MEMBRANE_MODULUS_KPA = TriaxialConfig.membrane_modulus_kpa
+MEMBRANE_MODULUS_KPA = defaults.MEMBRANE_MODULUS / 1e3
 #: Interparticle friction angle φ_μ, degrees (25°).
-INTERPARTICLE_FRICTION_DEG = TriaxialConfig.friction_angle_deg
+INTERPARTICLE_FRICTION_DEG = defaults.FRICTION_ANGLE_DEG
 #: Nominal specimen diameter, mm (10 spheres across).
-SPECIMEN_DIAMETER_MM = TriaxialConfig.particles_across * TriaxialConfig.particle_diameter_mm
+SPECIMEN_DIAMETER_MM = defaults.PARTICLES_ACROSS * PARTICLE_DIAMETER_MM
 
 # The paper's laboratory ballast (its Fig. 1 and Eq. 1).
 #: Critical-state friction angle φ'_crit, degrees.

@@ -27,8 +27,9 @@ Test figures (the paper's Figs 5–8). :func:`plot_friction_angles`, :func:`plot
 of a membrane triaxial test (the mapping described in :mod:`membrax.triaxial.analysis`) and optionally its
 :func:`membrax.triaxial.analysis.derived_quantities`, and return a new matplotlib ``Figure`` made without
 pyplot (nothing to close, no global state). The x axis is the axial strain in %, stresses are shown in kPa,
-angles in degrees; each data series is one line, in the order the docstring lists. :func:`save_test_figures`
-writes all four as PNG files.
+angles in degrees; each data series is one line, in the order :func:`plot_test_figure` lists (the four
+are that one function, each with its figure's name, drawn from one table of series, colours and labels).
+:func:`save_test_figures` writes all four as PNG files.
 
 Fig. 9 of the paper. :func:`plot_fig9` draws the per-thickness numbers of
 :func:`membrax.paper.fig9_data` (and optionally :func:`membrax.paper.paper_fig9_data`) against the cell
@@ -39,7 +40,9 @@ filled ones; :func:`save_fig9` writes it as ``fig9_indentation.png``.
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 from matplotlib.collections import PatchCollection
@@ -53,6 +56,7 @@ __all__ = [
     "membrane_section",
     "particle_section",
     "plot_section",
+    "plot_test_figure",
     "plot_friction_angles",
     "plot_additional_stresses",
     "plot_axial_ratio_and_strain_ratio",
@@ -308,141 +312,138 @@ def _test_figure(records, derived):
     return figure, ax, strain_pct, derived
 
 
-def _twin_legend(ax, twin):
-    """One legend on ``ax`` for the lines of both y axes."""
-    handles, labels = ax.get_legend_handles_labels()
-    more_handles, more_labels = twin.get_legend_handles_labels()
-    ax.legend(handles + more_handles, labels + more_labels, loc="best")
+class _Line(NamedTuple):
+    """One line of Figs 5–8: ``scale`` × the derived quantity ``key`` (with ``from_records``, the record)."""
+
+    key: str
+    color: str
+    label: str
+    scale: float = 1.0
+    from_records: bool = False
+    optional: bool = False  # drawn only where the derived quantities have it (the Love–Weber series)
+    linewidth: float | None = None  # None: matplotlib's default
 
 
-def plot_friction_angles(records, derived=None) -> Figure:
-    """Mobilised friction angle from external and internal stresses against axial strain (paper's Fig. 5).
+class _Axis(NamedTuple):
+    """A y axis of Figs 5–8: its label and its lines, in drawing order."""
 
-    Lines, in order: ``ax.lines[0]`` external φ', ``ax.lines[1]`` internal φ' and, when the records have
-    the Love–Weber series, ``ax.lines[2]`` Love–Weber φ' (thin); degrees, from
-    sin φ' = (σ1 − σ3)/(σ1 + σ3) (:func:`membrax.triaxial.analysis.derived_quantities`).
-
-    Args:
-      records: the test records (see :mod:`membrax.triaxial.analysis`).
-      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
-
-    Returns:
-      The Figure.
-    """
-    figure, ax, strain_pct, derived = _test_figure(records, derived)
-    ax.plot(strain_pct, derived["external_friction_angle_deg"], color="tab:blue", label="External")
-    ax.plot(strain_pct, derived["internal_friction_angle_deg"], color="tab:red", label="Internal")
-    if "love_weber_friction_angle_deg" in derived:
-        ax.plot(
-            strain_pct,
-            derived["love_weber_friction_angle_deg"],
-            color="0.4",
-            linewidth=0.7,
-            label="Love–Weber",
-        )
-    ax.set_ylabel("Mobilised friction angle φ' (°)")
-    ax.set_title("Mobilised friction: external and internal stresses")
-    ax.legend(loc="best")
-    return figure
+    label: str
+    lines: tuple[_Line, ...]
 
 
-def plot_additional_stresses(records, derived=None) -> Figure:
-    """Additional membrane stresses, internal − external, against axial strain (paper's Fig. 6).
-
-    Lines, in order: ``ax.lines[0]`` additional radial stress Δσ_r, ``ax.lines[1]`` additional axial
-    stress Δσ_a, both in kPa.
-
-    Args:
-      records: the test records (see :mod:`membrax.triaxial.analysis`).
-      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
-
-    Returns:
-      The Figure.
-    """
-    figure, ax, strain_pct, derived = _test_figure(records, derived)
-    ax.plot(
-        strain_pct,
-        derived["additional_radial_stress"] * KPA_PER_PA,
-        color="tab:green",
-        label="Additional radial stress",
-    )
-    ax.plot(
-        strain_pct,
-        derived["additional_axial_stress"] * KPA_PER_PA,
-        color="tab:purple",
-        label="Additional axial stress",
-    )
-    ax.set_ylabel("Additional membrane stress (kPa)")
-    ax.set_title("Additional membrane stress (internal − external)")
-    ax.legend(loc="best")
-    return figure
-
-
-def _ratio_with_twin(figure, strain_pct, ratio, ratio_style, other, other_style, title) -> Figure:
-    """Draw a stress ratio on the figure's axes and ``other`` on a twin right axis (Figs 7 and 8).
-
-    Each style is (colour, legend label, axis label).
-    """
-    ax = figure.axes[0]
-    ax.plot(strain_pct, ratio, color=ratio_style[0], label=ratio_style[1])
-    ax.set_ylabel(ratio_style[2])
-    twin = ax.twinx()
-    twin.plot(strain_pct, other, color=other_style[0], label=other_style[1])
-    twin.set_ylabel(other_style[2])
-    ax.set_title(title)
-    _twin_legend(ax, twin)
-    return figure
-
-
-def plot_axial_ratio_and_strain_ratio(records, derived=None) -> Figure:
-    """Axial stress ratio internal/external and change in strain ratio dε_r/dε_a (paper's Fig. 7).
-
-    ``figure.axes[0].lines[0]`` is the axial stress ratio (left axis); ``figure.axes[1].lines[0]`` the
-    change in strain ratio from :func:`membrax.triaxial.analysis.strain_ratio_change` (twin right axis), both
-    dimensionless.
-
-    Args:
-      records: the test records (see :mod:`membrax.triaxial.analysis`).
-      derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
-
-    Returns:
-      The Figure.
-    """
-    figure, _, strain_pct, derived = _test_figure(records, derived)
-    return _ratio_with_twin(
-        figure,
-        strain_pct,
-        derived["axial_stress_ratio"],
-        ("tab:blue", "Axial stress ratio", "Axial stress ratio, internal/external"),
-        derived["strain_ratio_change"],
-        ("tab:orange", "Change in strain ratio dεr/dεa", "Change in strain ratio dεr/dεa"),
+#: Figs 5–8 (plot_test_figure), by name: the title, then the left y axis and, where there is one, the
+#: twin right one.
+_TEST_FIGURE_TABLE: dict[str, tuple[str, tuple[_Axis, ...]]] = {
+    "friction": (
+        "Mobilised friction: external and internal stresses",
+        (
+            _Axis(
+                "Mobilised friction angle φ' (°)",
+                (
+                    _Line("external_friction_angle_deg", "tab:blue", "External"),
+                    _Line("internal_friction_angle_deg", "tab:red", "Internal"),
+                    _Line("love_weber_friction_angle_deg", "0.4", "Love–Weber", optional=True, linewidth=0.7),
+                ),
+            ),
+        ),
+    ),
+    "additional_stress": (
+        "Additional membrane stress (internal − external)",
+        (
+            _Axis(
+                "Additional membrane stress (kPa)",
+                (
+                    _Line("additional_radial_stress", "tab:green", "Additional radial stress", KPA_PER_PA),
+                    _Line("additional_axial_stress", "tab:purple", "Additional axial stress", KPA_PER_PA),
+                ),
+            ),
+        ),
+    ),
+    "axial_ratio": (
         "Axial stress ratio and change in strain ratio",
-    )
+        (
+            _Axis(
+                "Axial stress ratio, internal/external",
+                (_Line("axial_stress_ratio", "tab:blue", "Axial stress ratio"),),
+            ),
+            _Axis(
+                "Change in strain ratio dεr/dεa",
+                (_Line("strain_ratio_change", "tab:orange", "Change in strain ratio dεr/dεa"),),
+            ),
+        ),
+    ),
+    "radial_ratio": (
+        "Radial stress ratio and radial strain",
+        (
+            _Axis(
+                "Radial stress ratio, internal/external",
+                (_Line("radial_stress_ratio", "tab:green", "Radial stress ratio"),),
+            ),
+            _Axis(
+                "Radial strain εr (%, compression +)",
+                (_Line("radial_strain", "tab:brown", "Radial strain εr", PERCENT, from_records=True),),
+            ),
+        ),
+    ),
+}
 
 
-def plot_radial_ratio_and_radial_strain(records, derived=None) -> Figure:
-    """Radial stress ratio internal/external and radial strain against axial strain (paper's Fig. 8).
+def plot_test_figure(records, derived=None, *, name) -> Figure:
+    """One of the paper's Figs 5–8 for a test: its lines against the axial strain in %, one legend for all.
 
-    ``figure.axes[0].lines[0]`` is the radial stress ratio (left axis); ``figure.axes[1].lines[0]`` the
-    radial strain ε_r in % as recorded, compression positive, so bulging is negative (twin right axis).
+    The figures, by ``name`` (each also a function of its own, below), and their lines in order:
+
+    - ``"friction"`` (Fig. 5, :func:`plot_friction_angles`): ``ax.lines[0]`` external φ', ``ax.lines[1]``
+      internal φ' and, when the records have the Love–Weber series, ``ax.lines[2]`` Love–Weber φ' (thin);
+      degrees, from sin φ' = (σ1 − σ3)/(σ1 + σ3) (:func:`membrax.triaxial.analysis.derived_quantities`).
+    - ``"additional_stress"`` (Fig. 6, :func:`plot_additional_stresses`): the additional membrane stresses,
+      internal − external: ``ax.lines[0]`` radial Δσ_r, ``ax.lines[1]`` axial Δσ_a, both in kPa.
+    - ``"axial_ratio"`` (Fig. 7, :func:`plot_axial_ratio_and_strain_ratio`): ``figure.axes[0].lines[0]``
+      the axial stress ratio internal/external (left axis), ``figure.axes[1].lines[0]`` the change in
+      strain ratio dε_r/dε_a from :func:`membrax.triaxial.analysis.strain_ratio_change` (twin right axis),
+      both dimensionless.
+    - ``"radial_ratio"`` (Fig. 8, :func:`plot_radial_ratio_and_radial_strain`): ``figure.axes[0].lines[0]``
+      the radial stress ratio internal/external (left axis), ``figure.axes[1].lines[0]`` the radial strain
+      ε_r in % as recorded, compression positive, so bulging is negative (twin right axis).
 
     Args:
       records: the test records (see :mod:`membrax.triaxial.analysis`).
       derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed when not given.
+      name: which figure, a key of the list above.
 
     Returns:
       The Figure.
     """
-    figure, _, strain_pct, derived = _test_figure(records, derived)
-    return _ratio_with_twin(
-        figure,
-        strain_pct,
-        derived["radial_stress_ratio"],
-        ("tab:green", "Radial stress ratio", "Radial stress ratio, internal/external"),
-        analysis.record(records, "radial_strain") * PERCENT,
-        ("tab:brown", "Radial strain εr", "Radial strain εr (%, compression +)"),
-        "Radial stress ratio and radial strain",
-    )
+    title, axes_spec = _TEST_FIGURE_TABLE[name]
+    figure, ax, strain_pct, derived = _test_figure(records, derived)
+    axes = [ax] + [ax.twinx() for _ in axes_spec[1:]]
+    for axis, spec in zip(axes, axes_spec, strict=True):
+        for line in spec.lines:
+            if line.optional and line.key not in derived:
+                continue
+            values = analysis.record(records, line.key) if line.from_records else derived[line.key]
+            style = {} if line.linewidth is None else {"linewidth": line.linewidth}
+            axis.plot(strain_pct, values * line.scale, color=line.color, label=line.label, **style)
+        axis.set_ylabel(spec.label)
+    ax.set_title(title)
+    handles, labels = [], []
+    for axis in axes:
+        more_handles, more_labels = axis.get_legend_handles_labels()
+        handles += more_handles
+        labels += more_labels
+    ax.legend(handles, labels, loc="best")
+    return figure
+
+
+# The figures one by one, called as (records, derived=None) (see plot_test_figure).
+#: The paper's Fig. 5: mobilised friction angles from external and internal stresses.
+plot_friction_angles = functools.partial(plot_test_figure, name="friction")
+#: The paper's Fig. 6: additional membrane stresses, internal − external.
+plot_additional_stresses = functools.partial(plot_test_figure, name="additional_stress")
+#: The paper's Fig. 7: axial stress ratio internal/external and change in strain ratio dε_r/dε_a.
+plot_axial_ratio_and_strain_ratio = functools.partial(plot_test_figure, name="axial_ratio")
+#: The paper's Fig. 8: radial stress ratio internal/external and radial strain.
+plot_radial_ratio_and_radial_strain = functools.partial(plot_test_figure, name="radial_ratio")
 
 
 #: File names of :func:`save_test_figures` after the stem, with the function drawing each.
@@ -495,6 +496,13 @@ def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> lis
 FIG9_COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple")
 
 
+def _fig9_line(axis, series, key, pressures, **style):
+    """Draw ``series[key]`` against its cell pressures on ``axis``; the pressures join ``pressures``."""
+    pressure = np.asarray(series["cell_pressure_kpa"], dtype=np.float64)
+    pressures.update(pressure.tolist())
+    axis.plot(pressure, np.asarray(series[key], dtype=np.float64), **style)
+
+
 def plot_fig9(data, paper=None) -> Figure:
     """Indentation ratio and −relative initial axial stress ratio against cell pressure (paper's Fig. 9).
 
@@ -521,40 +529,38 @@ def plot_fig9(data, paper=None) -> Figure:
     color = {t: FIG9_COLORS[k % len(FIG9_COLORS)] for k, t in enumerate(thicknesses)}
     pressures = set()
     for thickness in thicknesses:
-        series = data[thickness]
-        pressure = np.asarray(series["cell_pressure_kpa"], dtype=np.float64)
-        pressures.update(pressure.tolist())
-        ax.plot(
-            pressure,
-            np.asarray(series["indentation_ratio"], dtype=np.float64),
+        _fig9_line(
+            ax,
+            data[thickness],
+            "indentation_ratio",
+            pressures,
             color=color[thickness],
             marker=".",
             label=f"α/D, t_m = {thickness:.3g} mm",
         )
     for thickness in thicknesses:
-        series = data[thickness]
-        twin.plot(
-            np.asarray(series["cell_pressure_kpa"], dtype=np.float64),
-            np.asarray(series["negative_relative_axial_stress_ratio"], dtype=np.float64),
+        _fig9_line(
+            twin,
+            data[thickness],
+            "negative_relative_axial_stress_ratio",
+            pressures,
             color=color[thickness],
             linestyle="--",
             marker="o",
             markerfacecolor="none",
             label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, membrax",
         )
-    if paper is not None:
-        for k, thickness in enumerate(sorted(paper)):
-            series = paper[thickness]
-            pressure = np.asarray(series["cell_pressure_kpa"], dtype=np.float64)
-            pressures.update(pressure.tolist())
-            twin.plot(
-                pressure,
-                np.asarray(series["negative_relative_axial_stress_ratio"], dtype=np.float64),
-                color=color.get(thickness, FIG9_COLORS[k % len(FIG9_COLORS)]),
-                linestyle=":",
-                marker="o",
-                label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, paper",
-            )
+    for k, thickness in enumerate(sorted(paper or {})):
+        _fig9_line(
+            twin,
+            paper[thickness],
+            "negative_relative_axial_stress_ratio",
+            pressures,
+            color=color.get(thickness, FIG9_COLORS[k % len(FIG9_COLORS)]),
+            linestyle=":",
+            marker="o",
+            label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, paper",
+        )
     ax.set_xscale("log")
     ticks = sorted(pressures)
     ax.set_xticks(ticks, labels=[f"{p:g}" for p in ticks])

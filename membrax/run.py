@@ -19,14 +19,14 @@ steps below ``fine_until_strain`` and every ``record_every_coarse`` steps after.
   ``vtk_every_steps`` > 0, VTK snapshots ``vtk/membrane_*.vtu`` and ``vtk/particles_*.vtu`` with
   ``.pvd`` indexes for ParaView.
 
-Long runs. The test is a batch of one of :mod:`membrax.stages` (the loop every run and sweep shares): the
+Long runs. The test is a batch of one of :mod:`membrax.runner` (the loop every run and sweep shares): the
 simulation advances in jitted chunks of ``chunk_steps``; a tqdm bar shows the phase, the axial strain and
 the external and internal φ'. Every
 ``checkpoint_every_chunks`` chunks the state, the records so far and the position in the protocol are
 written atomically (:func:`membrax.io.save_checkpoint`). ``resume=True`` continues from the checkpoint:
 the remaining steps of the interrupted phase run in the same chunks as they would have uninterrupted, so
 the results are identical. A non-finite state (the driver's error bits) or a runaway kinetic energy
-(above :data:`membrax.stages.RUNAWAY_KINETIC_FRACTION` × σc V₀, the work scale of the cell pressure) stops
+(above :data:`membrax.runner.RUNAWAY_KINETIC_FRACTION` × σc V₀, the work scale of the cell pressure) stops
 the run with :class:`RunError`, naming the step and what to change; the records so far are written first.
 """
 
@@ -45,7 +45,7 @@ from membrax.errors import RunError
 from membrax.io import VTKSeries, read_checkpoint_host, records_to_dataset, write_results
 from membrax.membrane.measure import triangle_stretches
 from membrax.paper import PAPER_10KPA_5MM, paper_key
-from membrax.stages import (
+from membrax.runner import (
     CHECKPOINT_NAME,
     build_batch,
     build_test,
@@ -152,7 +152,7 @@ def run_test(
     # the entry point's (membrax.cli) or the user's, is never changed.
     with jax.enable_x64(config.float64):
         started = time.perf_counter()
-        # One member on one device: the loop of every run and sweep (membrax.stages).
+        # One member on one device: the loop of every run and sweep (membrax.runner).
         batch = build_batch([config], num_devices=1, time_step=time_step, nodes_around=nodes_around)
         test = batch.tests[0]
         build_seconds = time.perf_counter() - started

@@ -30,7 +30,7 @@ limits this to small specimens (:data:`MAX_DENSE_UNKNOWNS`).
 Parameters (θ): σc (cell pressure and the servo target), E_m, t_m (with the membrane's rest geometry,
 which is built t_m/2 off the spheres, and the clamp rings, both linearised by central differences of the
 mesh construction), the membrane–particle and interparticle friction angles (through tan φ) and the
-particle stiffness k_n (with k_t = k_n/2 and the platens' stiffnesses, as :func:`membrax.stages.build_test`).
+particle stiffness k_n (with k_t = k_n/2 and the platens' stiffnesses, as :func:`membrax.runner.build_test`).
 
 Finite differences by continuation (:func:`continuation_differences`): from the consolidated state, set
 θ ± h and let the simulator (its own damping) relax to equilibrium again, then measure. The two agree
@@ -50,15 +50,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax.config import TriaxialConfig
+from membrax.config import TriaxialConfig, to_si
 from membrax.driver import advance
 from membrax.membrane import energies
 from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
 from membrax.membrane.measure import measure_coupled
 from membrax.membrane.mesh import free_node_mask, inner_volume
+from membrax.runner import GEOMETRY_FIELDS, build_test
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.walls import BOTTOM, TOP, platen_separation
-from membrax.stages import GEOMETRY_FIELDS, build_test
 
 __all__ = [
     "DIFFERENCE_STEPS",
@@ -174,20 +174,20 @@ def apply_parameters(
     the membrane's thickness and moves its rest geometry and clamp rings linearly from those at
     ``thickness_mm`` along ``geometry`` (d field/d t_m per mm, :func:`_geometry_derivative`), the clamp
     rings from ``clamp_position``; the friction angles set μ = tan φ; k_n sets k_t = k_n/2 and the
-    platens' k_n, k_t alike (as :func:`membrax.stages.build_test`).
+    platens' k_n, k_t alike (as :func:`membrax.runner.build_test`).
     """
     membrane, dem_params = params.membrane, params.dem
     if "cell_pressure_kpa" in values:
-        pressure = 1e3 * values["cell_pressure_kpa"]
+        pressure = to_si("cell_pressure_kpa", values["cell_pressure_kpa"])
         membrane = membrane.set(cell_pressure=pressure)
         walls = state.dem.walls
         target = jnp.full_like(walls.target_stress, 1.0) * pressure
         state = state.set(dem=state.dem.set(walls=walls.set(target_stress=target)))
     if "membrane_modulus_kpa" in values:
-        membrane = membrane.set(modulus=1e3 * values["membrane_modulus_kpa"])
+        membrane = membrane.set(modulus=to_si("membrane_modulus_kpa", values["membrane_modulus_kpa"]))
     if "membrane_thickness_mm" in values:
         change = values["membrane_thickness_mm"] - thickness_mm
-        membrane = membrane.set(thickness=1e-3 * values["membrane_thickness_mm"])
+        membrane = membrane.set(thickness=to_si("membrane_thickness_mm", values["membrane_thickness_mm"]))
         mesh = mesh.set(**{name: getattr(mesh, name) + change * d for name, d in geometry.items()})
         clamp_change = jnp.stack(
             [geometry["reference_position"][ring] for ring in (mesh.bottom_ring, mesh.top_ring)]

@@ -13,9 +13,9 @@ member's test (:mod:`membrax.run`'s protocol: consolidation, then drained sheari
 - ``sweep_consolidation.nc``: the consolidation records, padded the same way;
 - ``summary.csv``: one row per member with those scalars; ``sweep.toml``: the base config and grid.
 
-Batching and stages. Members that differ only in :data:`membrax.stages.BATCHED_FIELDS` (traced
+Batching and stages. Members that differ only in :data:`membrax.runner.BATCHED_FIELDS` (traced
 parameters: pressure, thickness, modulus, friction, stiffness, rate, strain targets) form one batch of
-:mod:`membrax.stages` (the loop every run shares; a single test is a batch of one): one compiled call per
+:mod:`membrax.runner` (the loop every run shares; a single test is a batch of one): one compiled call per
 chunk for all of them, one time step (the smallest of the members' own) and one mesh topology (n_θ from
 the members' mean perimeter, each thickness keeping its own rest geometry); each member stops
 consolidating at its own step and shears for its own steps (ε̇ ∝ √σc at a fixed inertial number). Fields
@@ -34,7 +34,7 @@ member's error bits and records on the host. Give each process its share of the 
 ``jax.process_index()`` picks the pressures) and merge the ``sweep.nc`` files with
 ``xarray.combine_by_coords`` (README).
 
-Long runs. :func:`membrax.stages.run_group`'s progress bars, checkpoints and ``resume=True`` (results
+Long runs. :func:`membrax.runner.run_group`'s progress bars, checkpoints and ``resume=True`` (results
 identical to an uninterrupted sweep), one checkpoint per group; finished groups are kept in ``groups/``.
 """
 
@@ -63,7 +63,7 @@ from membrax.config import (
 )
 from membrax.devices import cpu_cores
 from membrax.io import dataset_attrs_to_python, read_results, write_netcdf
-from membrax.stages import (
+from membrax.runner import (
     BOOKKEEPING_FIELDS,
     build_batch,
     consolidation_tolerance,

@@ -495,12 +495,7 @@ def molenkamp_luger_indentation_ratio(
 
 
 def molenkamp_luger_validity(
-    void_ratio,
-    grain_diameter,
-    membrane_thickness,
-    effective_stress,
-    membrane_modulus,
-    constant: float = 0.275,
+    void_ratio, grain_diameter, membrane_thickness, effective_stress, membrane_modulus, constant=0.275
 ) -> MolenkampLugerValidity:
     """Test the stated validity range of :func:`molenkamp_luger_indentation_ratio` (same arguments)."""
     ratio = molenkamp_luger_indentation_ratio(

@@ -80,8 +80,8 @@ specimen = membrax.fcc_specimen(CONFIG.particle_diameter_mm / 1000, CONFIG.parti
 print(specimen.summary())
 test = membrax.membrane_test(
     specimen,
-    cell_pressure_kpa=CONFIG.cell_pressure_kpa,
-    membrane_thickness_mm=CONFIG.membrane_thickness_mm,
+    cell_pressure=CONFIG.cell_pressure,  # Pa: the configuration converts its kPa once
+    membrane_thickness=CONFIG.membrane_thickness,  # m
     edges_per_diameter=CONFIG.membrane_edges_per_diameter,
 )
 print(f"membrane: {test.mesh.triangles.shape[0]} triangles; time step {test.dt:.3e} s")

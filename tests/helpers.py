@@ -5,15 +5,14 @@ import numpy as np
 
 from membrax.config import TriaxialConfig
 
-#: The derivative checks' specimen (test_sensitivity, test_gradients): 4 × 4 × 5 spheres, a membrane of
-#: edge D/2, 10 kPa, 5 mm, float64.
+#: The small specimen of the run tests (test_run, test_sweep) and the derivative checks: 4 × 4 × 5 spheres,
+#: float64.
+SMALL_SPECIMEN = dict(particles_across=4, layers=5, float64=True)
+
+#: The derivative checks' test (test_sensitivity, test_gradients): the small specimen, a membrane of edge
+#: D/2, 10 kPa, 5 mm.
 SMALL_MEMBRANE_TEST = TriaxialConfig(
-    particles_across=4,
-    layers=5,
-    membrane_edges_per_diameter=2.0,
-    cell_pressure_kpa=10.0,
-    membrane_thickness_mm=5.0,
-    float64=True,
+    **SMALL_SPECIMEN, membrane_edges_per_diameter=2.0, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0
 )
 
 #: Round-off tolerances per dtype (jax-md's ``test_util`` is the model): ``ROUNDOFF`` for a few operations

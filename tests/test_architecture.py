@@ -1,7 +1,9 @@
 """The house's map: imports run one way along the data flow, and the DEM never imports the membrane.
 
 Data flow (README, Architecture): config → specimen + membrane → laws → step → driver → measurements →
-protocol → results → runs → commands. Every module of ``membrax`` sits on one layer below; a module may
+protocol → results → runs → commands. The configuration is the user's edge: it converts laboratory units to
+SI and validates, and only the runs and commands read it; the simulator below it takes SI and shares its
+defaults through ``membrax.defaults``. Every module of ``membrax`` sits on one layer below; a module may
 import its own layer and those before it, never one after (every import counts, also those inside
 functions). The sphere code (DEM) and the membrane code are two columns of the same layers: the membrane
 builds on the DEM, the DEM knows nothing of the membrane, so the rigid-wall test runs without it.
@@ -19,7 +21,7 @@ PACKAGE = Path(membrax.__file__).parent
 LAYERS = (
     # foundations: no simulation state, import nothing above
     ("validation", "vector", "fusion", "native", "errors", "batch", "devices", "theory", "pytree"),
-    ("config",),
+    ("defaults",),
     # specimen + membrane: geometry
     ("spheres.packing", "spheres.neighbors", "membrane.mesh"),
     # laws: contacts, walls and platens
@@ -34,8 +36,10 @@ LAYERS = (
     ("triaxial.rigid", "triaxial.membrane_cell"),
     # results
     ("triaxial.analysis", "io.files", "io.vtk", "io.results", "io.checkpoint", "io", "plots", "paper"),
+    # the configuration: laboratory units in, SI out; read by the runs only
+    ("config",),
     # runs: the stage loop every run and sweep shares, then one test, a grid, the paper
-    ("stages",),
+    ("runner",),
     ("run", "sensitivities", "gradients"),
     ("sweep",),
     ("reproduce",),
@@ -101,6 +105,19 @@ def test_imports_run_along_the_data_flow(module):
     assert not above, f"membrax.{module} (layer {LAYER[module]}) imports {above}, which come after it"
     if module in DEM:
         assert not imports & MEMBRANE, f"the DEM module membrax.{module} imports {sorted(imports & MEMBRANE)}"
+
+
+#: The simulator: every layer from the specimen to the results. It takes SI and never reads the configuration.
+SIMULATOR = {name for name, level in LAYER.items() if LAYER["spheres.packing"] <= level < LAYER["config"]}
+
+
+def test_no_module_below_the_configuration_imports_it():
+    """Units are converted and validated once, in the configuration; the simulator (specimen to results)
+    takes SI arguments, so none of its modules imports :mod:`membrax.config` (defaults it shares with the
+    configuration come from :mod:`membrax.defaults`)."""
+    readers = sorted(name for name in SIMULATOR if "config" in _membrax_imports(FILES[name]))
+    assert not readers, f"{readers} import membrax.config"
+    assert {"triaxial.membrane_cell", "membrane.coupled", "triaxial.protocol", "paper"} <= SIMULATOR
 
 
 def test_the_checker_sees_every_kind_of_import(tmp_path):

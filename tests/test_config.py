@@ -31,19 +31,25 @@ def _write(tmp_path, text, name="run.toml"):
 # --- defaults and SI conversions -------------------------------------------------------------------------
 
 
+#: The defaults that are the paper's values (laboratory units), and the run's name, output and safety factor.
+PAPER_DEFAULTS = {
+    "cell_pressure_kpa": 10.0,
+    "membrane_thickness_mm": 5.0,
+    "membrane_modulus_kpa": 1400.0,
+    "particle_diameter_mm": 25.0,
+    "friction_angle_deg": 25.0,
+    "particles_across": 10,
+    "layers": 25,
+    "name": "membrax",
+    "vtk_every_steps": 0,
+    "dt_safety": 0.5,
+}
+
+
 def test_defaults_are_the_papers_values():
     cfg = TriaxialConfig()
-    assert cfg.cell_pressure_kpa == 10.0
-    assert cfg.membrane_thickness_mm == 5.0
-    assert cfg.membrane_modulus_kpa == 1400.0
-    assert cfg.particle_diameter_mm == 25.0
-    assert cfg.friction_angle_deg == 25.0
-    assert cfg.particles_across == 10
-    assert cfg.layers == 25
-    assert cfg.name == "membrax"
+    assert {field: getattr(cfg, field) for field in PAPER_DEFAULTS} == PAPER_DEFAULTS
     assert cfg.float64 is False
-    assert cfg.vtk_every_steps == 0
-    assert cfg.dt_safety == 0.5
 
 
 def test_si_conversions_are_exact():
@@ -381,7 +387,7 @@ def test_one_consolidation_tolerance_rule_for_every_stage():
     """One table: rigid 1e-3 / 5e-3 and membrane 2e-3 / 2e-2 (float64 / float32), the float32 values above
     the round-off floors the table's comment cites (~2e-3 rigid; 1.1e-2 with the membrane at 10 kPa); runs
     take the membrane's for their precision unless the configuration gives one."""
-    from membrax.config import default_consolidation_tolerance
+    from membrax.defaults import default_consolidation_tolerance
     from membrax.run import consolidation_tolerance
 
     assert default_consolidation_tolerance("rigid", True) == 1e-3

@@ -21,11 +21,11 @@ from helpers import SMALL_MEMBRANE_TEST
 
 from calibrate import inverse
 from membrax import gradients, sensitivities
+from membrax.runner import build_test
 from membrax.spheres.contact import tangential_spring_update
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.packing import particle_mass
 from membrax.spheres.walls import platen_separation
-from membrax.stages import build_test
 
 SMOOTH = dataclasses.replace(SMALL_MEMBRANE_TEST, viscous_damping=True)
 

@@ -16,6 +16,7 @@ import pytest
 from membrax.driver import two_rate_plan
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.mesh import cylinder_mesh
+from membrax.runner import rebase_to_shear_start
 from membrax.spheres import packing
 from membrax.spheres.walls import (
     BOTTOM,
@@ -26,7 +27,6 @@ from membrax.spheres.walls import (
     set_control,
     triaxial_walls,
 )
-from membrax.stages import rebase_to_shear_start
 from membrax.triaxial.membrane_cell import membrane_test
 
 
@@ -75,7 +75,7 @@ def test_a_ramp_delays_every_later_strain_by_the_ramp_strain():
 @pytest.fixture(scope="module")
 def small_test():
     specimen = packing.fcc_specimen(0.025, 4, 5)
-    return membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, edges_per_diameter=2.5)
+    return membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, edges_per_diameter=2.5)
 
 
 def test_symmetric_shearing_moves_both_platens_at_half_the_rate_and_ramps_to_the_strain(small_test):
@@ -116,8 +116,8 @@ def test_the_seeded_imperfection_is_reproducible_and_only_shrinks_spheres():
     with pytest.raises(ValueError, match="fraction"):
         packing.with_imperfection(specimen, -1e-3)
     # Its contacts are open, so Δt is the touching lattice's: the same as the perfect specimen's.
-    perfect = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)
-    imperfect = membrane_test(one, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)
+    perfect = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3)
+    imperfect = membrane_test(one, cell_pressure=1e4, membrane_thickness=5e-3)
     assert imperfect.dt == pytest.approx(perfect.dt, rel=1e-12)
 
 
@@ -127,9 +127,7 @@ def test_nodes_touch_spheres_at_the_chosen_offset(factor):
     lie at R + f t_m/2 from the plane of the outer sphere centres, where the contact's overlap is zero."""
     specimen = packing.fcc_specimen(0.025, 4, 5)
     thickness = 5e-3
-    test = membrane_test(
-        specimen, membrane_thickness_mm=5.0, edges_per_diameter=2.5, contact_offset_factor=factor
-    )
+    test = membrane_test(specimen, 1e4, 5e-3, edges_per_diameter=2.5, contact_offset_factor=factor)
     assert float(test.params.membrane.contact_thickness) == pytest.approx(factor * thickness, rel=1e-15)
     position = np.asarray(test.mesh.reference_position)
     centres = np.asarray(specimen.position)
@@ -189,6 +187,22 @@ def test_right_cylinder_stresses_work_under_jit_and_grad():
     assert float(jax.grad(external, argnums=1)(jnp.asarray(3.0), jnp.asarray(0.9))) == pytest.approx(3.0)
 
 
+def _consolidated_start(test, records):
+    """The shear's reference state: the last consolidation record's height and volume, the platen area."""
+    return {
+        "height": float(records.height[-1, 0]),
+        "volume": float(records.volume[-1, 0]),
+        "platen_area": test.platen_area,
+    }
+
+
+def _rebased(records, start):
+    """A stage's records as numpy arrays, strains and stresses from the shear's start ``start``."""
+    return rebase_to_shear_start(
+        {f.name: np.asarray(getattr(records, f.name)) for f in dataclasses.fields(records)}, start
+    )
+
+
 def _peak_friction_angles(test, state, start, inertial_number):
     """(external, internal) peak φ' of a short ramped shear from ``state``, degrees."""
     _, records = test.shear(
@@ -200,9 +214,7 @@ def _peak_friction_angles(test, state, start, inertial_number):
         chunk_steps=5000,
         ramp_strain=1e-2,
     )
-    rebased = rebase_to_shear_start(
-        {f.name: np.asarray(getattr(records, f.name)) for f in dataclasses.fields(records)}, start
-    )
+    rebased = _rebased(records, start)
 
     def phi(major, minor):
         return np.degrees(np.arcsin((major - minor) / (major + minor)))
@@ -223,13 +235,9 @@ def test_the_ramped_peak_is_a_material_number_not_a_rate_effect():
     gave differences fast − slow of 0.09°/0.04°, 0.12°/0.00° and 0.34°/0.25° (external/internal), and
     moved each peak by up to 0.45°: the bound is that scatter, not a rate effect."""
     specimen = packing.fcc_specimen(0.025, 4, 5)
-    test = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, edges_per_diameter=2.5)
+    test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, edges_per_diameter=2.5)
     state, records = test.consolidate(max_steps=6000, chunk_steps=1000, record_every=100, tolerance=0.01)
-    start = {
-        "height": float(records.height[-1, 0]),
-        "volume": float(records.volume[-1, 0]),
-        "platen_area": test.platen_area,
-    }
+    start = _consolidated_start(test, records)
     fast = _peak_friction_angles(test, state, start, 1e-3)
     slow = _peak_friction_angles(test, state, start, 5e-4)
     assert abs(fast[0] - slow[0]) < 0.5 and abs(fast[1] - slow[1]) < 0.5, (fast, slow)
@@ -243,13 +251,9 @@ def test_the_membranes_radial_stress_grows_with_the_hoop_strain_below_henkel_and
     largest, on the whole height of a membrane free at its ends. 4 × 4 × 6 specimen, 10 kPa, 5 mm, float64;
     the issue-16 note gives the measured ratio (0.5–0.9 here, ~0.5 beyond 4 % at demo size)."""
     specimen = packing.fcc_specimen(0.025, 4, 6)
-    test = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, edges_per_diameter=3.0)
+    test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, edges_per_diameter=3.0)
     state, records = test.consolidate(max_steps=20000, chunk_steps=1000, record_every=100, tolerance=0.01)
-    start = {
-        "height": float(records.height[-1, 0]),
-        "volume": float(records.volume[-1, 0]),
-        "platen_area": test.platen_area,
-    }
+    start = _consolidated_start(test, records)
     _, shear = test.shear(
         state,
         target_axial_strain=0.08,
@@ -259,9 +263,7 @@ def test_the_membranes_radial_stress_grows_with_the_hoop_strain_below_henkel_and
         record_every_coarse=500,
         ramp_strain=1e-3,
     )
-    rebased = rebase_to_shear_start(
-        {f.name: np.asarray(getattr(shear, f.name)) for f in dataclasses.fields(shear)}, start
-    )
+    rebased = _rebased(shear, start)
     axial = rebased["axial_strain"].ravel()
     radial_excess = rebased["internal_radial_stress"].ravel() - rebased["internal_radial_stress"].ravel()[0]
     hoop = rebased["hoop_strain"].ravel() - rebased["hoop_strain"].ravel()[0]

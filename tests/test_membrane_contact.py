@@ -11,6 +11,8 @@ from jax_md import dataclasses
 
 from membrax.membrane.contact import (
     ERROR_MEMBRANE_CANDIDATE_OVERFLOW,
+    ContactNodes,
+    ContactSpheres,
     MembraneContactParams,
     build_candidates,
     candidate_errors,
@@ -32,12 +34,13 @@ def _one_node_call(node, sphere, radius, spring=None, node_velocity=None, params
     spring = jnp.zeros((3, 1, 1)) if spring is None else spring
     velocity = jnp.zeros((1, 3)) if node_velocity is None else node_velocity
     return node_sphere_forces(
-        node_position,
-        velocity,
-        jnp.asarray(sphere)[None, :],
-        jnp.zeros((1, 3)),
-        jnp.zeros((1, 3)),
-        jnp.asarray([radius]),
+        ContactNodes(position=node_position, velocity=velocity),
+        ContactSpheres(
+            position=jnp.asarray(sphere)[None, :],
+            velocity=jnp.zeros((1, 3)),
+            angular_velocity=jnp.zeros((1, 3)),
+            radius=jnp.asarray([radius]),
+        ),
         jnp.zeros((1, 1), dtype=jnp.int32),
         spring,
         dt,
@@ -58,15 +61,26 @@ def _random_config(seed, num_nodes=30, num_spheres=6, box=0.03):
     )
 
 
+def _bodies(config, node_position=None):
+    """The nodes and spheres of a configuration, as node_sphere_forces takes them (other node positions if
+    given)."""
+    nodes = ContactNodes(
+        position=config["node_position"] if node_position is None else node_position,
+        velocity=config["node_velocity"],
+    )
+    spheres = ContactSpheres(
+        position=config["sphere_position"],
+        velocity=config["sphere_velocity"],
+        angular_velocity=config["sphere_angular_velocity"],
+        radius=config["sphere_radius"],
+    )
+    return nodes, spheres
+
+
 def _forces(config, candidates, spring, params=None, dt=1e-5):
     params = MembraneContactParams.default() if params is None else params
     return node_sphere_forces(
-        config["node_position"],
-        config["node_velocity"],
-        config["sphere_position"],
-        config["sphere_velocity"],
-        config["sphere_angular_velocity"],
-        config["sphere_radius"],
+        *_bodies(config),
         candidates,
         spring,
         dt,
@@ -78,16 +92,22 @@ def _forces(config, candidates, spring, params=None, dt=1e-5):
 _jit_forces = jax.jit(_forces)
 
 
-def _all_candidates(config):
-    num_spheres = config["sphere_position"].shape[0]
-    return build_candidates(
+def _candidate_args(config, subset, skin):
+    """build_candidates' arguments before the capacity: ``config``'s nodes and spheres, ``subset``, skin."""
+    return (
         config["node_position"],
         config["sphere_position"],
         config["sphere_radius"],
-        jnp.arange(num_spheres, dtype=jnp.int32),
+        subset,
         THICKNESS,
-        0.002,
-        num_spheres,
+        skin,
+    )
+
+
+def _all_candidates(config):
+    num_spheres = config["sphere_position"].shape[0]
+    return build_candidates(
+        *_candidate_args(config, jnp.arange(num_spheres, dtype=jnp.int32), 0.002), num_spheres
     )
 
 
@@ -265,14 +285,7 @@ def test_candidates_match_brute_force_and_flag_overflow():
     reference = _brute_force_sets(config, subset, skin)
     largest = max(len(s) for s in reference)
     assert largest >= 3
-    args = (
-        config["node_position"],
-        config["sphere_position"],
-        config["sphere_radius"],
-        subset,
-        THICKNESS,
-        skin,
-    )
+    args = _candidate_args(config, subset, skin)
     candidates = jax.jit(build_candidates, static_argnums=6)(*args, largest + 2)
     idx = np.asarray(candidates.idx)
     for row, expected in zip(idx, reference, strict=True):
@@ -338,15 +351,7 @@ def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
     num_spheres = 30
     subset = jnp.arange(num_spheres, dtype=jnp.int32)
     skin = 0.004
-    candidates = build_candidates(
-        config["node_position"],
-        config["sphere_position"],
-        config["sphere_radius"],
-        subset,
-        THICKNESS,
-        skin,
-        12,
-    )
+    candidates = build_candidates(*_candidate_args(config, subset, skin), 12)
     assert not bool(candidates.did_overflow)
     # Spring value encodes (node, sphere id) so we can tell where it went.
     idx = candidates.idx
@@ -441,16 +446,7 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
     config = _random_config(4, num_nodes=60, num_spheres=8)
     num_spheres = 8
     subset = jnp.asarray([1, 2, 4, 5, 6, 7], dtype=jnp.int32)  # 0 and 3 may not touch the membrane
-    candidates = build_candidates(
-        config["node_position"],
-        config["sphere_position"],
-        config["sphere_radius"],
-        subset,
-        THICKNESS,
-        0.002,
-        4,
-        sphere_capacity=40,
-    )
+    candidates = build_candidates(*_candidate_args(config, subset, 0.002), 4, sphere_capacity=40)
     idx, slots = np.asarray(candidates.idx), np.asarray(candidates.sphere_slots)
     # Hand count: sphere s owns exactly the flat slots whose id is s.
     for row, sphere in enumerate(np.asarray(subset)):
@@ -462,12 +458,7 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
 
     def both(node_position, spring):
         args = (
-            node_position,
-            config["node_velocity"],
-            config["sphere_position"],
-            config["sphere_velocity"],
-            config["sphere_angular_velocity"],
-            config["sphere_radius"],
+            *_bodies(config, node_position),
             candidates.idx,
             spring,
             1e-5,
@@ -500,16 +491,7 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
     # Too small an M overflows, as K does.
     small = sphere_slot_table(candidates.idx, subset, num_spheres, 2)
     assert int(small[1]) == int(candidates.max_sphere_count) and small[0].shape == (6, 2)
-    tight = build_candidates(
-        config["node_position"],
-        config["sphere_position"],
-        config["sphere_radius"],
-        subset,
-        THICKNESS,
-        0.002,
-        4,
-        sphere_capacity=2,
-    )
+    tight = build_candidates(*_candidate_args(config, subset, 0.002), 4, sphere_capacity=2)
     assert int(candidate_errors(tight)) == ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 
 

@@ -137,7 +137,7 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
       grows it on the overflow bit and reruns, so the final table holds every node's candidates.
     """
     specimen = packing.fcc_specimen(0.025, 4, 5)
-    test = membrane_test(specimen, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0, candidate_capacity=1)
+    test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, candidate_capacity=1)
     state, records = test.consolidate(max_steps=3000, chunk_steps=1000, record_every=100, tolerance=0.01)
     assert int(state.error) == 0
     candidates = state.membrane.candidates

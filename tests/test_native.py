@@ -23,6 +23,8 @@ import pytest
 from membrax import native
 from membrax.membrane import energies
 from membrax.membrane.contact import (
+    ContactNodes,
+    ContactSpheres,
     MembraneContactParams,
     _reference_node_sphere_forces,
     node_sphere_forces,
@@ -66,7 +68,7 @@ def test_membrane_forces_kernel_matches_jax(model, bending_factor):
     compiled = jax.jit(energies.nodal_forces, static_argnums=(6,))(
         position, mesh, 1.4e6, 0.005, 1e4, 0.45, model, bending_factor
     )
-    reference = energies._reference_nodal_forces(*args)
+    reference = energies.reference_nodal_forces(*args)
     assert _relative_error(compiled, reference) < 1e-12
     # Band and caps close the surface, so every energy is invariant under translation: Σ F = 0.
     assert np.max(np.abs(np.sum(compiled, axis=0))) < 1e-12 * compiled.shape[0] * np.max(np.abs(compiled))
@@ -76,13 +78,13 @@ def test_membrane_forces_kernel_float32_as_accurate_as_jax():
     """In float32 the kernel and XLA make errors of the same size against the float64 forces."""
     mesh64, position64 = _deformed_cylinder()
     mesh32, position32 = _deformed_cylinder(dtype=jnp.float32)
-    exact = energies._reference_nodal_forces(position64, mesh64, 1.4e6, 0.005, 1e4, 0.5, 1.0, "neo_hookean")
+    exact = energies.reference_nodal_forces(position64, mesh64, 1.4e6, 0.005, 1e4, 0.5, 1.0, "neo_hookean")
 
     def call(fn):
         return fn(position32, mesh32, jnp.float32(1.4e6), jnp.float32(0.005), jnp.float32(1e4), 0.5)
 
     compiled = call(lambda *a: energies.nodal_forces(*a, bending_factor=jnp.float32(1.0)))
-    reference = call(lambda *a: energies._reference_nodal_forces(*a, jnp.float32(1.0), "neo_hookean"))
+    reference = call(lambda *a: energies.reference_nodal_forces(*a, jnp.float32(1.0), "neo_hookean"))
     assert compiled.dtype == jnp.float32
     error_kernel = _relative_error(compiled.astype(jnp.float64), exact)
     error_jax = _relative_error(reference.astype(jnp.float64), exact)
@@ -103,7 +105,7 @@ def test_membrane_forces_kernel_gradients_and_vmap():
 
     for wrt in (0, 1, 2):
         got = jax.grad(work, argnums=1 + wrt)(compiled, position, 1.4e6, 2e4)
-        want = jax.grad(work, argnums=1 + wrt)(energies._reference_nodal_forces, position, 1.4e6, 2e4)
+        want = jax.grad(work, argnums=1 + wrt)(energies.reference_nodal_forces, position, 1.4e6, 2e4)
         assert _relative_error(got, want) < 1e-12
     # The Hessian–vector product −∂F/∂x·v against a central difference of the kernel's forces.
     step = 1e-7
@@ -116,7 +118,7 @@ def test_membrane_forces_kernel_gradients_and_vmap():
     pressures = jnp.asarray([1e4, 5e4, 1e5])
     batched = jax.vmap(lambda p: compiled(position, mesh, 1.4e6, 0.004, p, 0.5, 0.0, "svk"))(pressures)
     for k, pressure in enumerate(pressures):
-        single = energies._reference_nodal_forces(position, mesh, 1.4e6, 0.004, pressure, 0.5, 0.0, "svk")
+        single = energies.reference_nodal_forces(position, mesh, 1.4e6, 0.004, pressure, 0.5, 0.0, "svk")
         assert _relative_error(batched[k], single) < 1e-12
 
 
@@ -138,12 +140,16 @@ def _node_sphere_case(seed=3, num_nodes=400, num_spheres=12, capacity=4):
     candidates[::3, 2] = (owner[::3] + 2) % num_spheres
     spring = rng.normal(0.0, 60.0, (3, num_nodes, capacity))  # N: some slots stick, some slide
     return dict(
-        node_position=jnp.asarray(node_position),
-        node_velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_nodes, 3))),
-        sphere_position=jnp.asarray(sphere_position),
-        sphere_velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
-        sphere_angular_velocity=jnp.asarray(rng.normal(0.0, 10.0, (num_spheres, 3))),
-        sphere_radius=jnp.asarray(radius),
+        nodes=ContactNodes(
+            position=jnp.asarray(node_position),
+            velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_nodes, 3))),
+        ),
+        spheres=ContactSpheres(
+            position=jnp.asarray(sphere_position),
+            velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
+            angular_velocity=jnp.asarray(rng.normal(0.0, 10.0, (num_spheres, 3))),
+            radius=jnp.asarray(radius),
+        ),
         candidates=jnp.asarray(candidates),
         spring=jnp.asarray(spring),
         dt=1e-5,
@@ -167,8 +173,8 @@ def test_node_sphere_kernel_matches_jax_and_conserves_momentum():
     # Newton's third law and angular momentum about the origin (torques about the sphere centres).
     assert np.allclose(np.sum(compiled.node_force, 0), -np.sum(compiled.sphere_force, 0), atol=1e-12)
     moment = (
-        np.sum(np.cross(case["node_position"], compiled.node_force), 0)
-        + np.sum(np.cross(case["sphere_position"], compiled.sphere_force), 0)
+        np.sum(np.cross(case["nodes"].position, compiled.node_force), 0)
+        + np.sum(np.cross(case["spheres"].position, compiled.sphere_force), 0)
         + np.sum(compiled.sphere_torque, 0)
     )
     assert np.max(np.abs(moment)) < 1e-12 * float(np.max(np.abs(compiled.node_force)))
@@ -179,12 +185,13 @@ def test_node_sphere_kernel_gradients_and_vmap():
     weights = jnp.asarray(np.random.default_rng(5).normal(size=(60, 3)))
 
     def work(fn, node_position, thickness):
-        result = fn(**{**case, "node_position": node_position, "membrane_thickness": thickness})
+        nodes = case["nodes"].set(position=node_position)
+        result = fn(**{**case, "nodes": nodes, "membrane_thickness": thickness})
         return jnp.sum(weights * result.node_force) + jnp.sum(result.spring**2)
 
     for argnum in (1, 2):
-        got = jax.grad(work, argnums=argnum)(node_sphere_forces, case["node_position"], 0.005)
-        want = jax.grad(work, argnums=argnum)(_reference_node_sphere_forces, case["node_position"], 0.005)
+        got = jax.grad(work, argnums=argnum)(node_sphere_forces, case["nodes"].position, 0.005)
+        want = jax.grad(work, argnums=argnum)(_reference_node_sphere_forces, case["nodes"].position, 0.005)
         assert _relative_error(got, want) < 1e-12
     thicknesses = jnp.asarray([0.003, 0.005])
     batched = jax.vmap(lambda t: node_sphere_forces(**{**case, "membrane_thickness": t}).node_force)(
@@ -299,7 +306,7 @@ def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
         mesh = cylinder_mesh(0.1, 0.1, 0.03)
         x = mesh.reference_position * 1.01
         same = bool((energies.nodal_forces(x, mesh, 1e6, 0.003, 1e4)
-                     == energies._reference_nodal_forces(x, mesh, 1e6, 0.003, 1e4, 0.5, 1.0,
+                     == energies.reference_nodal_forces(x, mesh, 1e6, 0.003, 1e4, 0.5, 1.0,
                                                          "neo_hookean")).all())
         ours = [str(w.message) for w in caught if "membrax" in str(w.message)]
         print(ok, len(ours), "compiling the membrax kernels failed" in ours[0], same)
@@ -313,7 +320,11 @@ def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
 
 
 def _dem_case(seed=9, num_spheres=150, num_slots=900):
-    """Spheres in a box, a neighbour list with padding (i = N), springs and per-slot stiffnesses."""
+    """Spheres in a box, a neighbour list with padding (i = N), springs and stiffnesses varying by slot:
+    ``_pair_totals_*``' arguments (spheres, idx, springs, law, Δt)."""
+    from membrax.spheres import integrate
+    from membrax.spheres.contact import ContactParams
+
     rng = np.random.default_rng(seed)
     position = rng.uniform(0.0, 0.08, (num_spheres, 3))
     position[1] = position[0]  # two spheres at one centre: a zero normal, which the law guards
@@ -324,19 +335,23 @@ def _dem_case(seed=9, num_spheres=150, num_slots=900):
     count = min(len(i), num_slots - 50)
     idx = np.full((2, num_slots), num_spheres, dtype=np.int32)
     idx[0, :count], idx[1, :count] = i[:count], j[:count]
-    return (
-        jnp.asarray(position),
-        jnp.asarray(compensation),
-        jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
-        jnp.asarray(rng.normal(0.0, 5.0, (num_spheres, 3))),
-        jnp.asarray(radius),
-        jnp.asarray(idx),
-        jnp.asarray(rng.normal(0.0, 20.0, (num_slots, 3))),
-        jnp.asarray(rng.uniform(0.5e7, 1.5e7, num_slots)),
-        5e6,
-        math.tan(math.radians(25.0)),
-        1e-6,
+    spheres = integrate.PairSpheres(
+        position=jnp.asarray(position),
+        position_compensation=jnp.asarray(compensation),
+        velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
+        angular_velocity=jnp.asarray(rng.normal(0.0, 5.0, (num_spheres, 3))),
+        radius=jnp.asarray(radius),
+        member=jnp.arange(num_spheres, dtype=jnp.int32),  # one member per sphere: k_n varies by slot
     )
+    law = ContactParams(
+        normal_stiffness=jnp.asarray(rng.uniform(0.5e7, 1.5e7, num_spheres)),
+        tangential_stiffness=jnp.asarray(5e6),
+        friction_coefficient=jnp.asarray(math.tan(math.radians(25.0))),
+        wall_normal_stiffness=jnp.asarray(1e7),  # the walls' fields are not the pairs' business
+        wall_tangential_stiffness=jnp.asarray(5e6),
+        wall_friction_coefficient=jnp.asarray(0.0),
+    )
+    return spheres, jnp.asarray(idx), jnp.asarray(rng.normal(0.0, 20.0, (num_slots, 3))), law, 1e-6
 
 
 def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
@@ -352,7 +367,7 @@ def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
     touching = int(jnp.sum(jnp.linalg.norm(reference[2], axis=1) > 0.0))
     assert touching > 100
     # Newton's third law and angular momentum: Σ F = 0 and Σ (x × F + T) = 0 over the spheres.
-    position = np.asarray(args[0] + args[1])
+    position = np.asarray(args[0].position + args[0].position_compensation)
     force, torque = np.asarray(compiled[0][:, :3]), np.asarray(compiled[0][:, 3:])
     scale = np.max(np.abs(force))
     assert np.max(np.abs(np.sum(force, 0))) < 1e-11 * scale
@@ -361,44 +376,57 @@ def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
     weights = jnp.asarray(np.random.default_rng(10).normal(size=(150, 6)))
 
     def work(fn, position):
-        return jnp.sum(weights * fn(position, *args[1:])[0])
+        return jnp.sum(weights * fn(args[0].set(position=position), *args[1:])[0])
 
-    got = jax.grad(work, argnums=1)(integrate._compiled_pair_totals, args[0])
-    want = jax.grad(work, argnums=1)(integrate._pair_totals_reference, args[0])
+    got = jax.grad(work, argnums=1)(integrate._compiled_pair_totals, args[0].position)
+    want = jax.grad(work, argnums=1)(integrate._pair_totals_reference, args[0].position)
     assert _relative_error(got, want) < 1e-12
     frictions = jnp.asarray([0.2, 0.5])
-    batched = jax.vmap(lambda mu: integrate._compiled_pair_totals(*args[:9], mu, args[10])[1])(frictions)
+
+    def with_friction(mu):
+        spheres, idx, spring, law, dt = args
+        return spheres, idx, spring, law.set(friction_coefficient=mu), dt
+
+    batched = jax.vmap(lambda mu: integrate._compiled_pair_totals(*with_friction(mu))[1])(frictions)
     for k, mu in enumerate(frictions):
-        single = integrate._pair_totals_reference(*args[:9], mu, args[10])[1]
+        single = integrate._pair_totals_reference(*with_friction(mu))[1]
         assert _relative_error(batched[k], single) < 1e-12
 
 
-def test_node_update_kernel_matches_jax_and_keeps_the_compensated_sum():
-    from membrax.membrane import coupled as membrane_dem
+def _node_update_case():
+    """advance_nodes' arguments: two forces, 500 nodes (the first 40 clamped, some at rest), Δt, damping."""
+    from membrax.membrane import coupled
     from membrax.spheres import integrate
 
     rng = np.random.default_rng(11)
     n = 500
     free = np.ones(n, dtype=bool)
     free[:40] = False  # clamped ring nodes
-    args = (
-        jnp.asarray(rng.normal(0.0, 1.0, (n, 3))),
-        jnp.asarray(rng.normal(0.0, 0.5, (n, 3))),
-        jnp.asarray(rng.uniform(-0.2, 0.2, (n, 3))),
-        jnp.asarray(rng.normal(0.0, 1e-18, (n, 3))),
-        jnp.asarray(rng.normal(0.0, 0.01, (n, 3)) * (rng.random((n, 3)) > 0.1)),  # some v = 0
-        jnp.asarray(rng.uniform(5e-5, 1.5e-4, n)),
-        jnp.asarray(free),
-        2e-6,
-        integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0)),
+    membrane_force = jnp.asarray(rng.normal(0.0, 1.0, (n, 3)))
+    contact_force = jnp.asarray(rng.normal(0.0, 0.5, (n, 3)))
+    nodes = coupled.MembraneNodes(
+        position=jnp.asarray(rng.uniform(-0.2, 0.2, (n, 3))),
+        position_compensation=jnp.asarray(rng.normal(0.0, 1e-18, (n, 3))),
+        velocity=jnp.asarray(rng.normal(0.0, 0.01, (n, 3)) * (rng.random((n, 3)) > 0.1)),  # some v = 0
+        mass=jnp.asarray(rng.uniform(5e-5, 1.5e-4, n)),
+        free=jnp.asarray(free),
     )
+    damping = integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0))
+    return membrane_force, contact_force, nodes, 2e-6, damping
+
+
+def test_node_update_kernel_matches_jax_and_keeps_the_compensated_sum():
+    from membrax.membrane import coupled as membrane_dem
+
+    args = _node_update_case()
     compiled = jax.jit(membrane_dem._compiled_advance_nodes)(*args)
     reference = membrane_dem._advance_nodes_reference(*args)
     for got, want in zip(compiled[:3], reference[:3], strict=True):  # force, velocity, position
         assert _relative_error(got, want) < 1e-14
     assert np.all(np.asarray(compiled[1])[:40] == 0.0)
     # Fast2Sum: (x' − x) + (c' − c) is the increment Δt v' to the last bits (x' − x is exact).
-    step = (compiled[2] - args[2]) + (compiled[3] - args[3])
+    nodes = args[2]
+    step = (compiled[2] - nodes.position) + (compiled[3] - nodes.position_compensation)
     assert _relative_error(step, 2e-6 * compiled[1]) < 1e-12
 
 
@@ -422,40 +450,25 @@ def _cotangent_cases(large=False):
         (
             "membrane_forces_backward",
             lambda x, *scalars, model=model: energies._COMPILED_NODAL_FORCES[model](x, mesh, *scalars),
-            lambda x, *scalars, model=model: energies._reference_nodal_forces(x, mesh, *scalars, model),
+            lambda x, *scalars, model=model: energies.reference_nodal_forces(x, mesh, *scalars, model),
             (position, 1.4e6, 0.004, 2e4, 0.45, 0.7),  # x, E_m, t_m, p, ν, f_b
         )
         for model in ("neo_hookean", "svk")
     ]
     node_sphere = _node_sphere_case(**(_LARGE["node_sphere"] if large else {}))
-    rng = np.random.default_rng(11)
-    n = 500
-    free = np.ones(n, dtype=bool)
-    free[:40] = False
-    nodes = (
-        jnp.asarray(rng.normal(0.0, 1.0, (n, 3))),
-        jnp.asarray(rng.normal(0.0, 0.5, (n, 3))),
-        jnp.asarray(rng.uniform(-0.2, 0.2, (n, 3))),
-        jnp.asarray(rng.normal(0.0, 1e-18, (n, 3))),
-        jnp.asarray(rng.normal(0.0, 0.01, (n, 3)) * (rng.random((n, 3)) > 0.1)),
-        jnp.asarray(rng.uniform(5e-5, 1.5e-4, n)),
-        jnp.asarray(free),
-        2e-6,
-        integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0)),
-    )
     return [
         *forces,
         (
             "node_sphere_backward",
             contact._compiled_node_sphere_forces,
-            contact._reference_outputs,
+            contact.node_sphere_reference,
             tuple(node_sphere.values()),
         ),
         (
             "membrane_nodes_backward",
             membrane_dem._compiled_advance_nodes,
             membrane_dem._advance_nodes_reference,
-            nodes,
+            _node_update_case(),
         ),
         (
             "dem_pairs_backward",
@@ -503,7 +516,8 @@ def test_backward_kernels_in_two_halves_give_the_reference_cotangents_and_the_sa
     each half covers fixed elements and sums them in order, so which thread ran it must not show."""
     target, compiled, reference, values = _cotangent_cases(large=True)[case]
     # Loops split: over triangles (more than the nodes), over nodes (and touching slots), over pair slots.
-    split = values[6].shape[0] if case == 4 else values[0].shape[0]
+    first = values[2] if case == 4 else values[0]  # the springs (C, 3); the positions (n, 3) or nodes
+    split = (first.position if case == 2 else first).shape[0]
     assert split >= 4096  # kMinParallelElements
     pullback = _check_cotangents(target, compiled, reference, values, seed=case)
     got = pullback(*values)
@@ -523,7 +537,7 @@ def test_membrane_backward_at_zero_bending_skips_the_hinges_only_when_their_deri
     compiled = energies._COMPILED_NODAL_FORCES["neo_hookean"]
 
     def reference(x, *scalars):
-        return energies._reference_nodal_forces(x, mesh, *scalars, "neo_hookean")
+        return energies.reference_nodal_forces(x, mesh, *scalars, "neo_hookean")
 
     scalars = (1.4e6, 0.004, 2e4, 0.45, 0.0)
     cotangent = jnp.asarray(np.random.default_rng(5).normal(size=position.shape))
@@ -562,7 +576,7 @@ def test_membrane_forces_differentiated_in_the_rest_geometry_use_the_reference_r
         return jnp.sum(direction * fn(position, deformed, 1.4e6, 0.004, 0.0, 0.45, 0.0))
 
     def reference(x, m, *scalars):
-        return energies._reference_nodal_forces(x, m, *scalars, "svk")
+        return energies.reference_nodal_forces(x, m, *scalars, "svk")
 
     area = mesh.reference_area
     got = jax.grad(lambda a: work(forces, a))(area)
@@ -591,29 +605,31 @@ def _node_step_case(seed=5, num_spheres=30, capacity=3):
     gap = np.linalg.norm(position[:, None, :] - centre[None], axis=2) - radius[None]
     candidates = np.argsort(gap, axis=1)[:, :capacity].astype(np.int32)
     candidates[::5, -1] = num_spheres  # padding
-    args = (
-        jnp.asarray(position),
-        jnp.asarray(rng.normal(0.0, 0.05, (num_nodes, 3))),
-        jnp.asarray(centre),
-        jnp.asarray(rng.normal(0.0, 0.05, (num_spheres, 3))),
-        jnp.asarray(rng.normal(0.0, 5.0, (num_spheres, 3))),
-        jnp.asarray(radius),
-        jnp.asarray(candidates),
-        jnp.asarray(rng.normal(0.0, 20.0, (3, num_nodes, capacity))),
-        1e-5,
-        MembraneContactParams.default(),
-        thickness,
-        mesh,
-        1.4e6,  # E_m
-        thickness,
-        2e4,  # p
-        energies.LATEX_POISSON_RATIO,
-        0.7,  # f_b
-        jnp.asarray(rng.normal(0.0, 1e-18, (num_nodes, 3))),
-        jnp.asarray(rng.uniform(5e-4, 1.5e-3, num_nodes)),
-        jnp.asarray(free_node_mask(mesh)),
-        integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0)),
+    node_velocity = jnp.asarray(rng.normal(0.0, 0.05, (num_nodes, 3)))
+    spheres = ContactSpheres(
+        position=jnp.asarray(centre),
+        velocity=jnp.asarray(rng.normal(0.0, 0.05, (num_spheres, 3))),
+        angular_velocity=jnp.asarray(rng.normal(0.0, 5.0, (num_spheres, 3))),
+        radius=jnp.asarray(radius),
     )
+    spring = jnp.asarray(rng.normal(0.0, 20.0, (3, num_nodes, capacity)))
+    nodes = coupled.MembraneNodes(
+        position=jnp.asarray(position),
+        position_compensation=jnp.asarray(rng.normal(0.0, 1e-18, (num_nodes, 3))),
+        velocity=node_velocity,
+        mass=jnp.asarray(rng.uniform(5e-4, 1.5e-3, num_nodes)),
+        free=jnp.asarray(free_node_mask(mesh)),
+    )
+    params = coupled.MembraneParams(
+        modulus=jnp.asarray(1.4e6),
+        thickness=jnp.asarray(thickness),
+        cell_pressure=jnp.asarray(2e4),
+        contact=MembraneContactParams.default(),
+        bending_factor=jnp.asarray(0.7),
+        contact_offset_factor=jnp.asarray(1.0),  # the contact's thickness is t_m
+    )
+    damping = integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0))
+    args = (nodes, spheres, jnp.asarray(candidates), spring, 1e-5, params, damping, mesh)
     return coupled, args
 
 
@@ -627,20 +643,21 @@ def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_t
     from membrax.membrane import contact
 
     coupled, args = _node_step_case()
-    mesh = args[11]
+    *values, mesh = args
 
     def without_mesh(function):  # the rest geometry is not differentiated here (see the next test)
-        return lambda *a: function(*a[:11], mesh, *a[11:], model=model)
+        return lambda *a: function(*a, mesh, model=model)
 
-    values = args[:11] + args[12:]
     got = jax.jit(without_mesh(coupled.node_step))(*values)
-    position, velocity, *_, dt = args[:9]
-    contact_outputs = jax.jit(contact._compiled_node_sphere_forces)(*args[:11])
-    internal = jax.jit(energies._COMPILED_NODAL_FORCES[model])(position, *args[11:17])
-    compensation, mass, free, damping = args[17:]
-    update = jax.jit(coupled._compiled_advance_nodes)(
-        internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
+    nodes, spheres, candidates, spring, dt, params, damping = values
+    contact_outputs = jax.jit(contact.node_sphere_forces)(
+        nodes.for_contact(), spheres, candidates, spring, dt, params.contact, params.contact_thickness
+    )[:4]
+    material = (params.modulus, params.thickness, params.cell_pressure, energies.LATEX_POISSON_RATIO)
+    internal = jax.jit(energies.nodal_forces, static_argnums=6)(
+        nodes.position, mesh, *material, model, params.bending_factor
     )
+    update = jax.jit(coupled.advance_nodes)(internal, contact_outputs[0], nodes, dt, damping)
     for g, w in zip(got, (*contact_outputs, *update), strict=True):
         assert np.array_equal(np.asarray(g), np.asarray(w))
     pullback = _check_cotangents(
@@ -656,7 +673,7 @@ def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_t
 
     # vmap over two moduli (the kernels run once per member, their aliases in each) equals a loop.
     def loss(modulus):
-        changed = (*values[:11], modulus, *values[12:])
+        changed = (*values[:5], params.set(modulus=modulus), damping)
         return sum(jnp.sum(out**2) for out in without_mesh(coupled.node_step)(*changed)[4:7])
 
     moduli = jnp.asarray([1.4e6, 2.1e6])
@@ -672,20 +689,23 @@ def test_node_step_differentiated_in_the_rest_geometry_uses_the_reference_rule()
     JAX definitions' rule: the rest areas' cotangent against ``jax.vjp`` of the composed definitions
     (float64, 1e-12 of the largest entry), with the positions' and moduli's beside it."""
     coupled, args = _node_step_case(seed=6)
+    nodes, spheres, candidates, spring, dt, params, damping, mesh = args
     outputs = coupled.node_step(*args)
     rng = np.random.default_rng(8)
     cotangents = tuple(jnp.asarray(rng.normal(size=out.shape)) for out in outputs)
 
     def pulled(function, area, position, modulus):
         def run(a, x, e):
-            changed = (x, *args[1:11], dataclasses.replace(args[11], reference_area=a), e, *args[13:])
-            return function(*changed)
+            changed_mesh = dataclasses.replace(mesh, reference_area=a)
+            changed = (nodes.set(position=x), spheres, candidates, spring, dt, params.set(modulus=e), damping)
+            return function(*changed, changed_mesh)
 
         return jax.vjp(run, area, position, modulus)[1](cotangents)
 
     reference = jax.tree_util.Partial(coupled._node_step_reference, model="neo_hookean")
-    got = jax.jit(lambda *v: pulled(coupled.node_step, *v))(args[11].reference_area, args[0], args[12])
-    want = pulled(reference, args[11].reference_area, args[0], args[12])
+    primals = (mesh.reference_area, nodes.position, params.modulus)
+    got = jax.jit(lambda *v: pulled(coupled.node_step, *v))(*primals)
+    want = pulled(reference, *primals)
     for g, w in zip(got, want, strict=True):
         assert _relative_error(g, w) < 1e-12
 
@@ -695,7 +715,7 @@ def test_node_step_cotangents_in_float32_hold_the_float64_ones():
     definitions'), every floating argument, within float32's round-off grown by the step's sums (1e-4 of
     the largest entry; the contact law's sliding branch and the membrane's dual numbers lose a few digits)."""
     coupled, args = _node_step_case(seed=9)
-    mesh = args[11]
+    *values64, mesh = args
 
     def as32(value):
         if isinstance(value, jnp.ndarray) and value.dtype == jnp.float64:
@@ -703,9 +723,8 @@ def test_node_step_cotangents_in_float32_hold_the_float64_ones():
         return value
 
     def without_mesh(function, the_mesh):
-        return lambda *a: function(*a[:11], the_mesh, *a[11:], model="neo_hookean")
+        return lambda *a: function(*a, the_mesh, model="neo_hookean")
 
-    values64 = args[:11] + args[12:]
     values32 = jax.tree.map(as32, values64)
     mesh32 = jax.tree.map(as32, mesh)
     outputs = without_mesh(coupled._node_step_reference, mesh)(*values64)

@@ -40,8 +40,8 @@ def test_the_coupled_step_compiles_once_for_new_parameters_and_stages(float64):
 def _coupled_step_compiles_once():
     test = membrane_test(
         packing.fcc_specimen(0.025, 4, 5),
-        cell_pressure_kpa=10.0,
-        membrane_thickness_mm=5.0,
+        cell_pressure=1e4,
+        membrane_thickness=5e-3,
         edges_per_diameter=2.5,
     )
     step, traces = _counted(test.runner.step_fn)

@@ -6,7 +6,7 @@ import math
 import jax
 import numpy as np
 import pytest
-from helpers import tolerance
+from helpers import SMALL_SPECIMEN, tolerance
 
 from membrax import cli
 from membrax.config import TriaxialConfig
@@ -16,9 +16,8 @@ from membrax.spheres import packing
 from membrax.triaxial.membrane_cell import membrane_test
 
 SMALL = dict(
+    SMALL_SPECIMEN,
     name="small",
-    particles_across=4,
-    layers=5,
     membrane_edges_per_diameter=2.5,
     target_axial_strain=0.002,
     inertial_number=1e-2,
@@ -29,7 +28,6 @@ SMALL = dict(
     fine_until_strain=0.001,
     checkpoint_every_chunks=2,
     consolidation_max_steps=3000,
-    float64=True,
 )
 
 
@@ -38,9 +36,9 @@ def _consolidated(modulus_kpa, thickness_mm=5.0, bending_factor=1.0):
     specimen = packing.fcc_specimen(0.025, 4, 5)
     test = membrane_test(
         specimen,
-        cell_pressure_kpa=10.0,
-        membrane_thickness_mm=thickness_mm,
-        membrane_modulus_kpa=modulus_kpa,
+        cell_pressure=1e4,
+        membrane_thickness=1e-3 * thickness_mm,
+        membrane_modulus=1e3 * modulus_kpa,
         bending_factor=bending_factor,
     )
     state, records = test.consolidate(max_steps=4000, chunk_steps=1000, record_every=100, tolerance=0.01)
@@ -284,7 +282,7 @@ def test_cli_run_reports_bad_configuration_fields(tmp_path, capsys):
 
 
 def test_progress_bars_show_the_consolidation_criterion_not_its_step_cap_and_no_empty_phase():
-    from membrax.stages import phase_bar
+    from membrax.runner import phase_bar
 
     consolidation = phase_bar("consolidation", 1, 200_000, progress=True)
     assert consolidation.total is None and consolidation.desc == "consolidation"  # no 200000-step ETA

@@ -10,8 +10,9 @@ import textwrap
 
 import numpy as np
 import pytest
+from helpers import SMALL_SPECIMEN
 
-from membrax import paper, stages, sweep
+from membrax import paper, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.run import run_test
 from membrax.spheres.packing import GRANITE_DENSITY
@@ -20,9 +21,8 @@ from membrax.spheres.packing import GRANITE_DENSITY
 pytestmark = pytest.mark.slow
 
 BASE = dict(
+    SMALL_SPECIMEN,
     name="sw",
-    particles_across=4,
-    layers=5,
     membrane_edges_per_diameter=5.0,  # the paper's D/5: at D/3 the 2.5 mm membrane misses the pressure trend
     inertial_number=5e-3,
     target_axial_strain=0.003,
@@ -33,7 +33,6 @@ BASE = dict(
     record_every_fine=50,
     record_every_coarse=100,
     checkpoint_every_chunks=2,
-    float64=True,
 )
 GRID = {"cell_pressure_kpa": (10.0, 40.0), "membrane_thickness_mm": (2.5, 5.0)}
 COMPARED = ("external_axial_stress", "internal_axial_stress", "internal_radial_stress", "volumetric_strain")
@@ -179,7 +178,7 @@ SHARDED = textwrap.dedent(
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
-    from membrax import paper, stages, sweep
+    from membrax import paper, runner, sweep
     from membrax.config import TriaxialConfig
     base = TriaxialConfig(**json.loads(sys.argv[1]))
     grid = json.loads(sys.argv[2])
@@ -224,7 +223,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
     busiest device carries the least load any split into 5 + 4 members can (exhaustive search)."""
     steps_10, steps_40, steps_100 = 24150, 12200, 7775  # shear steps of the small reproduction
     work = [10000 + w for w in (steps_10,) * 3 + (steps_40,) * 3 + (steps_100,) * 3]
-    order = stages.balanced_order(work, 2)
+    order = runner.balanced_order(work, 2)
     assert sorted(order) == list(range(9))
     busiest = max(sum(work[i] for i in order[:5]), sum(work[i] for i in order[5:]))
     best = min(
@@ -233,7 +232,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
     )
     assert busiest == best == 112700  # 2 × 34150 + 2 × 22200 on the device with 4 members
     assert max(sum(work[:5]), sum(work[5:])) == 146850  # grid order: all three 10 kPa members on one device
-    assert stages.balanced_order(work, 1) == list(range(9))
+    assert runner.balanced_order(work, 1) == list(range(9))
 
 
 def test_grids_are_parsed_and_checked():
@@ -258,7 +257,7 @@ def test_grids_are_parsed_and_checked():
     with pytest.raises(ConfigError, match="repeats"):
         sweep.grid_members(TriaxialConfig(**BASE), sweep.parse_grid(["cell_pressure_kpa=10,10.0"]))
     with pytest.raises(ValueError, match="layers"):
-        stages.build_batch([TriaxialConfig(**BASE), TriaxialConfig(**dict(BASE, layers=6))])
+        runner.build_batch([TriaxialConfig(**BASE), TriaxialConfig(**dict(BASE, layers=6))])
 
 
 def test_the_sweep_command_reports_a_bad_grid(tmp_path, capsys):

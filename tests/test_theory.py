@@ -33,16 +33,17 @@ def test_fcc_geometry_matches_unit_cell_count():
 # φμ = 10°: R = 2 tan 55° = 2.856296, sin φ' = 1.856296/3.856296 → 28.7748°, printed 28.78;
 # φμ = 30°, α = 63.5°: R = tan 63.5° tan 75° = 7.4854 → 49.8447°, printed 49.85).
 ROWE_ERRATA = {(10, "exact"): (28.78, 28.77), (30, "paper"): (49.85, 49.84)}
-ROWE_TABLE = [
-    (0, 2.000, 19.47, 19.55),
-    (5, 2.384, 24.14, 24.21),
-    (10, 2.856, 28.77, 28.85),
-    (15, 3.464, 33.50, 33.57),
-    (20, 4.289, 38.45, 38.52),
-    (25, 5.495, 43.79, 43.85),
-    (30, 7.464, 49.79, 49.84),
-    (35, 11.343, 56.93, 56.97),
-]
+# φμ (degrees) → (R, φ' exact, φ' paper).
+ROWE_TABLE = {
+    0: (2.000, 19.47, 19.55),
+    5: (2.384, 24.14, 24.21),
+    10: (2.856, 28.77, 28.85),
+    15: (3.464, 33.50, 33.57),
+    20: (4.289, 38.45, 38.52),
+    25: (5.495, 43.79, 43.85),
+    30: (7.464, 49.79, 49.84),
+    35: (11.343, 56.93, 56.97),
+}
 
 
 def _printed(value, decimals):
@@ -50,7 +51,9 @@ def _printed(value, decimals):
     return max(0.5 * 10.0**-decimals, 1e-4 * abs(value))
 
 
-@pytest.mark.parametrize(("friction_deg", "ratio", "phi_exact", "phi_paper"), ROWE_TABLE)
+@pytest.mark.parametrize(
+    ("friction_deg", "ratio", "phi_exact", "phi_paper"), [(k, *v) for k, v in ROWE_TABLE.items()]
+)
 def test_rowe_fcc_table(friction_deg, ratio, phi_exact, phi_paper):
     friction = math.radians(friction_deg)
     assert float(theory.rowe_stress_ratio(friction, theory.FCC)) == pytest.approx(

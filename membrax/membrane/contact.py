@@ -77,14 +77,20 @@ from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
 __all__ = [
     "ERROR_MEMBRANE_CANDIDATE_OVERFLOW",
+    "ContactNodes",
+    "ContactSpheres",
     "MembraneContactParams",
     "NodeCandidates",
     "NodeSphereForces",
     "build_candidates",
     "candidate_errors",
     "needs_rebuild",
+    "node_sphere_backward_kernel",
     "node_sphere_forces",
+    "node_sphere_kernel",
+    "node_sphere_kernel_inputs",
     "node_sphere_normal_energy",
+    "node_sphere_reference",
     "remap_node_history",
     "sphere_slot_table",
     "update_candidates",
@@ -164,6 +170,36 @@ class NodeCandidates:
         return self.sphere_slots.shape[-1]
 
 
+@pytree.dataclass
+class ContactNodes:
+    """The membrane nodes as the node–sphere law reads them (rows, SI).
+
+    Attributes:
+      position: (n_nodes, 3) node positions, m.
+      velocity: (n_nodes, 3) node velocities, m/s.
+    """
+
+    position: jnp.ndarray
+    velocity: jnp.ndarray
+
+
+@pytree.dataclass
+class ContactSpheres:
+    """The spheres as the node–sphere law reads them (rows, SI).
+
+    Attributes:
+      position: (N, 3) centres, m.
+      velocity: (N, 3) m/s.
+      angular_velocity: (N, 3) rad/s.
+      radius: (N,) m.
+    """
+
+    position: jnp.ndarray
+    velocity: jnp.ndarray
+    angular_velocity: jnp.ndarray
+    radius: jnp.ndarray
+
+
 class NodeSphereForces(NamedTuple):
     """Result of :func:`node_sphere_forces` (unpacks as a tuple).
 
@@ -239,12 +275,8 @@ def node_sphere_normal_energy(
 
 
 def node_sphere_forces(
-    node_position,
-    node_velocity,
-    sphere_position,
-    sphere_velocity,
-    sphere_angular_velocity,
-    sphere_radius,
+    nodes: ContactNodes,
+    spheres: ContactSpheres,
     candidates,
     spring,
     dt,
@@ -266,12 +298,8 @@ def node_sphere_forces(
     gives the JAX law's derivatives to round-off.
 
     Args:
-      node_position: (n_nodes, 3), m.
-      node_velocity: (n_nodes, 3), m/s.
-      sphere_position: (N, 3), m.
-      sphere_velocity: (N, 3), m/s.
-      sphere_angular_velocity: (N, 3), rad/s.
-      sphere_radius: (N,), m.
+      nodes: the nodes' positions and velocities (:class:`ContactNodes`).
+      spheres: the spheres' positions, velocities, angular velocities and radii (:class:`ContactSpheres`).
       candidates: (n_nodes, K) int sphere ids padded with N (``NodeCandidates.idx``).
       spring: (3, n_nodes, K) carried tangential springs (force on the node), N.
       dt: time step, s.
@@ -285,35 +313,20 @@ def node_sphere_forces(
     Returns:
       A :class:`NodeSphereForces`.
     """
-    args = (
-        node_position,
-        node_velocity,
-        sphere_position,
-        sphere_velocity,
-        sphere_angular_velocity,
-        sphere_radius,
-        candidates,
-        spring,
-        dt,
-        params,
-        membrane_thickness,
-    )
-    if not native.enabled_for(jnp.asarray(node_position).dtype):
+    args = (nodes, spheres, candidates, spring, dt, params, membrane_thickness)
+    if not native.enabled_for(jnp.asarray(nodes.position).dtype):
         return _reference_node_sphere_forces(*args, sphere_slots=sphere_slots, sphere_subset=sphere_subset)
-    node_force, sphere_force, sphere_torque, new_spring = _compiled_node_sphere_forces(*args)
+    outputs = _compiled_node_sphere_forces(*args)  # node force, sphere force, sphere torque, springs
     # The per-slot fields from the geometry and the new springs; XLA drops those a caller does not use.
     branch, reach, valid, _ = _slot_geometry(
-        node_position, sphere_position, sphere_radius, candidates, membrane_thickness
+        nodes.position, spheres.position, spheres.radius, candidates, membrane_thickness
     )
     normal, distance = safe_normalize(branch)
     overlap = jnp.where(valid, reach - distance, -1.0)
     normal_force = jnp.where(distance > 0.0, params.normal_stiffness * jnp.maximum(overlap, 0.0), 0.0)
-    force_on_node = select(valid, scale(normal_force, normal) + new_spring)
+    force_on_node = select(valid, scale(normal_force, normal) + outputs[3])
     return NodeSphereForces(
-        node_force=node_force,
-        sphere_force=sphere_force,
-        sphere_torque=sphere_torque,
-        spring=new_spring,
+        *outputs,
         normal_force=normal_force,
         overlap=overlap,
         slot_force=jnp.moveaxis(force_on_node, 0, -1),
@@ -321,49 +334,39 @@ def node_sphere_forces(
     )
 
 
-def _kernel_inputs(
-    node_position,
-    node_velocity,
-    sphere_position,
-    sphere_velocity,
-    sphere_angular_velocity,
-    sphere_radius,
-    candidates,
-    spring,
-    dt,
-    params,
-    membrane_thickness,
-):
-    """The kernel's differentiable inputs, in its order (less the candidates), the scalars stacked."""
-    dtype = node_position.dtype
-    scalars = jnp.stack(
-        [
-            jnp.asarray(value, dtype)
-            for value in (
-                dt,
-                params.normal_stiffness,
-                params.tangential_stiffness,
-                params.friction_coefficient,
-                membrane_thickness,
-            )
-        ]
-    )
+# The kernels' side of the law. Each function below takes node_sphere_forces' first seven arguments, in
+# its order, so that membrax.membrane.coupled.node_step can chain these kernels with the others of a step.
+
+
+def node_sphere_kernel_inputs(nodes, spheres, candidates, spring, dt, params, membrane_thickness):
+    """The kernels' differentiable inputs, flat in their order (less the candidates), the scalars stacked.
+
+    Returns:
+      (x_node, v_node, x_sphere, v_sphere, ω_sphere, R, springs, (Δt, k_n, k_t, μ, t_m)), all of the node
+      positions' dtype: what :func:`membrax.native.pack_cotangents` carries the kernels' cotangents back
+      through to the arguments.
+    """
+    del candidates  # integer ids: passed to the kernels as they are, no cotangent
+    dtype = nodes.position.dtype
+    node_rows = (nodes.position, nodes.velocity)
+    sphere_rows = (spheres.position, spheres.velocity, spheres.angular_velocity, spheres.radius)
+    law = (params.normal_stiffness, params.tangential_stiffness, params.friction_coefficient)
     return (
-        node_position,
-        node_velocity.astype(dtype),
-        sphere_position.astype(dtype),
-        sphere_velocity.astype(dtype),
-        sphere_angular_velocity.astype(dtype),
-        sphere_radius.astype(dtype),
-        spring.astype(dtype),
-        scalars,
+        *native.in_dtype(dtype, *node_rows, *sphere_rows, spring),
+        native.stack_scalars(dtype, dt, *law, membrane_thickness),
     )
 
 
-def _kernel_node_sphere_forces(*args):
+def _kernel_operands(args):
+    """The flat inputs, and the operands both kernels begin with (the int32 candidates before the springs)."""
+    flat = node_sphere_kernel_inputs(*args)
+    return flat, (*flat[:6], args[2].astype(jnp.int32), *flat[6:])  # between the sphere radii and the springs
+
+
+def node_sphere_kernel(*args):
     """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc)."""
-    *bodies, spring, scalars = _kernel_inputs(*args)
-    node_position, sphere_position = bodies[0], bodies[2]
+    flat, operands = _kernel_operands(args)
+    node_position, sphere_position, spring = flat[0], flat[2], flat[6]
     dtype = node_position.dtype
     rows = jax.ShapeDtypeStruct(node_position.shape, dtype)
     sphere_rows = jax.ShapeDtypeStruct(sphere_position.shape, dtype)
@@ -371,10 +374,7 @@ def _kernel_node_sphere_forces(*args):
         "node_sphere_forces",
         dtype,
         (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
-        *bodies,
-        args[6].astype(jnp.int32),
-        spring,
-        scalars,
+        *operands,
     )
 
 
@@ -382,29 +382,28 @@ def _backward_node_sphere_forces(args, perturbed, cotangents):
     """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
     del perturbed  # it covers every differentiable argument
     # The node addends are zero (this law's shares alone), two buffers: each is written in place.
-    position_addend, velocity_addend = jnp.zeros_like(args[0]), jnp.zeros_like(args[0])
-    flat_cotangents = _backward_kernel(args, cotangents, position_addend, velocity_addend)
-    return native.pack_cotangents(_kernel_inputs, args, flat_cotangents)
+    position = args[0].position
+    position_addend, velocity_addend = jnp.zeros_like(position), jnp.zeros_like(position)
+    flat_cotangents = node_sphere_backward_kernel(args, cotangents, position_addend, velocity_addend)
+    return native.pack_cotangents(node_sphere_kernel_inputs, args, flat_cotangents)
 
 
-def _backward_kernel(args, cotangents, position_addend, velocity_addend):
-    """``node_sphere_backward`` on :func:`node_sphere_forces`' arguments: its flat cotangents.
+def node_sphere_backward_kernel(args, cotangents, position_addend, velocity_addend):
+    """``node_sphere_backward`` on :func:`node_sphere_forces`' first seven arguments: its flat cotangents.
 
-    The node position's and velocity's are the addends plus this law's shares, in the addends' buffers,
-    and the springs' is written over the springs' cotangent (``cotangents[3]``): in-place updates
-    (``input_output_aliases``: arguments 13, 14 and 12 to results 0, 1 and 6).
+    Returns the cotangents of :func:`node_sphere_kernel_inputs`' arrays, from those of the four outputs of
+    :func:`node_sphere_kernel` (``cotangents``). The node position's and velocity's are the addends plus
+    this law's shares, in the addends' buffers, and the springs' is written over the springs' cotangent
+    (``cotangents[3]``): in-place updates (``input_output_aliases``: arguments 13, 14 and 12 to results
+    0, 1 and 6).
     """
-    flat = _kernel_inputs(*args)
+    flat, operands = _kernel_operands(args)
     dtype = flat[0].dtype
-    *bodies, spring, scalars = flat
     return native.call(
         "node_sphere_backward",
         dtype,
         tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat),
-        *bodies,
-        args[6].astype(jnp.int32),
-        spring,
-        scalars,
+        *operands,
         *(jnp.asarray(c, dtype) for c in cotangents),
         position_addend.astype(dtype),
         velocity_addend.astype(dtype),
@@ -412,36 +411,24 @@ def _backward_kernel(args, cotangents, position_addend, velocity_addend):
     )
 
 
-def _reference_outputs(*args):
-    """The four outputs of the kernel, from the JAX law (the definition)."""
+def node_sphere_reference(*args):
+    """The four outputs of :func:`node_sphere_kernel`, from the JAX law (the definition)."""
     result = _reference_node_sphere_forces(*args)
     return result.node_force, result.sphere_force, result.sphere_torque, result.spring
 
 
 _compiled_node_sphere_forces = native.with_reference(
-    _kernel_node_sphere_forces, _reference_outputs, _backward_node_sphere_forces
+    node_sphere_kernel, node_sphere_reference, _backward_node_sphere_forces
 )
 
 
 def _reference_node_sphere_forces(
-    node_position,
-    node_velocity,
-    sphere_position,
-    sphere_velocity,
-    sphere_angular_velocity,
-    sphere_radius,
-    candidates,
-    spring,
-    dt,
-    params: MembraneContactParams,
-    membrane_thickness,
-    sphere_slots=None,
-    sphere_subset=None,
+    nodes, spheres, candidates, spring, dt, params, membrane_thickness, sphere_slots=None, sphere_subset=None
 ) -> NodeSphereForces:
     """:func:`node_sphere_forces` in JAX: the definition of the law, and its derivatives."""
-    num_spheres = sphere_position.shape[0]
+    num_spheres = spheres.position.shape[0]
     branch, reach, valid, safe_idx = _slot_geometry(
-        node_position, sphere_position, sphere_radius, candidates, membrane_thickness
+        nodes.position, spheres.position, spheres.radius, candidates, membrane_thickness
     )
     normal_force_vector = -jnp.stack(
         jax.grad(_slot_energy)(tuple(branch), reach, valid, params.normal_stiffness)
@@ -451,9 +438,9 @@ def _reference_node_sphere_forces(
     active = overlap > 0.0
     normal_force = dot(normal_force_vector, normal)
 
-    node_velocity_t = jnp.broadcast_to(_component_first(node_velocity)[:, :, None], spring.shape)
-    sphere_velocity_t = _component_first(sphere_velocity[safe_idx])
-    sphere_angular_velocity_t = _component_first(sphere_angular_velocity[safe_idx])
+    node_velocity_t = jnp.broadcast_to(_component_first(nodes.velocity)[:, :, None], spring.shape)
+    sphere_velocity_t = _component_first(spheres.velocity[safe_idx])
+    sphere_angular_velocity_t = _component_first(spheres.angular_velocity[safe_idx])
     relative_velocity = node_velocity_t - (sphere_velocity_t + cross(sphere_angular_velocity_t, branch))
     tangential_velocity = relative_velocity - scale(dot(relative_velocity, normal), normal)
     # Stored once each: XLA-CPU would otherwise re-evaluate the law per component and per output.

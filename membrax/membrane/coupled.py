@@ -62,19 +62,21 @@ import numpy as np
 import scipy.sparse.linalg
 
 from membrax import native, pytree
-from membrax.config import TriaxialConfig
+from membrax.defaults import MEMBRANE_MODULUS
 from membrax.errors import ErrorCode
 from membrax.membrane import energies
 from membrax.membrane.contact import (
+    ContactNodes,
+    ContactSpheres,
     MembraneContactParams,
     NodeCandidates,
-    _backward_kernel,
-    _kernel_inputs,
-    _kernel_node_sphere_forces,
-    _reference_outputs,
     build_candidates,
     candidate_errors,
+    node_sphere_backward_kernel,
     node_sphere_forces,
+    node_sphere_kernel,
+    node_sphere_kernel_inputs,
+    node_sphere_reference,
     remap_node_history,
     update_candidates,
 )
@@ -97,6 +99,7 @@ __all__ = [
     "CoupledParams",
     "contact_forces",
     "CoupledState",
+    "MembraneNodes",
     "MembraneParams",
     "MembraneState",
     "grow_candidates",
@@ -143,14 +146,24 @@ class MembraneParams:
 
     @staticmethod
     def create(
-        modulus_kpa: float = TriaxialConfig.membrane_modulus_kpa,
-        thickness_mm: float = 2.5,
-        cell_pressure_kpa: float = 10.0,
+        *,
+        thickness: float,
+        cell_pressure: float,
+        modulus: float = MEMBRANE_MODULUS,
         contact: MembraneContactParams | None = None,
         bending_factor: float = 0.0,
         contact_offset_factor: float = 1.0,
     ) -> MembraneParams:
-        """Parameters from laboratory units (kPa, mm), converted once to SI; defaults are the paper's."""
+        """Parameters in SI, range-checked; the modulus defaults to the paper's (:mod:`membrax.defaults`).
+
+        Args:
+          thickness: t_m, m, > 0 (the paper's: 2.5e-3 to 5e-3).
+          cell_pressure: σc, Pa, >= 0 (the paper's: 1e4 to 1e5).
+          modulus: E_m, Pa, > 0 (the paper's latex: 1.4e6).
+          contact: the node–sphere law (default :meth:`MembraneContactParams.default`).
+          bending_factor: scale of the plate bending rigidity, >= 0.
+          contact_offset_factor: nodes touch spheres at R + f t_m/2, f in [0, 1].
+        """
         check_range("bending_factor", bending_factor, lower=0.0, hint="1: plate bending; 0: none.")
         check_range(
             "contact_offset_factor",
@@ -159,13 +172,13 @@ class MembraneParams:
             upper=1.0,
             hint="0: nodes on the sphere surface; 1: the inner face on it.",
         )
-        check_range("modulus_kpa", modulus_kpa, lower=0.0, lower_open=True, hint="latex: about 1400 kPa.")
-        check_range("thickness_mm", thickness_mm, lower=0.0, lower_open=True, hint="paper: 2.5 to 5 mm.")
-        check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, hint="paper: 10 to 100 kPa.")
+        check_range("modulus", modulus, lower=0.0, lower_open=True, hint="Pa; latex is about 1.4e6.")
+        check_range("thickness", thickness, lower=0.0, lower_open=True, hint="m; paper: 2.5e-3 to 5e-3.")
+        check_range("cell_pressure", cell_pressure, lower=0.0, hint="Pa; 10 kPa is 1e4.")
         return MembraneParams(
-            modulus=jnp.asarray(1e3 * modulus_kpa),
-            thickness=jnp.asarray(1e-3 * thickness_mm),
-            cell_pressure=jnp.asarray(1e3 * cell_pressure_kpa),
+            modulus=jnp.asarray(modulus),
+            thickness=jnp.asarray(thickness),
+            cell_pressure=jnp.asarray(cell_pressure),
             contact=MembraneContactParams.default() if contact is None else contact,
             bending_factor=jnp.asarray(float(bending_factor)),
             contact_offset_factor=jnp.asarray(float(contact_offset_factor)),
@@ -288,64 +301,77 @@ def platen_reaction(node_force, mesh: MembraneMesh, position=None, cell_pressure
     return jnp.stack(reactions)
 
 
-def advance_nodes(
-    membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping: DampingParams
-):
+@pytree.dataclass
+class MembraneNodes:
+    """The membrane's nodes as the node update integrates them (rows, SI; step 4 of the module docstring).
+
+    Attributes:
+      position: (n, 3) node positions y_n, m.
+      position_compensation: (n, 3) low-order part of y_n, m.
+      velocity: (n, 3) node velocities at the previous half step, m/s.
+      mass: (n,) lumped masses, kg.
+      free: (n,) bool, the nodes that move (False on the clamped rings).
+    """
+
+    position: jnp.ndarray
+    position_compensation: jnp.ndarray
+    velocity: jnp.ndarray
+    mass: jnp.ndarray
+    free: jnp.ndarray
+
+    def for_contact(self) -> ContactNodes:
+        """The positions and velocities, as the node–sphere law reads them."""
+        return ContactNodes(position=self.position, velocity=self.velocity)
+
+
+def advance_nodes(membrane_force, contact_force, nodes: MembraneNodes, dt, damping: DampingParams):
     """Step 4 of the module docstring for every node: (total force, velocity, position, compensation).
 
     F = F_membrane + F_contact; F_d = F − α|F| sign(v) − γ m v
     (:func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and 0 on the
-    others (``free``, (n,) bool); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`). On
+    others (``nodes.free``); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`). On
     the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
     ``membrane_nodes.cc``) does it, and reverse mode a compiled backward kernel
     (``membrane_nodes_backward``) that gives this JAX code's derivatives to round-off. The damping
     coefficients are one specimen's (scalars, or arrays of one member).
     """
-    args = (membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping)
-    if native.enabled_for(position.dtype):
+    args = (membrane_force, contact_force, nodes, dt, damping)
+    if native.enabled_for(nodes.position.dtype):
         return _compiled_advance_nodes(*args)
     return _advance_nodes_reference(*args)
 
 
-def _advance_nodes_reference(
-    membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping
-):
+def _advance_nodes_reference(membrane_force, contact_force, nodes: MembraneNodes, dt, damping):
     force = membrane_force + contact_force
-    member = jnp.zeros(position.shape[0], dtype=jnp.int32)
-    damped = apply_damping(force, velocity, mass, damping, member)
-    velocity = jnp.where(free[:, None], velocity + dt * damped / mass[:, None], 0.0)
-    position, compensation = compensated_add(position, compensation, dt * velocity)
+    member = jnp.zeros(nodes.position.shape[0], dtype=jnp.int32)
+    damped = apply_damping(force, nodes.velocity, nodes.mass, damping, member)
+    velocity = jnp.where(nodes.free[:, None], nodes.velocity + dt * damped / nodes.mass[:, None], 0.0)
+    position, compensation = compensated_add(nodes.position, nodes.position_compensation, dt * velocity)
     return force, velocity, position, compensation
 
 
-def _advance_nodes_inputs(
-    membrane_force, contact_force, position, compensation, velocity, mass, free, dt, damping
-):
-    """The kernel's differentiable inputs (all but ``free``), the scalars Δt, α, γ stacked."""
-    dtype = position.dtype
-    scalars = jnp.stack(
-        [
-            jnp.asarray(dt, dtype),
-            jnp.ravel(damping.local_coefficient)[0].astype(dtype),
-            jnp.ravel(damping.viscous_rate)[0].astype(dtype),
-        ]
-    )
+def _node_update_inputs(nodes: MembraneNodes, dt, damping):
+    """The node update kernels' inputs after the two forces: x, c, v, m and the scalars Δt, α, γ stacked."""
+    dtype = nodes.position.dtype
+    # One specimen's damping: the first entry of a per-member array.
+    damping_law = (jnp.ravel(damping.local_coefficient)[0], jnp.ravel(damping.viscous_rate)[0])
     return (
-        membrane_force.astype(dtype),
-        contact_force.astype(dtype),
-        position,
-        compensation.astype(dtype),
-        velocity.astype(dtype),
-        mass.astype(dtype),
-        scalars,
+        *native.in_dtype(dtype, nodes.position, nodes.position_compensation, nodes.velocity, nodes.mass),
+        native.stack_scalars(dtype, dt, *damping_law),
     )
+
+
+def _advance_nodes_inputs(membrane_force, contact_force, nodes: MembraneNodes, dt, damping):
+    """The kernels' differentiable inputs, flat (all but ``nodes.free``): F_m, F_c, x, c, v, m, (Δt, α, γ)."""
+    forces = native.in_dtype(nodes.position.dtype, membrane_force, contact_force)
+    return (*forces, *_node_update_inputs(nodes, dt, damping))
 
 
 def _advance_nodes_kernel(*args):
     *vectors, mass, scalars = _advance_nodes_inputs(*args)
     dtype = mass.dtype
     rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
-    free = args[6]
+    free = args[2].free
     return native.call(
         "membrane_nodes", dtype, (rows, rows, rows, rows), *vectors, mass, free.astype(dtype), scalars
     )
@@ -358,15 +384,14 @@ def _advance_nodes_residuals(args, outputs, perturbed):
     and scalars; not the positions and compensations, which the backward kernel does not read.
     """
     del perturbed  # the backward kernel covers every argument
-    membrane_force, contact_force, position, compensation, *rest = args
+    membrane_force, contact_force, nodes, *rest = args
     force = outputs[0]
     same = membrane_force.shape == force.shape and membrane_force.dtype == force.dtype
     absent = native.Absent.like
     return (
         force if same else membrane_force,
         absent(contact_force) if same else contact_force,
-        absent(position),
-        absent(compensation),
+        nodes.set(position=absent(nodes.position), position_compensation=absent(nodes.position_compensation)),
         *rest,
     )
 
@@ -379,7 +404,7 @@ def _advance_nodes_backward(args, perturbed, cotangents):
     del perturbed  # it covers every differentiable argument
     total_kept = isinstance(args[1], native.Absent)  # the first slot then holds F itself
     # Zeros stand in for what was not kept: only their shapes and dtypes reach the cotangents' packing.
-    args = tuple(jnp.zeros(a.shape, a.dtype) if isinstance(a, native.Absent) else a for a in args)
+    args = native.zeros_for_absent(args)
     force, position, velocity, mass_bar, scalars_bar = _advance_nodes_backward_kernel(
         args, cotangents, total_kept
     )
@@ -405,7 +430,7 @@ def _advance_nodes_backward_kernel(args, cotangents, total_kept):
         vectors[0] if total_kept else vectors[0] + vectors[1],
         vectors[4],
         mass,
-        args[6].astype(dtype),
+        args[2].free.astype(dtype),
         scalars,
         *(jnp.asarray(c, dtype) for c in cotangents),
         input_output_aliases={8: 1},
@@ -422,115 +447,101 @@ _compiled_advance_nodes = native.with_reference(
 # the velocities), which XLA then adds in passes over the whole mesh and copies into the loop's carry;
 # chained here, each kernel adds its share in place to the one before (the kernels' addends).
 def node_step(
-    node_position,
-    node_velocity,
-    sphere_position,
-    sphere_velocity,
-    sphere_angular_velocity,
-    sphere_radius,
+    nodes: MembraneNodes,
+    spheres: ContactSpheres,
     candidates,
     spring,
     dt,
-    contact: MembraneContactParams,
-    contact_thickness,
-    mesh: MembraneMesh,
-    modulus,
-    thickness,
-    cell_pressure,
-    poisson_ratio,
-    bending_factor,
-    compensation,
-    mass,
-    free,
+    params: MembraneParams,
     damping: DampingParams,
+    mesh: MembraneMesh,
     model: str = "neo_hookean",
 ):
     """The node–sphere contacts, the membrane forces and the node update of one step, on the CPU kernels.
 
-    The same numbers as :func:`membrax.membrane.contact.node_sphere_forces` (its first argument through
-    ``contact_thickness``), :func:`membrax.membrane.mesh.nodal_forces` (at ``node_position``, ``mesh``
-    through ``bending_factor``) and :func:`advance_nodes` (those forces, ``node_position``,
-    ``compensation``, ``node_velocity``, ``mass``, ``free``, ``dt``, ``damping``), from the same kernels, so
-    the same bits. Reverse mode runs their three backward kernels one after the other, each adding its
-    share of the nodes' cotangents to the last one's in place; it gives the three functions' derivatives
-    to round-off (``tests/test_native.py``), also under ``vmap``, and falls back to the JAX definitions'
-    where the mesh's rest geometry is differentiated. For float32 and float64 where
+    The same numbers as :func:`membrax.membrane.contact.node_sphere_forces` (``nodes.for_contact()``,
+    ``spheres``, ``candidates``, ``spring``, ``dt``, ``params.contact``, ``params.contact_thickness``),
+    :func:`membrax.membrane.mesh.nodal_forces` (at ``nodes.position``, ``mesh``, ``params.modulus``,
+    ``params.thickness``, ``params.cell_pressure``, ν of latex, ``params.bending_factor``) and
+    :func:`advance_nodes` (those forces, ``nodes``, ``dt``, ``damping``), from the same kernels, so the
+    same bits. Reverse mode runs their three backward kernels one after the other, each adding its share of
+    the nodes' cotangents to the last one's in place; it gives the three functions' derivatives to
+    round-off (``tests/test_native.py``), also under ``vmap``, and falls back to the JAX definitions' where
+    the mesh's rest geometry is differentiated. For float32 and float64 where
     :func:`membrax.native.enabled_for`.
+
+    Args:
+      nodes: the nodes' positions, compensations, velocities, masses and free mask.
+      spheres: the spheres as the node–sphere law reads them.
+      candidates: (n, K) int sphere ids padded with N (``NodeCandidates.idx``).
+      spring: (3, n, K) carried tangential springs, N.
+      dt: time step, s.
+      params: the membrane's parameters (its contact law among them).
+      damping: the damping law of the nodes (the DEM's).
+      mesh: the membrane.
+      model: the stretching law (static).
 
     Returns:
       (contact node force, sphere force, sphere torque, new springs, total node force F, velocity,
       position, compensation), as the three functions return them.
     """
-    args = (
-        node_position,
-        node_velocity,
-        sphere_position,
-        sphere_velocity,
-        sphere_angular_velocity,
-        sphere_radius,
-        candidates,
-        spring,
-        dt,
-        contact,
-        contact_thickness,
+    return _COMPILED_NODE_STEP[model](nodes, spheres, candidates, spring, dt, params, damping, mesh)
+
+
+def _node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mesh):
+    """node_step's arguments split into the three laws' own: (contact, membrane, update).
+
+    ``contact`` is node_sphere_forces' first seven arguments, ``membrane`` nodal_forces' (less the model),
+    ``update`` advance_nodes' after its two forces.
+    """
+    contact = (nodes.for_contact(), spheres, candidates, spring, dt, params.contact, params.contact_thickness)
+    membrane = (
+        nodes.position,
         mesh,
-        modulus,
-        thickness,
-        cell_pressure,
-        poisson_ratio,
-        bending_factor,
-        compensation,
-        mass,
-        free,
-        damping,
+        params.modulus,
+        params.thickness,
+        params.cell_pressure,
+        energies.LATEX_POISSON_RATIO,
+        params.bending_factor,
     )
-    return _COMPILED_NODE_STEP[model](*args)
-
-
-_CONTACT_ARGUMENTS = slice(0, 11)  # node_sphere_forces' arguments among node_step's
-_MESH, _BENDING_FACTOR, _COMPENSATION = 11, 16, 17
-
-
-def _node_step_parts(args):
-    """node_step's arguments split: the contact law's, the membrane forces' (less the model), the update's."""
-    (position, velocity, *_, dt) = args[:9]
-    mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor = args[11:17]
-    compensation, mass, free, damping = args[17:]
-    membrane = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
-    return args[_CONTACT_ARGUMENTS], membrane, (position, compensation, velocity, mass, free, dt, damping)
+    return contact, membrane, (nodes, dt, damping)
 
 
 def _node_step_reference(*args, model):
-    contact, membrane, (position, compensation, velocity, mass, free, dt, damping) = _node_step_parts(args)
-    contact_outputs = _reference_outputs(*contact)
-    internal = energies._reference_nodal_forces(*membrane, model)
-    update = _advance_nodes_reference(
-        internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
-    )
-    return (*contact_outputs, *update)
+    contact, membrane, update = _node_step_parts(*args)
+    contact_outputs = node_sphere_reference(*contact)
+    internal = energies.reference_nodal_forces(*membrane, model)
+    return (*contact_outputs, *_advance_nodes_reference(internal, contact_outputs[0], *update))
 
 
 def _node_step_kernel(*args, model):
-    contact, membrane, (position, compensation, velocity, mass, free, dt, damping) = _node_step_parts(args)
-    contact_outputs = _kernel_node_sphere_forces(*contact)
-    internal = energies._kernel_nodal_forces(*membrane, model)
-    update = _advance_nodes_kernel(
-        internal, contact_outputs[0], position, compensation, velocity, mass, free, dt, damping
-    )
-    return (*contact_outputs, *update)
+    contact, membrane, update = _node_step_parts(*args)
+    contact_outputs = node_sphere_kernel(*contact)
+    internal = energies.nodal_forces_kernel(*membrane, model)
+    return (*contact_outputs, *_advance_nodes_kernel(internal, contact_outputs[0], *update))
 
 
-def _mesh_perturbed(perturbed):
-    return any(jax.tree.leaves(perturbed[_MESH]))
+def _node_step_kernel_inputs(*args):
+    """The three kernels' flat inputs from node_step's arguments, each array once.
+
+    The node–sphere law's (the node positions and velocities among them), the membrane forces' scalars,
+    and the node update's compensations, masses and scalars: what the chained backward kernels return
+    cotangents of.
+    """
+    contact, membrane, update = _node_step_parts(*args)
+    _, membrane_scalars = energies.nodal_forces_kernel_inputs(*membrane)
+    _, compensation, _, mass, update_scalars = _node_update_inputs(*update)
+    return (*node_sphere_kernel_inputs(*contact), membrane_scalars, compensation, mass, update_scalars)
 
 
 def _node_step_residuals(args, outputs, perturbed):
     """What reverse mode keeps: the arguments but the compensation, which no kernel reads, and F."""
-    if _mesh_perturbed(perturbed):  # the reference's rule, from all the arguments
+    mesh_perturbed = perturbed[-1]  # node_step's last argument
+    if any(jax.tree.leaves(mesh_perturbed)):  # the reference's rule, from all the arguments
         return args, None
-    kept = list(args)
-    kept[_COMPENSATION] = native.Absent.like(args[_COMPENSATION])
-    return tuple(kept), outputs[4]
+    nodes, *rest = args
+    compensation = native.Absent.like(nodes.position_compensation)
+    return (nodes.set(position_compensation=compensation), *rest), outputs[4]
 
 
 def _node_step_backward(residuals, perturbed, cotangents, model):
@@ -538,10 +549,10 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     args, total_force = residuals
     if total_force is None:
         return native.reference_vjp(functools.partial(_node_step_reference, model=model), args, cotangents)
-    args = tuple(jnp.zeros(a.shape, a.dtype) if isinstance(a, native.Absent) else a for a in args)
-    contact, membrane, update = _node_step_parts(args)
-    position = args[0]
-    dtype = position.dtype
+    args = native.zeros_for_absent(args)
+    contact, membrane, (nodes, dt, damping) = _node_step_parts(*args)
+    params_perturbed = perturbed[5]  # node_step's MembraneParams
+    dtype = nodes.position.dtype
     (
         node_force_bar,
         sphere_force_bar,
@@ -553,7 +564,7 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
         compensation_bar,
     ) = (jnp.asarray(c, dtype) for c in cotangents)
     # 4. The node update: F stands in for its two forces (its backward kernel reads only their sum).
-    update_args = (total_force, jnp.zeros_like(total_force), *update)
+    update_args = (total_force, jnp.zeros_like(total_force), nodes, dt, damping)
     force_bar, update_position_bar, update_velocity_bar, mass_bar, update_scalars_bar = (
         _advance_nodes_backward_kernel(
             update_args, (total_bar, velocity_bar, position_bar, compensation_bar), total_kept=True
@@ -561,30 +572,20 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     )
     # 2. The membrane forces: J ū added in place to the update's position cotangent (ū = F̄; the update's
     # kernel copied it to update_position_bar, the compensation's).
-    position_sum, membrane_scalars_bar = energies._backward_kernel(
-        membrane, force_bar, position_bar, bool(perturbed[_BENDING_FACTOR]), model
+    position_sum, membrane_scalars_bar = energies.nodal_forces_backward_kernel(
+        membrane, force_bar, position_bar, bool(params_perturbed.bending_factor), model
     )
     # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).
-    contact_flat = _backward_kernel(
+    contact_flat = node_sphere_backward_kernel(
         contact,
         (force_bar + node_force_bar, sphere_force_bar, torque_bar, spring_bar),
         position_sum,
         update_velocity_bar,
     )
-    # The arguments' cotangents: the node position's and velocity's are whole in the contact's; the
-    # membrane's and the update's packings add the rest (the scalars; Δt is shared).
-    zeros = jnp.zeros_like(position)
-    contact_bar = native.pack_cotangents(_kernel_inputs, contact, contact_flat)
-    membrane_bar = native.pack_cotangents(energies._kernel_inputs, membrane, (zeros, membrane_scalars_bar))
-    update_bar = native.pack_cotangents(
-        _advance_nodes_inputs,
-        update_args,
-        (force_bar, force_bar, zeros, update_position_bar, zeros, mass_bar, update_scalars_bar),
-    )
-    _, _, _, compensation_grad, _, mass_grad, free_grad, dt_grad, damping_grad = update_bar
-    contact_bar = list(contact_bar)
-    contact_bar[8] = contact_bar[8] + dt_grad
-    return (*contact_bar, *membrane_bar[1:], compensation_grad, mass_grad, free_grad, damping_grad)
+    # The node positions' and velocities' cotangents are whole in the contact's; the membrane's and the
+    # update's scalars, the compensations' and the masses' are packed beside them (Δt is shared).
+    flat = (*contact_flat, membrane_scalars_bar, update_position_bar, mass_bar, update_scalars_bar)
+    return native.pack_cotangents(_node_step_kernel_inputs, args, flat)
 
 
 _COMPILED_NODE_STEP = {
@@ -598,19 +599,25 @@ _COMPILED_NODE_STEP = {
 }
 
 
+def _contact_spheres(spheres: DEMState, particles: Particles) -> ContactSpheres:
+    """The spheres of a DEM state as the node–sphere law reads them."""
+    return ContactSpheres(
+        position=spheres.position,
+        velocity=spheres.velocity,
+        angular_velocity=spheres.angular_velocity,
+        radius=particles.radius,
+    )
+
+
 def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):
     """The node–sphere contacts of a coupled state at its positions (step 1 of the module docstring).
 
     Returns the :class:`~membrax.membrane.contact.NodeSphereForces` (the springs advanced by one step).
     """
-    spheres, nodes = state.dem, state.membrane
+    nodes = state.membrane
     return node_sphere_forces(
-        nodes.position,
-        nodes.velocity,
-        spheres.position,
-        spheres.velocity,
-        spheres.angular_velocity,
-        particles.radius,
+        ContactNodes(position=nodes.position, velocity=nodes.velocity),
+        _contact_spheres(state.dem, particles),
         nodes.candidates.idx,
         nodes.spring,
         dt,
@@ -702,7 +709,13 @@ def membrane_dem(
     def step_fn(state: CoupledState, params: CoupledParams) -> CoupledState:
         spheres, nodes = state.dem, state.membrane
         mp = params.membrane
-        mass = mp.thickness * mass_per_thickness
+        moving = MembraneNodes(
+            position=nodes.position,
+            position_compensation=nodes.position_compensation,
+            velocity=nodes.velocity,
+            mass=mp.thickness * mass_per_thickness,
+            free=free,
+        )
         if native.enabled_for(nodes.position.dtype):  # steps 1, 2 and 4 in one reverse-mode rule
             (
                 contact_node_force,
@@ -714,27 +727,14 @@ def membrane_dem(
                 position,
                 compensation,
             ) = node_step(
-                nodes.position,
-                nodes.velocity,
-                spheres.position,
-                spheres.velocity,
-                spheres.angular_velocity,
-                particles.radius,
+                moving,
+                _contact_spheres(spheres, particles),
                 nodes.candidates.idx,
                 nodes.spring,
                 dt,
-                mp.contact,
-                mp.contact_thickness,
-                mesh,
-                mp.modulus,
-                mp.thickness,
-                mp.cell_pressure,
-                energies.LATEX_POISSON_RATIO,
-                mp.bending_factor,
-                nodes.position_compensation,
-                mass,
-                free,
+                mp,
                 params.dem.damping,
+                mesh,
                 model=stretching_model,
             )
         else:
@@ -751,15 +751,7 @@ def membrane_dem(
                 bending_factor=mp.bending_factor,
             )
             node_force, velocity, position, compensation = advance_nodes(
-                internal,
-                contact_node_force,
-                nodes.position,
-                nodes.position_compensation,
-                nodes.velocity,
-                mass,
-                free,
-                dt,
-                params.dem.damping,
+                internal, contact_node_force, moving, dt, params.dem.damping
             )
         reaction = platen_reaction(node_force, mesh, nodes.position, mp.cell_pressure)
         # The ram holds the platen against the spheres and the membrane: the servo sees both.

@@ -47,6 +47,10 @@ __all__ = [
     "pressure_energy",
     "total_energy",
     "nodal_forces",
+    "reference_nodal_forces",
+    "nodal_forces_kernel",
+    "nodal_forces_kernel_inputs",
+    "nodal_forces_backward_kernel",
     "lumped_mass",
 ]
 
@@ -213,10 +217,10 @@ def nodal_forces(
     args = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
     if native.enabled_for(position.dtype):
         return _COMPILED_NODAL_FORCES[model](*args)
-    return _reference_nodal_forces(*args, model)
+    return reference_nodal_forces(*args, model)
 
 
-def _reference_nodal_forces(
+def reference_nodal_forces(
     position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
 ):
     """−∇(total energy) by ``jax.grad``: the definition of :func:`nodal_forces`."""
@@ -225,16 +229,12 @@ def _reference_nodal_forces(
     )
 
 
-def _kernel_inputs(position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor):
+def nodal_forces_kernel_inputs(
+    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
+):
     """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b)."""
-    dtype = position.dtype
-    scalars = jnp.stack(
-        [
-            jnp.asarray(value, dtype)
-            for value in (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
-        ]
-    )
-    return position, scalars
+    scalars = (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+    return position, native.stack_scalars(position.dtype, *scalars)
 
 
 def _mesh_inputs(mesh, dtype):
@@ -251,11 +251,11 @@ def _mesh_inputs(mesh, dtype):
     )
 
 
-def _kernel_nodal_forces(
+def nodal_forces_kernel(
     position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
 ):
-    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`_reference_nodal_forces`)."""
-    position, scalars = _kernel_inputs(
+    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`reference_nodal_forces`)."""
+    position, scalars = nodal_forces_kernel_inputs(
         position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
     )
     dtype = position.dtype
@@ -279,17 +279,17 @@ def _backward_nodal_forces(args, perturbed, cotangent, model):
     if any(jax.tree.leaves(perturbed[1])):
         return None
     # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
-    flat = _backward_kernel(args, cotangent, jnp.zeros_like(args[0]), bool(perturbed[6]), model)
-    return native.pack_cotangents(_kernel_inputs, args, flat)
+    flat = nodal_forces_backward_kernel(args, cotangent, jnp.zeros_like(args[0]), bool(perturbed[6]), model)
+    return native.pack_cotangents(nodal_forces_kernel_inputs, args, flat)
 
 
-def _backward_kernel(args, cotangent, addend, bending_derivative, model):
+def nodal_forces_backward_kernel(args, cotangent, addend, bending_derivative, model):
     """``membrane_forces_backward`` on :func:`nodal_forces`' arguments (``args``, less the model).
 
     Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b)) for ū = ``cotangent``; the first in the addend's
     buffer (aliased), so a caller that passes the positions' cotangent so far has it updated in place.
     """
-    position, scalars = _kernel_inputs(*args)
+    position, scalars = nodal_forces_kernel_inputs(*args)
     dtype = position.dtype
     return native.call(
         "membrane_forces_backward",
@@ -308,8 +308,8 @@ def _backward_kernel(args, cotangent, addend, bending_derivative, model):
 
 _COMPILED_NODAL_FORCES = {
     model: native.with_reference(
-        functools.partial(_kernel_nodal_forces, model=model),
-        functools.partial(_reference_nodal_forces, model=model),
+        functools.partial(nodal_forces_kernel, model=model),
+        functools.partial(reference_nodal_forces, model=model),
         functools.partial(_backward_nodal_forces, model=model),
     )
     for model in STRETCHING_MODELS

@@ -66,10 +66,13 @@ __all__ = [
     "cache_dir",
     "call",
     "enabled_for",
+    "in_dtype",
     "pack_cotangents",
     "reference_vjp",
     "runs_kernels",
+    "stack_scalars",
     "with_reference",
+    "zeros_for_absent",
 ]
 
 _SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
@@ -233,6 +236,19 @@ class Absent:
         return cls(tuple(array.shape), jnp.dtype(array.dtype))
 
 
+def zeros_for_absent(tree):
+    """``tree`` with every :class:`Absent` replaced by zeros of its shape and dtype.
+
+    A backward rule whose residuals left arrays out gets them back as zeros: its kernels do not read them,
+    and :func:`pack_cotangents` needs only their shapes and dtypes.
+    """
+
+    def restore(leaf):
+        return jnp.zeros(leaf.shape, leaf.dtype) if isinstance(leaf, Absent) else leaf
+
+    return jax.tree.map(restore, tree, is_leaf=lambda leaf: isinstance(leaf, Absent))
+
+
 def with_reference(kernel, reference, backward=None, keep=None):
     """``kernel`` on the CPU and ``reference`` on other backends, with the derivatives of ``reference``.
 
@@ -300,6 +316,16 @@ def with_reference(kernel, reference, backward=None, keep=None):
 
     compiled.defvjp(forward_marked, backward_marked, symbolic_zeros=True)
     return compiled
+
+
+def in_dtype(dtype, *arrays):
+    """``arrays`` in ``dtype``, as a tuple: a kernel's floating inputs all have the dtype it is built for."""
+    return tuple(jnp.asarray(array).astype(dtype) for array in arrays)
+
+
+def stack_scalars(dtype, *values):
+    """Scalar parameters as one (k,) array of ``dtype``, in the order a kernel reads them."""
+    return jnp.stack([jnp.asarray(value, dtype) for value in values])
 
 
 def reference_vjp(reference, args, cotangents):

@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 #include "contact_law.h"
@@ -59,6 +60,39 @@ void dem_pair_law(const T* __restrict position, const T* __restrict compensation
   }
 }
 
+// dem_pairs' inputs, which its backward takes too: N spheres, C slots and the arrays' data (Δt's value);
+// `error` is nullptr when the sizes agree, else what is wrong (and the rest zero).
+template <typename T>
+struct PairInputs {
+  const char* error;
+  int64_t n, slots;
+  const T *x, *xc, *v, *w, *r, *spring, *kn, *kt, *mu;
+  T dt;
+  const int32_t* id;
+};
+
+template <ffi::DataType dtype>
+PairInputs<ffi::NativeType<dtype>> pair_inputs(
+    const ffi::Buffer<dtype>& position, const ffi::Buffer<dtype>& compensation, const ffi::Buffer<dtype>& velocity,
+    const ffi::Buffer<dtype>& angular_velocity, const ffi::Buffer<dtype>& radius, const ffi::Buffer<ffi::S32>& idx,
+    const ffi::Buffer<dtype>& spring, const ffi::Buffer<dtype>& normal_stiffness,
+    const ffi::Buffer<dtype>& tangential_stiffness, const ffi::Buffer<dtype>& friction_coefficient,
+    const ffi::Buffer<dtype>& time_step) {
+  const int64_t n = radius.element_count(), slots = spring.element_count() / 3;
+  for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
+    if (rows->element_count() != size_t(3 * n)) return {"sphere arrays must be (N, 3) with N the radii's length"};
+  }
+  for (const auto* scalar : {&normal_stiffness, &tangential_stiffness, &friction_coefficient}) {
+    if (scalar->element_count() != size_t(slots)) return {"per-slot parameters must be (C,)"};
+  }
+  if (idx.element_count() != size_t(2 * slots)) return {"idx must be (2, C)"};
+  if (time_step.element_count() != 1) return {"time_step must be (1,)"};
+  return {nullptr, n, slots, position.typed_data(), compensation.typed_data(), velocity.typed_data(),
+          angular_velocity.typed_data(), radius.typed_data(), spring.typed_data(), normal_stiffness.typed_data(),
+          tangential_stiffness.typed_data(), friction_coefficient.typed_data(), time_step.typed_data()[0],
+          idx.typed_data()};
+}
+
 template <ffi::DataType dtype>
 ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensation, ffi::Buffer<dtype> velocity,
                       ffi::Buffer<dtype> angular_velocity, ffi::Buffer<dtype> radius, ffi::Buffer<ffi::S32> idx,
@@ -68,30 +102,11 @@ ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensati
                       ffi::ResultBuffer<dtype> new_spring, ffi::ResultBuffer<dtype> pair_force,
                       ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
-  const int64_t n = radius.element_count();
-  const int64_t slots = spring.element_count() / 3;
-  for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
-    if (rows->element_count() != size_t(3 * n))
-      return membrax::failed(
-          ffi::Error::InvalidArgument("dem_pairs: sphere arrays must be (N, 3) with N the radii's length"));
-  }
-  for (const auto* scalar : {&normal_stiffness, &tangential_stiffness, &friction_coefficient}) {
-    if (scalar->element_count() != size_t(slots))
-      return membrax::failed(ffi::Error::InvalidArgument("dem_pairs: per-slot parameters must be (C,)"));
-  }
-  if (idx.element_count() != size_t(2 * slots))
-    return membrax::failed(ffi::Error::InvalidArgument("dem_pairs: idx must be (2, C)"));
-  const T* x = position.typed_data();
-  const T* xc = compensation.typed_data();
-  const T* v = velocity.typed_data();
-  const T* w = angular_velocity.typed_data();
-  const T* r = radius.typed_data();
-  const T* old_spring = spring.typed_data();
-  const T* kn = normal_stiffness.typed_data();
-  const T* kt = tangential_stiffness.typed_data();
-  const T* mu = friction_coefficient.typed_data();
-  const T dt = time_step.typed_data()[0];
-  const int32_t* id = idx.typed_data();
+  const PairInputs<T> in = pair_inputs(position, compensation, velocity, angular_velocity, radius, idx, spring,
+                                       normal_stiffness, tangential_stiffness, friction_coefficient, time_step);
+  if (in.error) return membrax::failed(ffi::Error::InvalidArgument(std::string("dem_pairs: ") + in.error));
+  const int64_t n = in.n, slots = in.slots;
+  const int32_t* id = in.id;
   T* force = pair_force->typed_data();
   T* springs = new_spring->typed_data();
   T* total = totals->typed_data();
@@ -100,8 +115,8 @@ ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensati
     scratch.resize(size_t(6 * slots));
     T* torque_i = scratch.data();
     T* torque_j = torque_i + 3 * slots;
-    dem_pair_law<T>(x, xc, v, w, r, id, old_spring, kn, kt, mu, dt, n, slots, force, springs, torque_i,
-                    torque_j);
+    dem_pair_law<T>(in.x, in.xc, in.v, in.w, in.r, id, in.spring, in.kn, in.kt, in.mu, in.dt, n, slots, force,
+                    springs, torque_i, torque_j);
     std::fill(total, total + 6 * n, T(0));
     // As the reference's one segment sum: first every slot's share of j, then every slot's share of i.
     for (int64_t k = 0; k < slots; ++k) {
@@ -251,33 +266,26 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
                               ffi::ResultBuffer<dtype> velocity_out, ffi::ResultBuffer<dtype> angular_out,
                               ffi::ResultBuffer<dtype> radius_out, ffi::ResultBuffer<dtype> spring_out,
                               ffi::ResultBuffer<dtype> kn_out, ffi::ResultBuffer<dtype> kt_out,
-                              ffi::ResultBuffer<dtype> mu_out, ffi::ResultBuffer<dtype> dt_out,
-                              ffi::ThreadPool pool) {
+                              ffi::ResultBuffer<dtype> mu_out, ffi::ResultBuffer<dtype> dt_out, ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
-  const int64_t n = radius.element_count();
-  const int64_t slots = spring.element_count() / 3;
-  for (const auto* rows : {&position, &compensation, &velocity, &angular_velocity}) {
-    if (rows->element_count() != size_t(3 * n))
-      return ffi::Error::InvalidArgument("dem_pairs_backward: sphere arrays must be (N, 3)");
-  }
-  if (idx.element_count() != size_t(2 * slots) || totals_bar.element_count() != size_t(6 * n) ||
+  const PairInputs<T> in = pair_inputs(position, compensation, velocity, angular_velocity, radius, idx, spring,
+                                       normal_stiffness, tangential_stiffness, friction_coefficient, time_step);
+  if (in.error) return ffi::Error::InvalidArgument(std::string("dem_pairs_backward: ") + in.error);
+  const int64_t n = in.n, slots = in.slots;
+  if (totals_bar.element_count() != size_t(6 * n) ||
       spring_bar.element_count() != size_t(3 * slots) || pair_force_bar.element_count() != size_t(3 * slots))
     return ffi::Error::InvalidArgument("dem_pairs_backward: inconsistent array sizes");
-  const int32_t* id = idx.typed_data();
+  const int32_t* id = in.id;
   thread_local std::vector<T> scratch;
   scratch.resize(size_t((kGathered + kShares) * slots));
   T* gathered = scratch.data();
   T* share = gathered + kGathered * slots;
   // Passes 0 and 1 in two halves on two threads (parallel.h); each half writes its own slots.
   membrax::two_halves(pool, slots, [&](int, int64_t begin, int64_t end) {
-    dem_pair_gather<T>(position.typed_data(), compensation.typed_data(), velocity.typed_data(),
-                       angular_velocity.typed_data(), radius.typed_data(), id, totals_bar.typed_data(), n, slots,
-                       begin, end, gathered);
-    dem_pair_law_backward<T>(gathered, spring.typed_data(), normal_stiffness.typed_data(),
-                             tangential_stiffness.typed_data(), friction_coefficient.typed_data(),
-                             time_step.typed_data()[0], spring_bar.typed_data(), pair_force_bar.typed_data(),
-                             slots, begin, end, spring_out->typed_data(), kn_out->typed_data(),
-                             kt_out->typed_data(), mu_out->typed_data(), share);
+    dem_pair_gather<T>(in.x, in.xc, in.v, in.w, in.r, id, totals_bar.typed_data(), n, slots, begin, end, gathered);
+    dem_pair_law_backward<T>(gathered, in.spring, in.kn, in.kt, in.mu, in.dt, spring_bar.typed_data(),
+                             pair_force_bar.typed_data(), slots, begin, end, spring_out->typed_data(),
+                             kn_out->typed_data(), kt_out->typed_data(), mu_out->typed_data(), share);
   });
   // Pass 2, in slot order: each slot's shares to its two spheres.
   T* x_out = position_out->typed_data();
@@ -306,25 +314,5 @@ ffi::Error dem_pairs_backward(ffi::Buffer<dtype> position, ffi::Buffer<dtype> co
 
 }  // namespace
 
-using membrax::Index;
-using membrax::Real;
-
-#define MEMBRAX_DEM_PAIRS_HANDLER(name, dtype)                       \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                     \
-      name, dem_pairs<dtype>,                                        \
-      (membrax::Rets<dtype, 3>::To(                                  \
-           membrax::Args<dtype, Real, Real, Real, Real, Real, Index, \
-                         Real, Real, Real, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
-
-MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF32, ffi::F32)
-MEMBRAX_DEM_PAIRS_HANDLER(MembraxDemPairsF64, ffi::F64)
-
-#define MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(name, dtype)                    \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                           \
-      name, dem_pairs_backward<dtype>,                                     \
-      (membrax::Rets<dtype, 9>::To(                                        \
-           membrax::Args<dtype, Real, Real, Real, Real, Real, Index, Real, \
-                         Real, Real, Real, Real, Real, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
-
-MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF32, ffi::F32)
-MEMBRAX_DEM_PAIRS_BACKWARD_HANDLER(MembraxDemPairsBackwardF64, ffi::F64)
+MEMBRAX_DEFINE_HANDLERS(MembraxDemPairs, dem_pairs);
+MEMBRAX_DEFINE_HANDLERS(MembraxDemPairsBackward, dem_pairs_backward);

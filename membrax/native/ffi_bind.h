@@ -1,12 +1,18 @@
 // The XLA FFI bindings of membrax's kernels, written once.
 //
-// A kernel's handler binds, in its parameters' order, buffers of the kernel's float type or of int32, the
-// thread pool, attributes and result buffers. `Args<T, Real, Index, ...>::To(binding)` appends one `Arg` per kind
-// (Real: a buffer of the float type T, Index: an int32 buffer) and `Rets<T, N>::To(binding)` N float results, so
-// a handler's binding reads as the list of its parameters' kinds instead of one line per buffer. A
-// binding's methods consume it (they are rvalue-qualified), hence the moves.
+// A kernel's binding lists, in its parameters' order, what each parameter is: a buffer argument, a result
+// buffer, the thread pool or a named int64 attribute. `binding_of(kernel, names...)` reads that list off the
+// kernel's own parameter types, so that a binding cannot drift from its kernel, and
+// MEMBRAX_DEFINE_HANDLERS(Name, kernel, names...) exports the handlers NameF32 and NameF64 of the kernel
+// template's two instances. (XLA's own automatic binding, Ffi::BindTo, knows neither the thread pool
+// nor attributes without a compile-time name.) A binding's methods consume it (they are rvalue-qualified)
+// and it cannot be moved from outside the library, hence the temporaries passed along: C++17's
+// guaranteed elision returns each method's result without a move.
 #pragma once
 
+#include <cstddef>
+#include <cstdint>
+#include <type_traits>
 #include <utility>
 
 #include "xla/ffi/api/ffi.h"
@@ -15,44 +21,76 @@ namespace membrax {
 
 namespace ffi = xla::ffi;
 
-struct Real {};   // a buffer of the kernel's float type
-struct Index {};  // an int32 buffer (indices)
+// How one kernel parameter binds; a parameter of any other type does not compile. `names` points at the
+// names of the attributes not bound yet; kNames is how many of them the parameter consumes.
+template <typename Param>
+struct BindsAs;
 
-template <ffi::DataType T, typename Kind>
-struct BufferOf {
-  using type = ffi::Buffer<T>;
-};
-
-template <ffi::DataType T>
-struct BufferOf<T, Index> {
-  using type = ffi::Buffer<ffi::S32>;
-};
-
-template <ffi::DataType T, typename Kind, typename... Rest>
-struct Args {
-  // The binding is passed along as a temporary: its constructors are the library's own, and C++17's
-  // guaranteed elision returns each method's result without one.
+template <ffi::DataType T, size_t rank>
+struct BindsAs<ffi::Buffer<T, rank>> {
+  static constexpr int kNames = 0;
   template <typename Binding>
-  static auto To(Binding&& binding) {
+  static auto To(Binding&& binding, const char* const*) {
+    return std::move(binding).template Arg<ffi::Buffer<T, rank>>();
+  }
+};
+
+template <ffi::DataType T, size_t rank>
+struct BindsAs<ffi::Result<ffi::Buffer<T, rank>>> {
+  static constexpr int kNames = 0;
+  template <typename Binding>
+  static auto To(Binding&& binding, const char* const*) {
+    return std::move(binding).template Ret<ffi::Buffer<T, rank>>();
+  }
+};
+
+template <>
+struct BindsAs<ffi::ThreadPool> {
+  static constexpr int kNames = 0;
+  template <typename Binding>
+  static auto To(Binding&& binding, const char* const*) {
+    return std::move(binding).template Ctx<ffi::ThreadPool>();
+  }
+};
+
+template <>
+struct BindsAs<int64_t> {
+  static constexpr int kNames = 1;
+  template <typename Binding>
+  static auto To(Binding&& binding, const char* const* names) {
+    return std::move(binding).template Attr<int64_t>(names[0]);
+  }
+};
+
+template <typename Param, typename... Rest>
+struct BindParams {
+  template <typename Binding>
+  static auto To(Binding&& binding, const char* const* names) {
     if constexpr (sizeof...(Rest) == 0) {
-      return std::move(binding).template Arg<typename BufferOf<T, Kind>::type>();
+      return BindsAs<Param>::To(std::move(binding), names);
     } else {
-      return Args<T, Rest...>::To(std::move(binding).template Arg<typename BufferOf<T, Kind>::type>());
+      return BindParams<Rest...>::To(BindsAs<Param>::To(std::move(binding), names),
+                                     names + BindsAs<Param>::kNames);
     }
   }
 };
 
-template <ffi::DataType T, int N>
-struct Rets {
-  static_assert(N >= 1, "a kernel returns at least one buffer");
-  template <typename Binding>
-  static auto To(Binding&& binding) {
-    if constexpr (N == 1) {
-      return std::move(binding).template Ret<ffi::Buffer<T>>();
-    } else {
-      return Rets<T, N - 1>::To(std::move(binding).template Ret<ffi::Buffer<T>>());
-    }
-  }
-};
+// The binding of `kernel`'s parameters, its int64_t attributes named by `names` in their order.
+template <typename Result, typename... Params, typename... Names>
+auto binding_of(Result (*)(Params...), Names... names) {
+  static_assert(sizeof...(Names) == (0 + ... + int(std::is_same_v<Params, int64_t>)),
+                "one name for each int64_t attribute, in the parameters' order");
+  const char* const list[] = {names..., nullptr};
+  return BindParams<Params...>::To(ffi::Ffi::Bind(), list);
+}
 
 }  // namespace membrax
+
+// The handlers <name>F32 and <name>F64 of the kernel template `kernel` (membrax/native/__init__.py loads
+// them by these names); the further arguments name its int64_t attributes. (The binding is in
+// parentheses: XLA's macros would split it at its commas.)
+#define MEMBRAX_DEFINE_HANDLERS(name, kernel, ...)                                                    \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name##F32, kernel<xla::ffi::F32>,                                     \
+                                (membrax::binding_of(kernel<xla::ffi::F32>, ##__VA_ARGS__)));         \
+  XLA_FFI_DEFINE_HANDLER_SYMBOL(name##F64, kernel<xla::ffi::F64>,                                     \
+                                (membrax::binding_of(kernel<xla::ffi::F64>, ##__VA_ARGS__)))

@@ -619,27 +619,5 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
 
 }  // namespace
 
-using membrax::Index;
-using membrax::Real;
-
-#define MEMBRAX_MEMBRANE_HANDLER(name, dtype)                                  \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                               \
-      name, membrane_forces<dtype>,                                            \
-      (membrax::Rets<dtype, 1>::To(                                            \
-           membrax::Args<dtype, Real, Index, Real, Real, Index,                \
-                         Real, Real, Index, Index, Real>::To(ffi::Ffi::Bind()) \
-               .Ctx<ffi::ThreadPool>().Attr<int64_t>("model"))));
-
-MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF32, ffi::F32)
-MEMBRAX_MEMBRANE_HANDLER(MembraxMembraneForcesF64, ffi::F64)
-
-#define MEMBRAX_MEMBRANE_BACKWARD_HANDLER(name, dtype)                               \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                                     \
-      name, membrane_forces_backward<dtype>,                                         \
-      (membrax::Rets<dtype, 2>::To(                                                  \
-           membrax::Args<dtype, Real, Index, Real, Real, Index, Real,                \
-                         Real, Index, Index, Real, Real, Real>::To(ffi::Ffi::Bind()) \
-               .Ctx<ffi::ThreadPool>().Attr<int64_t>("model").Attr<int64_t>("bending_derivative"))));
-
-MEMBRAX_MEMBRANE_BACKWARD_HANDLER(MembraxMembraneForcesBackwardF32, ffi::F32)
-MEMBRAX_MEMBRANE_BACKWARD_HANDLER(MembraxMembraneForcesBackwardF64, ffi::F64)
+MEMBRAX_DEFINE_HANDLERS(MembraxMembraneForces, membrane_forces, "model");
+MEMBRAX_DEFINE_HANDLERS(MembraxMembraneForcesBackward, membrane_forces_backward, "model", "bending_derivative");

@@ -92,6 +92,40 @@ inline Vec3<T> slot_law(Vec3<T> b, Vec3<T> relative, Vec3<T> s, T overlap, T dt,
   return normal_force * normal + *new_spring;
 }
 
+// node_sphere_forces' inputs, which its backward takes too: the sizes (n nodes, N spheres, K candidates,
+// m = n K slots), the scalars and the arrays' data; `consistent` says whether the sizes agree (the rest is
+// zero where not).
+template <typename T>
+struct SlotInputs {
+  bool consistent;
+  int64_t num_nodes, num_spheres, capacity, m;
+  T dt, normal_stiffness, tangential_stiffness, friction, half_thickness;
+  const T *x, *v, *xs, *vs, *ws, *radius, *old_spring;
+  const int32_t* id;
+};
+
+template <ffi::DataType dtype>
+SlotInputs<ffi::NativeType<dtype>> slot_inputs(
+    const ffi::Buffer<dtype>& node_position, const ffi::Buffer<dtype>& node_velocity,
+    const ffi::Buffer<dtype>& sphere_position, const ffi::Buffer<dtype>& sphere_velocity,
+    const ffi::Buffer<dtype>& sphere_angular_velocity, const ffi::Buffer<dtype>& sphere_radius,
+    const ffi::Buffer<ffi::S32>& idx, const ffi::Buffer<dtype>& spring, const ffi::Buffer<dtype>& scalars) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = node_position.element_count() / 3;
+  const int64_t num_spheres = sphere_radius.element_count();
+  const auto dims = idx.dimensions();
+  if (dims.size() != 2 || dims[0] != num_nodes || scalars.element_count() != 5 ||
+      spring.element_count() != size_t(3 * num_nodes * dims[1]) ||
+      sphere_position.element_count() != size_t(3 * num_spheres)) {
+    return {false};
+  }
+  const T* scalar = scalars.typed_data();
+  return {true, num_nodes, num_spheres, dims[1], num_nodes * dims[1], scalar[0], scalar[1], scalar[2], scalar[3],
+          T(0.5) * scalar[4], node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
+          sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
+          spring.typed_data(), idx.typed_data()};
+}
+
 template <ffi::DataType dtype>
 ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity,
                                ffi::Buffer<dtype> sphere_position, ffi::Buffer<dtype> sphere_velocity,
@@ -101,55 +135,39 @@ ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dty
                                ffi::ResultBuffer<dtype> sphere_torque, ffi::ResultBuffer<dtype> new_spring,
                                ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
-  const int64_t num_nodes = node_position.element_count() / 3;
-  const int64_t num_spheres = sphere_radius.element_count();
-  const auto dims = idx.dimensions();
-  if (dims.size() != 2 || dims[0] != num_nodes || scalars.element_count() != 5 ||
-      spring.element_count() != size_t(3 * num_nodes * dims[1]) ||
-      sphere_position.element_count() != size_t(3 * num_spheres)) {
+  const SlotInputs<T> in = slot_inputs(node_position, node_velocity, sphere_position, sphere_velocity,
+                                       sphere_angular_velocity, sphere_radius, idx, spring, scalars);
+  if (!in.consistent)
     return membrax::failed(ffi::Error::InvalidArgument("node_sphere_forces: inconsistent array sizes"));
-  }
-  const int64_t capacity = dims[1];
-  const int64_t m = num_nodes * capacity;
-  const T* scalar = scalars.typed_data();
-  const T dt = scalar[0], normal_stiffness = scalar[1], tangential_stiffness = scalar[2],
-          friction = scalar[3], half_thickness = T(0.5) * scalar[4];
-  const T* x = node_position.typed_data();
-  const T* v = node_velocity.typed_data();
-  const T* xs = sphere_position.typed_data();
-  const T* vs = sphere_velocity.typed_data();
-  const T* ws = sphere_angular_velocity.typed_data();
-  const T* radius = sphere_radius.typed_data();
-  const int32_t* id = idx.typed_data();
-  const T* old_spring = spring.typed_data();
   T* springs = new_spring->typed_data();
   T* on_node = node_force->typed_data();
   T* on_sphere = sphere_force->typed_data();
   T* torque = sphere_torque->typed_data();
-  return membrax::on_pool(pool, m, [=]() {
-    std::fill(springs, springs + 3 * m, T(0));
-    std::fill(on_node, on_node + 3 * num_nodes, T(0));
-    std::fill(on_sphere, on_sphere + 3 * num_spheres, T(0));
-    std::fill(torque, torque + 3 * num_spheres, T(0));
+  return membrax::on_pool(pool, in.m, [=]() {
+    std::fill(springs, springs + 3 * in.m, T(0));
+    std::fill(on_node, on_node + 3 * in.num_nodes, T(0));
+    std::fill(on_sphere, on_sphere + 3 * in.num_spheres, T(0));
+    std::fill(torque, torque + 3 * in.num_spheres, T(0));
 
     thread_local std::vector<uint8_t> touching;
-    touching.resize(size_t(m));
-    touching_slots<T>(x, xs, radius, id, 0, num_nodes, capacity, num_spheres, half_thickness, touching.data());
+    touching.resize(size_t(in.m));
+    touching_slots<T>(in.x, in.xs, in.radius, in.id, 0, in.num_nodes, in.capacity, in.num_spheres,
+                      in.half_thickness, touching.data());
     // In slot order, so that each node's force is summed in the order of the JAX law.
-    for (int64_t j = 0; j < m; ++j) {
+    for (int64_t j = 0; j < in.m; ++j) {
       if (!touching[j]) continue;
-      const int64_t node = j / capacity, sphere = id[j];
-      const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
+      const int64_t node = j / in.capacity, sphere = in.id[j];
+      const SlotKinematics<T> kinematics = slot_kinematics(in.x, in.v, in.xs, in.vs, in.ws, node, sphere);
       const Vec3<T> b = kinematics.branch, relative = kinematics.relative;
-      const Vec3<T> s = {old_spring[j], old_spring[m + j], old_spring[2 * m + j]};
-      const T overlap = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
+      const Vec3<T> s = membrax::column3(in.old_spring, 0, in.m, j);
+      const T overlap = in.radius[sphere] + in.half_thickness - std::sqrt(dot(b, b));
       Vec3<T> updated;
-      const Vec3<T> force =
-          slot_law<T>(b, relative, s, overlap, dt, normal_stiffness, tangential_stiffness, friction, &updated);
+      const Vec3<T> force = slot_law<T>(b, relative, s, overlap, in.dt, in.normal_stiffness,
+                                        in.tangential_stiffness, in.friction, &updated);
       const Vec3<T> torque_on_sphere = cross(b, T(-1) * force);
       springs[j] = updated.x;
-      springs[m + j] = updated.y;
-      springs[2 * m + j] = updated.z;
+      springs[in.m + j] = updated.y;
+      springs[2 * in.m + j] = updated.z;
       membrax::add3(on_node, node, force);
       membrax::add3(on_sphere, sphere, T(-1) * force);
       membrax::add3(torque, sphere, torque_on_sphere);
@@ -257,44 +275,26 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
                                 ffi::Buffer<dtype> sphere_position, ffi::Buffer<dtype> sphere_velocity,
                                 ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
                                 ffi::Buffer<ffi::S32> idx, ffi::Buffer<dtype> spring, ffi::Buffer<dtype> scalars,
-                                ffi::Buffer<dtype> node_force_bar, ffi::Buffer<dtype> sphere_force_bar,
-                                ffi::Buffer<dtype> sphere_torque_bar, ffi::Buffer<dtype> spring_bar,
+                                ffi::Buffer<dtype> node_force_bar,
+                                ffi::Buffer<dtype> sphere_force_bar, ffi::Buffer<dtype> sphere_torque_bar,
+                                ffi::Buffer<dtype> spring_bar,
                                 ffi::Buffer<dtype> node_position_addend, ffi::Buffer<dtype> node_velocity_addend,
-                                ffi::ResultBuffer<dtype> node_position_out,
-                                ffi::ResultBuffer<dtype> node_velocity_out,
+                                ffi::ResultBuffer<dtype> node_position_out, ffi::ResultBuffer<dtype> node_velocity_out,
                                 ffi::ResultBuffer<dtype> sphere_position_out,
                                 ffi::ResultBuffer<dtype> sphere_velocity_out,
                                 ffi::ResultBuffer<dtype> sphere_angular_out, ffi::ResultBuffer<dtype> radius_out,
-                                ffi::ResultBuffer<dtype> spring_out, ffi::ResultBuffer<dtype> scalars_out,
-                                ffi::ThreadPool pool) {
+                                ffi::ResultBuffer<dtype> spring_out,
+                                ffi::ResultBuffer<dtype> scalars_out, ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
-  const int64_t num_nodes = node_position.element_count() / 3;
-  const int64_t num_spheres = sphere_radius.element_count();
-  const auto dims = idx.dimensions();
-  if (dims.size() != 2 || dims[0] != num_nodes || scalars.element_count() != 5 ||
-      spring.element_count() != size_t(3 * num_nodes * dims[1]) ||
-      spring_bar.element_count() != spring.element_count() ||
-      node_force_bar.element_count() != size_t(3 * num_nodes) ||
-      node_position_addend.element_count() != size_t(3 * num_nodes) ||
-      node_velocity_addend.element_count() != size_t(3 * num_nodes) ||
-      sphere_force_bar.element_count() != size_t(3 * num_spheres) ||
-      sphere_torque_bar.element_count() != size_t(3 * num_spheres) ||
-      sphere_position.element_count() != size_t(3 * num_spheres)) {
+  const SlotInputs<T> in = slot_inputs(node_position, node_velocity, sphere_position, sphere_velocity,
+                                       sphere_angular_velocity, sphere_radius, idx, spring, scalars);
+  const size_t node_rows = 3 * in.num_nodes, sphere_rows = 3 * in.num_spheres;
+  if (!in.consistent || spring_bar.element_count() != spring.element_count() ||
+      node_force_bar.element_count() != node_rows || node_position_addend.element_count() != node_rows ||
+      node_velocity_addend.element_count() != node_rows || sphere_force_bar.element_count() != sphere_rows ||
+      sphere_torque_bar.element_count() != sphere_rows) {
     return ffi::Error::InvalidArgument("node_sphere_backward: inconsistent array sizes");
   }
-  const int64_t capacity = dims[1];
-  const int64_t m = num_nodes * capacity;
-  const T* scalar = scalars.typed_data();
-  const T dt = scalar[0], normal_stiffness = scalar[1], tangential_stiffness = scalar[2],
-          friction = scalar[3], half_thickness = T(0.5) * scalar[4];
-  const T* x = node_position.typed_data();
-  const T* v = node_velocity.typed_data();
-  const T* xs = sphere_position.typed_data();
-  const T* vs = sphere_velocity.typed_data();
-  const T* ws = sphere_angular_velocity.typed_data();
-  const T* radius = sphere_radius.typed_data();
-  const int32_t* id = idx.typed_data();
-  const T* old_spring = spring.typed_data();
   const T* f_node_bar = node_force_bar.typed_data();
   const T* f_sphere_bar = sphere_force_bar.typed_data();
   const T* tau_bar = sphere_torque_bar.typed_data();
@@ -310,69 +310,69 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
   // The addends start the node sums (nothing to do where they are aliased to the outputs).
   const T* x_addend = node_position_addend.typed_data();
   const T* v_addend = node_velocity_addend.typed_data();
-  if (x_addend != x_out) std::copy(x_addend, x_addend + 3 * num_nodes, x_out);
-  if (v_addend != v_out) std::copy(v_addend, v_addend + 3 * num_nodes, v_out);
-  std::fill(xs_out, xs_out + 3 * num_spheres, T(0));
-  std::fill(vs_out, vs_out + 3 * num_spheres, T(0));
-  std::fill(ws_out, ws_out + 3 * num_spheres, T(0));
-  std::fill(r_out, r_out + num_spheres, T(0));
+  if (x_addend != x_out) std::copy(x_addend, x_addend + 3 * in.num_nodes, x_out);
+  if (v_addend != v_out) std::copy(v_addend, v_addend + 3 * in.num_nodes, v_out);
+  std::fill(xs_out, xs_out + 3 * in.num_spheres, T(0));
+  std::fill(vs_out, vs_out + 3 * in.num_spheres, T(0));
+  std::fill(ws_out, ws_out + 3 * in.num_spheres, T(0));
+  std::fill(r_out, r_out + in.num_spheres, T(0));
   std::fill(scalar_out, scalar_out + 5, T(0));
 
   thread_local std::vector<uint8_t> touching;
-  touching.resize(size_t(m));
+  touching.resize(size_t(in.m));
   // Which slots touch, then passes 1 and 2, each in two halves on two threads (parallel.h); each half
   // writes its own rows. (Pointers, not the thread_local vectors: a pool thread has its own.)
   uint8_t* touching_rows = touching.data();
-  membrax::two_halves(pool, num_nodes, [&](int, int64_t begin, int64_t end) {
-    touching_slots<T>(x, xs, radius, id, begin, end, capacity, num_spheres, half_thickness, touching_rows);
+  membrax::two_halves(pool, in.num_nodes, [&](int, int64_t begin, int64_t end) {
+    touching_slots<T>(in.x, in.xs, in.radius, in.id, begin, end, in.capacity, in.num_spheres, in.half_thickness,
+                      touching_rows);
   });
   // The touching slots in order, compacted without a branch.
   thread_local std::vector<int64_t> slots;
-  slots.resize(size_t(m) + 1);
+  slots.resize(size_t(in.m) + 1);
   int64_t* slot_of = slots.data();
   const uint8_t* touches = touching.data();
   int64_t count = 0;
-  for (int64_t j = 0; j < m; ++j) {
+  for (int64_t j = 0; j < in.m; ++j) {
     slot_of[count] = j;
     count += touches[j];
   }
   thread_local std::vector<T> scratch;
   scratch.resize(size_t((kGathered + kShares) * count));
-  T* in = scratch.data();
-  T* share = in + kGathered * count;
+  T* gathered = scratch.data();
+  T* share = gathered + kGathered * count;
   // Pass 1: each touching slot's inputs, component-first; then pass 2, its law backwards.
   membrax::two_halves(pool, count, [&](int, int64_t begin, int64_t end) {
     for (int64_t t = begin; t < end; ++t) {
-      const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
-      const SlotKinematics<T> kinematics = slot_kinematics(x, v, xs, vs, ws, node, sphere);
+      const int64_t j = slot_of[t], node = j / in.capacity, sphere = in.id[j];
+      const SlotKinematics<T> kinematics = slot_kinematics(in.x, in.v, in.xs, in.vs, in.ws, node, sphere);
       const Vec3<T> b = kinematics.branch;
       // The slot's outputs: F on the node, −F on the sphere, torque −b × F on the sphere, spring s'.
       const Vec3<T> torque_bar = membrax::row3(tau_bar, sphere);
       // τ̄·(−b × F) = F·(b × τ̄)
       const Vec3<T> force_bar =
           (membrax::row3(f_node_bar, node) - membrax::row3(f_sphere_bar, sphere)) + cross(b, torque_bar);
-      const Vec3<T> rows[7] = {b, kinematics.relative, {old_spring[j], old_spring[m + j], old_spring[2 * m + j]},
-                               kinematics.spin,
-                               force_bar, torque_bar, {s_bar[j], s_bar[m + j], s_bar[2 * m + j]}};
+      const Vec3<T> rows[7] = {b, kinematics.relative, membrax::column3(in.old_spring, 0, in.m, j),
+                               kinematics.spin, force_bar, torque_bar, membrax::column3(s_bar, 0, in.m, j)};
       for (int q = 0; q < 7; ++q) {
-        in[(3 * q) * count + t] = rows[q].x;
-        in[(3 * q + 1) * count + t] = rows[q].y;
-        in[(3 * q + 2) * count + t] = rows[q].z;
+        gathered[(3 * q) * count + t] = rows[q].x;
+        gathered[(3 * q + 1) * count + t] = rows[q].y;
+        gathered[(3 * q + 2) * count + t] = rows[q].z;
       }
-      in[kOverlapIn * count + t] = radius[sphere] + half_thickness - std::sqrt(dot(b, b));
+      gathered[kOverlapIn * count + t] = in.radius[sphere] + in.half_thickness - std::sqrt(dot(b, b));
     }
-    slot_laws_backward<T>(in, count, begin, end, dt, normal_stiffness, tangential_stiffness, friction,
-                          share);
+    slot_laws_backward<T>(gathered, count, begin, end, in.dt, in.normal_stiffness, in.tangential_stiffness,
+                          in.friction, share);
   });
   // Every spring cotangent is read (pass 1): zero the slots that do not touch; pass 3 writes the others.
   for (int c = 0; c < 3; ++c) {
-    T* s_row = s_out + c * m;
-    for (int64_t j = 0; j < m; ++j)
+    T* s_row = s_out + c * in.m;
+    for (int64_t j = 0; j < in.m; ++j)
       if (!touches[j]) s_row[j] = T(0);
   }
   // Pass 3, in slot order: the shares to the nodes, the spheres and the scalars.
   for (int64_t t = 0; t < count; ++t) {
-    const int64_t j = slot_of[t], node = j / capacity, sphere = id[j];
+    const int64_t j = slot_of[t], node = j / in.capacity, sphere = in.id[j];
     // b = x_n − x_i and the relative velocity v_n − v_i − …: the node gets +, the sphere −.
     const Vec3<T> branch_bar = membrax::column3(share, kBranch, count, t);
     const Vec3<T> relative_bar = membrax::column3(share, kRelative, count, t);
@@ -381,7 +381,7 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
     membrax::add3(v_out, node, relative_bar);
     membrax::add3(vs_out, sphere, T(-1) * relative_bar);
     membrax::add3(ws_out, sphere, membrax::column3(share, kAngular, count, t));
-    for (int c = 0; c < 3; ++c) s_out[c * m + j] = share[(kSpring + c) * count + t];
+    for (int c = 0; c < 3; ++c) s_out[c * in.m + j] = share[(kSpring + c) * count + t];
     const T overlap_bar = share[kOverlap * count + t];
     r_out[sphere] += overlap_bar;
     scalar_out[0] += share[kDt * count + t];
@@ -395,25 +395,5 @@ ffi::Error node_sphere_backward(ffi::Buffer<dtype> node_position, ffi::Buffer<dt
 
 }  // namespace
 
-using membrax::Index;
-using membrax::Real;
-
-#define MEMBRAX_NODE_SPHERE_HANDLER(name, dtype)              \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                              \
-      name, node_sphere_forces<dtype>,                        \
-      (membrax::Rets<dtype, 4>::To(                           \
-           membrax::Args<dtype, Real, Real, Real, Real, Real, \
-                         Real, Index, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
-
-MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF32, ffi::F32)
-MEMBRAX_NODE_SPHERE_HANDLER(MembraxNodeSphereForcesF64, ffi::F64)
-
-#define MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(name, dtype)                        \
-  XLA_FFI_DEFINE_HANDLER_SYMBOL(                                                 \
-      name, node_sphere_backward<dtype>,                                         \
-      (membrax::Rets<dtype, 8>::To(                                              \
-           membrax::Args<dtype, Real, Real, Real, Real, Real, Real, Index, Real, \
-                         Real, Real, Real, Real, Real, Real, Real>::To(ffi::Ffi::Bind())).Ctx<ffi::ThreadPool>()));
-
-MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF32, ffi::F32)
-MEMBRAX_NODE_SPHERE_BACKWARD_HANDLER(MembraxNodeSphereBackwardF64, ffi::F64)
+MEMBRAX_DEFINE_HANDLERS(MembraxNodeSphereForces, node_sphere_forces);
+MEMBRAX_DEFINE_HANDLERS(MembraxNodeSphereBackward, node_sphere_backward);

@@ -283,14 +283,14 @@ def wall_contact(
     tangential_velocity = contact_velocity - scale(dot(contact_velocity, wall_normal), wall_normal)
     # The spring is the force on the sphere; the sphere is body "j" relative to the wall.
     new_spring = tangential_spring_update(
-        spring,
-        -wall_normal,
-        tangential_velocity,
-        dt,
-        tangential_stiffness,
-        friction_coefficient,
-        normal_force,
-        active,
+        spring=spring,
+        normal=-wall_normal,
+        tangential_velocity=tangential_velocity,
+        dt=dt,
+        tangential_stiffness=tangential_stiffness,
+        friction_coefficient=friction_coefficient,
+        normal_force=normal_force,
+        active=active,
     )
     force = normal_force_vector + new_spring
     return WallContact(

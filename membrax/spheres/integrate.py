@@ -63,6 +63,7 @@ __all__ = [
     "DEMState",
     "DampingParams",
     "Forces",
+    "PairSpheres",
     "Particles",
     "apply_damping",
     "compute_forces",
@@ -265,32 +266,63 @@ def _pair_branch(position, compensation, gi, gj):
     return (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
 
 
-def _pair_totals_reference(
-    position,
-    compensation,
-    velocity,
-    angular_velocity,
-    radius,
-    idx,
-    spring,
-    normal_stiffness,
-    tangential_stiffness,
-    friction_coefficient,
-    dt,
-):
+@pytree.dataclass
+class PairSpheres:
+    """The spheres as the sphere–sphere contacts read them (rows, SI).
+
+    Attributes:
+      position: (N, 3) centres x, m.
+      position_compensation: (N, 3) low-order part of x, m (the branches add it, see :class:`DEMState`).
+      velocity: (N, 3) m/s.
+      angular_velocity: (N, 3) rad/s.
+      radius: (N,) m.
+      member: (N,) int32 batch member of each sphere: a slot takes the contact law of its sphere i's member.
+    """
+
+    position: jnp.ndarray
+    position_compensation: jnp.ndarray
+    velocity: jnp.ndarray
+    angular_velocity: jnp.ndarray
+    radius: jnp.ndarray
+    member: jnp.ndarray
+
+
+def _slot_spheres(spheres: PairSpheres, idx):
+    """Which slots are pairs (i < N), and their spheres i and j with the padding (i = N) sent to sphere 0."""
+    n = spheres.radius.shape[0]
+    i, j = idx[0], idx[1]
+    valid = i < n
+    return valid, jnp.where(valid, i, 0), jnp.where(valid, j, 0)
+
+
+def _slot_law(law: ContactParams, member):
+    """(k_n, k_t, μ) of the sphere–sphere law for slots of batch members ``member`` (scalars stay scalars)."""
+    return (
+        _for_members(law.normal_stiffness, member),
+        _for_members(law.tangential_stiffness, member),
+        _for_members(law.friction_coefficient, member),
+    )
+
+
+# The sphere–sphere contacts of a neighbour list summed per sphere: the JAX definition, the compiled kernel
+# and its reverse-mode rule, all on (spheres, idx, spring, law, dt) (compute_forces' pair part).
+
+
+def _pair_totals_reference(spheres: PairSpheres, idx, spring, law: ContactParams, dt):
     """The sphere–sphere contacts of a neighbour list, summed per sphere (the JAX definition).
 
     Returns (totals (N, 6): force and torque on each sphere; new springs (C, 3); force on j per slot
     (C, 3)), padded slots (i = N) zeroed. j receives (F, T_j), i receives (−F, T_i).
     """
-    n = radius.shape[0]
+    n = spheres.radius.shape[0]
     i, j = idx[0], idx[1]
-    valid = i < n
-    gi = jnp.where(valid, i, 0)
-    gj = jnp.where(valid, j, 0)
+    valid, gi, gj = _slot_spheres(spheres, idx)
+    normal_stiffness, tangential_stiffness, friction_coefficient = _slot_law(law, spheres.member[gi])
     # Gather whole rows of one packed (N, 12) array, then transpose: XLA's CPU gather is ~10× faster on
     # contiguous rows than on the columns of (3, N) arrays (measured at N = 1816, C = 11865).
-    packed = jnp.concatenate([position, compensation, velocity, angular_velocity], axis=1)
+    packed = jnp.concatenate(
+        [spheres.position, spheres.position_compensation, spheres.velocity, spheres.angular_velocity], axis=1
+    )
     rows_i = packed[gi].T
     rows_j = packed[gj].T
     # x_j − x_i of nearby spheres is exact in floating point (Sterbenz), then the low parts are added.
@@ -301,8 +333,8 @@ def _pair_totals_reference(
         rows_j[6:9],
         rows_i[9:12],
         rows_j[9:12],
-        radius[gi],
-        radius[gj],
+        spheres.radius[gi],
+        spheres.radius[gj],
         spring.T,
         dt,
         normal_stiffness,
@@ -324,43 +356,33 @@ def _pair_totals_reference(
     return totals, select(valid, pairs.spring).T, pair_force.T
 
 
-def _pair_totals_inputs(
-    position,
-    compensation,
-    velocity,
-    angular_velocity,
-    radius,
-    idx,
-    spring,
-    normal_stiffness,
-    tangential_stiffness,
-    friction_coefficient,
-    dt,
-):
-    """The kernel's differentiable inputs (all but ``idx``): per-slot parameters, Δt as (1,)."""
-    dtype = position.dtype
+def _pair_totals_inputs(spheres: PairSpheres, idx, spring, law: ContactParams, dt):
+    """The kernels' differentiable inputs, flat, in their order (all but ``idx``): k_n, k_t, μ per slot."""
+    dtype = spheres.position.dtype
     slots = spring.shape[0]
+    _, gi, _ = _slot_spheres(spheres, idx)
 
     def per_slot(value):
         return jnp.broadcast_to(jnp.asarray(value, dtype), (slots,))
 
+    rows = (spheres.position, spheres.position_compensation, spheres.velocity, spheres.angular_velocity)
     return (
-        position,
-        compensation.astype(dtype),
-        velocity.astype(dtype),
-        angular_velocity.astype(dtype),
-        radius.astype(dtype),
-        spring.astype(dtype),
-        per_slot(normal_stiffness),
-        per_slot(tangential_stiffness),
-        per_slot(friction_coefficient),
-        jnp.asarray(dt, dtype).reshape(1),
+        *native.in_dtype(dtype, *rows, spheres.radius, spring),
+        *(per_slot(value) for value in _slot_law(law, spheres.member[gi])),
+        native.stack_scalars(dtype, dt),
     )
+
+
+def _pair_kernel_operands(args):
+    """The flat inputs, and the operands both kernels begin with (the int32 ``idx`` before the springs)."""
+    flat = _pair_totals_inputs(*args)
+    return flat, (*flat[:5], args[1].astype(jnp.int32), *flat[5:])  # idx between the radii and the springs
 
 
 def _pair_totals_kernel(*args):
     """:func:`_pair_totals_reference` by the compiled kernel (``dem_pairs.cc``)."""
-    *spheres, radius, spring, kn, kt, mu, dt = _pair_totals_inputs(*args)
+    flat, operands = _pair_kernel_operands(args)
+    radius, spring = flat[4], flat[5]
     dtype = radius.dtype
     n, slots = radius.shape[0], spring.shape[0]
     return native.call(
@@ -371,35 +393,20 @@ def _pair_totals_kernel(*args):
             jax.ShapeDtypeStruct((slots, 3), dtype),
             jax.ShapeDtypeStruct((slots, 3), dtype),
         ),
-        *spheres,
-        radius,
-        args[5].astype(jnp.int32),
-        spring,
-        kn,
-        kt,
-        mu,
-        dt,
+        *operands,
     )
 
 
 def _pair_totals_backward(args, perturbed, cotangents):
     """The compiled reverse-mode rule (``dem_pairs_backward``: the law of each touching slot backwards)."""
     del perturbed  # it covers every differentiable argument
-    flat = _pair_totals_inputs(*args)
-    *spheres, radius, spring, kn, kt, mu, dt = flat
-    dtype = radius.dtype
+    flat, operands = _pair_kernel_operands(args)
+    dtype = flat[4].dtype
     position, velocity, angular, radius_bar, spring_bar, kn_bar, kt_bar, mu_bar, dt_bar = native.call(
         "dem_pairs_backward",
         dtype,
         tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat[:1] + flat[2:]),
-        *spheres,
-        radius,
-        args[5].astype(jnp.int32),
-        spring,
-        kn,
-        kt,
-        mu,
-        dt,
+        *operands,
         *(jnp.asarray(c, dtype) for c in cotangents),
     )
     # b = (x_j − x_i) + (c_j − c_i): the position and its compensation share a cotangent.
@@ -424,27 +431,19 @@ def compute_forces(
     Internally vectors are component-first (:mod:`membrax.vector`); the outputs are (N, 3) / (C, 3).
     """
     n = particles.num_particles
-    i, j = state.neighbors.idx[0], state.neighbors.idx[1]
-    valid = i < n
-    # Padded slots point at particle n; clamp the gather and mask the result.
-    gi = jnp.where(valid, i, 0)
-    gj = jnp.where(valid, j, 0)
-    member = particles.member[gi]
-    law = params.contact
-    pair_stiffness = _for_members(law.normal_stiffness, member)
-    pair_args = (
-        state.position,
-        state.position_compensation,
-        state.velocity,
-        state.angular_velocity,
-        particles.radius,
-        state.neighbors.idx,
-        state.pair_spring,
-        pair_stiffness,
-        _for_members(law.tangential_stiffness, member),
-        _for_members(law.friction_coefficient, member),
-        dt,
+    spheres = PairSpheres(
+        position=state.position,
+        position_compensation=state.position_compensation,
+        velocity=state.velocity,
+        angular_velocity=state.angular_velocity,
+        radius=particles.radius,
+        member=particles.member,
     )
+    # Padded slots point at particle n; clamp the gather and mask the result.
+    valid, gi, gj = _slot_spheres(spheres, state.neighbors.idx)
+    law = params.contact
+    pair_stiffness = _for_members(law.normal_stiffness, particles.member[gi])
+    pair_args = (spheres, state.neighbors.idx, state.pair_spring, law, dt)
     if native.enabled_for(state.position.dtype):
         totals, pair_spring, pair_force = _compiled_pair_totals(*pair_args)
     else:

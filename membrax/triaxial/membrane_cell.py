@@ -15,10 +15,10 @@ with a leading time axis):
 - :meth:`MembraneTest.shear` (stage 2): drained shearing, both platens closing at ε̇ H₁/2 each (H₁ the
   height after consolidation; or the top one alone at ε̇ H₁, ``symmetric=False``) from an inertial number
   I = ε̇ d √(ρ/σc) (GDR MiDi 2004), ramped up from rest until the axial strain reaches ``ramp_strain``
-  (:data:`DEFAULT_RAMP_STRAIN`), the cell pressure constant, to a target axial strain. Records every
-  ``record_every_fine`` steps below ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 %
-  strain), every ``record_every_coarse`` after. :meth:`MembraneTest.shear_plan` gives the step counts
-  (the driver of :mod:`membrax.run` uses it to checkpoint and resume within a phase).
+  (:data:`membrax.defaults.SHEAR_RAMP_STRAIN`), the cell pressure constant, to a target axial strain.
+  Records every ``record_every_fine`` steps below ``fine_until_strain`` (the FCC peak is a spike within
+  0.01–0.1 % strain), every ``record_every_coarse`` after. :meth:`MembraneTest.phase_plan` gives the step
+  counts of every phase (:mod:`membrax.runner` runs them, with checkpoints and resume within a phase).
 
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
 :func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax.config import TriaxialConfig
+from membrax.defaults import MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
 from membrax.driver import ChunkRunner
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import (
@@ -69,17 +69,6 @@ from membrax.validation import check_range
 __all__ = ["MembraneTest", "membrane_test"]
 
 
-#: Axial strain at which the platens reach full speed after a linear ramp from rest (:meth:`start_shear`;
-#: YADE's ``UniaxialStrainer.initAccelTime`` does the same). A step change of platen velocity sends a
-#: compression wave through the specimen, and the dense lattice, whose peak is its elastic limit at
-#: ~0.008 % strain, reports the wave's overshoot as its peak: at paper size, 10 kPa, 5 mm, I = 1e-3, no
-#: ramp gives φ'ext/int 46.9/46.1°. The ramp makes the approach to the peak quasi-static: at the peak the
-#: platens move at √(ε_peak/ε_ramp) of full speed (9 % for 1e-2). Measured at paper size (float32, same
-#: consolidated state): ε_ramp = 1e-3 gives 41.19/40.74° at I = 1e-3 and 40.69/40.30° at I/2 (0.5° apart);
-#: ε_ramp = 1e-2 gives 40.55/40.17° and 40.43/40.06° (0.12° apart), hence the default. The ramp lasts
-#: 2 ε_ramp/ε̇, about 300 wave transit times H/c at paper size (:meth:`MembraneTest.ramp_transit_ratio`),
-#: and delays every later strain by ε_ramp/ε̇ (1 % of strain's worth of steps).
-DEFAULT_RAMP_STRAIN = TriaxialConfig.shear_ramp_strain
 
 #: Largest change of the volumetric strain over the last consolidation chunk (:meth:`is_consolidated`).
 VOLUME_TOLERANCE = 1e-4
@@ -95,7 +84,7 @@ class MembraneTest(StagedTest):
     """
 
     cell = "membrane"
-    default_ramp_strain = DEFAULT_RAMP_STRAIN
+    default_ramp_strain = SHEAR_RAMP_STRAIN
 
     specimen: Specimen
     particles: object
@@ -175,7 +164,7 @@ class MembraneTest(StagedTest):
         self,
         state: CoupledState,
         inertial_number: float = 1e-3,
-        ramp_strain: float = DEFAULT_RAMP_STRAIN,
+        ramp_strain: float = SHEAR_RAMP_STRAIN,
         symmetric: bool = True,
         cell_pressure=None,
     ) -> CoupledState:
@@ -188,7 +177,8 @@ class MembraneTest(StagedTest):
           state: the consolidated state.
           inertial_number: I, setting ε̇ (:meth:`shear_rate`).
           ramp_strain: axial strain at which the platens reach full speed; the ramp is linear in time and
-            lasts 2 ε_ramp/ε̇ (0: a step change). Its purpose and default: :data:`DEFAULT_RAMP_STRAIN`.
+            lasts 2 ε_ramp/ε̇ (0: a step change). Its purpose and default:
+            :data:`membrax.defaults.SHEAR_RAMP_STRAIN`.
           symmetric: both platens move, each at ε̇ H/2 (the specimen's mid-height stays put, so the two
             ends bulge alike); False: the bottom platen fixed and the top one at ε̇ H.
           cell_pressure: σc, Pa, setting ε̇ and the platens' (unused) servo target; default the test's.
@@ -211,7 +201,7 @@ class MembraneTest(StagedTest):
         return self.set_platens(state, False, velocity, target, acceleration)
 
     def ramp_transit_ratio(
-        self, inertial_number: float = 1e-3, ramp_strain: float = DEFAULT_RAMP_STRAIN
+        self, inertial_number: float = 1e-3, ramp_strain: float = SHEAR_RAMP_STRAIN
     ) -> float:
         """The ramp's duration 2 ε_ramp/ε̇ over the compression wave's transit time H/c, dimensionless.
 
@@ -227,9 +217,9 @@ class MembraneTest(StagedTest):
 
 def membrane_test(
     specimen: Specimen,
-    cell_pressure_kpa: float = 10.0,
-    membrane_thickness_mm: float = 2.5,
-    membrane_modulus_kpa: float = TriaxialConfig.membrane_modulus_kpa,
+    cell_pressure: float,
+    membrane_thickness: float,
+    membrane_modulus: float = MEMBRANE_MODULUS,
     contact_params: ContactParams | None = None,
     membrane_contact: MembraneContactParams | None = None,
     damping: DampingParams | None = None,
@@ -250,9 +240,9 @@ def membrane_test(
 
     Args:
       specimen: from :func:`membrax.spheres.packing.fcc_specimen`.
-      cell_pressure_kpa: σc, kPa, > 0 (paper: 10, 40, 100).
-      membrane_thickness_mm: t_m, mm, > 0 (paper: 2.5, 3.33, 5).
-      membrane_modulus_kpa: E_m, kPa, > 0 (paper: 1400).
+      cell_pressure: σc, Pa, > 0 (paper: 1e4, 4e4, 1e5).
+      membrane_thickness: t_m, m, > 0 (paper: 2.5e-3, 3.33e-3, 5e-3).
+      membrane_modulus: E_m, Pa, > 0 (paper: 1.4e6, :data:`membrax.defaults.MEMBRANE_MODULUS`).
       contact_params: sphere contact law (default :meth:`ContactParams.paper`).
       membrane_contact: node–sphere law (default :meth:`MembraneContactParams.default`).
       damping: default Cundall local 0.3 (paper), applied to spheres and membrane nodes alike.
@@ -277,23 +267,23 @@ def membrane_test(
         sphere; 0: its nodes on the sphere surface, the paper's; :class:`MembraneParams`). The mesh is
         built f t_m/2 outside the outer spheres, where its nodes would touch them.
     """
-    check_range("cell_pressure_kpa", cell_pressure_kpa, lower=0.0, lower_open=True, hint="paper: 10–100 kPa.")
+    check_range("cell_pressure", cell_pressure, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
     check_range("edges_per_diameter", edges_per_diameter, lower=0.0, lower_open=True)
     check_range("dt_safety", dt_safety, lower=0.0, upper=1.0, lower_open=True)
     membrane_params = MembraneParams.create(
-        membrane_modulus_kpa,
-        membrane_thickness_mm,
-        cell_pressure_kpa,
-        membrane_contact,
-        bending_factor,
-        contact_offset_factor,
+        thickness=membrane_thickness,
+        cell_pressure=cell_pressure,
+        modulus=membrane_modulus,
+        contact=membrane_contact,
+        bending_factor=bending_factor,
+        contact_offset_factor=contact_offset_factor,
     )
     contact_params = ContactParams.paper() if contact_params is None else contact_params
     damping = DampingParams.local(0.3) if damping is None else damping
     params = CoupledParams(dem=DEMParams(contact=contact_params, damping=damping), membrane=membrane_params)
     diameter = specimen.particle_diameter
     # The thickness the node–sphere contact sees: nodes touch spheres at R + contact_thickness/2.
-    contact_thickness = contact_offset_factor * 1e-3 * membrane_thickness_mm
+    contact_thickness = contact_offset_factor * membrane_thickness
     position = jnp.asarray(specimen.position)
     particles = make_particles(jnp.asarray(specimen.radius), density)
     walls = triaxial_walls(

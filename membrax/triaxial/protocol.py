@@ -11,17 +11,56 @@ Contract. :class:`StagedTest` runs the two stages of the test with the chunk dri
 
 A cell (:class:`membrax.triaxial.rigid.RigidWallTest`, :class:`membrax.triaxial.membrane_cell.MembraneTest`)
 says what its platens and walls do at each stage.
+
+The stage sequence is written once, here: :data:`PHASES` in order, each phase's steps and record interval
+from :meth:`StagedTest.phase_plan` of a :class:`Loading`. :meth:`StagedTest.consolidate` and
+:meth:`StagedTest.shear` run it on one state; :func:`membrax.runner.run_group` runs it on a batch of
+members (a single test from a configuration is a batch of one), with checkpoints, resume and progress.
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
-from membrax.config import default_consolidation_tolerance
+from membrax.defaults import default_consolidation_tolerance
 from membrax.driver import run_phases, two_rate_plan
 from membrax.validation import check_range
 
-__all__ = ["StagedTest"]
+__all__ = ["CONSOLIDATION_RECORD_EVERY", "PHASES", "Loading", "StagedTest"]
+
+#: The phases of a test, in order: consolidation (until the cell's stop test holds), then shearing
+#: recorded every ``record_every_fine`` steps to ``fine_until_strain`` and every ``record_every_coarse``
+#: steps after, to the target strain.
+PHASES = ("consolidation", "shear_fine", "shear_coarse")
+#: Steps between consolidation records.
+CONSOLIDATION_RECORD_EVERY = 100
+
+
+@dataclasses.dataclass(frozen=True)
+class Loading:
+    """The loading programme of a test: what the phases of :data:`PHASES` need to plan their steps.
+
+    Attributes:
+      consolidation_max_steps: consolidation gives up after this many steps.
+      target_axial_strain: axial strain at which shearing stops, counted from its start.
+      inertial_number: I, setting the shear strain rate (the cell's :meth:`StagedTest.shear_rate`).
+      fine_until_strain: the end of the fine recording.
+      ramp_strain: axial strain at which the platens reach full speed (None: the cell's default).
+      record_every_fine: steps between records below ``fine_until_strain``.
+      record_every_coarse: steps between records after it.
+      consolidation_record_every: steps between consolidation records.
+    """
+
+    consolidation_max_steps: int = 200_000
+    target_axial_strain: float = 0.10
+    inertial_number: float = 1e-3
+    fine_until_strain: float = 0.01
+    ramp_strain: float | None = None
+    record_every_fine: int = 25
+    record_every_coarse: int = 250
+    consolidation_record_every: int = CONSOLIDATION_RECORD_EVERY
 
 
 class StagedTest:
@@ -31,7 +70,7 @@ class StagedTest:
     says what its cell does at each stage:
 
     - ``cell``: ``"rigid"`` or ``"membrane"``, the default consolidation tolerance's row
-      (:func:`membrax.config.default_consolidation_tolerance`);
+      (:func:`membrax.defaults.default_consolidation_tolerance`);
     - ``default_ramp_strain``: the shearing's default start-up ramp (axial strain at full speed);
     - ``start_consolidation(state)``: the servos on, at rest;
     - ``is_consolidated(records, tolerance, **criteria)``: the stop test on a chunk's records;
@@ -49,7 +88,7 @@ class StagedTest:
         tolerance: float | None = None,
         max_steps: int = 200_000,
         chunk_steps: int = 2000,
-        record_every: int = 100,
+        record_every: int = CONSOLIDATION_RECORD_EVERY,
         on_chunk=None,
         **criteria,
     ):
@@ -58,7 +97,7 @@ class StagedTest:
         Args:
           state: starting state (default: the as-built specimen).
           tolerance: unbalanced-force ratio to reach; default
-            :func:`membrax.config.default_consolidation_tolerance` for the cell and the state's precision.
+            :func:`membrax.defaults.default_consolidation_tolerance` for the cell and the state's precision.
           max_steps: give up after this many steps (the records show how far it got).
           chunk_steps: steps per compiled chunk.
           record_every: steps between records.
@@ -101,6 +140,24 @@ class StagedTest:
         steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
         return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp)
 
+    def phase_plan(self, loading: Loading) -> dict[str, tuple[int, int]]:
+        """(steps, steps between records) of each phase of :data:`PHASES` under ``loading``.
+
+        Consolidation's steps are its cap (it stops earlier when the cell's stop test holds); the two
+        shearing phases' come from :meth:`shear_plan`.
+        """
+        fine, coarse = self.shear_plan(
+            loading.target_axial_strain,
+            loading.inertial_number,
+            loading.fine_until_strain,
+            loading.ramp_strain,
+        )
+        return {
+            "consolidation": (loading.consolidation_max_steps, loading.consolidation_record_every),
+            "shear_fine": (fine, loading.record_every_fine),
+            "shear_coarse": (coarse, loading.record_every_coarse),
+        }
+
     def shear(
         self,
         state,
@@ -132,7 +189,16 @@ class StagedTest:
           (state, records) with the records of both recording rates joined.
         """
         ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
-        fine, coarse = self.shear_plan(target_axial_strain, inertial_number, fine_until_strain, ramp)
+        plan = self.phase_plan(
+            Loading(
+                target_axial_strain=target_axial_strain,
+                inertial_number=inertial_number,
+                fine_until_strain=fine_until_strain,
+                ramp_strain=ramp,
+                record_every_fine=record_every_fine,
+                record_every_coarse=record_every_coarse,
+            )
+        )
         state = self.start_shear(state, inertial_number, ramp, **loading)
-        phases = [(fine, record_every_fine), (coarse, record_every_coarse)]
+        phases = [plan[phase] for phase in PHASES[1:]]
         return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)

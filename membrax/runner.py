@@ -1,10 +1,11 @@
-"""The stage loop of membrane triaxial tests: a batch of members through consolidation and shearing.
+"""The runner: a batch of membrane tests from configurations, through consolidation and shearing.
 
 Contract. Every membrane test that runs to a results folder goes through here, alone or in a grid: a single
 test (:func:`membrax.run.run_test`) is a batch of one, a sweep (:func:`membrax.sweep.run_sweep`) runs its
 grid as batches. :func:`build_batch` builds the members of one compiled batch (:class:`BatchedTest`:
 states stacked on a member axis, one Δt, one mesh topology) and :func:`run_group` takes them through the
-paper's protocol (:mod:`membrax.triaxial.membrane_cell`):
+protocol's stage sequence (:data:`membrax.triaxial.protocol.PHASES`, each member's steps and record
+intervals from :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan` of its :func:`loading`):
 
 - ``consolidation``: the ram servo on, until each member's own stop test holds
   (:meth:`membrax.triaxial.membrane_cell.MembraneTest.is_consolidated`) or it reaches
@@ -46,7 +47,8 @@ import numpy as np
 
 from membrax import __version__, theory
 from membrax.batch import stack
-from membrax.config import TriaxialConfig, config_to_dict, default_consolidation_tolerance
+from membrax.config import TriaxialConfig, config_to_dict
+from membrax.defaults import default_consolidation_tolerance
 from membrax.driver import advance, drive, record_blocks
 from membrax.errors import OVERFLOWS, ErrorCode, RunError, SimulationError, describe
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
@@ -60,19 +62,19 @@ from membrax.spheres.neighbors import remap_pair_history
 from membrax.spheres.packing import fcc_specimen, particle_mass, with_imperfection
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
+from membrax.triaxial.protocol import CONSOLIDATION_RECORD_EVERY, PHASES, Loading
 
 __all__ = [
     "BATCHED_FIELDS",
     "BOOKKEEPING_FIELDS",
     "CHECKPOINT_NAME",
-    "CONSOLIDATION_RECORD_EVERY",
-    "PHASES",
     "RUNAWAY_KINETIC_FRACTION",
     "BatchedTest",
     "balanced_order",
     "build_batch",
     "build_test",
     "consolidation_tolerance",
+    "loading",
     "join_records",
     "member_chunk_records",
     "rebase_to_shear_start",
@@ -84,9 +86,6 @@ __all__ = [
 
 #: Kinetic energy above this fraction of σc V₀ stops the run (a quasi-static test stays below 1e-4).
 RUNAWAY_KINETIC_FRACTION = 0.05
-#: Steps between consolidation records.
-CONSOLIDATION_RECORD_EVERY = 100
-PHASES = ("consolidation", "shear_fine", "shear_coarse")
 CHECKPOINT_NAME = "checkpoint.npz"
 
 
@@ -154,9 +153,9 @@ def build_test(
         damping = DampingParams.equivalent_viscous(config.particle_stiffness_n_m, mass)
     return membrane_test(
         specimen,
-        cell_pressure_kpa=config.cell_pressure_kpa,
-        membrane_thickness_mm=config.membrane_thickness_mm,
-        membrane_modulus_kpa=config.membrane_modulus_kpa,
+        cell_pressure=config.cell_pressure,
+        membrane_thickness=config.membrane_thickness,
+        membrane_modulus=config.membrane_modulus,
         contact_params=contact,
         membrane_contact=membrane_contact,
         damping=damping,
@@ -170,11 +169,24 @@ def build_test(
     )
 
 
+def loading(config: TriaxialConfig) -> Loading:
+    """The loading programme of a configuration (:class:`membrax.triaxial.protocol.Loading`)."""
+    return Loading(
+        consolidation_max_steps=config.consolidation_max_steps,
+        target_axial_strain=config.target_axial_strain,
+        inertial_number=config.inertial_number,
+        fine_until_strain=config.fine_until_strain,
+        ramp_strain=config.shear_ramp_strain,
+        record_every_fine=config.record_every_fine,
+        record_every_coarse=config.record_every_coarse,
+    )
+
+
 def consolidation_tolerance(config: TriaxialConfig) -> float:
     """The unbalanced-force ratio that ends consolidation.
 
     The configuration's, else the membrane cell's default for its precision
-    (:func:`membrax.config.default_consolidation_tolerance`).
+    (:func:`membrax.defaults.default_consolidation_tolerance`).
     """
     tolerance = config.consolidation_tolerance_or_none
     if tolerance is None:
@@ -597,14 +609,11 @@ def build_batch(
     if order is None:
         # Shear steps are planned; consolidation stops when its test holds (unknown beforehand, about
         # alike for all members), so every member is charged two chunks of it.
+        plans = [t.phase_plan(loading(c)) for c, t in zip(configs, tests, strict=True)]
         work = [
             min(c.consolidation_max_steps, 2 * c.chunk_steps)
-            + sum(
-                t.shear_plan(
-                    c.target_axial_strain, c.inertial_number, c.fine_until_strain, c.shear_ramp_strain
-                )
-            )
-            for c, t in zip(configs, tests, strict=True)
+            + sum(plan[phase][0] for phase in PHASES[1:])
+            for c, plan in zip(configs, plans, strict=True)
         ]
         order = balanced_order(work, num_devices)
     order = [int(i) for i in order]
@@ -786,34 +795,24 @@ def run_group(
             host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
         save_checkpoint(checkpoint_path, current, host)
 
+    # The protocol's stage sequence (membrax.triaxial.protocol): each member's steps and record interval per
+    # phase. The record interval is shared: it is not a batched field, so all members have the same.
+    plans = [t.phase_plan(loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
     while phase_index < len(PHASES):
         phase = PHASES[phase_index]
         if budgets is None:
-            if phase == "consolidation":
-                budgets = np.array([c.consolidation_max_steps for c in batch.configs], dtype=np.int64)
-            else:
-                if phase == "shear_fine":
-                    members = batch.unstack(states)
-                    for b, test in enumerate(batch.tests):
-                        shear_height[b] = _last_member_value(records["consolidation"], "height", b)
-                        shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
-                        c = batch.configs[b]
-                        members[b] = test.start_shear(
-                            members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
-                        )
-                    states = batch.restack(members)
-                plans = [
-                    t.shear_plan(
-                        c.target_axial_strain, c.inertial_number, c.fine_until_strain, c.shear_ramp_strain
+            if phase == "shear_fine":
+                members = batch.unstack(states)
+                for b, test in enumerate(batch.tests):
+                    shear_height[b] = _last_member_value(records["consolidation"], "height", b)
+                    shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
+                    c = batch.configs[b]
+                    members[b] = test.start_shear(
+                        members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
                     )
-                    for t, c in zip(batch.tests, batch.configs, strict=True)
-                ]
-                budgets = np.array([plan[phase_index - 1] for plan in plans], dtype=np.int64)
-        record_every = {
-            "consolidation": CONSOLIDATION_RECORD_EVERY,
-            "shear_fine": config.record_every_fine,
-            "shear_coarse": config.record_every_coarse,
-        }[phase]
+                states = batch.restack(members)
+            budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
+        record_every = plans[0][phase][1]
         total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
         bar = phase_bar(phase, num, total, progress)
 

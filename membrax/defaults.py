@@ -1,0 +1,75 @@
+"""The paper's test as membrax's defaults, in SI: the one source the configuration and the simulator share.
+
+Contract. Plain constants (no JAX, no imports from membrax): the inputs of the reference study that are
+also membrax's defaults (its §3 and Table 1), the shearing's start-up ramp, and the unbalanced-force
+ratio that ends consolidation. :class:`membrax.config.TriaxialConfig` derives its laboratory-unit field
+defaults from these (``membrane_modulus_kpa = MEMBRANE_MODULUS / 1e3``), the cells
+(:mod:`membrax.triaxial`) and the membrane (:mod:`membrax.membrane.coupled`) take them as their SI
+defaults, and :mod:`membrax.paper` prints them beside the paper's tables; nothing below the configuration
+imports the configuration (``tests/test_architecture.py``).
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CONSOLIDATION_TOLERANCE",
+    "FRICTION_ANGLE_DEG",
+    "LAYERS",
+    "MEMBRANE_MODULUS",
+    "PARTICLES_ACROSS",
+    "PARTICLE_DIAMETER",
+    "SHEAR_RAMP_STRAIN",
+    "default_consolidation_tolerance",
+]
+
+#: Sphere diameter D, m: the paper's 25 mm granite spheres (its §3).
+PARTICLE_DIAMETER = 0.025
+#: Spheres across the specimen: the paper's 10 (a 250 mm specimen).
+PARTICLES_ACROSS = 10
+#: FCC layers of the specimen: the paper's 25 (about 500 mm high).
+LAYERS = 25
+#: Interparticle friction angle φ_μ, degrees: the paper's 25°.
+FRICTION_ANGLE_DEG = 25.0
+#: Latex membrane Young's modulus E_m, Pa: the paper's 1400 kPa (its Table 1).
+MEMBRANE_MODULUS = 1.4e6
+
+#: Axial strain at which the platens reach full speed after a linear ramp from rest
+#: (:meth:`membrax.triaxial.membrane_cell.MembraneTest.start_shear`; YADE's
+#: ``UniaxialStrainer.initAccelTime`` does the same). A step change of platen velocity sends a compression
+#: wave through the specimen, and the dense lattice, whose peak is its elastic limit at ~0.008 % strain,
+#: reports the wave's overshoot as its peak: at paper size, 10 kPa, 5 mm, I = 1e-3, no ramp gives φ'ext/int
+#: 46.9/46.1°. The ramp makes the approach to the peak quasi-static: at the peak the platens move at
+#: √(ε_peak/ε_ramp) of full speed (9 % for 1e-2). Measured at paper size (float32, same consolidated
+#: state): ε_ramp = 1e-3 gives 41.19/40.74° at I = 1e-3 and 40.69/40.30° at I/2 (0.5° apart); ε_ramp = 1e-2
+#: gives 40.55/40.17° and 40.43/40.06° (0.12° apart), hence the default. The ramp lasts 2 ε_ramp/ε̇, about
+#: 300 wave transit times H/c at paper size (``MembraneTest.ramp_transit_ratio``), and delays every later
+#: strain by ε_ramp/ε̇ (1 % of strain's worth of steps).
+SHEAR_RAMP_STRAIN = 1.0e-2
+
+#: The unbalanced-force ratio that ends consolidation when none is given, by cell (``"rigid"`` walls or a
+#: ``"membrane"``) and precision (float64 or not): the one rule of ``RigidWallTest.consolidate``,
+#: ``MembraneTest.consolidate`` and a configuration's ``consolidation_tolerance = 0``. float32's force
+#: round-off floors the ratio at ~2e-3 in a rigid cell (a 25 mm branch vector resolves 2e-9 m, 0.1 % of a
+#: contact overlap at 40 kPa, summed over 12 contacts) and at 1.1e-2 / 3e-3 / 1.2e-3 with the membrane at
+#: 10 / 40 / 100 kPa (paper size), hence the looser float32 values.
+CONSOLIDATION_TOLERANCE = {
+    ("rigid", True): 1e-3,
+    ("rigid", False): 5e-3,
+    ("membrane", True): 2e-3,
+    ("membrane", False): 2e-2,
+}
+
+
+def default_consolidation_tolerance(cell: str, float64: bool) -> float:
+    """The default unbalanced-force ratio ending consolidation (:data:`CONSOLIDATION_TOLERANCE`).
+
+    Args:
+      cell: ``"rigid"`` or ``"membrane"``.
+      float64: whether the simulation runs in float64.
+
+    Raises:
+      ValueError: an unknown cell.
+    """
+    if cell not in ("rigid", "membrane"):
+        raise ValueError(f"cell = {cell!r}; it must be 'rigid' or 'membrane'.")
+    return CONSOLIDATION_TOLERANCE[cell, bool(float64)]
