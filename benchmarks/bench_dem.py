@@ -37,7 +37,9 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     specimen = packing.fcc_specimen(0.025, width, layers)
     single = triaxial.rigid_wall_test(specimen, 40e3)
     state = single.set_walls(single.initial_state, True, 0.0, 40e3)
-    _, step = integrate.dem(single.particles, single.runner.neighbor_frame, single.dt, wall_friction=False)
+    _, step = integrate.sphere_dem(
+        single.particles, single.runner.neighbor_frame, single.dt, wall_friction=False
+    )
 
     def loop(step_fn, num):
         return jax.jit(lambda s, p: jax.lax.fori_loop(0, num, lambda _, x: step_fn(x, p), s))
@@ -80,7 +82,7 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     serial_time = sum(timed(serial_run, states[b], case_params(b))[1] for b in range(CASES))
 
     folded = triaxial.rigid_wall_test(specimen, pressure, time_step=single.dt)
-    _, folded_step = integrate.dem(
+    _, folded_step = integrate.sphere_dem(
         folded.particles, folded.runner.neighbor_frame, single.dt, wall_friction=False
     )
     folded_state = folded.set_walls(folded.initial_state, True, 0.0, pressure)

@@ -11,7 +11,8 @@ ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user n
   checked by finite differences of the simulator);
 - results: :func:`read_results`;
 - the factories under them: :func:`fcc_specimen`, :func:`rigid_wall_test`, :func:`membrane_test`,
-  :func:`dem` (the sphere step; the coupled step is :func:`membrax.membrane.coupled.membrane_dem`),
+  :func:`sphere_dem` (the sphere step, named like its folder ``spheres/``; the coupled one is
+  :func:`membrax.membrane.coupled.membrane_dem`),
   :func:`prism_mesh`;
 - errors: :class:`ErrorCode` (a state's error bits), :class:`SimulationError`, :class:`RunError`;
 - modules: :mod:`~membrax.theory` (closed forms), :mod:`~membrax.paper` (the paper's numbers and the
@@ -49,7 +50,7 @@ _API = {
     "fcc_specimen": "membrax.spheres.packing",
     "rigid_wall_test": "membrax.triaxial.rigid",
     "membrane_test": "membrax.triaxial.membrane_cell",
-    "dem": "membrax.spheres.integrate",
+    "sphere_dem": "membrax.spheres.integrate",
     "prism_mesh": "membrax.membrane.mesh",
     "ErrorCode": "membrax.errors",
     "SimulationError": "membrax.errors",

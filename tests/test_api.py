@@ -27,7 +27,7 @@ EXPECTED = {
     "fcc_specimen",
     "rigid_wall_test",
     "membrane_test",
-    "dem",
+    "sphere_dem",
     "prism_mesh",
     # errors
     "ErrorCode",
@@ -64,7 +64,7 @@ def test_every_name_resolves_to_its_defining_module():
         "fcc_specimen": packing,
         "rigid_wall_test": rigid,
         "membrane_test": membrane_cell,
-        "dem": integrate,
+        "sphere_dem": integrate,
         "prism_mesh": mesh,
         "ErrorCode": errors,
         "SimulationError": errors,

@@ -37,7 +37,7 @@ def free_system(
     walls = walls_lib.triaxial_walls(np.zeros((0, 2)), np.zeros(0), height=1.0)
     if dt is None:
         dt = 0.01 * math.sqrt(float(particles.mass[0]) / KN)
-    init_fn, step_fn = integrate.dem(particles, frame, dt, wall_friction=wall_friction)
+    init_fn, step_fn = integrate.sphere_dem(particles, frame, dt, wall_friction=wall_friction)
     return particles, frame, walls, init_fn, step_fn, dt
 
 
@@ -104,12 +104,12 @@ def total_energy_series(dt_fraction, num_steps=10_000, squeeze=1e-3, speed=0.05)
     particles, frame, walls, position, _ = precompressed_cluster(squeeze, 0.0)
     contact_params = contact.ContactParams.paper(friction_angle_deg=0.0)
     params = integrate.DEMParams(contact_params, integrate.DampingParams.none())
-    probe_init, _ = integrate.dem(particles, frame, 1.0)
+    probe_init, _ = integrate.sphere_dem(particles, frame, 1.0)
     critical = integrate.critical_time_step(
         probe_init(position, walls, frame.allocate(position)), particles, params
     )
     dt = dt_fraction * critical
-    init_fn, step_fn = integrate.dem(particles, frame, dt, wall_friction=False)
+    init_fn, step_fn = integrate.sphere_dem(particles, frame, dt, wall_friction=False)
     # Relax to equilibrium first (the scaled block is not one: set-back boundary spheres pop out).
     relax = integrate.DEMParams(contact_params, integrate.DampingParams.viscous(3000.0))
     state = run_steps(step_fn, init_fn(position, walls, frame.allocate(position)), relax, 20_000)
@@ -386,7 +386,7 @@ def test_folded_batch_and_vmap_match_a_loop_over_cases():
     dt = folded.dt
     # The loop: one single-member system, run once per case with that case's parameters.
     one = triaxial.rigid_wall_test(specimen, pressure[0], contact_case(friction[0], stiffness[0]), **options)
-    _, step = integrate.dem(one.particles, one.runner.neighbor_frame, dt, wall_friction=False)
+    _, step = integrate.sphere_dem(one.particles, one.runner.neighbor_frame, dt, wall_friction=False)
     cases = [
         (
             one.set_walls(one.initial_state, True, 0.0, pressure[b]),
@@ -396,7 +396,7 @@ def test_folded_batch_and_vmap_match_a_loop_over_cases():
     ]
     looped = [run_steps(step, state, params, num_steps) for state, params in cases]
     # Folded: one system of 3 members, parameters as arrays over members.
-    _fold_init, fold_step = integrate.dem(
+    _fold_init, fold_step = integrate.sphere_dem(
         folded.particles, folded.runner.neighbor_frame, dt, wall_friction=False
     )
     fold_state = folded.set_walls(folded.initial_state, True, 0.0, pressure)

@@ -12,7 +12,7 @@ from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import cylinder_mesh
 from membrax.spheres import packing
 from membrax.spheres.contact import ContactParams
-from membrax.spheres.integrate import DampingParams, DEMParams, dem, make_particles
+from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.walls import triaxial_walls
 from membrax.triaxial.membrane_cell import membrane_test
@@ -40,7 +40,7 @@ def _clamped_cylinder(radius, height, edge, modulus, thickness, cell_pressure, d
         ),
     )
     dt = 0.5 * membrane_dem.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)["mesh"]
-    dem_init, _ = dem(particles, frame, dt)
+    dem_init, _ = sphere_dem(particles, frame, dt)
     init_fn, step_fn = membrane_dem.membrane_dem(particles, frame, mesh, dt, platen_area=np.pi * radius**2)
     state = init_fn(dem_init(spheres, walls, frame.allocate(spheres)), params, capacity=2, skin=0.01)
     return mesh, params, state, step_fn

@@ -1,7 +1,7 @@
 """DEM + membrane: spheres, platens and a latex membrane whose end rings are clamped to the platens.
 
 Contract. ``membrane_dem(particles, neighbor_frame, mesh, dt)`` returns ``(init_fn, step_fn)`` in the
-jax-md style, composed from :func:`membrax.spheres.integrate.dem` and the membrane modules:
+jax-md style, composed from :func:`membrax.spheres.integrate.sphere_dem` and the membrane modules:
 
 - ``init_fn(dem_state, params, capacity=3, skin=..., sphere_capacity=64) -> CoupledState`` (host side:
   builds the node–sphere candidate table, K per node and M per sphere, both grown by the chunk driver
@@ -87,7 +87,7 @@ from membrax.spheres.integrate import (
     DEMState,
     Particles,
     apply_damping,
-    dem,
+    sphere_dem,
 )
 from membrax.spheres.neighbors import PairNeighborFn
 from membrax.spheres.walls import BOTTOM, TOP, compensated_add
@@ -659,7 +659,9 @@ def membrane_dem(
     check_range("latex_density", latex_density, lower=0.0, lower_open=True, hint="kg/m³; latex ≈ 1000.")
     check_range("dt", dt, lower=0.0, lower_open=True, hint="seconds; see membrane_critical_time_step.")
     num_spheres = particles.num_particles
-    _, dem_step = dem(particles, neighbor_frame, dt, platen_area=platen_area, wall_friction=wall_friction)
+    _, dem_step = sphere_dem(
+        particles, neighbor_frame, dt, platen_area=platen_area, wall_friction=wall_friction
+    )
     if sphere_subset is None:
         sphere_subset = np.arange(num_spheres)
     sphere_subset = jnp.asarray(sphere_subset, dtype=jnp.int32)

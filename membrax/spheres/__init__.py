@@ -1,7 +1,7 @@
 """The sphere half of the simulator (DEM): an FCC specimen, its contacts, walls and platens, the step.
 
-Named for what it simulates: ``membrax.dem`` is the step's factory (:func:`membrax.spheres.integrate.dem`,
-jax-md's ``(init_fn, step_fn)`` style), part of ``import membrax``'s API.
+One name: the folder's step is ``membrax.sphere_dem`` (:func:`membrax.spheres.integrate.sphere_dem`, jax-md's
+``(init_fn, step_fn)`` style), as the membrane's is :func:`membrax.membrane.coupled.membrane_dem`.
 
 Modules along the data flow (README, Architecture): :mod:`~membrax.spheres.packing` (FCC specimens),
 :mod:`~membrax.spheres.neighbors` (jax-md cell-list pair lists), :mod:`~membrax.spheres.contact`

@@ -1,7 +1,7 @@
 """DEM time integration: state, forces, damping and the leapfrog step.
 
-Contract. ``dem(particles, neighbor_frame, dt)`` returns a pair of pure functions ``(init_fn, step_fn)``
-in the jax-md style:
+Contract. ``sphere_dem(particles, neighbor_frame, dt)`` returns a pair of pure functions
+``(init_fn, step_fn)`` in the jax-md style:
 
 - ``init_fn(position, walls, neighbors, ...) -> DEMState`` (host side: it takes an allocated list);
 - ``step_fn(state, params) -> DEMState`` advances one time step under ``jit``; ``params``
@@ -68,7 +68,6 @@ __all__ = [
     "apply_damping",
     "compute_forces",
     "critical_time_step",
-    "dem",
     "describe_errors",
     "make_particles",
 ]
@@ -542,7 +541,7 @@ def apply_damping(force, velocity, mass, damping: DampingParams, member):
     return force - alpha * jnp.abs(force) * jnp.sign(velocity) - gamma * mass[:, None] * velocity
 
 
-def dem(
+def sphere_dem(
     particles: Particles,
     neighbor_frame: PairNeighborFn,
     dt: float,

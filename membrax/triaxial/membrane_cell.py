@@ -56,8 +56,8 @@ from membrax.spheres.integrate import (
     DampingParams,
     DEMParams,
     critical_time_step,
-    dem,
     make_particles,
+    sphere_dem,
 )
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, Specimen
@@ -67,7 +67,6 @@ from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
 
 __all__ = ["MembraneTest", "membrane_test"]
-
 
 
 #: Largest change of the volumetric strain over the last consolidation chunk (:meth:`is_consolidated`).
@@ -309,7 +308,7 @@ def membrane_test(
     # The critical step of the touching lattice: a seeded imperfection (packing.with_imperfection) opens
     # its contacts (they close under load) and leaves the masses within 3 f of the nominal ones.
     lattice = make_particles(jnp.full_like(particles.radius, 0.5 * diameter), density)
-    dem_init, _ = dem(lattice, frame, 1.0)
+    dem_init, _ = sphere_dem(lattice, frame, 1.0)
     critical = {"dem": critical_time_step(dem_init(position, walls, neighbors), lattice, params.dem)}
     membrane_steps = membrane_critical_time_step(mesh, membrane_params, latex_density)
     critical.update({f"membrane_{key}": value for key, value in membrane_steps.items()})

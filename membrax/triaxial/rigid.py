@@ -34,8 +34,8 @@ from membrax.spheres.integrate import (
     DEMParams,
     DEMState,
     critical_time_step,
-    dem,
     make_particles,
+    sphere_dem,
 )
 from membrax.spheres.measure import measure
 from membrax.spheres.neighbors import pair_neighbor_fn
@@ -189,7 +189,7 @@ def rigid_wall_test(
         lower, upper, cutoff=diameter, skin=skin_fraction * diameter, margin=0.5 * diameter
     )
     neighbors = frame.allocate(position)
-    probe_init, _ = dem(particles, frame, 1.0)
+    probe_init, _ = sphere_dem(particles, frame, 1.0)
     probe = probe_init(position, walls, neighbors)
     critical = critical_time_step(probe, particles, params)
     dt = dt_safety * critical if time_step is None else float(time_step)
@@ -197,7 +197,7 @@ def rigid_wall_test(
         max_wall_speed = 0.01 * diameter / (1000 * dt)
     walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
     wall_friction = bool(np.any(np.asarray(contact_params.wall_friction_coefficient) != 0.0))
-    init_fn, step_fn = dem(particles, frame, dt, wall_friction=wall_friction)
+    init_fn, step_fn = sphere_dem(particles, frame, dt, wall_friction=wall_friction)
     state = init_fn(position, walls, neighbors)
     initial_height = np.full(num_members, specimen.height)
     initial_volume = np.full(num_members, specimen.cross_section_area * specimen.height)
