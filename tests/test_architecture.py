@@ -23,7 +23,7 @@ LAYERS = (
     ("validation", "vector", "fusion", "native", "errors", "batch", "devices", "theory", "pytree"),
     ("defaults",),
     # specimen + membrane: geometry
-    ("spheres.packing", "spheres.neighbors", "membrane.mesh"),
+    ("spheres.packing", "spheres.random_packing", "spheres.neighbors", "membrane.mesh"),
     # laws: contacts, walls and platens
     ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
     # step
