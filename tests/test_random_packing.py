@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from membrax.spheres.random_packing import Grading, loose_cloud, mass_fractions, sample_diameters
 
@@ -75,8 +76,6 @@ def test_the_loose_cloud_has_no_overlap_lies_in_the_mould_and_has_the_asked_soli
     radius = 0.5 * diameters
     mould_radius = 0.15
     centres, height = loose_cloud(diameters, mould_radius, solid_fraction=0.25, seed=4)
-    from scipy.spatial import cKDTree
-
     pairs = cKDTree(centres).query_pairs(diameters.max(), output_type="ndarray")
     gaps = np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1) - radius[pairs].sum(axis=1)
     assert gaps.min() >= 0.0

@@ -126,9 +126,14 @@ class Grading:
         return self.bins[0][0]
 
 
+def _one_size(a: float, b: float) -> bool:
+    """Whether the bin (a, b] is one size, b (:meth:`Grading.equal`): its spheres are all of diameter b."""
+    return b - a <= 1e-6 * b
+
+
 def _mean_bin_volume(a: float, b: float) -> float:
     """Mean sphere volume of a bin whose number density is ∝ d⁻³ on (a, b], m³ (module docstring)."""
-    if b - a <= 1e-6 * b:
+    if _one_size(a, b):
         return math.pi / 6.0 * b**3  # an equal-sphere bin (Grading.equal): its spheres are of size b
     return math.pi / 6.0 * 2.0 * (b - a) / (a**-2 - b**-2)
 
@@ -154,7 +159,7 @@ def sample_diameters(grading: Grading, solid_volume: float, seed: int = 0) -> np
       (N,) diameters, m, float64, largest first (the order :func:`loose_cloud` places them in).
 
     Raises:
-      ValueError: a non-positive volume, or one that holds fewer than two of the largest spheres.
+      ValueError: a non-positive volume, or one that holds fewer than two spheres of the grading.
     """
     if not (math.isfinite(solid_volume) and solid_volume > 0.0):
         raise ValueError(f"solid_volume = {solid_volume}; give a positive volume in m³.")
@@ -162,20 +167,20 @@ def sample_diameters(grading: Grading, solid_volume: float, seed: int = 0) -> np
     means = np.array([_mean_bin_volume(a, b) for a, b, _ in bins])
     fractions = np.array([f for _, _, f in bins])
     real = fractions * solid_volume / means
-    total = max(round(float(real.sum())), 1)
-    counts = _largest_remainder(real * total / real.sum(), total)
+    total = round(float(real.sum()))
     if total < 2:
         raise ValueError(
             f"solid_volume = {solid_volume:g} m³ holds {real.sum():.2g} spheres of this grading; give a "
             "specimen several particles across."
         )
+    counts = _largest_remainder(real * total / real.sum(), total)
     rng = np.random.default_rng(seed)
     diameters = []
     for (a, b, _), count in zip(bins, counts, strict=True):
         if count == 0:
             continue
         u = (np.arange(count) + rng.random(count)) / count  # one draw in each quantile stratum
-        if b - a <= 1e-6 * b:
+        if _one_size(a, b):
             diameters.append(np.full(count, b))
         else:
             diameters.append((a**-2 - u * (a**-2 - b**-2)) ** -0.5)

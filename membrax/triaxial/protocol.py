@@ -42,6 +42,9 @@ CONSOLIDATION_RECORD_EVERY = 100
 class Loading:
     """The loading programme of a test: what the phases of :data:`PHASES` need to plan their steps.
 
+    No defaults of its own: a configuration gives them (:func:`membrax.runner.loading`), or a stage's
+    arguments (:meth:`StagedTest.shear`).
+
     Attributes:
       consolidation_max_steps: consolidation gives up after this many steps.
       target_axial_strain: axial strain at which shearing stops, counted from its start.
@@ -53,13 +56,13 @@ class Loading:
       consolidation_record_every: steps between consolidation records.
     """
 
-    consolidation_max_steps: int = 200_000
-    target_axial_strain: float = 0.10
-    inertial_number: float = 1e-3
-    fine_until_strain: float = 0.01
-    ramp_strain: float | None = None
-    record_every_fine: int = 25
-    record_every_coarse: int = 250
+    consolidation_max_steps: int
+    target_axial_strain: float
+    inertial_number: float
+    fine_until_strain: float
+    ramp_strain: float | None
+    record_every_fine: int
+    record_every_coarse: int
     consolidation_record_every: int = CONSOLIDATION_RECORD_EVERY
 
 
@@ -191,6 +194,7 @@ class StagedTest:
         ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
         plan = self.phase_plan(
             Loading(
+                consolidation_max_steps=0,  # this stage plans the shearing phases only
                 target_axial_strain=target_axial_strain,
                 inertial_number=inertial_number,
                 fine_until_strain=fine_until_strain,
