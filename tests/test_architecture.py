@@ -28,6 +28,8 @@ LAYERS = (
     ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
     # step
     ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
+    # specimens made by a DEM run: the compaction of a random packing
+    ("spheres.compaction",),
     ("driver",),
     # measurements
     ("spheres.measure", "membrane.measure"),

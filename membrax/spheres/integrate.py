@@ -579,12 +579,19 @@ def sphere_dem(
         )
 
     def step_fn(
-        state: DEMState, params: DEMParams, sphere_force=None, sphere_torque=None, wall_load=None
+        state: DEMState,
+        params: DEMParams,
+        sphere_force=None,
+        sphere_torque=None,
+        wall_load=None,
+        contact_radius=None,
     ) -> DEMState:
         """One step; ``sphere_force``/``sphere_torque`` (N, 3) are extra loads at x_n (e.g. the membrane).
 
         ``wall_load`` (B, W), N, compression positive: extra normal loads on the walls besides the spheres'
         (the membrane's pull on the platens); the servos then hold the total, the ram force, at target.
+        ``contact_radius`` (N,), m: radii the contacts use in place of the particles' (the growing radii of
+        a compaction by radius expansion, :mod:`membrax.spheres.compaction`); masses stay the particles'.
         """
         neighbors = neighbor_frame.update(state.position, state.neighbors)
         rebuilt = jnp.any(neighbors.reference_position != state.neighbors.reference_position)
@@ -594,7 +601,8 @@ def sphere_dem(
             lambda: state.pair_spring,
         )
         state = state.set(neighbors=neighbors, pair_spring=pair_spring)
-        forces = compute_forces(state, particles, params, dt, wall_friction)
+        touching = particles if contact_radius is None else particles.set(radius=contact_radius)
+        forces = compute_forces(state, touching, params, dt, wall_friction)
         if sphere_force is not None:
             forces = forces.set(force=forces.force + sphere_force)
         if sphere_torque is not None:

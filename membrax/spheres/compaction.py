@@ -1,0 +1,453 @@
+"""Random packings, second half: a loose cloud compacted in a rigid mould by radius expansion.
+
+Contract. :func:`compact` takes sphere diameters (:func:`membrax.spheres.random_packing.sample_diameters`)
+and a cylindrical mould (diameter and height, m), places the spheres, shrunk, as a loose random cloud in the
+mould (:func:`membrax.spheres.random_packing.loose_cloud`), and grows them in the fixed mould until the mean
+stress on the mould and its two platens is ``target_stress`` and the unbalanced-force ratio is below
+``tolerance``. It returns a :class:`Compaction`: the centres and radii scaled back so that the radii are the
+sampled ones (the mould shrinks by the same factor: the specimen's diameter and height are the mould's over
+the final growth factor, within a few per cent of the requested ones), the run's figures and
+:func:`packing_measures`. :func:`random_packing` samples a grading for a specimen size and compacts it.
+Deterministic for a seed. Host side: it runs compiled chunks of ``chunk_steps`` steps and checks between
+them; not traceable.
+
+Procedure (YADE's ``TriaxialStressController`` with ``internalCompaction = True``; PFC's radius expansion).
+Every radius is s R_i with one growth factor s; the masses are the final spheres' throughout (quasi-static
+growth does not depend on them, and a fixed mass keeps the time step fixed). Each step multiplies s by
+1 + g, from the running mean σ (over ``averaging_steps``) of σ = (σ_a + 2σ_r)/3, σ_a the platens' mean
+normal force over the mould's area and σ_r the mould's radial force over its lateral area:
+
+- below the target, g = ``growth_rate`` (1 − σ/σ_target): fast in the cloud, slowing as the packing takes
+  load (the dynamic stress of a compressed dense fluid rises steeply near jamming, and the law holds it
+  below the target);
+- above the target, a servo closes a fraction ``servo_gain`` of the error per step through the jammed
+  packing's stiffness scale K = k_n/d̄ (σ ≈ 1.2 K ln(s/s_J) for an isostatic packing of coordination 6, so
+  K underestimates dσ/d ln s): g = clip(servo_gain (σ_target − σ)/K, −servo_growth, servo_growth).
+
+Damping: Cundall's local damping (``local_damping``) and the MD quench of FIRE (:func:`_quench`: every
+velocity is zeroed when the packing's power turns negative), which removes kinetic energy only.
+
+Friction during compaction (``friction_coefficient``, between spheres; mould and platens are smooth, a
+lubricated mould) sets the density: μ = 0 gives the densest random state (random close packing, solid
+fraction ≈ 0.64 for equal spheres, Agnolin & Roux 2007), a larger μ arrests the rearrangements earlier and
+leaves a looser packing (≈ 0.59 at μ = 0.3, same source). The test sets its own friction afterwards; the
+contacts' tangential springs are not carried over.
+
+The mould wall is a true cylinder: a frictionless sphere of radius r at distance ρ from the axis overlaps it
+by δ = ρ + r − R_m, energy ½ k_w max(δ, 0)² (k_w the contact law's wall stiffness), force its gradient
+(:func:`mould_energy`).
+
+Known limit (measured, ``docs/benchmarks.md``): near jamming the relaxation slows down (the critical
+slowing of jamming), so the unbalanced-force ratio falls below 1e-2 only after several 1e5 steps; the
+frictionless core coordination then measured (5.4–5.6) is below the isostatic 6 of a fully relaxed packing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.spatial
+
+from membrax.errors import describe
+from membrax.spheres.contact import ContactParams, normal_energy
+from membrax.spheres.integrate import (
+    DEFAULT_SAFETY,
+    DampingParams,
+    DEMParams,
+    compute_forces,
+    critical_time_step,
+    make_particles,
+    sphere_dem,
+)
+from membrax.spheres.neighbors import pair_neighbor_fn
+from membrax.spheres.packing import GRANITE_DENSITY, fcc_specimen
+from membrax.spheres.random_packing import CLOUD_SOLID_FRACTION, Grading, loose_cloud, sample_diameters
+from membrax.spheres.walls import BOTTOM, TOP, triaxial_walls
+from membrax.validation import check_range
+
+__all__ = [
+    "SOLID_FRACTION_GUESS",
+    "Compaction",
+    "compact",
+    "compaction_time_step",
+    "mould_energy",
+    "packing_measures",
+    "random_packing",
+]
+
+#: The whole-specimen solid fraction :func:`random_packing` samples spheres for (the specimen's size then
+#: comes out as the requested one times (guess/achieved)^(1/3)).
+SOLID_FRACTION_GUESS = 0.58
+
+
+@dataclasses.dataclass(frozen=True)
+class Compaction:
+    """A compacted packing (module docstring).
+
+    Attributes:
+      position: (N, 3) sphere centres, m, float64; the specimen stands on z = 0 with its axis on z.
+      radius: (N,) the sampled radii, m.
+      diameter: the mould's diameter over the final growth factor, m.
+      height: the platens' separation over the final growth factor, m.
+      growth: the final growth factor relative to the sampled radii (the mould was diameter × growth wide).
+      steps: time steps run.
+      seconds: wall-clock time of the run, s.
+      stress: the final mean stress σ on mould and platens, Pa.
+      unbalanced_force_ratio: at the end.
+      converged: whether the stop test held (False: ``max_steps`` ran out first).
+      measures: :func:`packing_measures` of the result.
+    """
+
+    position: np.ndarray
+    radius: np.ndarray
+    diameter: float
+    height: float
+    growth: float
+    steps: int
+    seconds: float
+    stress: float
+    unbalanced_force_ratio: float
+    converged: bool
+    measures: dict
+
+
+def packing_measures(
+    position,
+    radius,
+    diameter: float,
+    height: float,
+    core_margin: float = 2.0,
+    core_points: int = 200_000,
+    least_contacts: int = 4,
+) -> dict:
+    """Solid fractions (whole, core), coordination number, rattlers and largest overlap of a packing.
+
+    The core is the cylinder ``core_margin`` mean diameters inside the mould and the platens (the walls order
+    the spheres within about two diameters of them). Its solid fraction is the fraction of ``core_points``
+    random points (seed 0) inside a sphere (one standard error √(φ(1 − φ)/M) ≈ 0.001). The coordination
+    number counts sphere–sphere contacts with overlap > 0 among the core's spheres that are not rattlers:
+    core spheres with fewer than ``least_contacts`` contacts are removed, repeatedly (a removal lowers its
+    neighbours' counts), as they carry no stable load (d + 1 = 4 for frictionless spheres, whose contact
+    forces must not all lie in a plane; 2 for frictional ones, whose two opposite forces may balance within
+    the friction cones); spheres outside the core are kept (their wall
+    contacts are not counted, and removing them would strip the core from the outside in).
+
+    Args:
+      position: (N, 3) centres, m, the specimen standing on z = 0 on the z axis.
+      radius: (N,) radii, m.
+      diameter: the specimen's (mould's) diameter, m.
+      height: platen separation, m.
+      core_margin: in mean diameters.
+      core_points: random points of the core's solid fraction.
+      least_contacts: the fewest contacts of a sphere that is not a rattler.
+
+    Returns:
+      ``num_spheres``, ``solid_fraction``, ``core_solid_fraction``, ``core_spheres``,
+      ``coordination_number``, ``rattler_fraction`` (of the core's spheres), ``max_overlap_fraction``
+      (largest overlap over the mean diameter).
+    """
+    position = np.asarray(position, dtype=float)
+    radius = np.asarray(radius, dtype=float)
+    num = radius.size
+    mould_radius = 0.5 * diameter
+    mean_diameter = float(2.0 * radius.mean())
+    tree = scipy.spatial.cKDTree(position)
+    pairs = tree.query_pairs(2.0 * radius.max(), output_type="ndarray")
+    gaps = np.linalg.norm(position[pairs[:, 1]] - position[pairs[:, 0]], axis=1)
+    overlap = radius[pairs[:, 0]] + radius[pairs[:, 1]] - gaps
+    touching = pairs[overlap > 0.0]
+    margin = core_margin * mean_diameter
+    core_radius, core_low, core_high = mould_radius - margin, margin, height - margin
+    in_core = (
+        (np.hypot(position[:, 0], position[:, 1]) < core_radius)
+        & (position[:, 2] > core_low)
+        & (position[:, 2] < core_high)
+    )
+    keep = np.ones(num, dtype=bool)
+    while True:
+        live = touching[keep[touching[:, 0]] & keep[touching[:, 1]]]
+        counts = np.bincount(live.ravel(), minlength=num)
+        drop = keep & in_core & (counts < least_contacts)
+        if not drop.any():
+            break
+        keep &= ~drop
+    core_kept = keep & in_core
+    core_fraction = math.nan
+    if core_radius > 0.0 and core_high > core_low:
+        rng = np.random.default_rng(0)
+        rho = core_radius * np.sqrt(rng.random(core_points))
+        theta = 2.0 * math.pi * rng.random(core_points)
+        height_point = core_low + (core_high - core_low) * rng.random(core_points)
+        points = np.stack([rho * np.cos(theta), rho * np.sin(theta), height_point], axis=1)
+        distance, nearest = tree.query(points, k=min(8, num))
+        core_fraction = float(np.any(distance < radius[nearest], axis=1).mean())
+    solid = float(np.sum(4.0 / 3.0 * math.pi * radius**3))
+    return {
+        "num_spheres": num,
+        "solid_fraction": solid / (math.pi * mould_radius**2 * height),
+        "core_solid_fraction": core_fraction,
+        "core_spheres": int(in_core.sum()),
+        "coordination_number": float(counts[core_kept].mean()) if core_kept.any() else math.nan,
+        "rattler_fraction": float(1.0 - core_kept.sum() / in_core.sum()) if in_core.any() else math.nan,
+        "max_overlap_fraction": float(max(overlap.max(initial=0.0), 0.0) / mean_diameter),
+    }
+
+
+def mould_energy(position, radius, mould_radius, stiffness):
+    """Σ_i ½ k_w max(ρ_i + r_i − R_m, 0)², J: the spheres' overlap with a smooth cylinder on the z axis.
+
+    Args:
+      position: (N, 3) centres, m.
+      radius: (N,) radii, m.
+      mould_radius: R_m, m.
+      stiffness: k_w, N/m.
+    """
+    rho = jnp.sqrt(position[:, 0] ** 2 + position[:, 1] ** 2 + jnp.finfo(position.dtype).tiny)
+    return jnp.sum(normal_energy(rho + radius - mould_radius, stiffness))
+
+
+def _quench(before, after):
+    """Stop every sphere when the packing's power P = Σ F·v turns negative.
+
+    The MD quench of FIRE (Bitzek et al. 2006), with the step's own velocity change for F: it removes kinetic
+    energy only, at the moments the packing moves uphill in energy; a packing at rest is unchanged.
+    """
+    power = jnp.sum((after.velocity - before.velocity) * before.velocity) + jnp.sum(
+        (after.angular_velocity - before.angular_velocity) * before.angular_velocity
+    )
+    uphill = power < 0.0
+    return after.set(
+        velocity=jnp.where(uphill, 0.0, after.velocity),
+        angular_velocity=jnp.where(uphill, 0.0, after.angular_velocity),
+    )
+
+
+def compaction_time_step(smallest_diameter: float, contact_params: ContactParams, density: float) -> float:
+    """Δt = ``DEFAULT_SAFETY`` × the critical step of an FCC block of the smallest spheres (s).
+
+    The densest packing of the lightest sphere bounds the stiffest mode a compaction meets: in a random
+    packing a sphere has fewer contacts than FCC's 12, and a heavier one a lower frequency.
+    """
+    block = fcc_specimen(smallest_diameter, 4, 4)
+    particles = make_particles(block.radius, density)
+    frame = pair_neighbor_fn(
+        np.min(np.asarray(block.position), axis=0) - smallest_diameter,
+        np.max(np.asarray(block.position), axis=0) + smallest_diameter,
+        cutoff=smallest_diameter,
+        skin=0.2 * smallest_diameter,
+        margin=0.5 * smallest_diameter,
+    )
+    walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), block.height)
+    init_fn, _ = sphere_dem(particles, frame, 1.0)
+    state = init_fn(block.position, walls, frame.allocate(block.position))
+    params = DEMParams(contact=contact_params, damping=DampingParams.none())
+    return DEFAULT_SAFETY * critical_time_step(state, particles, params)
+
+
+def compact(
+    diameters,
+    mould_diameter: float,
+    mould_height: float,
+    target_stress: float = 1e4,
+    friction_coefficient: float = 0.0,
+    seed: int = 0,
+    contact_params: ContactParams | None = None,
+    density: float = GRANITE_DENSITY,
+    local_damping: float = 0.3,
+    viscous_rate: float = 0.0,
+    growth_rate: float = 1e-5,
+    servo_gain: float = 0.02,
+    servo_growth: float = 2e-6,
+    averaging_steps: int = 50,
+    stress_tolerance: float = 0.02,
+    tolerance: float = 1e-2,
+    max_steps: int = 400_000,
+    chunk_steps: int = 1000,
+    on_chunk: Callable[[dict], None] | None = None,
+) -> Compaction:
+    """Compact spheres of the given diameters in a cylindrical mould (module docstring).
+
+    Args:
+      diameters: (N,) the spheres' final diameters, m.
+      mould_diameter: m; with ``mould_height`` it should hold the spheres at about the solid fraction
+        expected (the specimen's size is the mould's over the final growth factor).
+      mould_height: m.
+      target_stress: σ_target, Pa, > 0.
+      friction_coefficient: μ between spheres during compaction, >= 0 (0: the densest state).
+      seed: the cloud's seed.
+      contact_params: the contact law (default: the paper's stiffnesses); its friction is replaced by
+        ``friction_coefficient`` and the walls made smooth.
+      density: kg/m³.
+      local_damping: Cundall's α.
+      viscous_rate: γ, 1/s.
+      growth_rate: g per step below the target, times 1 − σ/σ_target.
+      servo_gain: above the target, the fraction of the stress error closed per step.
+      servo_growth: above the target, the largest |g| per step.
+      averaging_steps: time constant, in steps, of the running mean of σ the control reads.
+      stress_tolerance: relative stress error accepted at the end.
+      tolerance: unbalanced-force ratio accepted at the end.
+      max_steps: give up after this many steps (``converged`` False).
+      chunk_steps: steps per compiled chunk (the checks run between chunks).
+      on_chunk: called after each chunk with a dict (``steps``, ``stress``, ``growth``,
+        ``unbalanced_force_ratio``) — progress for long runs.
+    """
+    diameters = np.asarray(diameters, dtype=float)
+    check_range("diameters", diameters, lower=0.0, lower_open=True)
+    check_range("mould_diameter", mould_diameter, lower=float(diameters.max()), lower_open=True, hint="m.")
+    check_range("mould_height", mould_height, lower=float(diameters.max()), lower_open=True, hint="m.")
+    check_range("target_stress", target_stress, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
+    check_range("friction_coefficient", friction_coefficient, lower=0.0)
+    base = ContactParams.paper() if contact_params is None else contact_params
+    law = base.set(
+        friction_coefficient=jnp.asarray(friction_coefficient),
+        wall_friction_coefficient=jnp.asarray(0.0),
+    )
+    params = DEMParams(
+        contact=law,
+        damping=DampingParams(
+            local_coefficient=jnp.asarray(local_damping), viscous_rate=jnp.asarray(viscous_rate)
+        ),
+    )
+    mould_radius = 0.5 * mould_diameter
+    solid = float(np.sum(math.pi / 6.0 * diameters**3))
+    # The cloud: spheres shrunk so that they fill CLOUD_SOLID_FRACTION of the mould.
+    start = (CLOUD_SOLID_FRACTION * math.pi * mould_radius**2 * mould_height / solid) ** (1.0 / 3.0)
+    start = min(start, 1.0)
+    order = np.argsort(-diameters, kind="stable")
+    cloud, _ = loose_cloud(
+        diameters[order] * start,
+        mould_radius,
+        solid_fraction=start**3 * solid / (math.pi * mould_radius**2 * mould_height),
+        seed=seed,
+    )
+    position = np.empty_like(cloud)
+    position[order] = cloud
+    radius = 0.5 * diameters
+    dt = compaction_time_step(float(diameters.min()), law, density)
+
+    dtype = jnp.result_type(float)
+    particles = make_particles(jnp.asarray(radius, dtype), density)
+    largest = float(diameters.max())
+    frame = pair_neighbor_fn(
+        [-mould_radius, -mould_radius, 0.0],
+        [mould_radius, mould_radius, mould_height],
+        cutoff=1.1 * largest,
+        skin=0.2 * largest,
+        margin=0.2 * mould_radius + largest,  # the mould may widen
+    )
+    walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), mould_height, dtype=dtype)
+    init_fn, step_fn = sphere_dem(particles, frame, dt, wall_friction=False)
+    state = init_fn(jnp.asarray(position, dtype), walls, frame.allocate(jnp.asarray(position, dtype)))
+    mean_diameter = float(np.mean(diameters))
+    wall_stiffness = law.wall_normal_stiffness
+    platen_area = math.pi * mould_radius**2
+    lateral_area = 2.0 * math.pi * mould_radius * mould_height
+
+    def mean_stress(state_, force_on_mould):
+        """σ = (σ_a + 2σ_r)/3, Pa: the platens' and the mould's loads over their areas."""
+        axial = 0.5 * (state_.walls.force[0, BOTTOM] + state_.walls.force[0, TOP]) / platen_area
+        return (axial + 2.0 * force_on_mould / lateral_area) / 3.0
+
+    stiffness_scale = float(law.normal_stiffness) / mean_diameter
+
+    def one_step(carry, _):
+        state_, growth, average = carry
+        contact_radius = growth * particles.radius
+        force = -jax.grad(mould_energy)(state_.position, contact_radius, mould_radius, wall_stiffness)
+        rho = jnp.sqrt(jnp.sum(state_.position[:, :2] ** 2, axis=1)) + jnp.finfo(dtype).tiny
+        # The mould's radial load: the spheres push it outward by −F·ρ̂.
+        radial_load = -jnp.sum(
+            (force[:, 0] * state_.position[:, 0] + force[:, 1] * state_.position[:, 1]) / rho
+        )
+        before = state_
+        state_ = _quench(before, step_fn(state_, params, sphere_force=force, contact_radius=contact_radius))
+        # Collisions in the cloud load the walls in spikes; the control reads a running mean.
+        average = average + (mean_stress(state_, radial_load) - average) / averaging_steps
+        error = target_stress - average
+        free = growth_rate * error / target_stress
+        servo = jnp.clip(servo_gain * error / stiffness_scale, -servo_growth, servo_growth)
+        return (state_, growth * (1.0 + jnp.where(error > 0.0, free, servo)), average), None
+
+    @jax.jit
+    def chunk(carry):
+        return jax.lax.scan(one_step, carry, None, length=chunk_steps)[0]
+
+    @jax.jit
+    def unbalanced(state_, growth):
+        touching = particles.set(radius=growth * particles.radius)
+        forces = compute_forces(state_, touching, params, dt, wall_friction=False)
+        net = forces.force - jax.grad(mould_energy)(
+            state_.position, touching.radius, mould_radius, wall_stiffness
+        )
+        closed = jnp.maximum(jnp.sum(forces.pair_normal_force > 0.0), 1).astype(dtype)
+        mean_contact = jnp.sum(forces.pair_normal_force) / closed
+        return jnp.mean(jnp.linalg.norm(net, axis=1)) / jnp.maximum(mean_contact, jnp.finfo(dtype).tiny)
+
+    carry = (state, jnp.asarray(start, dtype), jnp.asarray(0.0, dtype))
+    began = time.perf_counter()
+    steps, converged, ratio = 0, False, math.inf
+    while steps < max_steps:
+        carry = chunk(carry)
+        state, growth, stress = carry
+        steps += chunk_steps
+        if int(state.error):
+            raise FloatingPointError(f"compaction failed at step {steps}: {describe(int(state.error))}")
+        stress = float(stress)
+        ratio = float(unbalanced(state, growth))
+        if on_chunk is not None:
+            on_chunk(
+                {"steps": steps, "stress": stress, "growth": float(growth), "unbalanced_force_ratio": ratio}
+            )
+        if abs(stress / target_stress - 1.0) < stress_tolerance and ratio < tolerance:
+            converged = True
+            break
+    final = float(growth)
+    position = np.asarray(state.position, dtype=float) + np.asarray(state.position_compensation, dtype=float)
+    position /= final
+    return Compaction(
+        position=position,
+        radius=radius,
+        diameter=mould_diameter / final,
+        height=mould_height / final,
+        growth=final,
+        steps=steps,
+        seconds=time.perf_counter() - began,
+        stress=stress,
+        unbalanced_force_ratio=ratio,
+        converged=converged,
+        measures=packing_measures(
+            position,
+            radius,
+            mould_diameter / final,
+            mould_height / final,
+            least_contacts=4 if friction_coefficient == 0.0 else 2,
+        ),
+    )
+
+
+def random_packing(
+    grading: Grading,
+    specimen_diameter: float,
+    specimen_height: float,
+    seed: int = 0,
+    solid_fraction_guess: float = SOLID_FRACTION_GUESS,
+    **compaction,
+) -> Compaction:
+    """Spheres sampled from ``grading`` for a specimen of the given size (m), compacted (:func:`compact`).
+
+    The spheres' volume is ``solid_fraction_guess`` of the specimen's; the compacted specimen's size is
+    the requested one times (guess/achieved)^(1/3) (the radii stay the sampled ones). ``compaction``:
+    further arguments of :func:`compact`.
+    """
+    check_range("specimen_diameter", specimen_diameter, lower=0.0, lower_open=True, hint="m.")
+    check_range("specimen_height", specimen_height, lower=0.0, lower_open=True, hint="m.")
+    check_range("solid_fraction_guess", solid_fraction_guess, lower=0.3, upper=0.74)
+    volume = math.pi * specimen_diameter**2 / 4.0 * specimen_height
+    diameters = sample_diameters(grading, solid_fraction_guess * volume, seed=seed)
+    return compact(diameters, specimen_diameter, specimen_height, seed=seed, **compaction)
