@@ -1,0 +1,84 @@
+"""Random specimen generation: a loose cloud compacted in a mould (membrax.spheres.compaction).
+
+For each dtype, in a fresh process, builds a random packing of equal 25 mm spheres (default: the paper-like
+specimen, 250 mm across and 500 mm high, frictionless compaction to 10 kPa) and prints: the number of
+spheres, the steps run, the wall-clock time (compiling included) and steps/s, whether the stop test held
+(unbalanced-force ratio below 1e-2 at the target stress), the solid fractions (whole and core), the core's
+coordination number without rattlers, and the specimen's diameter.
+
+Issue target (issue 45): a paper-like specimen in under one minute on 2 cores.
+
+Run: ``python benchmarks/bench_compaction.py [--across 10 --high 20 --friction 0 --max-steps 400000]``.
+"""
+
+import argparse
+import json
+import time
+
+from harness import print_table, run_each_dtype
+
+
+def measure(dtype: str, across: float, high: float, friction: float, max_steps: int) -> dict:
+    import jax
+
+    if dtype == "float64":
+        jax.config.update("jax_enable_x64", True)
+    from membrax.spheres.compaction import random_packing
+    from membrax.spheres.random_packing import Grading
+
+    diameter = 0.025
+    start = time.perf_counter()
+    packing = random_packing(
+        Grading.equal(diameter),
+        across * diameter,
+        high * diameter,
+        friction_coefficient=friction,
+        max_steps=max_steps,
+    )
+    seconds = time.perf_counter() - start
+    measures = packing.measures
+    return {
+        "dtype": dtype,
+        "spheres": measures["num_spheres"],
+        "steps": packing.steps,
+        "seconds": seconds,
+        "steps_per_s": packing.steps / packing.seconds,
+        "converged": "yes" if packing.converged else "no",
+        "ratio": packing.unbalanced_force_ratio,
+        "solid": measures["solid_fraction"],
+        "core": measures["core_solid_fraction"],
+        "coordination": measures["coordination_number"],
+        "diameter_mm": packing.diameter * 1e3,
+    }
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--across", type=float, default=10.0, help="specimen diameter in sphere diameters")
+    parser.add_argument("--high", type=float, default=20.0, help="specimen height in sphere diameters")
+    parser.add_argument("--friction", type=float, default=0.0, help="μ between spheres during compaction")
+    parser.add_argument("--max-steps", type=int, default=400_000)
+    parser.add_argument("--dtypes", default="float32,float64")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    options = {
+        "across": args.across,
+        "high": args.high,
+        "friction": args.friction,
+        "max_steps": args.max_steps,
+    }
+    if args.child:
+        print(json.dumps(measure(args.child, **options)))
+        return
+    rows = run_each_dtype(__file__, options, dtypes=tuple(args.dtypes.split(",")))
+    print(f"Compaction: {args.across:g} × {args.high:g} sphere diameters, μ = {args.friction:g}, to 10 kPa")
+    print_table(
+        rows,
+        "spheres|steps|s|steps/s|converged|ufr|φ whole|φ core|Z core|D mm",
+        "{spheres:>8d}{steps:>8d}{seconds:>7.1f}{steps_per_s:>9.0f}{converged:>10}{ratio:>8.3f}{solid:>9.3f}"
+        "{core:>8.3f}{coordination:>8.2f}{diameter_mm:>7.1f}",
+    )
+
+
+if __name__ == "__main__":
+    main()
