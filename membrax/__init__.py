@@ -10,7 +10,9 @@ ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user n
 - gradients: :func:`sensitivity` (the consolidated equilibrium's derivatives by implicit differentiation,
   checked by finite differences of the simulator);
 - results: :func:`read_results`;
-- the factories under them: :func:`fcc_specimen`, :func:`rigid_wall_test`, :func:`membrane_test`,
+- the factories under them: :func:`fcc_specimen`, :func:`random_packing` (a :class:`Grading` compacted
+  in a mould), :func:`build_specimen` (a configuration's specimen), :func:`rigid_wall_test`,
+  :func:`membrane_test`,
   :func:`sphere_dem` (the sphere step, named like its folder ``spheres/``; the coupled one is
   :func:`membrax.membrane.coupled.membrane_dem`),
   :func:`prism_mesh`;
@@ -48,6 +50,9 @@ _API = {
     "split_cpu_devices": "membrax.devices",
     "read_results": "membrax.io",
     "fcc_specimen": "membrax.spheres.packing",
+    "random_packing": "membrax.spheres.compaction",
+    "Grading": "membrax.spheres.random_packing",
+    "build_specimen": "membrax.runner",
     "rigid_wall_test": "membrax.triaxial.rigid",
     "membrane_test": "membrax.triaxial.membrane_cell",
     "sphere_dem": "membrax.spheres.integrate",

@@ -342,10 +342,12 @@ def _correct(args: argparse.Namespace) -> int:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from membrax.config import TriaxialConfig
+    from membrax.config import DEMO_RANDOM_CONFIG, TriaxialConfig
 
     print(theory_report())
-    return _run_config(TriaxialConfig(**DEMO_CONFIG), args.out, args.resume, not args.no_progress)
+    preset = dict(DEMO_CONFIG, **DEMO_RANDOM_CONFIG) if args.packing == "random" else DEMO_CONFIG
+    out = args.out if args.out is not None else f"results_{preset['name']}"
+    return _run_config(TriaxialConfig(**preset), out, args.resume, not args.no_progress)
 
 
 #: Each sub-command's ``--help``: what it does (description) and examples (epilog), printed as written.
@@ -364,7 +366,8 @@ SUBCOMMAND_HELP = {
         "examples:\n"
         "  membrax demo\n"
         "  membrax demo --out my_demo --no-progress\n"
-        "  membrax demo --out my_demo --resume      # continue an interrupted demo from its checkpoint",
+        "  membrax demo --out my_demo --resume      # continue an interrupted demo from its checkpoint\n"
+        "  membrax demo --packing random            # the same test on a random packing of equal spheres",
     ),
     "run": (
         "Run the membrane triaxial test of a TOML configuration (membrax.config.TriaxialConfig: each\n"
@@ -449,7 +452,15 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser(
         "demo", help="the main job on a small default: a 6 × 10-layer membrane triaxial test to 10 %% strain"
     )
-    demo.add_argument("--out", default="results_demo", help="results folder (default: results_demo)")
+    demo.add_argument(
+        "--out", default=None, help="results folder (default: results_demo, or results_demo_random)"
+    )
+    demo.add_argument(
+        "--packing",
+        choices=("fcc", "random"),
+        default="fcc",
+        help="fcc: the 6 × 10-layer lattice; random: equal spheres compacted in a 150 × 250 mm mould",
+    )
     run = commands.add_parser("run", help="run the membrane triaxial test of a TOML configuration")
     run.add_argument("config", help="TOML configuration file (see membrax.config)")
     run.add_argument("--out", default=None, help="results folder (default: results_<name>)")

@@ -46,6 +46,7 @@ import numpy as np
 
 from membrax import defaults
 from membrax.errors import ConfigError
+from membrax.spheres.random_packing import Grading
 from membrax.validation import check_range
 
 __all__ = [
@@ -58,6 +59,8 @@ __all__ = [
     "parse_overrides",
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
+    "DEMO_RANDOM_CONFIG",
+    "PACKINGS",
     "SMOKE_CONFIG",
     "SI_SCALE",
     "to_si",
@@ -78,6 +81,15 @@ DEMO_CONFIG = dict(
     inertial_number=5e-3,
     chunk_steps=5000,
     checkpoint_every_chunks=5,
+)
+
+#: The random demo's changes to :data:`DEMO_CONFIG` (``membrax demo --packing random``): equal 25 mm spheres
+#: compacted without friction in a mould 150 mm across (6 diameters, as the FCC demo) and 250 mm high.
+DEMO_RANDOM_CONFIG = dict(
+    name="demo_random",
+    packing="random",
+    specimen_diameter_mm=150.0,
+    specimen_height_mm=250.0,
 )
 
 #: The notebooks' smoke preset (``MEMBRAX_SMOKE=1``, what CI sets; ``notebooks/01``–``03`` add their cell
@@ -126,6 +138,13 @@ def to_si(field: str, value):
     raise ValueError(f"{field!r} has no SI conversion; fields ending in {', '.join(SI_SCALE)} do.")
 
 
+#: Accepted values of ``packing``: the FCC lattice of ``particles_across`` × ``layers``, or a random packing
+#: compacted in a mould of ``specimen_diameter_mm`` × ``specimen_height_mm``.
+PACKINGS = ("fcc", "random")
+
+#: The fewest largest-particle diameters a random specimen's diameter and height may hold.
+SMALLEST_RANDOM_SPECIMEN = 4.0
+
 #: The optional table that may hold every key of a TOML configuration file.
 TABLE_NAME = "triaxial"
 
@@ -141,6 +160,7 @@ class _Spec:
     upper: float = math.inf
     upper_open: bool = True
     hint: str = ""
+    choices: tuple[str, ...] = ()
 
     def interval(self) -> str:
         """The accepted interval as ``check_range`` writes it, e.g. ``(0, inf)``."""
@@ -154,7 +174,11 @@ class _Spec:
         if self.kind is bool:
             return "a boolean (true or false)"
         if self.kind is str:
-            return "a non-empty string"
+            return (
+                f"one of {', '.join(repr(c) for c in self.choices)}" if self.choices else "a non-empty string"
+            )
+        if self.kind is tuple:
+            return "an array of [size mm, percent passing] pairs (sizes increasing, 0 to 100 %), or []"
         what = "an integer" if self.kind is int else "a number"
         return f"{what} in {self.interval()} {self.unit}"
 
@@ -218,6 +242,22 @@ _SPECS: dict[str, _Spec] = {
         hint="radii reduced by up to this fraction of d, at random; 0: a perfect lattice",
     ),
     "imperfection_seed": _Spec(int, "(seed)", lower=0),
+    "packing": _Spec(str, choices=PACKINGS),
+    "packing_seed": _Spec(int, "(seed)", lower=0),
+    "specimen_diameter_mm": _Spec(
+        float, "mm", **_POSITIVE, hint="a random specimen's diameter; the paper's specimen is 250 mm"
+    ),
+    "specimen_height_mm": _Spec(
+        float, "mm", **_POSITIVE, hint="a random specimen's height; the paper's specimen is about 500 mm"
+    ),
+    "grading": _Spec(tuple),
+    "compaction_friction_deg": _Spec(
+        float,
+        "degrees",
+        lower=0.0,
+        upper=90.0,
+        hint="interparticle friction while a random specimen is compacted: 0 the densest, larger looser",
+    ),
     "consolidation_tolerance": _Spec(
         float, "(unbalanced-force ratio)", **_NON_NEGATIVE, hint="0 takes the default for the dtype"
     ),
@@ -276,6 +316,17 @@ class TriaxialConfig:
         the particle diameter, in [0, 0.01]; each sphere's radius is reduced by a uniform random fraction
         of it (the lattice's centres stay). Default 0 (a perfect lattice).
       imperfection_seed (int): seed of the imperfection's random numbers, in [0, inf). Default 0.
+      packing (str): ``"fcc"`` (the lattice of ``particles_across`` × ``layers``) or ``"random"`` (spheres
+        compacted in a mould, :mod:`membrax.spheres.compaction`). Default ``"fcc"``.
+      packing_seed (int): a random packing's seed, in [0, inf). Default 0.
+      specimen_diameter_mm (float): a random specimen's diameter, mm, in (0, inf). Default 250.
+      specimen_height_mm (float): a random specimen's height, mm, in (0, inf). Default 500. The compacted
+        specimen keeps the sampled sizes and comes out within a few per cent of the size asked for.
+      grading (array): a random specimen's particle sizes as [size mm, percent passing by mass] pairs,
+        sizes increasing, from 0 to 100 %; ``[]`` (the default) for equal spheres of
+        ``particle_diameter_mm``.
+      compaction_friction_deg (float): interparticle friction during a random specimen's compaction,
+        degrees, in [0, 90]: 0 the densest state, larger looser. Default 0.
       consolidation_tolerance (float): unbalanced-force ratio ending consolidation (dimensionless), in
         [0, inf); 0 takes the default for the dtype (1e-3 in float64, 5e-3 in float32). Default 0.
       consolidation_max_steps (int): most time steps of consolidation, in [1, inf). Default 200000.
@@ -320,6 +371,12 @@ class TriaxialConfig:
     membrane_contact_offset_factor: float = 1.0
     imperfection_fraction: float = 0.0
     imperfection_seed: int = 0
+    packing: str = "fcc"
+    packing_seed: int = 0
+    specimen_diameter_mm: float = 250.0
+    specimen_height_mm: float = 500.0
+    grading: tuple = ()
+    compaction_friction_deg: float = 0.0
     consolidation_tolerance: float = 0.0
     consolidation_max_steps: int = 200000
     record_every_fine: int = 25
@@ -358,6 +415,26 @@ class TriaxialConfig:
     def particle_diameter(self) -> float:
         """Sphere diameter, m."""
         return to_si("particle_diameter_mm", self.particle_diameter_mm)
+
+    @property
+    def specimen_diameter(self) -> float:
+        """A random specimen's requested diameter, m."""
+        return to_si("specimen_diameter_mm", self.specimen_diameter_mm)
+
+    @property
+    def specimen_height(self) -> float:
+        """A random specimen's requested height, m."""
+        return to_si("specimen_height_mm", self.specimen_height_mm)
+
+    @property
+    def particle_grading(self) -> Grading:
+        """The grading a random specimen samples: ``grading``, or equal spheres of the particle diameter."""
+        return grading_of(self.grading) if self.grading else Grading.equal(self.particle_diameter)
+
+    @property
+    def compaction_friction_coefficient(self) -> float:
+        """The compaction's friction coefficient, tan ``compaction_friction_deg``."""
+        return math.tan(math.radians(self.compaction_friction_deg))
 
     @property
     def particle_radius(self) -> float:
@@ -452,9 +529,60 @@ def _check_name(value: Any) -> tuple[Any, str | None]:
     return value, None
 
 
+def _check_grading(value: Any) -> tuple[Any, str | None]:
+    """A grading as an array of [size mm, percent passing] pairs: normalised to a tuple of float pairs."""
+    fix = (
+        "Write e.g. grading = [[20.0, 0.0], [25.0, 40.0], [31.5, 100.0]] (mm, % passing), or [] for equal "
+        "spheres."
+    )
+    if not isinstance(value, list | tuple):
+        return (
+            value,
+            f"grading must be an array of [size mm, percent passing] pairs; got {_shown(value)}. {fix}",
+        )
+    if len(value) == 0:
+        return (), None
+    pairs = []
+    for number, point in enumerate(value, start=1):
+        good = (
+            isinstance(point, list | tuple)
+            and len(point) == 2
+            and all(isinstance(x, numbers.Real) and not isinstance(x, bool | np.bool_) for x in point)
+        )
+        if not good:
+            return value, f"grading: point {number} is {_shown(point)}, not a [size mm, percent] pair. {fix}"
+        pairs.append((float(point[0]), float(point[1])))
+    try:  # checked in mm, so that the messages quote the user's numbers
+        Grading(
+            sizes=tuple(size for size, _ in pairs), passing=tuple(percent / 100.0 for _, percent in pairs)
+        )
+    except ValueError as error:
+        message = str(error).replace(" m ", " mm ").replace(" m;", " mm;").replace(" m,", " mm,")
+        return value, f"{message} {fix}"
+    return tuple(pairs), None
+
+
+def grading_of(pairs) -> Grading:
+    """The :class:`~membrax.spheres.random_packing.Grading` of [size mm, percent passing] pairs.
+
+    mm and % are converted here, once.
+    """
+    sizes = tuple(to_si("size_mm", size) for size, _ in pairs)
+    return Grading(sizes=sizes, passing=tuple(percent / 100.0 for _, percent in pairs))
+
+
 def _check_value(key: str, value: Any) -> tuple[Any, str | None]:
     """``(normalised value, None)`` if ``value`` is valid for field ``key``, else ``(value, message)``."""
     spec = _SPECS[key]
+    if spec.kind is tuple:
+        return _check_grading(value)
+    if spec.kind is str and spec.choices:
+        if value in spec.choices:
+            return value, None
+        return (
+            value,
+            f'{key} must be {spec.describe()}; got {_shown(value)}. Write e.g. {key} = "{spec.choices[0]}".',
+        )
     if spec.kind is str:
         return _check_name(value)
     wrong_type = f"{key} must be {spec.describe()}; got {_shown(value)}."
@@ -501,7 +629,24 @@ def _check_fields(values: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]
         normalised[key] = value
         if error is not None:
             errors.append(error)
+    if not errors and normalised["packing"] == "random":
+        errors.extend(_random_specimen_errors(normalised))
     return normalised, errors
+
+
+def _random_specimen_errors(values: Mapping[str, Any]) -> list[str]:
+    """A random specimen must hold a few of its largest particles across and along."""
+    pairs = values["grading"]
+    largest_mm = grading_of(pairs).largest * 1e3 if pairs else values["particle_diameter_mm"]
+    errors = []
+    for key in ("specimen_diameter_mm", "specimen_height_mm"):
+        if values[key] < SMALLEST_RANDOM_SPECIMEN * largest_mm:
+            errors.append(
+                f"{key} = {values[key]:g} mm holds fewer than {SMALLEST_RANDOM_SPECIMEN:g} of the largest "
+                f"particles ({largest_mm:g} mm); make it at least {SMALLEST_RANDOM_SPECIMEN * largest_mm:g} "
+                "mm (laboratories keep the largest particle below 1/6 of the diameter)."
+            )
+    return errors
 
 
 def _unknown_key_message(key: Any) -> str:
@@ -625,6 +770,14 @@ def _toml_string(text: str) -> str:
 
 
 def _toml_value(value: Any) -> str:
+    if isinstance(value, tuple):
+        return (
+            "["
+            + ", ".join(_toml_value(list(item) if isinstance(item, tuple) else item) for item in value)
+            + "]"
+        )
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):

@@ -46,6 +46,12 @@ MEMBRANE_MODULUS = 1.4e6
 #: strain by ε_ramp/ε̇ (1 % of strain's worth of steps).
 SHEAR_RAMP_STRAIN = 1.0e-2
 
+#: The mean stress a random specimen is compacted to in its mould, Pa (:mod:`membrax.spheres.compaction`):
+#: the paper's lowest cell pressure, and about the 15–20 kPa suction under which a laboratory prepares a
+#: specimen in its mould. Fixed, not the test's cell pressure, so that every member of a sweep over cell
+#: pressure starts from the same specimen, as a laboratory's series would.
+COMPACTION_STRESS = 1.0e4
+
 #: The unbalanced-force ratio that ends consolidation when none is given, by cell (``"rigid"`` walls or a
 #: ``"membrane"``) and precision (float64 or not): the one rule of ``RigidWallTest.consolidate``,
 #: ``MembraneTest.consolidate`` and a configuration's ``consolidation_tolerance = 0``. float32's force

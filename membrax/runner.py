@@ -48,7 +48,7 @@ import numpy as np
 from membrax import __version__, theory
 from membrax.batch import stack
 from membrax.config import TriaxialConfig, config_to_dict
-from membrax.defaults import default_consolidation_tolerance
+from membrax.defaults import COMPACTION_STRESS, default_consolidation_tolerance
 from membrax.driver import advance, drive, record_blocks
 from membrax.errors import OVERFLOWS, ErrorCode, RunError, SimulationError, describe
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
@@ -56,10 +56,12 @@ from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import grow_candidates, grown_candidate_capacities
 from membrax.membrane.measure import right_cylinder_stresses
 from membrax.membrane.mesh import rounded_offset_path
+from membrax.spheres.compaction import random_packing
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.neighbors import remap_pair_history
-from membrax.spheres.packing import fcc_specimen, particle_mass, with_imperfection
+from membrax.spheres.packing import Specimen, fcc_specimen, particle_mass, with_imperfection
+from membrax.spheres.random_packing import RandomSpecimen, mass_fractions
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
 from membrax.triaxial.protocol import CONSOLIDATION_RECORD_EVERY, PHASES, Loading
@@ -138,9 +140,7 @@ def build_test(
     ``time_step`` (s) and ``nodes_around`` (membrane nodes per ring) override the test's own choices, as a
     batch does (:mod:`membrax.sweep`: one Δt and one mesh topology for all its members).
     """
-    specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
-    if config.imperfection_fraction > 0.0:
-        specimen = with_imperfection(specimen, config.imperfection_fraction, config.imperfection_seed)
+    specimen = build_specimen(config)
     contact = ContactParams.paper(
         friction_angle_deg=config.friction_angle_deg,
         normal_stiffness=config.particle_stiffness_n_m,
@@ -167,6 +167,54 @@ def build_test(
         nodes_around=nodes_around,
         contact_offset_factor=config.membrane_contact_offset_factor,
     )
+
+
+def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
+    """The configuration's specimen: the FCC lattice, or a random packing compacted in its mould.
+
+    A random packing is compacted once per process for a given set of the fields that make it (a sweep's
+    members share it), to :data:`membrax.defaults.COMPACTION_STRESS`.
+    """
+    if config.packing == "fcc":
+        specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
+        if config.imperfection_fraction > 0.0:
+            specimen = with_imperfection(specimen, config.imperfection_fraction, config.imperfection_seed)
+        return specimen
+    key = tuple(
+        getattr(config, name)
+        for name in (
+            "grading",
+            "particle_diameter_mm",
+            "specimen_diameter_mm",
+            "specimen_height_mm",
+            "packing_seed",
+            "compaction_friction_deg",
+            "particle_density_kg_m3",
+            "particle_stiffness_n_m",
+            "float64",
+        )
+    )
+    if key not in _RANDOM_SPECIMENS:
+        grading = config.particle_grading
+        compaction = random_packing(
+            grading,
+            config.specimen_diameter,
+            config.specimen_height,
+            seed=config.packing_seed,
+            target_stress=COMPACTION_STRESS,
+            friction_coefficient=config.compaction_friction_coefficient,
+            contact_params=ContactParams.paper(
+                normal_stiffness=config.particle_stiffness_n_m,
+                tangential_stiffness=0.5 * config.particle_stiffness_n_m,
+            ),
+            density=config.particle_density_kg_m3,
+        )
+        _RANDOM_SPECIMENS[key] = compaction.specimen(grading)
+    return _RANDOM_SPECIMENS[key]
+
+
+#: Random specimens compacted in this process, by the fields that make them (:func:`build_specimen`).
+_RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
 
 
 def loading(config: TriaxialConfig) -> Loading:
@@ -251,6 +299,12 @@ def structure_key(config: TriaxialConfig) -> tuple:
 def common_nodes_around(configs: Sequence[TriaxialConfig]) -> int:
     """n_θ for all members: round(mean membrane perimeter / edge length) over the members' thicknesses."""
     config = configs[0]
+    if config.packing == "random":
+        diameter = build_specimen(config).diameter
+        perimeters = [
+            math.pi * (diameter + c.membrane_contact_offset_factor * c.membrane_thickness) for c in configs
+        ]
+        return max(3, round(float(np.mean(perimeters)) / config.membrane_edge_length))
     specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
     perimeters = [
         rounded_offset_path(
@@ -611,8 +665,7 @@ def build_batch(
         # alike for all members), so every member is charged two chunks of it.
         plans = [t.phase_plan(loading(c)) for c, t in zip(configs, tests, strict=True)]
         work = [
-            min(c.consolidation_max_steps, 2 * c.chunk_steps)
-            + sum(plan[phase][0] for phase in PHASES[1:])
+            min(c.consolidation_max_steps, 2 * c.chunk_steps) + sum(plan[phase][0] for phase in PHASES[1:])
             for c, plan in zip(configs, plans, strict=True)
         ]
         order = balanced_order(work, num_devices)
@@ -916,7 +969,35 @@ def run_metadata(config, test, records, build_seconds, elapsed, tolerance) -> di
         "dtype": "float64" if config.float64 else "float32",
         "machine": platform.platform(),
         "jax_backend": jax.default_backend(),
+        "specimen": specimen_metadata(test.specimen),
     }
+
+
+def specimen_metadata(specimen) -> dict:
+    """The specimen's record for a run's attributes: packing, size, solid fraction, grading.
+
+    For a random specimen sampled from a grading: the sieve sizes (mm) and percent passing beside the
+    percent passing of the sampled spheres (:func:`membrax.spheres.random_packing.mass_fractions`).
+    """
+    radius = np.asarray(specimen.radius, dtype=float)
+    solid = float(np.sum(4.0 / 3.0 * np.pi * radius**3))
+    record = {
+        "packing": "random" if specimen.cross_section == "circle" else "fcc",
+        "num_spheres": int(radius.size),
+        "width_mm": 1e3 * specimen.width_across_flats,
+        "height_mm": 1e3 * specimen.height,
+        "solid_fraction": solid / (specimen.cross_section_area * specimen.height),
+    }
+    if specimen.cross_section == "circle" and specimen.grading:
+        sizes, passing = specimen.grading
+        sampled = np.concatenate([[0.0], np.cumsum(mass_fractions(2.0 * radius, sizes))])
+        record.update(
+            seed=specimen.seed,
+            grading_size_mm=[1e3 * size for size in sizes],
+            grading_percent_passing=[100.0 * value for value in passing],
+            sampled_percent_passing=[float(100.0 * value) for value in sampled],
+        )
+    return record
 
 
 def results_datasets(records: dict, shear_start: dict, metadata: dict):

@@ -25,6 +25,9 @@ EXPECTED = {
     "read_results",
     # factories
     "fcc_specimen",
+    "random_packing",
+    "Grading",
+    "build_specimen",
     "rigid_wall_test",
     "membrane_test",
     "sphere_dem",
@@ -47,9 +50,9 @@ def test_the_api_is_exactly_the_curated_names():
 
 
 def test_every_name_resolves_to_its_defining_module():
-    from membrax import config, devices, errors, io, run, sensitivities, sweep
+    from membrax import config, devices, errors, io, run, runner, sensitivities, sweep
     from membrax.membrane import mesh
-    from membrax.spheres import integrate, packing
+    from membrax.spheres import compaction, integrate, packing, random_packing
     from membrax.triaxial import membrane_cell, rigid
 
     homes = {
@@ -62,6 +65,9 @@ def test_every_name_resolves_to_its_defining_module():
         "split_cpu_devices": devices,
         "read_results": io,
         "fcc_specimen": packing,
+        "random_packing": compaction,
+        "Grading": random_packing,
+        "build_specimen": runner,
         "rigid_wall_test": rigid,
         "membrane_test": membrane_cell,
         "sphere_dem": integrate,

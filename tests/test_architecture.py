@@ -28,9 +28,9 @@ LAYERS = (
     ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
     # step
     ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
+    ("driver",),
     # specimens made by a DEM run: the compaction of a random packing
     ("spheres.compaction",),
-    ("driver",),
     # measurements
     ("spheres.measure", "membrane.measure"),
     # protocol: consolidation and shearing

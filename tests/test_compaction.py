@@ -64,6 +64,7 @@ def loose():
     )
 
 
+@pytest.mark.slow
 def test_frictionless_compaction_reaches_random_close_packing(dense):
     """Core solid fraction 0.62–0.65 (random close packing ≈ 0.64), the stress at target, small overlaps."""
     measures = dense.measures
@@ -75,6 +76,7 @@ def test_frictionless_compaction_reaches_random_close_packing(dense):
     assert dense.diameter == pytest.approx(8 * DIAMETER, rel=0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.xfail(
     reason="near jamming the relaxation is slow: after 1.2e5-2.5e5 steps the unbalanced-force ratio is still "
     "0.03 and the core coordination 5.4-5.6, below the isostatic 6 of a fully relaxed frictionless packing",
@@ -85,6 +87,7 @@ def test_frictionless_compaction_is_isostatic(dense):
     assert 5.8 <= dense.measures["coordination_number"] <= 6.3, dense.measures
 
 
+@pytest.mark.slow
 def test_friction_during_compaction_leaves_a_looser_packing(dense, loose):
     """μ = 0.5 during compaction arrests the rearrangements: the core is looser by more than 0.02."""
     assert loose.measures["core_solid_fraction"] < dense.measures["core_solid_fraction"] - 0.02, (

@@ -127,6 +127,12 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         vtk_every_steps=500,
         float64=True,
         dt_safety=1.0,
+        packing="random",
+        packing_seed=5,
+        specimen_diameter_mm=151.5,
+        specimen_height_mm=301.0,
+        grading=((9.5, 0.0), (12.5, 37.5), (19.0, 100.0)),
+        compaction_friction_deg=26.5,
     )
     text = dump_config_toml(cfg, table=table)
     assert text.count("[triaxial]") == int(table)
@@ -147,7 +153,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 31
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 37
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 
@@ -400,3 +406,41 @@ def test_one_consolidation_tolerance_rule_for_every_stage():
     assert consolidation_tolerance(TriaxialConfig(consolidation_tolerance=1e-4)) == 1e-4
     with pytest.raises(ValueError, match="'rigid' or 'membrane'"):
         default_consolidation_tolerance("membran", True)
+
+
+# --- random specimens --------------------------------------------------------------------------------------
+
+
+def test_grading_is_converted_once_to_si_fractions():
+    """[[20, 0], [25, 40], [31.5, 100]] (mm, %) is sieves of 0.02, 0.025, 0.0315 m passing 0, 0.4, 1."""
+    cfg = TriaxialConfig(packing="random", grading=[[20, 0], [25, 40], [31.5, 100]])
+    assert cfg.grading == ((20.0, 0.0), (25.0, 40.0), (31.5, 100.0))
+    assert cfg.particle_grading.sizes == pytest.approx((0.02, 0.025, 0.0315), rel=1e-15)
+    assert cfg.particle_grading.passing == pytest.approx((0.0, 0.4, 1.0), rel=1e-15)
+    assert TriaxialConfig().particle_grading.largest == pytest.approx(0.025)  # equal spheres by default
+    assert TriaxialConfig(compaction_friction_deg=45.0).compaction_friction_coefficient == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(
+    ("fields", "expected"),
+    [
+        ({"packing": "rand"}, "packing must be one of 'fcc', 'random'; got the string 'rand'"),
+        ({"grading": [[20, 0], [19, 100]]}, "point 2 has size 19 mm after 20 mm; sizes must increase"),
+        ({"grading": [[20, 0], [25, 90]]}, "the last point passes 90 %; the curve must rise to 100 %"),
+        ({"grading": [[20, 10], [25, 100]]}, "the first point passes 10 %; start the curve at 0 %"),
+        ({"grading": [[20, 0], [25]]}, "point 2 is an array, not a [size mm, percent] pair"),
+        ({"grading": "20 mm"}, "grading must be an array of [size mm, percent passing] pairs"),
+        (
+            {"packing": "random", "specimen_diameter_mm": 80.0},
+            "specimen_diameter_mm = 80 mm holds fewer than 4 of the largest particles (25 mm)",
+        ),
+        (
+            {"packing": "random", "grading": [[20, 0], [50, 100]], "specimen_height_mm": 150.0},
+            "specimen_height_mm = 150 mm holds fewer than 4 of the largest particles (50 mm)",
+        ),
+    ],
+)
+def test_random_specimen_fields_are_refused_with_the_point_and_the_fix(fields, expected):
+    with pytest.raises(ConfigError) as error:
+        TriaxialConfig(**fields)
+    assert expected in str(error.value)

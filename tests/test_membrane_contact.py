@@ -516,3 +516,40 @@ def test_grown_candidate_capacities_follow_the_rule_by_hand():
     )
     stacked = types.SimpleNamespace(max_count=np.array([3, 9]), max_sphere_count=np.array([15, 2]))
     assert grown_candidate_capacities(old, stacked) == (11, 23)
+
+
+@pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
+def test_a_node_pushed_between_two_spheres_is_stopped_by_the_sphere_behind(dtype):
+    """Spheres A, B 2.8 R apart on the surface and C behind them; a node pushed between A and B into C.
+
+    With every sphere a candidate (a random specimen's search), C pushes the node back out with
+    k_n δ, δ = R + t_m/2 − |x_node − x_C| (hand value); with A and B alone (a lateral-boundary subset)
+    nothing touches it and the node would pass.
+    """
+    radius, gap_half = 0.0125, 0.0175  # A, B at y = ±1.4 R: beyond a node's reach R + t_m/2 + skin
+    behind = -0.0125  # C's centre, one radius inside the surface line x = 0
+    node = jnp.asarray([[0.0, 0.0, 0.0]], dtype)  # pushed to the line through A and B
+    spheres = jnp.asarray([[0.0, -gap_half, 0.0], [0.0, gap_half, 0.0], [behind, 0.0, 0.0]], dtype)
+    radii = jnp.full(3, radius, dtype)
+    params = MembraneContactParams.default()
+    expected = float(params.normal_stiffness) * (radius + 0.5 * THICKNESS - abs(behind))
+
+    def force_with(subset):
+        candidates = build_candidates(node, spheres, radii, jnp.asarray(subset), THICKNESS, 0.001, capacity=2)
+        return node_sphere_forces(
+            ContactNodes(position=node, velocity=jnp.zeros_like(node)),
+            ContactSpheres(
+                position=spheres,
+                velocity=jnp.zeros_like(spheres),
+                angular_velocity=jnp.zeros_like(spheres),
+                radius=radii,
+            ),
+            candidates.idx,
+            jnp.zeros((3, 1, 2), dtype),
+            1e-6,
+            params,
+            THICKNESS,
+        ).node_force[0]
+
+    np.testing.assert_allclose(np.asarray(force_with([0, 1, 2])), [expected, 0.0, 0.0], rtol=tolerance(dtype))
+    np.testing.assert_array_equal(np.asarray(force_with([0, 1])), 0.0)

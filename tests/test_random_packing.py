@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from membrax.spheres.random_packing import Grading, loose_cloud, mass_fractions, sample_diameters
+from membrax.spheres.random_packing import (
+    OUTLINE_SIDES,
+    Grading,
+    RandomSpecimen,
+    loose_cloud,
+    mass_fractions,
+    sample_diameters,
+)
 
 #: A ballast-like grading, scaled: sieves in m, fraction of the mass passing.
 BALLAST = Grading(sizes=(0.0224, 0.0315, 0.040, 0.050, 0.0625), passing=(0.0, 0.1, 0.4, 0.8, 1.0))
@@ -85,3 +92,25 @@ def test_the_loose_cloud_has_no_overlap_lies_in_the_mould_and_has_the_asked_soli
     assert solid / (math.pi * mould_radius**2 * height) == pytest.approx(0.25, rel=1e-12)
     again, _ = loose_cloud(diameters, mould_radius, solid_fraction=0.25, seed=4)
     np.testing.assert_array_equal(centres, again)
+
+
+def test_random_specimen_geometry_is_the_circle_s():
+    """Area π D²/4; the outline polygon's vertices lie on its faces, the faces touch the circle; the
+    characteristic diameter is the mean, the cutoff the largest; every sphere may touch the membrane."""
+    radius = np.array([0.01, 0.0125, 0.015])
+    specimen = RandomSpecimen(
+        position=np.zeros((3, 3)), radius=radius, diameter=0.2, height=0.3, solid_fraction=0.6, seed=1
+    )
+    assert specimen.cross_section_area == pytest.approx(math.pi * 0.01)
+    assert specimen.particle_diameter == pytest.approx(0.025)
+    assert specimen.largest_diameter == pytest.approx(0.03)
+    assert bool(np.all(np.asarray(specimen.is_lateral_boundary)))
+    normals, distances = (np.asarray(a) for a in specimen.outline_faces())
+    vertices = np.asarray(specimen.outline_vertices)
+    assert normals.shape == (OUTLINE_SIDES, 2)
+    np.testing.assert_allclose(distances, 0.1)
+    # Vertex k is where faces k − 1 and k meet.
+    np.testing.assert_allclose(np.sum(vertices * normals, axis=1), distances, rtol=1e-12)
+    np.testing.assert_allclose(np.sum(vertices * np.roll(normals, 1, axis=0), axis=1), distances, rtol=1e-12)
+    expected_porosity = 1.0 - np.sum(4.0 / 3.0 * math.pi * radius**3) / (math.pi * 0.01 * 0.3)
+    assert specimen.porosity == pytest.approx(expected_porosity)

@@ -246,7 +246,12 @@ def _band_mesh(
 
 
 def cylinder_mesh(
-    radius: float, height: float, target_edge_length: float, z_bottom: float = 0.0, dtype=None
+    radius: float,
+    height: float,
+    target_edge_length: float,
+    z_bottom: float = 0.0,
+    dtype=None,
+    num_around: int | None = None,
 ) -> MembraneMesh:
     """Band of near-equilateral triangles on the cylinder r = ``radius``, z ∈ [z_bottom, z_bottom + height].
 
@@ -260,6 +265,8 @@ def cylinder_mesh(
       target_edge_length: wanted edge length, m, > 0.
       z_bottom: height of the bottom ring, m.
       dtype: float dtype of the arrays (default: JAX's default float).
+      num_around: n_θ, nodes per ring (default as above); fixing it gives meshes of several radii (membrane
+        thicknesses) one topology, for batching.
     """
     check_range("radius", radius, lower=0.0, lower_open=True)
 
@@ -267,7 +274,7 @@ def cylinder_mesh(
         angle = 2.0 * np.pi * s
         return radius * np.column_stack([np.cos(angle), np.sin(angle)])
 
-    return _band_mesh(point_at, 2.0 * np.pi * radius, height, target_edge_length, z_bottom, dtype)
+    return _band_mesh(point_at, 2.0 * np.pi * radius, height, target_edge_length, z_bottom, dtype, num_around)
 
 
 def offset_polygon(outline_vertices, offset: float) -> np.ndarray:

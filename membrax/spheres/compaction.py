@@ -54,6 +54,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.spatial
 
+from membrax.driver import advance
 from membrax.errors import describe
 from membrax.spheres.contact import ContactParams, normal_energy
 from membrax.spheres.integrate import (
@@ -67,7 +68,13 @@ from membrax.spheres.integrate import (
 )
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, fcc_specimen
-from membrax.spheres.random_packing import CLOUD_SOLID_FRACTION, Grading, loose_cloud, sample_diameters
+from membrax.spheres.random_packing import (
+    CLOUD_SOLID_FRACTION,
+    Grading,
+    RandomSpecimen,
+    loose_cloud,
+    sample_diameters,
+)
 from membrax.spheres.walls import BOTTOM, TOP, triaxial_walls
 from membrax.validation import check_range
 
@@ -115,6 +122,21 @@ class Compaction:
     unbalanced_force_ratio: float
     converged: bool
     measures: dict
+    seed: int = 0
+
+    def specimen(self, grading: Grading | None = None) -> RandomSpecimen:
+        """The packing as a :class:`~membrax.spheres.random_packing.RandomSpecimen` (JAX's default float)."""
+        dtype = jnp.result_type(float)
+        return RandomSpecimen(
+            position=jnp.asarray(self.position, dtype),
+            radius=jnp.asarray(self.radius, dtype),
+            diameter=self.diameter,
+            height=self.height,
+            grading=() if grading is None else (tuple(grading.sizes), tuple(grading.passing)),
+            solid_fraction=self.measures["solid_fraction"],
+            seed=self.seed,
+            packing_measures=tuple(self.measures.items()),
+        )
 
 
 def packing_measures(
@@ -356,7 +378,7 @@ def compact(
 
     stiffness_scale = float(law.normal_stiffness) / mean_diameter
 
-    def one_step(carry, _):
+    def one_step(carry, _params):
         state_, growth, average = carry
         contact_radius = growth * particles.radius
         force = -jax.grad(mould_energy)(state_.position, contact_radius, mould_radius, wall_stiffness)
@@ -372,11 +394,11 @@ def compact(
         error = target_stress - average
         free = growth_rate * error / target_stress
         servo = jnp.clip(servo_gain * error / stiffness_scale, -servo_growth, servo_growth)
-        return (state_, growth * (1.0 + jnp.where(error > 0.0, free, servo)), average), None
+        return state_, growth * (1.0 + jnp.where(error > 0.0, free, servo)), average
 
     @jax.jit
     def chunk(carry):
-        return jax.lax.scan(one_step, carry, None, length=chunk_steps)[0]
+        return advance(one_step, carry, None, chunk_steps)
 
     @jax.jit
     def unbalanced(state_, growth):
@@ -428,6 +450,7 @@ def compact(
             mould_height / final,
             least_contacts=4 if friction_coefficient == 0.0 else 2,
         ),
+        seed=seed,
     )
 
 

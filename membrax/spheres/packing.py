@@ -160,6 +160,11 @@ class Specimen:
         return 0.5 * self.particle_diameter
 
     @property
+    def largest_diameter(self) -> float:
+        """D in m: the contact search's cutoff (a random specimen's largest sphere)."""
+        return self.particle_diameter
+
+    @property
     def centre_half_width(self) -> float:
         """Centre half-width h = (W − 1)·D/2 in m: the centres lie in |x|, |y| ≤ h."""
         return 0.5 * (self.width_spheres - 1) * self.particle_diameter

@@ -29,11 +29,16 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import jax.numpy as jnp
 import numpy as np
+
+from membrax import pytree
 
 __all__ = [
     "CLOUD_SOLID_FRACTION",
+    "OUTLINE_SIDES",
     "Grading",
+    "RandomSpecimen",
     "loose_cloud",
     "mass_fractions",
     "sample_diameters",
@@ -41,6 +46,10 @@ __all__ = [
 
 #: The solid fraction of the loose cloud (random sequential addition jams near 0.38 for equal spheres).
 CLOUD_SOLID_FRACTION = 0.25
+
+#: Sides of the regular polygon, circumscribed about a random specimen's circle, that stands for its outline
+#: where a polygon is needed (lateral walls, plots): its area is 1.0008 of the circle's.
+OUTLINE_SIDES = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -272,3 +281,121 @@ def loose_cloud(
                 f"fraction {solid_fraction}; lower it."
             )
     return centres, height
+
+
+@pytree.dataclass
+class RandomSpecimen:
+    """A cylindrical specimen of spheres at random positions (made by :mod:`membrax.spheres.compaction`).
+
+    It answers what the cells read of a specimen (:class:`membrax.spheres.packing.Specimen` is the FCC
+    one): centres and radii, the height, the cross-section and its outline, the characteristic diameter.
+    z is vertical; the specimen stands on z = 0 and its axis is the z axis.
+
+    Attributes:
+      position: (N, 3) centres, m.
+      radius: (N,) radii, m.
+      diameter: the specimen's diameter (the mould's), m.
+      height: the platens' separation, m.
+      grading: the sieve sizes (m) and fractions passing it was sampled from, as two tuples.
+      solid_fraction: of the whole specimen, as compacted.
+      seed: the seed it was made with.
+      packing_measures: the compaction's measures as (name, value) pairs (:attr:`measures`).
+    """
+
+    position: jnp.ndarray
+    radius: jnp.ndarray
+    diameter: float = pytree.static_field()
+    height: float = pytree.static_field()
+    grading: tuple = pytree.static_field(default=())
+    solid_fraction: float = pytree.static_field(default=math.nan)
+    seed: int = pytree.static_field(default=0)
+    packing_measures: tuple = pytree.static_field(default=())
+
+    @property
+    def measures(self) -> dict:
+        """The compaction's :func:`membrax.spheres.compaction.packing_measures` (empty if not known)."""
+        return dict(self.packing_measures)
+
+    cross_section = "circle"
+
+    @property
+    def num_particles(self) -> int:
+        """N."""
+        return int(self.position.shape[0])
+
+    @property
+    def particle_diameter(self) -> float:
+        """The characteristic diameter, m: the mean of the spheres' diameters.
+
+        The membrane's mesh edge and the shearing's inertial number are set from it.
+        """
+        return float(2.0 * np.mean(np.asarray(self.radius)))
+
+    @property
+    def particle_radius(self) -> float:
+        """Half the characteristic diameter, m."""
+        return 0.5 * self.particle_diameter
+
+    @property
+    def largest_diameter(self) -> float:
+        """The largest sphere's diameter, m (the contact search's cutoff)."""
+        return float(2.0 * np.max(np.asarray(self.radius)))
+
+    @property
+    def width_across_flats(self) -> float:
+        """The diameter, m (the FCC specimen's name for its width)."""
+        return self.diameter
+
+    @property
+    def cross_section_area(self) -> float:
+        """π D²/4, m²."""
+        return math.pi * self.diameter**2 / 4.0
+
+    @property
+    def volume(self) -> float:
+        """Cross-section × height, m³."""
+        return self.cross_section_area * self.height
+
+    @property
+    def porosity(self) -> float:
+        """1 − V_solid/V."""
+        solid = float(np.sum(4.0 / 3.0 * math.pi * np.asarray(self.radius, dtype=float) ** 3))
+        return 1.0 - solid / self.volume
+
+    def outline_faces(self):
+        """((F, 2) outward unit normals, (F,) distances, m) of the circumscribed polygon.
+
+        A regular polygon of :data:`OUTLINE_SIDES` faces, each touching the circle.
+        """
+        angles = 2.0 * math.pi * np.arange(OUTLINE_SIDES) / OUTLINE_SIDES
+        normals = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+        return jnp.asarray(normals), jnp.asarray(np.full(OUTLINE_SIDES, 0.5 * self.diameter))
+
+    @property
+    def outline_vertices(self) -> jnp.ndarray:
+        """(F, 2) vertices of the circumscribed polygon, counter-clockwise, m.
+
+        Vertex k lies between faces k − 1 and k.
+        """
+        angles = 2.0 * math.pi * (np.arange(OUTLINE_SIDES) - 0.5) / OUTLINE_SIDES
+        reach = 0.5 * self.diameter / math.cos(math.pi / OUTLINE_SIDES)
+        return jnp.asarray(reach * np.stack([np.cos(angles), np.sin(angles)], axis=1))
+
+    @property
+    def is_lateral_boundary(self) -> jnp.ndarray:
+        """(N,) True for every sphere: the membrane may meet any sphere of a random specimen."""
+        return jnp.ones(self.radius.shape, dtype=bool)
+
+    def summary(self) -> str:
+        """A short multi-line description."""
+        radius = np.asarray(self.radius, dtype=float)
+        return "\n".join(
+            [
+                f"random specimen, circular cross-section: N = {self.num_particles} spheres "
+                f"(seed {self.seed})",
+                f"  diameters {2e3 * radius.min():.4g}–{2e3 * radius.max():.4g} mm, mean "
+                f"{self.particle_diameter * 1e3:.4g} mm",
+                f"  diameter = {self.diameter * 1e3:.4g} mm, height = {self.height * 1e3:.4g} mm",
+                f"  porosity n = {self.porosity:.4f}",
+            ]
+        )

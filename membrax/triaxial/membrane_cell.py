@@ -49,7 +49,7 @@ from membrax.membrane.coupled import (
     membrane_dem,
 )
 from membrax.membrane.measure import measure_coupled
-from membrax.membrane.mesh import MembraneMesh, inner_volume, prism_mesh
+from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, inner_volume, prism_mesh
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
@@ -61,6 +61,7 @@ from membrax.spheres.integrate import (
 )
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, Specimen
+from membrax.spheres.random_packing import RandomSpecimen
 from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
 from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
@@ -215,7 +216,7 @@ class MembraneTest(StagedTest):
 
 
 def membrane_test(
-    specimen: Specimen,
+    specimen: Specimen | RandomSpecimen,
     cell_pressure: float,
     membrane_thickness: float,
     membrane_modulus: float = MEMBRANE_MODULUS,
@@ -238,7 +239,9 @@ def membrane_test(
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
 
     Args:
-      specimen: from :func:`membrax.spheres.packing.fcc_specimen`.
+      specimen: from :func:`membrax.spheres.packing.fcc_specimen`, or a random one
+        (:meth:`membrax.spheres.compaction.Compaction.specimen`: a cylindrical mesh of its diameter, every
+        sphere a candidate of the node–sphere contact).
       cell_pressure: σc, Pa, > 0 (paper: 1e4, 4e4, 1e5).
       membrane_thickness: t_m, m, > 0 (paper: 2.5e-3, 3.33e-3, 5e-3).
       membrane_modulus: E_m, Pa, > 0 (paper: 1.4e6, :data:`membrax.defaults.MEMBRANE_MODULUS`).
@@ -288,26 +291,39 @@ def membrane_test(
     walls = triaxial_walls(
         np.zeros((0, 2)), np.zeros(0), specimen.height, num_members=1, servo_gain=servo_gain
     )
-    lower = np.min(np.asarray(position), axis=0) - 2.0 * diameter
-    upper = np.max(np.asarray(position), axis=0) + 2.0 * diameter
+    largest = specimen.largest_diameter
+    lower = np.min(np.asarray(position), axis=0) - 2.0 * largest
+    upper = np.max(np.asarray(position), axis=0) + 2.0 * largest
     frame = pair_neighbor_fn(
-        lower, upper, cutoff=diameter, skin=skin_fraction * diameter, margin=0.5 * diameter
+        lower, upper, cutoff=largest, skin=skin_fraction * diameter, margin=0.5 * largest
     )
     neighbors = frame.allocate(position)
-    mesh = prism_mesh(
-        np.asarray(specimen.outline_vertices),
-        0.5 * contact_thickness,
-        specimen.height,
-        diameter / edges_per_diameter,
-        dtype=position.dtype,
-        # Rounded about the outer spheres: a mitred band leaves the corners unsupported, and cell pressure
-        # closing those gaps shortens the perimeter by ~1 %, i.e. hoop compression instead of tension.
-        corner_radius=0.5 * diameter,
-        num_around=nodes_around,
-    )
-    # The critical step of the touching lattice: a seeded imperfection (packing.with_imperfection) opens
-    # its contacts (they close under load) and leaves the masses within 3 f of the nominal ones.
-    lattice = make_particles(jnp.full_like(particles.radius, 0.5 * diameter), density)
+    circular = specimen.cross_section == "circle"
+    if circular:  # a random specimen: a cylinder of its diameter
+        mesh = cylinder_mesh(
+            0.5 * (specimen.diameter + contact_thickness),
+            specimen.height,
+            diameter / edges_per_diameter,
+            dtype=position.dtype,
+            num_around=nodes_around,
+        )
+    else:
+        mesh = prism_mesh(
+            np.asarray(specimen.outline_vertices),
+            0.5 * contact_thickness,
+            specimen.height,
+            diameter / edges_per_diameter,
+            dtype=position.dtype,
+            # Rounded about the outer spheres: a mitred band leaves the corners unsupported, and cell
+            # pressure closing those gaps shortens the perimeter by ~1 %, i.e. hoop compression.
+            corner_radius=0.5 * diameter,
+            num_around=nodes_around,
+        )
+    # FCC: the critical step of the touching lattice (a seeded imperfection, packing.with_imperfection,
+    # opens its contacts, which close under load, and leaves the masses within 3 f of the nominal ones). A
+    # compacted random specimen's contacts are closed as built.
+    nominal = particles.radius if circular else jnp.full_like(particles.radius, 0.5 * diameter)
+    lattice = make_particles(nominal, density)
     dem_init, _ = sphere_dem(lattice, frame, 1.0)
     critical = {"dem": critical_time_step(dem_init(position, walls, neighbors), lattice, params.dem)}
     membrane_steps = membrane_critical_time_step(mesh, membrane_params, latex_density)

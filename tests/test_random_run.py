@@ -1,0 +1,43 @@
+"""A test on a random specimen from its configuration (packing = "random"): the specimen, the grading
+it was sampled from and the sampled fractions in the results, the external stresses by definition, the
+mobilised friction below Rowe's FCC bound."""
+
+import numpy as np
+import pytest
+
+from membrax import theory
+from membrax.config import SMOKE_CONFIG, TriaxialConfig
+from membrax.io.results import dataset_attrs_to_python
+from membrax.run import run_test
+from membrax.triaxial import analysis
+
+GRADING = ((20.0, 0.0), (25.0, 50.0), (30.0, 100.0))  # mm, % passing by mass
+
+
+@pytest.mark.slow
+def test_a_graded_random_specimen_runs_and_its_grading_reaches_the_results(tmp_path):
+    config = TriaxialConfig(
+        **{
+            **SMOKE_CONFIG,
+            "name": "random_graded",
+            "packing": "random",
+            "grading": GRADING,
+            "specimen_diameter_mm": 125.0,
+            "specimen_height_mm": 150.0,
+        }
+    )
+    result = run_test(config, tmp_path / "run", progress=False)
+    specimen = dataset_attrs_to_python(result.results)["specimen"]
+    assert specimen["packing"] == "random"
+    assert specimen["grading_size_mm"] == pytest.approx([20.0, 25.0, 30.0])
+    assert specimen["grading_percent_passing"] == pytest.approx([0.0, 50.0, 100.0])
+    # The sampled spheres follow the curve to within the rounding of the counts: one largest sphere's share
+    # of the mass per bin (random_packing.sample_diameters).
+    one_sphere = 100.0 * 30.0**3 / (specimen["num_spheres"] * 20.0**3)
+    assert specimen["sampled_percent_passing"] == pytest.approx([0.0, 50.0, 100.0], abs=one_sphere)
+    assert 0.45 < specimen["solid_fraction"] < 0.64  # a walled random packing, below random close packing
+    # The cell pressure is the external radial stress at every record; Rowe's FCC peak bounds φ'.
+    radial = analysis.record(result.results, "external_radial_stress")
+    np.testing.assert_allclose(radial, config.cell_pressure, rtol=1e-6)
+    angle = analysis.record(result.results, "love_weber_friction_angle")
+    assert np.nanmax(angle) < theory.rowe_peak_friction_angle_deg(config.friction_angle_deg, theory.FCC)
