@@ -72,6 +72,9 @@ LONG_FIRST = (
     "tests/test_dem.py",
     "notebooks/01_quickstart.ipynb",
     "notebooks/03_parameter_study.ipynb",
+    "tests/test_compaction.py",
+    "notebooks/06_random_specimens.ipynb",
+    "tests/test_random_run.py",
 )
 
 
