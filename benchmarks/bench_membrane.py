@@ -20,8 +20,13 @@ their combined rate bounds the membrane part of the DEM + membrane step (issue t
 float32 for the whole step). The membrane-force rate includes bending (factor 1); the coupled step runs the
 paper's pure membrane (factor 0), whose compiled kernel skips the hinges.
 
-Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5]``; with ``MEMBRAX_NATIVE=0`` the
-compiled CPU kernels (:mod:`membrax.native`) are off and every figure is XLA's alone.
+With ``--packing random`` the specimen is a random packing of the same spheres, 250 × 500 mm (about 1,740
+spheres, compacted first, about 6 min, not timed): its membrane is a cylinder and every sphere a candidate
+(issue 45's target: coupled steps/s within 1.5× of the FCC row's).
+
+Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--dtypes float32]``;
+with ``MEMBRAX_NATIVE=0`` the compiled CPU kernels (:mod:`membrax.native`) are off and every figure is
+XLA's alone.
 """
 
 import argparse
@@ -31,7 +36,7 @@ import resource
 from harness import best_of, print_table, run_each_dtype, timed
 
 
-def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
+def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: str = "fcc") -> dict:
     import jax
 
     if dtype == "float64":
@@ -47,7 +52,13 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int) -> dict:
     from membrax.triaxial import membrane_cell as membrane_triaxial
 
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
-    specimen = packing.fcc_specimen(diameter, 10, 25)
+    if packing_kind == "random":  # paper-like: 250 × 500 mm, compacted without friction (not timed)
+        from membrax.spheres.compaction import random_packing
+        from membrax.spheres.random_packing import Grading
+
+        specimen = random_packing(Grading.equal(diameter), 0.25, 0.5).specimen()
+    else:
+        specimen = packing.fcc_specimen(diameter, 10, 25)
     mesh = prism_mesh(
         np.asarray(specimen.outline_vertices),
         0.5 * thickness,
@@ -145,15 +156,26 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--edges-per-diameter", type=float, default=5.0)
     parser.add_argument("--repeats", type=int, default=50)
+    parser.add_argument(
+        "--packing",
+        choices=("fcc", "random"),
+        default="fcc",
+        help="fcc: 10 across, 25 layers; random: 250 × 500 mm compacted (about 6 min, not timed)",
+    )
+    parser.add_argument("--dtypes", default="float32,float64")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        print(json.dumps(measure(args.child, args.edges_per_diameter, args.repeats)))
+        print(json.dumps(measure(args.child, args.edges_per_diameter, args.repeats, args.packing)))
         return
-    rows = run_each_dtype(__file__, {"edges_per_diameter": args.edges_per_diameter, "repeats": args.repeats})
+    rows = run_each_dtype(
+        __file__,
+        {"edges_per_diameter": args.edges_per_diameter, "repeats": args.repeats, "packing": args.packing},
+        dtypes=tuple(args.dtypes.split(",")),
+    )
     first = rows[0]
     print(
-        f"membrane benchmark: {first['nodes']} nodes, {first['triangles']} triangles, "
+        f"membrane benchmark ({args.packing}): {first['nodes']} nodes, {first['triangles']} triangles, "
         f"{first['boundary_spheres']} boundary spheres, K = {first['capacity']} "
         f"(max candidates found {first['max_candidates']}); CPU kernels: {first['kernels']}"
     )
