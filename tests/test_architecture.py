@@ -29,10 +29,10 @@ LAYERS = (
     # step
     ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
     ("driver",),
-    # specimens made by a DEM run: the compaction of a random packing
-    ("spheres.compaction",),
     # measurements
     ("spheres.measure", "membrane.measure"),
+    # specimens made by a DEM run: the compaction of a random packing
+    ("spheres.compaction",),
     # protocol: consolidation and shearing
     ("triaxial.protocol",),
     ("triaxial.rigid", "triaxial.membrane_cell"),

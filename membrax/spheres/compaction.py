@@ -66,6 +66,7 @@ from membrax.spheres.integrate import (
     make_particles,
     sphere_dem,
 )
+from membrax.spheres.measure import unbalanced_force_ratio
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, fcc_specimen
 from membrax.spheres.random_packing import (
@@ -361,7 +362,7 @@ def compact(
         [mould_radius, mould_radius, mould_height],
         cutoff=1.1 * largest,
         skin=0.2 * largest,
-        margin=0.2 * mould_radius + largest,  # the mould may widen
+        margin=largest,
     )
     walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), mould_height, dtype=dtype)
     init_fn, step_fn = sphere_dem(particles, frame, dt, wall_friction=False)
@@ -407,9 +408,9 @@ def compact(
         net = forces.force - jax.grad(mould_energy)(
             state_.position, touching.radius, mould_radius, wall_stiffness
         )
-        closed = jnp.maximum(jnp.sum(forces.pair_normal_force > 0.0), 1).astype(dtype)
-        mean_contact = jnp.sum(forces.pair_normal_force) / closed
-        return jnp.mean(jnp.linalg.norm(net, axis=1)) / jnp.maximum(mean_contact, jnp.finfo(dtype).tiny)
+        first = state_.neighbors.idx[0]
+        pair_member = particles.member[jnp.where(first < particles.num_particles, first, 0)]
+        return unbalanced_force_ratio(net, forces, particles, pair_member)[0]
 
     carry = (state, jnp.asarray(start, dtype), jnp.asarray(0.0, dtype))
     began = time.perf_counter()
