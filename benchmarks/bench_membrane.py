@@ -4,9 +4,10 @@ The paper-size membrane (octagonal specimen, 25 mm spheres, 10 across, 25 layers
 triangles) wraps the specimen at t_m/2 outside the outline. For each dtype, in a fresh process, prints:
 
 - membrane forces (−∇ of stretching + bending + pressure energy): compile time and evaluations/s;
-- node–sphere contact forces (K = 3 candidate spheres per node, lateral-boundary spheres only, sphere
-  sums over the slot incidence): evaluations/s;
-- one candidate-list rebuild (nodes × boundary spheres, brute force): ms;
+- node–sphere contact forces (K = 3 candidate spheres per node, sphere sums over the slot incidence):
+  evaluations/s;
+- one candidate-list rebuild (every sphere, through the cell list of
+  :func:`membrax.membrane.contact.build_candidates`): ms;
 - the full coupled step (DEM + membrane + node–sphere contacts + candidate updates,
   :mod:`membrax.membrane.coupled`) of the paper-size specimen consolidating at 10 kPa in a 5 mm membrane:
   steps/s and particle-steps/s (spheres + nodes);
@@ -21,8 +22,8 @@ float32 for the whole step). The membrane-force rate includes bending (factor 1)
 paper's pure membrane (factor 0), whose compiled kernel skips the hinges.
 
 With ``--packing random`` the specimen is a random packing of the same spheres, 250 × 500 mm (about 1,740
-spheres, compacted first, about 6 min, not timed): its membrane is a cylinder and every sphere a candidate
-(issue 45's target: coupled steps/s within 1.5× of the FCC row's).
+spheres, compacted first, about 6 min, not timed): its membrane is a cylinder (issue 45's target: coupled
+steps/s within 1.5× of the FCC row's).
 
 Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--dtypes float32]``;
 with ``MEMBRAX_NATIVE=0`` the compiled CPU kernels (:mod:`membrax.native`) are off and every figure is
@@ -85,11 +86,11 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
 
     spheres = jnp.asarray(specimen.position)
     radius = jnp.asarray(specimen.radius)
-    subset = jnp.asarray(np.nonzero(np.asarray(specimen.is_lateral_boundary))[0], dtype=jnp.int32)
     capacity = 3  # the coupled test's default K; at 10 kPa a node has at most 2 candidates
+    grid = membrane_contact.cell_grid(spheres, radius, 0.2 * diameter)
     build = jax.jit(
         lambda x: membrane_contact.build_candidates(
-            x, spheres, radius, subset, thickness, 0.2 * diameter, capacity
+            x, spheres, radius, thickness, 0.2 * diameter, capacity, grid=grid
         )
     )
     candidates, _ = timed(build, nodes)
@@ -112,7 +113,6 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
                 params,
                 thickness,
                 sphere_slots=candidates.sphere_slots,
-                sphere_subset=subset,
             ).node_force
         )
     )
@@ -140,7 +140,8 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
         "coupled_particle_steps_per_s": coupled_rate * (specimen.position.shape[0] + int(nodes.shape[0])),
         "nodes": int(nodes.shape[0]),
         "triangles": int(mesh.triangles.shape[0]),
-        "boundary_spheres": int(subset.shape[0]),
+        "spheres": int(spheres.shape[0]),
+        "cell_capacity": grid.cell_capacity,
         "capacity": capacity,
         "max_candidates": int(candidates.max_count),
         "compile_s": first - one,
@@ -176,7 +177,7 @@ def main():
     first = rows[0]
     print(
         f"membrane benchmark ({args.packing}): {first['nodes']} nodes, {first['triangles']} triangles, "
-        f"{first['boundary_spheres']} boundary spheres, K = {first['capacity']} "
+        f"{first['spheres']} spheres (cell list: {first['cell_capacity']} per cell), K = {first['capacity']} "
         f"(max candidates found {first['max_candidates']}); CPU kernels: {first['kernels']}"
     )
     print_table(

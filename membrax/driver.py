@@ -101,7 +101,8 @@ class ChunkRunner:
       grow_membrane: for a coupled state (:class:`membrax.membrane.coupled.CoupledState`),
         ``grow_membrane(state, overflowed) -> state`` with a node candidate table large enough for the
         overflowing chunk's end state ``overflowed`` (its table's ``max_count`` per node,
-        ``max_sphere_count`` per sphere; see :func:`membrax.membrane.coupled.grow_candidates`).
+        ``max_sphere_count`` per sphere, ``max_cell_count`` per cell of its cell list; see
+        :func:`membrax.membrane.coupled.grow_candidates`).
       dem_of: ``dem_of(state) -> DEMState``, the sphere state whose neighbour list the runner rebuilds
         (default: the state itself; a coupled test passes ``lambda s: s.dem``).
       with_dem: ``with_dem(state, dem) -> state``, the state with that sphere state put back (default: the

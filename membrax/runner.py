@@ -53,7 +53,12 @@ from membrax.driver import advance, drive, record_blocks
 from membrax.errors import OVERFLOWS, ErrorCode, RunError, SimulationError, describe
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
 from membrax.membrane.contact import MembraneContactParams
-from membrax.membrane.coupled import grow_candidates, grown_candidate_capacities
+from membrax.membrane.coupled import (
+    CandidateCapacities,
+    candidate_capacities,
+    grow_candidates,
+    grown_candidate_capacities,
+)
 from membrax.membrane.measure import right_cylinder_stresses
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.compaction import random_packing
@@ -466,12 +471,9 @@ class BatchedTest:
                 for m, nl in zip(members, lists, strict=True)
             ]
         if np.any(error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW):
-            capacity, sphere_capacity = grown_candidate_capacities(states.membrane.candidates, overflowed)
+            capacities = grown_candidate_capacities(states.membrane.candidates, overflowed)
             thickness = np.asarray(self.params.membrane.contact_thickness)
-            members = [
-                grow_candidates(m, particles, capacity, thickness[b], sphere_capacity)
-                for b, m in enumerate(members)
-            ]
+            members = [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
         self.reallocations += 1
         return stack(members)
 
@@ -710,9 +712,16 @@ def _capacities(states) -> dict:
     return {
         "neighbor_pairs": int(nl.max_occupancy),
         "cell_capacity": int(nl.cell_list_capacity or 0),
-        "node_candidates": int(candidates.idx.shape[-1]),
-        "sphere_slots": int(candidates.sphere_slots.shape[-1]),
+        **dict(zip(_NODE_CAPACITY_KEYS, candidate_capacities(candidates), strict=True)),
     }
+
+
+# The checkpoint's names of the node candidate table's capacities (K, M, C: CandidateCapacities).
+_NODE_CAPACITY_KEYS = ("node_candidates", "sphere_slots", "membrane_cell_spheres")
+
+
+def _node_capacities(capacities: dict) -> CandidateCapacities:
+    return CandidateCapacities(*(capacities[key] for key in _NODE_CAPACITY_KEYS))
 
 
 def _template(batch: BatchedTest, capacities: dict):
@@ -724,7 +733,7 @@ def _template(batch: BatchedTest, capacities: dict):
     thickness = np.asarray(batch.params.membrane.contact_thickness)
     particles = batch.tests[0].particles
     members = [
-        grow_candidates(m, particles, capacities["node_candidates"], thickness[b], capacities["sphere_slots"])
+        grow_candidates(m, particles, _node_capacities(capacities), thickness[b])
         for b, m in enumerate(members)
     ]
     lists = _shared_neighbors(

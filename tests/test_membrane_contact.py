@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers import tolerance
-from jax_md import dataclasses
 
 from membrax.membrane.contact import (
     ERROR_MEMBRANE_CANDIDATE_OVERFLOW,
@@ -16,6 +15,7 @@ from membrax.membrane.contact import (
     MembraneContactParams,
     build_candidates,
     candidate_errors,
+    cell_grid,
     needs_rebuild,
     node_sphere_forces,
     node_sphere_normal_energy,
@@ -92,23 +92,20 @@ def _forces(config, candidates, spring, params=None, dt=1e-5):
 _jit_forces = jax.jit(_forces)
 
 
-def _candidate_args(config, subset, skin):
-    """build_candidates' arguments before the capacity: ``config``'s nodes and spheres, ``subset``, skin."""
-    return (
-        config["node_position"],
-        config["sphere_position"],
-        config["sphere_radius"],
-        subset,
-        THICKNESS,
-        skin,
-    )
+def _candidate_args(config, skin):
+    """build_candidates' arguments before the capacity: ``config``'s nodes and spheres, skin."""
+    return (config["node_position"], config["sphere_position"], config["sphere_radius"], THICKNESS, skin)
+
+
+# A grid for any _random_config (radii at most 10 mm, skin 2 mm): cells of 22 mm over the 30 mm box, room
+# for every sphere in one cell. Under jit the grid is static (build_candidates cannot make it from traced
+# positions); a grid made from other positions is still exact, since points outside it are clipped in.
+_GRID = cell_grid(np.array([[0.0, 0.0, 0.0], [0.03, 0.03, 0.03]]), [0.01, 0.01], 0.002, 6)
 
 
 def _all_candidates(config):
     num_spheres = config["sphere_position"].shape[0]
-    return build_candidates(
-        *_candidate_args(config, jnp.arange(num_spheres, dtype=jnp.int32), 0.002), num_spheres
-    )
+    return build_candidates(*_candidate_args(config, 0.002), num_spheres, grid=_GRID)
 
 
 def test_default_parameters_and_time_scale():
@@ -268,30 +265,37 @@ def test_gradient_is_finite_at_coincident_centre_and_padding():
     assert bool(jnp.all(jnp.isfinite(grad)))
 
 
-def _brute_force_sets(config, subset, skin):
+def _brute_force_sets(config, skin):
     node = np.asarray(config["node_position"])
     sphere = np.asarray(config["sphere_position"])
     radius = np.asarray(config["sphere_radius"])
-    distance = np.linalg.norm(node[:, None, :] - sphere[None, subset, :], axis=-1)
-    within = distance < (radius[subset] + THICKNESS / 2 + skin)[None, :]
-    return [set(np.asarray(subset)[row].tolist()) for row in within]
+    distance = np.linalg.norm(node[:, None, :] - sphere[None, :, :], axis=-1)
+    within = distance < (radius + THICKNESS / 2 + skin)[None, :]
+    return [set(np.flatnonzero(row).tolist()) for row in within]
+
+
+def _assert_rows_are(idx, reference, num_spheres):
+    """Each row holds exactly its reference set, in increasing id order, padded with N."""
+    for row, expected in zip(np.asarray(idx), reference, strict=True):
+        found = row[row < num_spheres]
+        np.testing.assert_array_equal(found, sorted(expected))
+        assert np.all(row[len(found) :] == num_spheres)
 
 
 def test_candidates_match_brute_force_and_flag_overflow():
     config = _random_config(5, num_nodes=200, num_spheres=40, box=0.08)
-    rng = np.random.default_rng(7)
-    subset = jnp.asarray(rng.permutation(40)[:25], dtype=jnp.int32)
     skin = 0.003
-    reference = _brute_force_sets(config, subset, skin)
+    reference = _brute_force_sets(config, skin)
     largest = max(len(s) for s in reference)
     assert largest >= 3
-    args = _candidate_args(config, subset, skin)
-    candidates = jax.jit(build_candidates, static_argnums=6)(*args, largest + 2)
-    idx = np.asarray(candidates.idx)
-    for row, expected in zip(idx, reference, strict=True):
-        found = row[row < 40]
-        assert len(set(found.tolist())) == len(found)
-        assert set(found.tolist()) == expected
+    args = _candidate_args(config, skin)
+    grid = cell_grid(config["sphere_position"], config["sphere_radius"], skin)
+    # Cells of 2 R_max + skin: fewer than 27 cells' worth of the box, so the search skips most spheres.
+    assert grid.edge == pytest.approx(2 * float(jnp.max(config["sphere_radius"])) + skin)
+    assert grid.num_cells > 27
+    build = jax.jit(build_candidates, static_argnames=("capacity", "grid"))
+    candidates = build(*args, capacity=largest + 2, grid=grid)
+    _assert_rows_are(candidates.idx, reference, 40)
     assert int(candidates.max_count) == largest
     assert not bool(candidates.did_overflow)
     assert int(candidate_errors(candidates)) == 0
@@ -299,6 +303,44 @@ def test_candidates_match_brute_force_and_flag_overflow():
     assert bool(small.did_overflow)
     assert int(candidate_errors(small)) == ERROR_MEMBRANE_CANDIDATE_OVERFLOW
     assert int(small.max_count) == largest
+    # A cell holding more spheres than C is an overflow too (the fullest cell's count reported).
+    crowded = build_candidates(*args, largest + 2, grid=grid._replace(cell_capacity=1))
+    assert bool(crowded.did_overflow)
+    assert int(crowded.max_cell_count) == int(candidates.max_cell_count) > 1
+
+
+def test_candidates_outside_the_grid_are_still_found():
+    """A grid made for the spheres where they were finds every pair after the whole configuration moved
+    off it (a specimen bulging out of its first bounding box): points outside are clipped into the
+    boundary cells, which never separates two points in neighbouring cells."""
+    config = _random_config(8, num_nodes=150, num_spheres=30, box=0.06)
+    skin = 0.002
+    grid = cell_grid(config["sphere_position"], config["sphere_radius"], skin, cell_capacity=30)
+    for shift in ([0.2, 0.0, 0.0], [-0.1, 0.3, -0.25]):
+        moved = {
+            **config,
+            "node_position": config["node_position"] + jnp.asarray(shift)[None, :],
+            "sphere_position": config["sphere_position"] + jnp.asarray(shift)[None, :],
+        }
+        candidates = build_candidates(*_candidate_args(moved, skin), 12, grid=grid)
+        assert not bool(candidates.did_overflow)
+        _assert_rows_are(candidates.idx, _brute_force_sets(moved, skin), 30)
+    # Stretched to twice its size about the origin: pairs now split across clipped cells.
+    stretched = {
+        **config,
+        "node_position": 2.0 * config["node_position"],
+        "sphere_position": 2.0 * config["sphere_position"],
+    }
+    candidates = build_candidates(*_candidate_args(stretched, skin), 12, grid=grid)
+    _assert_rows_are(candidates.idx, _brute_force_sets(stretched, skin), 30)
+
+
+def test_a_membrane_thicker_than_the_spheres_is_refused():
+    config = _random_config(5)
+    with pytest.raises(ValueError, match="exceeds the largest sphere's diameter"):
+        build_candidates(
+            config["node_position"], config["sphere_position"], config["sphere_radius"], 0.03, 0.002, 3
+        )
 
 
 def test_remap_node_history_follows_sphere_ids():
@@ -349,9 +391,8 @@ def test_remap_of_springs_is_linear_and_its_gradient_carries_back_by_the_same_id
 def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
     config = _random_config(11, num_nodes=120, num_spheres=30, box=0.06)
     num_spheres = 30
-    subset = jnp.arange(num_spheres, dtype=jnp.int32)
     skin = 0.004
-    candidates = build_candidates(*_candidate_args(config, subset, skin), 12)
+    candidates = build_candidates(*_candidate_args(config, skin), 12)
     assert not bool(candidates.did_overflow)
     # Spring value encodes (node, sphere id) so we can tell where it went.
     idx = candidates.idx
@@ -368,15 +409,14 @@ def test_update_rebuilds_only_beyond_half_skin_and_carries_springs():
     np.testing.assert_array_equal(same.idx, candidates.idx)
     np.testing.assert_array_equal(same_spring, spring)
 
-    # Permute the subset (new slot order) and move beyond skin/2: a rebuild; springs follow their ids.
-    permuted = dataclasses.replace(candidates, sphere_subset=subset[::-1])
+    # Move beyond skin/2: a rebuild (pairs enter and leave, so slots shift); springs follow their ids.
     moved = config["sphere_position"] + jnp.asarray([0.6 * skin, 0.0, 0.0])[None, :]
-    assert bool(needs_rebuild(permuted, config["node_position"], moved))
+    assert bool(needs_rebuild(candidates, config["node_position"], moved))
     new, new_spring = update(
-        permuted, spring, config["node_position"], moved, config["sphere_radius"], THICKNESS
+        candidates, spring, config["node_position"], moved, config["sphere_radius"], THICKNESS
     )
-    np.testing.assert_array_equal(new.reference_sphere_position, moved[::-1])
-    reference = _brute_force_sets(dict(config, sphere_position=moved), np.arange(num_spheres), skin)
+    np.testing.assert_array_equal(new.reference_sphere_position, moved)
+    reference = _brute_force_sets(dict(config, sphere_position=moved), skin)
     new_idx, old_idx = np.asarray(new.idx), np.asarray(idx)
     kept = 0
     for node in range(new_idx.shape[0]):
@@ -445,14 +485,16 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
     """The gathered sphere sums (fast path) equal segment_sum on the same slots, also under vmap and grad."""
     config = _random_config(4, num_nodes=60, num_spheres=8)
     num_spheres = 8
-    subset = jnp.asarray([1, 2, 4, 5, 6, 7], dtype=jnp.int32)  # 0 and 3 may not touch the membrane
-    candidates = build_candidates(*_candidate_args(config, subset, 0.002), 4, sphere_capacity=40)
+    # Sphere 7 moved far away: it holds no slot and must get no force.
+    config["sphere_position"] = config["sphere_position"].at[7].set(jnp.asarray([0.5, 0.5, 0.5]))
+    candidates = build_candidates(*_candidate_args(config, 0.002), 4, sphere_capacity=40)
     idx, slots = np.asarray(candidates.idx), np.asarray(candidates.sphere_slots)
-    # Hand count: sphere s owns exactly the flat slots whose id is s.
-    for row, sphere in enumerate(np.asarray(subset)):
-        owned = np.sort(slots[row][slots[row] < idx.size])
+    # Hand count: sphere s owns exactly the flat slots whose id is s, in slot order.
+    for sphere in range(num_spheres):
+        owned = slots[sphere][slots[sphere] < idx.size]
         np.testing.assert_array_equal(owned, np.flatnonzero(idx.reshape(-1) == sphere))
-    assert int(candidates.max_sphere_count) == max(np.sum(idx == s) for s in np.asarray(subset))
+    assert not np.any(idx == 7)
+    assert int(candidates.max_sphere_count) == max(np.sum(idx == s) for s in range(num_spheres))
     assert int(candidates.max_sphere_count) >= 3 and not bool(candidates.did_overflow)
     spring = jnp.asarray(np.random.default_rng(5).normal(0.0, 0.05, (3, *idx.shape)))
 
@@ -465,16 +507,14 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
             MembraneContactParams.default(),
             THICKNESS,
         )
-        return node_sphere_forces(*args), node_sphere_forces(
-            *args, sphere_slots=candidates.sphere_slots, sphere_subset=subset
-        )
+        return node_sphere_forces(*args), node_sphere_forces(*args, sphere_slots=candidates.sphere_slots)
 
     scatter, gather = jax.jit(both)(config["node_position"], spring)
     scale = float(jnp.max(jnp.abs(scatter.sphere_force)))
     assert scale > 1.0
     np.testing.assert_allclose(gather.sphere_force, scatter.sphere_force, atol=1e-13 * scale)
     np.testing.assert_allclose(gather.sphere_torque, scatter.sphere_torque, atol=1e-13 * scale)
-    np.testing.assert_array_equal(gather.sphere_force[jnp.asarray([0, 3])], 0.0)
+    np.testing.assert_array_equal(gather.sphere_force[7], 0.0)
     # vmap over two node configurations equals a loop.
     shifted = config["node_position"] + 1e-4
     batched = jax.vmap(both)(jnp.stack([config["node_position"], shifted]), jnp.stack([spring, spring]))
@@ -489,42 +529,43 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
     np.testing.assert_allclose(grad_gather, grad_scatter, atol=1e-10 * float(jnp.max(jnp.abs(grad_scatter))))
 
     # Too small an M overflows, as K does.
-    small = sphere_slot_table(candidates.idx, subset, num_spheres, 2)
-    assert int(small[1]) == int(candidates.max_sphere_count) and small[0].shape == (6, 2)
-    tight = build_candidates(*_candidate_args(config, subset, 0.002), 4, sphere_capacity=2)
+    small = sphere_slot_table(candidates.idx, num_spheres, 2)
+    assert int(small[1]) == int(candidates.max_sphere_count) and small[0].shape == (8, 2)
+    tight = build_candidates(*_candidate_args(config, 0.002), 4, sphere_capacity=2)
     assert int(candidate_errors(tight)) == ERROR_MEMBRANE_CANDIDATE_OVERFLOW
 
 
 def test_grown_candidate_capacities_follow_the_rule_by_hand():
-    """K = min(max(largest count + 2, ⌈1.5 K_old⌉), subset size), M = max(largest sphere count + 8, M_old);
-    stacked tables take the largest over members."""
+    """K = min(max(largest count + 2, ⌈1.5 K_old⌉), N), M = max(largest sphere count + 8, M_old),
+    C = max(fullest cell + 2, C_old); stacked tables take the largest over members."""
     import types
 
     from membrax.membrane.coupled import grown_candidate_capacities
 
     old = types.SimpleNamespace(
-        sphere_subset=np.zeros(50), idx=np.zeros((100, 4)), sphere_slots=np.zeros((50, 10))
+        reference_sphere_position=np.zeros((50, 3)),
+        idx=np.zeros((100, 4)),
+        sphere_slots=np.zeros((50, 10)),
+        cell_capacity=5,
     )
-    assert grown_candidate_capacities(old, types.SimpleNamespace(max_count=9, max_sphere_count=15)) == (
-        11,
-        23,
-    )
-    assert grown_candidate_capacities(old, types.SimpleNamespace(max_count=3, max_sphere_count=1)) == (6, 10)
-    assert grown_candidate_capacities(old, types.SimpleNamespace(max_count=70, max_sphere_count=1)) == (
-        50,
-        10,
-    )
-    stacked = types.SimpleNamespace(max_count=np.array([3, 9]), max_sphere_count=np.array([15, 2]))
-    assert grown_candidate_capacities(old, stacked) == (11, 23)
+
+    def grown(count, sphere_count, cell_count):
+        counts = {"max_count": count, "max_sphere_count": sphere_count, "max_cell_count": cell_count}
+        return tuple(grown_candidate_capacities(old, types.SimpleNamespace(**counts)))
+
+    assert grown(9, 15, 1) == (11, 23, 5)
+    assert grown(3, 1, 7) == (6, 10, 9)
+    assert grown(70, 1, 1) == (50, 10, 5)
+    assert grown(np.array([3, 9]), np.array([15, 2]), np.array([8, 1])) == (11, 23, 10)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])
 def test_a_node_pushed_between_two_spheres_is_stopped_by_the_sphere_behind(dtype):
     """Spheres A, B 2.8 R apart on the surface and C behind them; a node pushed between A and B into C.
 
-    With every sphere a candidate (a random specimen's search), C pushes the node back out with
-    k_n δ, δ = R + t_m/2 − |x_node − x_C| (hand value); with A and B alone (a lateral-boundary subset)
-    nothing touches it and the node would pass.
+    The search finds C (every sphere is a candidate, not a fixed boundary subset), which pushes the node
+    back out with k_n δ, δ = R + t_m/2 − |x_node − x_C| (hand value); with A and B alone nothing touches
+    it and the node would pass.
     """
     radius, gap_half = 0.0125, 0.0175  # A, B at y = ±1.4 R: beyond a node's reach R + t_m/2 + skin
     behind = -0.0125  # C's centre, one radius inside the surface line x = 0
@@ -535,14 +576,14 @@ def test_a_node_pushed_between_two_spheres_is_stopped_by_the_sphere_behind(dtype
     expected = float(params.normal_stiffness) * (radius + 0.5 * THICKNESS - abs(behind))
 
     def force_with(subset):
-        candidates = build_candidates(node, spheres, radii, jnp.asarray(subset), THICKNESS, 0.001, capacity=2)
+        candidates = build_candidates(node, spheres[subset], radii[subset], THICKNESS, 0.001, capacity=2)
         return node_sphere_forces(
             ContactNodes(position=node, velocity=jnp.zeros_like(node)),
             ContactSpheres(
-                position=spheres,
-                velocity=jnp.zeros_like(spheres),
-                angular_velocity=jnp.zeros_like(spheres),
-                radius=radii,
+                position=spheres[subset],
+                velocity=jnp.zeros_like(spheres[subset]),
+                angular_velocity=jnp.zeros_like(spheres[subset]),
+                radius=radii[subset],
             ),
             candidates.idx,
             jnp.zeros((3, 1, 2), dtype),
@@ -551,5 +592,7 @@ def test_a_node_pushed_between_two_spheres_is_stopped_by_the_sphere_behind(dtype
             THICKNESS,
         ).node_force[0]
 
-    np.testing.assert_allclose(np.asarray(force_with([0, 1, 2])), [expected, 0.0, 0.0], rtol=tolerance(dtype))
-    np.testing.assert_array_equal(np.asarray(force_with([0, 1])), 0.0)
+    np.testing.assert_allclose(
+        np.asarray(force_with(jnp.asarray([0, 1, 2]))), [expected, 0.0, 0.0], rtol=tolerance(dtype)
+    )
+    np.testing.assert_array_equal(np.asarray(force_with(jnp.asarray([0, 1]))), 0.0)

@@ -40,18 +40,25 @@ a step near 5e-6 s or density scaling of the membrane. The penalty only has to k
 sphere size: a node pushed by 1 N (about 100 kPa over a 5 mm mesh cell) sinks δ = F/k_n = 10 µm.
 
 Candidates (jax-md's "Dense" format): :class:`NodeCandidates` holds, for each node, up to K sphere ids
-(n_nodes, K) within R_i + t_m/2 + skin, padded with N (the number of spheres). :func:`build_candidates`
-builds it inside ``jit`` by brute force over (nodes × a given subset of spheres, e.g. the lateral-boundary
-ones: the subset must not repeat ids); :func:`update_candidates` rebuilds when any node or subset sphere
-moved more than skin/2 since the last build (reference positions are kept), so no pair can come into
-contact unseen between rebuilds. A node with more than K candidates sets ``did_overflow`` (its first K in
-subset order are kept, the rest dropped): :func:`candidate_errors` turns it into
+(n_nodes, K) within R_i + t_m/2 + skin, in increasing id order, padded with N (the number of spheres).
+Every sphere may be a candidate: :func:`build_candidates` bins the spheres' centres into a cell list
+(:class:`CellGrid`, cubic cells of edge 2 R_max + skin ≥ R_i + t_m/2 + skin, so a node's candidates lie in
+its own cell or the 26 around it) inside ``jit``, and checks each node against the spheres of those 27 cells
+only: about 27 C distance checks per node (C spheres per cell) instead of N, so the cost grows with the
+nodes, not with nodes × spheres. The grid is fixed when the table is first built (the spheres' bounding box
+and one cell more); a node or sphere that leaves it is counted in the nearest boundary cell, which keeps
+every pair within reach in neighbouring cells (clipping a cell index never separates two indices that
+differ by at most one), so a specimen that bulges or shortens costs only fuller boundary cells.
+:func:`update_candidates` rebuilds when any node or sphere moved more than skin/2 since the last build
+(reference positions are kept), so no pair can come into contact unseen between rebuilds. A node with more
+than K candidates, a cell with more than C spheres or a sphere held by more than M slots sets
+``did_overflow`` (the table is then incomplete): :func:`candidate_errors` turns it into
 ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) for the state's error bitmask, so the
-host driver reallocates with a larger K (``max_count`` says how large) and reruns: contacts are never
-silently dropped. The springs, (3, n_nodes, K), follow their sphere ids per node through rebuilds
-(:func:`remap_node_history`, the per-row analogue of :func:`membrax.spheres.neighbors.remap_pair_history`).
-Cost: 17,000 nodes × 600 spheres (10.2 M distance checks) take about 90 ms per rebuild with K = 8 (150 ms
-with K = 16) on 2 CPU cores, XLA-CPU, float64.
+host driver reallocates with larger capacities (``max_count``, ``max_cell_count`` and
+``max_sphere_count`` say how large) and reruns: contacts are never silently dropped. The springs,
+(3, n_nodes, K), follow their sphere ids per node through rebuilds (:func:`remap_node_history`, the
+per-row analogue of :func:`membrax.spheres.neighbors.remap_pair_history`). Cost at paper size (17,220
+nodes, 1,816 spheres, K = 3, float32, 2 CPU cores): see ``benchmarks/bench_membrane.py``'s rebuild column.
 
 Layout: nodes and spheres are rows of (n, 3) arrays; per-slot quantities gather rows (``x[idx]``) and are
 then handled component-first (3, n_nodes, K) with :mod:`membrax.vector`; the carried springs stay in that
@@ -68,6 +75,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from membrax import native, pytree
 from membrax.errors import ErrorCode
@@ -77,6 +85,7 @@ from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
 __all__ = [
     "ERROR_MEMBRANE_CANDIDATE_OVERFLOW",
+    "CellGrid",
     "ContactNodes",
     "ContactSpheres",
     "MembraneContactParams",
@@ -84,6 +93,7 @@ __all__ = [
     "NodeSphereForces",
     "build_candidates",
     "candidate_errors",
+    "cell_grid",
     "needs_rebuild",
     "node_sphere_backward_kernel",
     "node_sphere_forces",
@@ -130,27 +140,87 @@ class MembraneContactParams:
         )
 
 
+class CellGrid(NamedTuple):
+    """The cell list's grid (static: part of the table's structure, fixed when the table is first built).
+
+    Attributes:
+      origin: (x, y, z) of the grid's lower corner, m.
+      edge: the cells' edge, m; at least the largest reach R_i + t_m/2 + skin.
+      dims: cells along x, y and z.
+      cell_capacity: C, sphere slots per cell.
+    """
+
+    origin: tuple[float, float, float]
+    edge: float
+    dims: tuple[int, int, int]
+    cell_capacity: int
+
+    @property
+    def num_cells(self) -> int:
+        """The number of cells."""
+        return self.dims[0] * self.dims[1] * self.dims[2]
+
+
+def cell_grid(sphere_position, sphere_radius, skin, cell_capacity: int | None = None) -> CellGrid:
+    """The grid of a candidate table for spheres at ``sphere_position`` (on the host, concrete arrays).
+
+    Edge 2 R_max + skin: the reach R_i + t_m/2 + skin of every sphere for any membrane no thicker than the
+    largest sphere's diameter (:func:`build_candidates` refuses a thicker one). The grid covers the
+    spheres' bounding box and one cell more on each side. C defaults to the fullest cell's count now plus
+    two (a sheared specimen's cells fill unevenly; an overflow grows C).
+
+    Args:
+      sphere_position: (N, 3), m.
+      sphere_radius: (N,), m.
+      skin: the table's skin, m.
+      cell_capacity: C (default: from the spheres now, above).
+    """
+    position = np.asarray(sphere_position, dtype=np.float64)
+    edge = 2.0 * float(np.max(np.asarray(sphere_radius))) + float(skin)
+    lower = position.min(axis=0) - edge
+    dims = tuple(int(n) for n in np.floor((position.max(axis=0) - lower) / edge).astype(int) + 2)
+    grid = CellGrid(tuple(float(x) for x in lower), edge, dims, 1)
+    if cell_capacity is None:
+        counts = np.bincount(np.asarray(_flat_cell(grid, position)), minlength=grid.num_cells)
+        cell_capacity = int(counts.max()) + 2
+    return grid._replace(cell_capacity=int(cell_capacity))
+
+
+def _cell_coordinates(grid: CellGrid, position):
+    """(n, 3) int32 cell coordinates of rows of ``position``, clipped into the grid (see the module doc)."""
+    origin = jnp.asarray(grid.origin, position.dtype)
+    edge = jnp.asarray(grid.edge, position.dtype)
+    coordinates = jnp.floor((position - origin[None, :]) / edge).astype(jnp.int32)
+    return jnp.clip(coordinates, 0, jnp.asarray(grid.dims, jnp.int32)[None, :] - 1)
+
+
+def _flat_cell(grid: CellGrid, position):
+    """(n,) int32 flat cell ids (x fastest)."""
+    c = _cell_coordinates(grid, jnp.asarray(position))
+    return c[:, 0] + grid.dims[0] * (c[:, 1] + grid.dims[1] * c[:, 2])
+
+
 @pytree.dataclass
 class NodeCandidates:
     """Dense node → sphere candidate table and the state that decides when to rebuild it.
 
     Attributes:
-      idx: (n_nodes, K) int32 sphere ids, padded with N (number of spheres); ids in a row are distinct.
-      sphere_subset: (S,) int32 the spheres that may touch the membrane (distinct ids).
+      idx: (n_nodes, K) int32 sphere ids, increasing along a row, padded with N (number of spheres).
       reference_node_position: (n_nodes, 3) node positions at the last build, m.
-      reference_sphere_position: (S, 3) subset sphere positions at the last build, m.
+      reference_sphere_position: (N, 3) sphere positions at the last build, m.
       skin: the extra distance, m (scalar); rebuild when anything moved more than skin/2.
-      did_overflow: bool, sticky: some node had more than K candidates, or some subset sphere more than
-        M slots, at a build.
+      did_overflow: bool, sticky: some node had more than K candidates, some cell more than C spheres, or
+        some sphere more than M slots, at a build.
       max_count: int32, the largest number of candidates of one node at the last build.
-      sphere_slots: (S, M) int32, for each subset sphere the flat ids (into ``idx.reshape(-1)``) of the
-        slots that hold it, padded with n_nodes·K: the incidence the sphere forces are summed over
+      sphere_slots: (N, M) int32, for each sphere the flat ids (into ``idx.reshape(-1)``) of the slots that
+        hold it, padded with n_nodes·K: the incidence the sphere forces are summed over
         (:func:`sphere_slot_table`).
-      max_sphere_count: int32, the largest number of slots of one subset sphere at the last build.
+      max_sphere_count: int32, the largest number of slots of one sphere at the last build.
+      max_cell_count: int32, the largest number of spheres in one cell at the last build.
+      grid: the cell list's :class:`CellGrid` (static).
     """
 
     idx: jnp.ndarray
-    sphere_subset: jnp.ndarray
     reference_node_position: jnp.ndarray
     reference_sphere_position: jnp.ndarray
     skin: jnp.ndarray
@@ -158,6 +228,8 @@ class NodeCandidates:
     max_count: jnp.ndarray
     sphere_slots: jnp.ndarray
     max_sphere_count: jnp.ndarray
+    max_cell_count: jnp.ndarray
+    grid: CellGrid = pytree.static_field()
 
     @property
     def capacity(self) -> int:
@@ -166,8 +238,13 @@ class NodeCandidates:
 
     @property
     def sphere_capacity(self) -> int:
-        """M, slots per subset sphere."""
+        """M, slots per sphere."""
         return self.sphere_slots.shape[-1]
+
+    @property
+    def cell_capacity(self) -> int:
+        """C, spheres per cell."""
+        return self.grid.cell_capacity
 
 
 @pytree.dataclass
@@ -283,7 +360,6 @@ def node_sphere_forces(
     params: MembraneContactParams,
     membrane_thickness,
     sphere_slots=None,
-    sphere_subset=None,
 ) -> NodeSphereForces:
     """Node–sphere contact forces, torques and springs for one step (law in the module docstring).
 
@@ -305,17 +381,16 @@ def node_sphere_forces(
       dt: time step, s.
       params: :class:`MembraneContactParams`.
       membrane_thickness: t_m, m.
-      sphere_slots: optional (S, M) slot incidence of the subset spheres (``NodeCandidates.sphere_slots``):
-        the sphere forces and torques are then sums of gathered slot rows, which XLA-CPU runs several
-        times faster than the ``segment_sum`` scatter used without it (same result to round-off).
-      sphere_subset: (S,) the subset's sphere ids, with ``sphere_slots``.
+      sphere_slots: optional (N, M) slot incidence of the spheres (``NodeCandidates.sphere_slots``): the
+        sphere forces and torques are then sums of gathered slot rows, which XLA-CPU runs several times
+        faster than the ``segment_sum`` scatter used without it (same result to round-off).
 
     Returns:
       A :class:`NodeSphereForces`.
     """
     args = (nodes, spheres, candidates, spring, dt, params, membrane_thickness)
     if not native.enabled_for(jnp.asarray(nodes.position).dtype):
-        return _reference_node_sphere_forces(*args, sphere_slots=sphere_slots, sphere_subset=sphere_subset)
+        return _reference_node_sphere_forces(*args, sphere_slots=sphere_slots)
     outputs = _compiled_node_sphere_forces(*args)  # node force, sphere force, sphere torque, springs
     # The per-slot fields from the geometry and the new springs; XLA drops those a caller does not use.
     branch, reach, valid, _ = _slot_geometry(
@@ -423,7 +498,7 @@ _compiled_node_sphere_forces = native.with_reference(
 
 
 def _reference_node_sphere_forces(
-    nodes, spheres, candidates, spring, dt, params, membrane_thickness, sphere_slots=None, sphere_subset=None
+    nodes, spheres, candidates, spring, dt, params, membrane_thickness, sphere_slots=None
 ) -> NodeSphereForces:
     """:func:`node_sphere_forces` in JAX: the definition of the law, and its derivatives."""
     num_spheres = spheres.position.shape[0]
@@ -476,8 +551,7 @@ def _reference_node_sphere_forces(
         # Force and torque side by side, one padding row for the empty incidence entries.
         per_slot = jnp.concatenate([to_rows(-force_on_node), to_rows(torque_on_sphere)], axis=-1)
         per_slot = jnp.concatenate([per_slot.reshape(-1, 6), jnp.zeros((1, 6), per_slot.dtype)])
-        summed = jnp.sum(per_slot[sphere_slots], axis=1)  # (S, 6)
-        on_spheres = jnp.zeros((num_spheres, 6), summed.dtype).at[sphere_subset].set(summed)
+        on_spheres = jnp.sum(per_slot[sphere_slots], axis=1)  # (N, 6)
         sphere_force, sphere_torque = on_spheres[:, :3], on_spheres[:, 3:]
 
     # K adds rather than a sum over the short slot axis, which XLA-CPU reduces several times slower.
@@ -494,63 +568,85 @@ def _reference_node_sphere_forces(
     )
 
 
-def _select_candidates(
-    node_position, sphere_position, sphere_radius, sphere_subset, membrane_thickness, skin, capacity: int
-):
-    """Brute force over (nodes × subset): per node the first K subset spheres within R + t_m/2 + skin."""
-    num_spheres = sphere_position.shape[0]
-    subset_position = sphere_position[sphere_subset]  # (S, 3)
-    reach = sphere_radius[sphere_subset] + 0.5 * membrane_thickness + skin  # (S,)
-    squared = jnp.zeros((node_position.shape[0], sphere_subset.shape[0]), dtype=node_position.dtype)
-    for axis in range(3):  # written out: no reduction over a size-3 axis
-        difference = node_position[:, axis][:, None] - subset_position[:, axis][None, :]
-        squared = squared + difference * difference
-    within = squared < (reach * reach)[None, :]
-    count = jnp.sum(within, axis=1, dtype=jnp.int32)
-    # K passes of "smallest column after the previous one": 8× faster than lax.top_k on XLA-CPU here.
-    num_subset = sphere_subset.shape[0]
-    column = jnp.arange(num_subset, dtype=jnp.int32)
+# The 27 cells around a cell (itself included), as offsets.
+_NEIGHBOUR_CELLS = np.stack(np.meshgrid(*([np.arange(-1, 2)] * 3), indexing="ij"), axis=-1).reshape(-1, 3)
 
-    def next_column(previous, _):
-        later = within & (column[None, :] > previous[:, None])
-        found = jnp.min(jnp.where(later, column[None, :], num_subset), axis=1)
+
+def _cell_table(grid: CellGrid, sphere_position):
+    """The spheres of each cell, and the largest count.
+
+    Returns (num_cells + 1, C) int32 ids padded with N, the last row an empty cell that neighbours outside
+    the grid point to.
+    """
+    num_spheres = sphere_position.shape[0]
+    cell = _flat_cell(grid, sphere_position)
+    order = jnp.argsort(cell, stable=True).astype(jnp.int32)
+    sorted_cell = cell[order]
+    cells = jnp.arange(grid.num_cells, dtype=jnp.int32)
+    start = jnp.searchsorted(sorted_cell, cells, side="left").astype(jnp.int32)
+    count = jnp.searchsorted(sorted_cell, cells, side="right").astype(jnp.int32) - start
+    column = jnp.arange(grid.cell_capacity, dtype=jnp.int32)
+    take = jnp.minimum(start[:, None] + column[None, :], num_spheres - 1)
+    table = jnp.where(column[None, :] < count[:, None], order[take], num_spheres)
+    table = jnp.concatenate([table, jnp.full((1, grid.cell_capacity), num_spheres, jnp.int32)])
+    return table.astype(jnp.int32), jnp.max(count, initial=0)
+
+
+def _select_candidates(
+    node_position, sphere_position, sphere_radius, grid: CellGrid, membrane_thickness, skin, capacity: int
+):
+    """Per node the K smallest sphere ids within R + t_m/2 + skin, from the 27 cells around it.
+
+    Returns (idx, max_count, max_cell_count).
+    """
+    num_spheres = sphere_position.shape[0]
+    table, max_cell_count = _cell_table(grid, sphere_position)
+    dims = jnp.asarray(grid.dims, jnp.int32)
+    offsets = jnp.asarray(_NEIGHBOUR_CELLS, jnp.int32)[None, :, :]
+    around = _cell_coordinates(grid, node_position)[:, None, :] + offsets  # (n, 27, 3)
+    inside = jnp.all((around >= 0) & (around < dims[None, None, :]), axis=-1)
+    flat = around[..., 0] + grid.dims[0] * (around[..., 1] + grid.dims[1] * around[..., 2])
+    ids = table[jnp.where(inside, flat, grid.num_cells)].reshape(node_position.shape[0], -1)  # (n, 27 C)
+    valid = ids < num_spheres
+    safe = jnp.where(valid, ids, 0)
+    reach = sphere_radius[safe] + 0.5 * membrane_thickness + skin
+    squared = jnp.zeros(ids.shape, dtype=node_position.dtype)
+    for axis in range(3):  # written out: no reduction over a size-3 axis
+        difference = node_position[:, axis][:, None] - sphere_position[:, axis][safe]
+        squared = squared + difference * difference
+    within = valid & (squared < reach * reach)
+    count = jnp.sum(within, axis=1, dtype=jnp.int32)
+
+    # K passes of "smallest id above the previous": the row in increasing id order (8× faster than
+    # lax.top_k on XLA-CPU for a brute-force table; the same order as a search over spheres in id order).
+    def next_id(previous, _):
+        found = jnp.min(jnp.where(within & (ids > previous[:, None]), ids, num_spheres), axis=1)
         return found, found
 
     start = jnp.full((node_position.shape[0],), -1, dtype=jnp.int32)
-    _, found = jax.lax.scan(next_column, start, None, length=capacity)  # (K, n_nodes)
-    found = found.T
-    subset_id = sphere_subset[jnp.minimum(found, num_subset - 1)]
-    idx = jnp.where(found < num_subset, subset_id, num_spheres).astype(jnp.int32)
-    max_count = jnp.max(count, initial=0)
-    return idx, max_count
+    _, found = jax.lax.scan(next_id, start, None, length=capacity)  # (K, n_nodes)
+    return found.T.astype(jnp.int32), jnp.max(count, initial=0), max_cell_count
 
 
-def sphere_slot_table(idx, sphere_subset, num_spheres: int, sphere_capacity: int):
-    """Incidence of a candidate table seen from the spheres: which slots hold each subset sphere.
+def sphere_slot_table(idx, num_spheres: int, sphere_capacity: int):
+    """Incidence of a candidate table seen from the spheres: which slots hold each sphere.
 
-    Sorts the flat slots by the subset position of their sphere (padding last); sphere s owns the run
-    [start_s, start_s + count_s) of the sorted order, found by binary search.
+    Sorts the flat slots by their sphere id (padding last); sphere i owns the run [start_i, start_i +
+    count_i) of the sorted order, found by binary search.
 
     Args:
       idx: (n_nodes, K) int sphere ids padded with ``num_spheres``.
-      sphere_subset: (S,) int distinct sphere ids (every id in ``idx`` is one of them).
       num_spheres: N.
       sphere_capacity: M, slots kept per sphere (static).
 
     Returns:
-      (slots, max_count): (S, M) int32 flat slot ids padded with n_nodes·K, and the largest count.
+      (slots, max_count): (N, M) int32 flat slot ids padded with n_nodes·K, and the largest count.
     """
     num_slots = idx.size
-    num_subset = sphere_subset.shape[0]
-    position_in_subset = (
-        jnp.full(num_spheres + 1, num_subset, jnp.int32)
-        .at[sphere_subset]
-        .set(jnp.arange(num_subset, dtype=jnp.int32))
-    )
-    owner = position_in_subset[idx.reshape(-1)]
+    owner = idx.reshape(-1)
     order = jnp.argsort(owner, stable=True).astype(jnp.int32)
     sorted_owner = owner[order]
-    rows = jnp.arange(num_subset, dtype=jnp.int32)
+    rows = jnp.arange(num_spheres, dtype=owner.dtype)
     start = jnp.searchsorted(sorted_owner, rows, side="left").astype(jnp.int32)
     count = jnp.searchsorted(sorted_owner, rows, side="right").astype(jnp.int32) - start
     column = jnp.arange(sphere_capacity, dtype=jnp.int32)
@@ -559,53 +655,75 @@ def sphere_slot_table(idx, sphere_subset, num_spheres: int, sphere_capacity: int
     return slots.astype(jnp.int32), jnp.max(count, initial=0)
 
 
+def _build(
+    node_position, sphere_position, sphere_radius, grid, membrane_thickness, skin, capacity, sphere_capacity
+):
+    """A fresh table's fields (everything but the sticky overflow flag, which the callers combine)."""
+    idx, max_count, max_cell_count = _select_candidates(
+        node_position, sphere_position, sphere_radius, grid, membrane_thickness, skin, capacity
+    )
+    slots, max_sphere_count = sphere_slot_table(idx, sphere_position.shape[0], sphere_capacity)
+    overflow = (
+        (max_count > capacity) | (max_sphere_count > sphere_capacity) | (max_cell_count > grid.cell_capacity)
+    )
+    return NodeCandidates(
+        idx=idx,
+        reference_node_position=node_position,
+        reference_sphere_position=sphere_position,
+        skin=skin,
+        did_overflow=overflow,
+        max_count=max_count,
+        sphere_slots=slots,
+        max_sphere_count=max_sphere_count,
+        max_cell_count=max_cell_count,
+        grid=grid,
+    )
+
+
 def build_candidates(
     node_position,
     sphere_position,
     sphere_radius,
-    sphere_subset,
     membrane_thickness,
     skin,
     capacity: int,
     sphere_capacity: int = 64,
+    grid: CellGrid | None = None,
 ) -> NodeCandidates:
-    """Build the dense candidate table (jittable with ``capacity`` and ``sphere_capacity`` static).
+    """Build the dense candidate table (jittable with the capacities and ``grid`` static).
 
     Args:
       node_position: (n_nodes, 3), m.
       sphere_position: (N, 3), m.
       sphere_radius: (N,), m.
-      sphere_subset: (S,) int distinct ids of the spheres that may touch the membrane (e.g. ``arange(N)``
-        or the lateral-boundary spheres).
-      membrane_thickness: t_m, m.
+      membrane_thickness: t_m, m (the contact's thickness); at most the largest sphere's diameter.
       skin: extra distance, m: sphere i is a candidate of a node when |x_node − x_i| < R_i + t_m/2 + skin.
-      capacity: K, candidates per node (static). Must not exceed S.
-      sphere_capacity: M, slots per subset sphere in the incidence table (static). A 25 mm sphere
-        behind a mesh of 5 mm edges with a 5 mm skin holds about 25–50 slots.
+      capacity: K, candidates per node (static). Must not exceed N.
+      sphere_capacity: M, slots per sphere in the incidence table (static). A 25 mm sphere behind a mesh of
+        5 mm edges with a 5 mm skin holds about 25–50 slots.
+      grid: the cell list's grid (default :func:`cell_grid` of the spheres and ``skin``: concrete
+        positions and skin are then needed, i.e. not under ``jit``).
 
     Returns:
-      A :class:`NodeCandidates`; ``did_overflow`` is set if some node had more than K candidates or some
-      sphere more than M slots.
+      A :class:`NodeCandidates`; ``did_overflow`` is set if some node had more than K candidates, some
+      cell more than C spheres or some sphere more than M slots.
     """
-    sphere_subset = jnp.asarray(sphere_subset, dtype=jnp.int32)
-    if capacity > sphere_subset.shape[0]:
-        raise ValueError(f"capacity {capacity} exceeds the {sphere_subset.shape[0]} spheres of the subset.")
+    num_spheres = sphere_position.shape[0]
+    if capacity > num_spheres:
+        raise ValueError(f"capacity {capacity} exceeds the {num_spheres} spheres.")
+    if grid is None:
+        grid = cell_grid(sphere_position, sphere_radius, skin)
+    if not any(isinstance(x, jax.core.Tracer) for x in (membrane_thickness, sphere_radius)):
+        largest = float(np.max(np.asarray(sphere_radius)))
+        if float(np.max(np.asarray(membrane_thickness))) > 2.0 * largest:
+            raise ValueError(
+                f"membrane_thickness {float(np.max(np.asarray(membrane_thickness))):.4g} m exceeds the "
+                f"largest sphere's diameter {2.0 * largest:.4g} m: the cell list's reach assumes a membrane "
+                "thinner than the particles."
+            )
     skin = jnp.asarray(skin, dtype=node_position.dtype)
-    idx, max_count = _select_candidates(
-        node_position, sphere_position, sphere_radius, sphere_subset, membrane_thickness, skin, capacity
-    )
-    slots, max_sphere_count = sphere_slot_table(idx, sphere_subset, sphere_position.shape[0], sphere_capacity)
-    return NodeCandidates(
-        idx=idx,
-        sphere_subset=sphere_subset,
-        reference_node_position=node_position,
-        reference_sphere_position=sphere_position[sphere_subset],
-        skin=skin,
-        did_overflow=(max_count > capacity) | (max_sphere_count > sphere_capacity),
-        max_count=max_count,
-        sphere_slots=slots,
-        max_sphere_count=max_sphere_count,
-    )
+    arrays = (node_position, sphere_position, sphere_radius)
+    return _build(*arrays, grid, membrane_thickness, skin, capacity, sphere_capacity)
 
 
 def _max_displacement(position, reference):
@@ -615,12 +733,10 @@ def _max_displacement(position, reference):
 
 
 def needs_rebuild(candidates: NodeCandidates, node_position, sphere_position):
-    """True when a node or a subset sphere moved more than skin/2 since the last build."""
+    """True when a node or a sphere moved more than skin/2 since the last build."""
     half_skin = 0.5 * candidates.skin
     node_moved = _max_displacement(node_position, candidates.reference_node_position)
-    sphere_moved = _max_displacement(
-        sphere_position[candidates.sphere_subset], candidates.reference_sphere_position
-    )
+    sphere_moved = _max_displacement(sphere_position, candidates.reference_sphere_position)
     return (node_moved > half_skin) | (sphere_moved > half_skin)
 
 
@@ -705,31 +821,18 @@ def update_candidates(
     num_spheres = sphere_position.shape[0]
 
     def rebuild(_):
-        idx, max_count = _select_candidates(
+        new = _build(
             node_position,
             sphere_position,
             sphere_radius,
-            candidates.sphere_subset,
+            candidates.grid,
             membrane_thickness,
             candidates.skin,
             candidates.capacity,
+            candidates.sphere_capacity,
         )
-        slots, max_sphere_count = sphere_slot_table(
-            idx, candidates.sphere_subset, num_spheres, candidates.sphere_capacity
-        )
-        overflow = (max_count > candidates.capacity) | (max_sphere_count > candidates.sphere_capacity)
-        new = NodeCandidates(
-            idx=idx,
-            sphere_subset=candidates.sphere_subset,
-            reference_node_position=node_position,
-            reference_sphere_position=sphere_position[candidates.sphere_subset],
-            skin=candidates.skin,
-            did_overflow=candidates.did_overflow | overflow,
-            max_count=max_count,
-            sphere_slots=slots,
-            max_sphere_count=max_sphere_count,
-        )
-        return new, remap_node_history(candidates.idx, idx, spring, num_spheres, components_first=True)
+        new = new.set(did_overflow=candidates.did_overflow | new.did_overflow)
+        return new, remap_node_history(candidates.idx, new.idx, spring, num_spheres, components_first=True)
 
     def keep(_):
         return candidates, spring

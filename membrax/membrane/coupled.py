@@ -4,9 +4,9 @@ Contract. ``membrane_dem(particles, neighbor_frame, mesh, dt)`` returns ``(init_
 jax-md style, composed from :func:`membrax.spheres.integrate.sphere_dem` and the membrane modules:
 
 - ``init_fn(dem_state, params, capacity=3, skin=..., sphere_capacity=64) -> CoupledState`` (host side:
-  builds the node–sphere candidate table, K per node and M per sphere, both grown by the chunk driver
-  on overflow; the membrane starts at rest at ``mesh.reference_position``, its rings clamped to the
-  platens where they stand in ``dem_state``);
+  builds the node–sphere candidate table over every sphere, through a cell list: K per node, M per
+  sphere and C spheres per cell, all grown by the chunk driver on overflow; the membrane starts at rest
+  at ``mesh.reference_position``, its rings clamped to the platens where they stand in ``dem_state``);
 - ``step_fn(state, params) -> CoupledState`` advances one step under ``jit``; ``params``
   (:class:`CoupledParams`: the DEM's and the membrane's parameters) is traced, so it can be differentiated
   and changed without recompiling.
@@ -55,6 +55,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -96,6 +97,8 @@ from membrax.validation import check_range
 __all__ = [
     "LATEX_DENSITY",
     "advance_nodes",
+    "CandidateCapacities",
+    "candidate_capacities",
     "CoupledParams",
     "contact_forces",
     "CoupledState",
@@ -624,7 +627,6 @@ def contact_forces(state: CoupledState, particles: Particles, params: CoupledPar
         params.membrane.contact,
         params.membrane.contact_thickness,
         sphere_slots=nodes.candidates.sphere_slots,
-        sphere_subset=nodes.candidates.sphere_subset,
     )
 
 
@@ -634,7 +636,6 @@ def membrane_dem(
     mesh: MembraneMesh,
     dt: float,
     platen_area,
-    sphere_subset=None,
     latex_density: float = LATEX_DENSITY,
     stretching_model: str = "neo_hookean",
     wall_friction: bool = False,
@@ -647,7 +648,6 @@ def membrane_dem(
       mesh: the membrane (:func:`membrax.membrane.mesh.prism_mesh` around the specimen at t_m/2).
       dt: time step, s (the smaller of the DEM's and :func:`membrane_critical_time_step`'s, with a safety).
       platen_area: the platen area for the servo, m².
-      sphere_subset: ids of the spheres that may touch the membrane (default: all).
       latex_density: ρ of the membrane, kg/m³, for the lumped node masses.
       stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.mesh.stretching_energy`).
       wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
@@ -658,13 +658,9 @@ def membrane_dem(
         )
     check_range("latex_density", latex_density, lower=0.0, lower_open=True, hint="kg/m³; latex ≈ 1000.")
     check_range("dt", dt, lower=0.0, lower_open=True, hint="seconds; see membrane_critical_time_step.")
-    num_spheres = particles.num_particles
     _, dem_step = sphere_dem(
         particles, neighbor_frame, dt, platen_area=platen_area, wall_friction=wall_friction
     )
-    if sphere_subset is None:
-        sphere_subset = np.arange(num_spheres)
-    sphere_subset = jnp.asarray(sphere_subset, dtype=jnp.int32)
     # Mass per unit thickness: lumped_mass is linear in t_m, which stays a traced parameter.
     mass_per_thickness = energies.lumped_mass(mesh, 1.0, latex_density)
     free = jnp.asarray(free_node_mask(mesh))
@@ -681,14 +677,7 @@ def membrane_dem(
         if skin is None:
             skin = 0.2 * 2.0 * float(jnp.max(particles.radius))
         candidates = build_candidates(
-            position,
-            dem_state.position,
-            particles.radius,
-            sphere_subset,
-            thickness,
-            skin,
-            capacity,
-            sphere_capacity,
+            position, dem_state.position, particles.radius, thickness, skin, capacity, sphere_capacity
         )
         zeros = jnp.zeros_like(position)
         return CoupledState(
@@ -810,46 +799,65 @@ def membrane_dem(
     return init_fn, step_fn
 
 
-def grown_candidate_capacities(old, overflowed) -> tuple[int, int]:
-    """(K, M) after a candidate-table overflow, slots per node and per subset sphere (grow_candidates).
+class CandidateCapacities(NamedTuple):
+    """The static sizes of a node candidate table (:class:`~membrax.membrane.contact.NodeCandidates`).
 
-    K = max(the overflowing chunk's largest count + 2, 1.5 × the old K), at most the subset's size; M =
-    max(its largest per-sphere count + 8, the old M). ``old`` and ``overflowed`` are candidate tables (of
-    one state, or stacked: the largest over the members).
+    Attributes:
+      capacity: K, candidates per node.
+      sphere_capacity: M, slots per sphere.
+      cell_capacity: C, spheres per cell of the cell list.
     """
-    subset = int(np.shape(old.sphere_subset)[-1])
-    capacity = max(int(np.max(np.asarray(overflowed.max_count))) + 2, math.ceil(1.5 * np.shape(old.idx)[-1]))
-    sphere_capacity = max(
-        int(np.max(np.asarray(overflowed.max_sphere_count))) + 8, int(np.shape(old.sphere_slots)[-1])
-    )
-    return min(capacity, subset), sphere_capacity
+
+    capacity: int
+    sphere_capacity: int
+    cell_capacity: int
 
 
-def grow_candidates(
-    state: CoupledState, particles: Particles, capacity: int, thickness, sphere_capacity: int | None = None
-) -> CoupledState:
-    """A copy of ``state`` with a node candidate table of ``capacity`` slots, springs carried by sphere id.
+def candidate_capacities(candidates) -> CandidateCapacities:
+    """(K, M, C) of a candidate table (of one state, or stacked)."""
+    capacity, sphere_capacity = np.shape(candidates.idx)[-1], np.shape(candidates.sphere_slots)[-1]
+    return CandidateCapacities(int(capacity), int(sphere_capacity), candidates.cell_capacity)
+
+
+def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
+    """(K, M, C) after a candidate-table overflow: slots per node, per sphere and spheres per cell.
+
+    K = max(the overflowing chunk's largest count + 2, 1.5 × the old K), at most the number of spheres;
+    M = max(its largest per-sphere count + 8, the old M); C = max(its fullest cell + 2, the old C).
+    ``old`` and ``overflowed`` are candidate tables (of one state, or stacked: the largest over the
+    members).
+    """
+    num_spheres = int(np.shape(old.reference_sphere_position)[-2])
+    current = candidate_capacities(old)
+    capacity = max(int(np.max(np.asarray(overflowed.max_count))) + 2, math.ceil(1.5 * current.capacity))
+    sphere_capacity = max(int(np.max(np.asarray(overflowed.max_sphere_count))) + 8, current.sphere_capacity)
+    cell_capacity = max(int(np.max(np.asarray(overflowed.max_cell_count))) + 2, current.cell_capacity)
+    return CandidateCapacities(min(capacity, num_spheres), sphere_capacity, cell_capacity)
+
+
+def grow_candidates(state: CoupledState, particles: Particles, capacities, thickness) -> CoupledState:
+    """A copy of ``state`` with a node candidate table of the given capacities, springs carried by sphere id.
 
     Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``.
 
     Args:
-      state: the state to change (its table is rebuilt at its positions).
+      state: the state to change (its table is rebuilt at its positions, on the same grid).
       particles: sphere properties.
-      capacity: the new K (e.g. the overflowing chunk's ``max_count`` plus a margin).
+      capacities: the new :class:`CandidateCapacities` (e.g. :func:`grown_candidate_capacities`).
       thickness: the contact's thickness f t_m (:attr:`MembraneParams.contact_thickness`), m.
-      sphere_capacity: the new M, slots per subset sphere (default: unchanged).
     """
     nodes = state.membrane
     old = nodes.candidates
+    capacities = CandidateCapacities(*capacities)
     new = build_candidates(
         nodes.position,
         state.dem.position,
         particles.radius,
-        old.sphere_subset,
         thickness,
         old.skin,
-        capacity,
-        old.sphere_capacity if sphere_capacity is None else sphere_capacity,
+        capacities.capacity,
+        capacities.sphere_capacity,
+        grid=old.grid._replace(cell_capacity=capacities.cell_capacity),
     )
     spring = remap_node_history(
         old.idx, new.idx, nodes.spring, particles.num_particles, components_first=True

@@ -22,8 +22,8 @@ with a leading time axis):
 
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
 :func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
-touches only the specimen's lateral-boundary spheres (the candidate subset), which holds for FCC
-specimens, whose outer spheres stay outermost. Units: the builder takes laboratory units (kPa, mm),
+may touch any sphere (the candidate search runs over all of them through a cell list,
+:func:`membrax.membrane.contact.build_candidates`). Units: the builder takes laboratory units (kPa, mm),
 named in the arguments; everything inside is SI.
 """
 
@@ -333,12 +333,9 @@ def membrane_test(
         max_wall_speed = 0.01 * diameter / (1000 * dt)
     walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
     platen_area = float(specimen.cross_section_area)
-    subset = np.flatnonzero(np.asarray(specimen.is_lateral_boundary))
 
     def make_step(member_mesh):
-        return membrane_dem(
-            particles, frame, member_mesh, dt, platen_area, sphere_subset=subset, latex_density=latex_density
-        )[1]
+        return membrane_dem(particles, frame, member_mesh, dt, platen_area, latex_density=latex_density)[1]
 
     def make_record(member_mesh, member_volume):
         def record(s, p):
@@ -346,9 +343,7 @@ def membrane_test(
 
         return record
 
-    init_fn, step_fn = membrane_dem(
-        particles, frame, mesh, dt, platen_area, sphere_subset=subset, latex_density=latex_density
-    )
+    init_fn, step_fn = membrane_dem(particles, frame, mesh, dt, platen_area, latex_density=latex_density)
     state = init_fn(
         dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
     )
@@ -358,10 +353,8 @@ def membrane_test(
     record = make_record(mesh, volume)
 
     def grow(s, overflowed_state):
-        capacity, sphere_capacity = grown_candidate_capacities(
-            s.membrane.candidates, overflowed_state.membrane.candidates
-        )
-        return grow_candidates(s, particles, capacity, contact_thickness, sphere_capacity)
+        capacities = grown_candidate_capacities(s.membrane.candidates, overflowed_state.membrane.candidates)
+        return grow_candidates(s, particles, capacities, contact_thickness)
 
     runner = ChunkRunner(
         step_fn,
