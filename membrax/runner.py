@@ -33,8 +33,10 @@ would take alone with the same Δt and mesh (tests/test_sweep.py checks batched 
 from __future__ import annotations
 
 import dataclasses as pydataclasses
+import hashlib
 import itertools
 import math
+import os
 import platform
 import time
 import types
@@ -45,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax import __version__, theory
+from membrax import __version__, native, theory
 from membrax.batch import stack
 from membrax.config import TriaxialConfig, config_to_dict
 from membrax.defaults import COMPACTION_STRESS, default_consolidation_tolerance
@@ -61,7 +63,11 @@ from membrax.membrane.coupled import (
 )
 from membrax.membrane.measure import right_cylinder_stresses
 from membrax.membrane.mesh import rounded_offset_path
-from membrax.spheres.compaction import random_packing
+from membrax.spheres import compaction as compaction_module
+from membrax.spheres import contact as sphere_contact_module
+from membrax.spheres import integrate as sphere_integrate_module
+from membrax.spheres import random_packing as random_packing_module
+from membrax.spheres.compaction import Compaction, random_packing
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.neighbors import remap_pair_history
@@ -177,8 +183,9 @@ def build_test(
 def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
     """The configuration's specimen: the FCC lattice, or a random packing compacted in its mould.
 
-    A random packing is compacted once per process for a given set of the fields that make it (a sweep's
-    members share it), to :data:`membrax.defaults.COMPACTION_STRESS`.
+    A random packing is compacted once for a given set of the fields that make it (a sweep's members share
+    it), to :data:`membrax.defaults.COMPACTION_STRESS`, and kept in this process and on disk
+    (:func:`_compaction_cache_path`): a later run of the same specimen loads it instead of compacting again.
     """
     if config.packing == "fcc":
         specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
@@ -201,6 +208,13 @@ def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
     )
     if key not in _RANDOM_SPECIMENS:
         grading = config.particle_grading
+        cached = _compaction_cache_path(key)
+        if cached.exists():
+            try:
+                _RANDOM_SPECIMENS[key] = Compaction.load(cached).specimen(grading)
+                return _RANDOM_SPECIMENS[key]
+            except (OSError, ValueError, KeyError, TypeError):  # a partial or older file: compact afresh
+                pass
         compaction = random_packing(
             grading,
             config.specimen_diameter,
@@ -215,11 +229,27 @@ def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
             density=config.particle_density_kg_m3,
         )
         _RANDOM_SPECIMENS[key] = compaction.specimen(grading)
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        partial = cached.with_suffix(f".{os.getpid()}.npz")
+        compaction.save(partial)
+        os.replace(partial, cached)  # atomic: a concurrent reader sees the whole file or none
     return _RANDOM_SPECIMENS[key]
 
 
 #: Random specimens compacted in this process, by the fields that make them (:func:`build_specimen`).
 _RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
+
+
+def _compaction_cache_path(key: tuple) -> Path:
+    """Where a compacted packing of ``key`` is kept between processes.
+
+    ``specimens/`` in the cache folder (``$MEMBRAX_CACHE_DIR`` or ``~/.cache/membrax``), named by a hash of
+    the key, the compaction stress and the sources of the compaction (changed code makes a new packing).
+    """
+    digest = hashlib.sha256(repr((key, COMPACTION_STRESS)).encode())
+    for module in (compaction_module, random_packing_module, sphere_contact_module, sphere_integrate_module):
+        digest.update(Path(module.__file__).read_bytes())
+    return native.cache_dir() / "specimens" / f"compaction_{digest.hexdigest()[:20]}.npz"
 
 
 def loading(config: TriaxialConfig) -> Loading:
@@ -341,7 +371,12 @@ def _shared_neighbors(frame, positions: Sequence, capacity: int = 0, cell_capaci
         allocated = [frame.allocate(p) for p in positions]
         occupancy = max([capacity] + [int(nl.max_occupancy) for nl in allocated])
         cells = max([cell_capacity] + [int(nl.cell_list_capacity or 0) for nl in allocated])
-        template = allocated[0].set(max_occupancy=occupancy, cell_list_capacity=cells or None)
+        template = allocated[0]
+        # The template's pair table must have the capacity it claims: update's rebuild and its no-rebuild
+        # branch return tables of those two sizes, which lax.cond needs equal.
+        padding = occupancy - template.idx.shape[-1]
+        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=positions[0].shape[0])
+        template = template.set(idx=idx, max_occupancy=occupancy, cell_list_capacity=cells or None)
         away = jnp.full_like(template.reference_position, 1e6)
         lists = [frame.update(p, template.set(reference_position=away)) for p in positions]
         if not any(bool(nl.did_buffer_overflow) for nl in lists):

@@ -325,6 +325,30 @@ def test_too_small_capacity_is_reallocated_and_gives_the_same_result():
     np.testing.assert_allclose(records_small.wall_axial_stress, records_ref.wall_axial_stress, rtol=1e-6)
 
 
+def test_shared_lists_with_a_larger_capacity_hold_the_brute_force_pairs():
+    """A batch's reallocation (runner._shared_neighbors) asks for more capacity than a fresh allocation
+    has: each member's list then has exactly that capacity, and its real pairs are the pairs within the
+    cutoff + skin found by brute force."""
+    from membrax.runner import _shared_neighbors
+
+    specimen = packing.fcc_specimen(D, 4, 5)
+    frame = triaxial.rigid_wall_test(specimen, 40e3).runner.neighbor_frame
+    position = np.asarray(specimen.position)
+    moved = position + np.random.default_rng(0).normal(0.0, 0.02 * D, position.shape)
+    allocated = frame.allocate(jnp.asarray(position))
+    capacity = 3 * int(allocated.max_occupancy)
+    lists = _shared_neighbors(frame, [position, moved], capacity=capacity)
+    n = position.shape[0]
+    for nl, x in zip(lists, (position, moved), strict=True):
+        assert nl.idx.shape[1] == capacity and not bool(nl.did_buffer_overflow)
+        pairs = {tuple(sorted(pair)) for pair in np.asarray(nl.idx).T if pair[0] < n and pair[1] < n}
+        distance = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=-1)
+        within = {
+            (i, j) for i, j in zip(*np.nonzero(distance < frame.cutoff + frame.skin), strict=True) if i < j
+        }
+        assert pairs == within
+
+
 def test_compensated_summation_keeps_subresolution_motion_in_float32():
     # 1e-9 m per step at 0.075 m is below float32 resolution (ulp 7.5e-9): a plain sum never moves.
     value = jnp.full((1,), 0.075, jnp.float32)

@@ -45,6 +45,7 @@ frictionless core coordination then measured (5.4–5.6) is below the isostatic 
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import time
 from collections.abc import Callable
@@ -124,6 +125,23 @@ class Compaction:
     converged: bool
     measures: dict
     seed: int = 0
+
+    def save(self, path) -> None:
+        """Write the packing to ``path`` (``.npz``: the centres and radii as they are, the rest as JSON)."""
+        scalars = {
+            field.name: getattr(self, field.name)
+            for field in dataclasses.fields(self)
+            if field.name not in ("position", "radius")
+        }
+        scalars = json.loads(json.dumps(scalars, default=lambda value: np.asarray(value).item()))
+        np.savez(path, position=self.position, radius=self.radius, scalars=json.dumps(scalars))
+
+    @classmethod
+    def load(cls, path) -> Compaction:
+        """The packing :meth:`save` wrote to ``path``."""
+        with np.load(path) as data:
+            scalars = json.loads(str(data["scalars"]))
+            return cls(position=np.array(data["position"]), radius=np.array(data["radius"]), **scalars)
 
     def specimen(self, grading: Grading | None = None) -> RandomSpecimen:
         """The packing as a :class:`~membrax.spheres.random_packing.RandomSpecimen` (JAX's default float)."""
