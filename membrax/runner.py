@@ -63,10 +63,6 @@ from membrax.membrane.coupled import (
 )
 from membrax.membrane.measure import right_cylinder_stresses
 from membrax.membrane.mesh import rounded_offset_path
-from membrax.spheres import compaction as compaction_module
-from membrax.spheres import contact as sphere_contact_module
-from membrax.spheres import integrate as sphere_integrate_module
-from membrax.spheres import random_packing as random_packing_module
 from membrax.spheres.compaction import Compaction, random_packing
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams
@@ -240,6 +236,10 @@ def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
 _RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
 
 
+#: The modules whose code makes a compacted packing (membrax/spheres/): their text is part of the cache key.
+_COMPACTION_SOURCES = ("compaction.py", "random_packing.py", "contact.py", "integrate.py")
+
+
 def _compaction_cache_path(key: tuple) -> Path:
     """Where a compacted packing of ``key`` is kept between processes.
 
@@ -247,8 +247,8 @@ def _compaction_cache_path(key: tuple) -> Path:
     the key, the compaction stress and the sources of the compaction (changed code makes a new packing).
     """
     digest = hashlib.sha256(repr((key, COMPACTION_STRESS)).encode())
-    for module in (compaction_module, random_packing_module, sphere_contact_module, sphere_integrate_module):
-        digest.update(Path(module.__file__).read_bytes())
+    for name in _COMPACTION_SOURCES:
+        digest.update((Path(__file__).resolve().parent / "spheres" / name).read_bytes())
     return native.cache_dir() / "specimens" / f"compaction_{digest.hexdigest()[:20]}.npz"
 
 
