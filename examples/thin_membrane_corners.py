@@ -1,22 +1,29 @@
-"""The calibration grid's two blown-up corners: thin, soft membranes at 100 kPa, and why they blew up.
+"""The calibration grid's two blown-up corners, thin soft membranes at 100 kPa, and why they blow up.
 
-Runs, on the small preset of ``membrax reproduce`` (membrane edge D/3, I = 5e-3, float64), the four cases
-1 mm of 700 kPa and 1 mm of 1400 kPa at σc = 100 kPa on the 6-across (6 × 10) and 8-across (8 × 13) FCC
-specimens, consolidation then shearing to 10 % axial strain, in chunks of ``--chunk-steps``. After every
-chunk it prints the deepest reach of a membrane node into a sphere off the specimen's lateral boundary
-(an "inner" sphere): min over nodes n and inner spheres i of |x_n − x_i| − (R_i + t_m/2), negative when the
-node's mid-surface lies inside it. A code that lets a node touch only the lateral-boundary spheres (as
-membrax did before the cell-list search) cannot stop such a node: it slips between two boundary spheres
-into the voids behind them. membrax now finds node–sphere candidates among all spheres
-(:func:`membrax.membrane.contact.build_candidates`), so an inner sphere pushes the node back with the same
-penalty as any other (overlap k_n δ, a few µm at these loads).
+The mechanism is the membrane law's inflation limit (docs/model.md): a neo-Hookean sheet of thickness t_m
+and modulus E_m spanning an opening of radius a holds at most p_max = 1.8353 (E_m/3) t_m/a
+(:func:`membrax.theory.membrane_limit_pressure`); above it the sheet balloons through. Over the square
+windows between four touching 25 mm spheres (a = (√2 − 1) R = 5.18 mm), 1 mm of 700 kPa holds 82.7 kPa and
+1 mm of 1400 kPa 165 kPa. membrax refuses a configuration whose cell pressure exceeds that limit
+(:func:`membrax.config.inflation_ratio`) and warns from 0.7 of it.
 
-Prints one line per chunk (phase, strain, deepest inner reach in mm, nodes within an inner sphere, the
-membrane's contacts) and, per case, the outcome: completed with its peak φ' (external, internal), or the
-error that stopped it and the chunk.
+Default: runs the four cases 1 mm of 700 kPa and 1 mm of 1400 kPa at σc = 100 kPa on the 6-across (6 × 10)
+and 8-across (8 × 13) FCC specimens on the small preset of ``membrax reproduce`` (membrane edge D/3,
+I = 5e-3, float64), consolidation then shearing to 10 % axial strain in chunks of ``--chunk-steps``. The
+700 kPa cases are refused (their message is printed). After every chunk it prints the deepest reach of a
+membrane node into a sphere off the specimen's lateral boundary (an "inner" sphere; negative: inside it)
+and the largest inward displacement of a node from the mesh's rest radius; per case, the outcome.
 
-Run: ``python examples/thin_membrane_corners.py [--cases all|d6_700,d8_1400,...] [--chunk-steps 1000]``
-(about 1–3 min per case on 2 CPU cores).
+``--ramp``: the evidence. The 700 kPa membrane on both specimens, built at 50 kPa (accepted), with the
+membrane's cell pressure and the platens' target raised from 0 to 100 kPa over ``--ramp-steps`` steps
+(quasi-static: the membrane follows its equilibrium until it loses it); every 100 steps it prints the
+pressure, the largest inward node displacement and the fastest node. The runaway starts where the
+membrane's equilibrium ends, near the predicted limit; ``--law svk`` (St Venant–Kirchhoff, whose tension
+grows without a maximum) holds the full 100 kPa.
+
+Run: ``python examples/thin_membrane_corners.py [--cases all|d6_1400,...] [--chunk-steps 1000]`` (about
+1 min per case on 2 CPU cores), ``python examples/thin_membrane_corners.py --ramp [--law svk]`` (about
+1 min per specimen).
 """
 
 import argparse
@@ -66,13 +73,13 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
     import numpy as np
 
     from membrax import runner
-    from membrax.config import TriaxialConfig
+    from membrax.config import ConfigError, TriaxialConfig
     from membrax.errors import RunError, SimulationError
     from membrax.reproduce import SIZES
     from membrax.triaxial import analysis
 
     across, layers, modulus = CASES[name]
-    config = TriaxialConfig(
+    fields = dict(
         **{
             **SIZES["small"],
             "name": name,
@@ -85,6 +92,17 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
             "membrane_edges_per_diameter": edges_per_diameter,
         }
     )
+    try:
+        config = TriaxialConfig(**fields)
+    except ConfigError as error:
+        return {
+            "name": name,
+            "status": f"refused: {error}",
+            "spheres": 0,
+            "nodes": 0,
+            "seconds": 0.0,
+            "deepest_inner_reach_mm": float("nan"),
+        }
     jax.config.update("jax_enable_x64", True)
     batch = runner.build_batch([config])
     test = batch.tests[0]
@@ -118,12 +136,67 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
     return outcome
 
 
+def ramp_case(across: int, ramp_steps: int, law: str) -> None:
+    """Raise the cell pressure on 1 mm of 700 kPa slowly to 100 kPa; print where the membrane runs away."""
+    import functools
+
+    import jax
+    import numpy as np
+
+    from membrax import runner, theory
+    from membrax.config import TriaxialConfig
+    from membrax.errors import SimulationError
+    from membrax.membrane import coupled
+    from membrax.reproduce import SIZES
+    from membrax.triaxial import membrane_cell
+
+    jax.config.update("jax_enable_x64", True)
+    if law != "neo_hookean":  # the test's step, built with the other stretching law
+        membrane_cell.membrane_dem = functools.partial(coupled.membrane_dem, stretching_model=law)
+    layers = {6: 10, 8: 13}[across]
+    fields = {**SIZES["small"], "particles_across": across, "layers": layers, "membrane_thickness_mm": 1.0}
+    config = TriaxialConfig(**fields, cell_pressure_kpa=50.0, membrane_modulus_kpa=700.0)
+    test = runner.build_test(config)
+    window = theory.SQUARE_WINDOW_RATIO * config.particle_radius
+    limit = float(theory.membrane_limit_pressure(config.membrane_modulus, config.membrane_thickness, window))
+    print(
+        f"{across} across, {law}: predicted limit over the square windows {limit / 1e3:.1f} kPa", flush=True
+    )
+    rest = np.hypot(*np.asarray(test.mesh.reference_position)[:, :2].T)
+    state, final, chunk = test.initial_state, 1e5, 100
+    for step in range(0, ramp_steps + 3000, chunk):
+        pressure = final * min(1.0, (step + chunk) / ramp_steps)
+        membrane = test.params.membrane.set(cell_pressure=jax.numpy.asarray(pressure))
+        state = test.set_platens(state, True, 0.0, pressure)
+        try:
+            state, _ = test.runner.run(state, test.params.set(membrane=membrane), chunk, chunk, chunk)
+        except SimulationError as error:
+            print(f"  {pressure / 1e3:5.1f} kPa: {str(error).splitlines()[0][:90]}")
+            return
+        position = np.asarray(state.membrane.position)
+        inward = np.max(rest - np.hypot(position[:, 0], position[:, 1]))
+        speed = np.max(np.linalg.norm(np.asarray(state.membrane.velocity), axis=1))
+        print(
+            f"  step {step + chunk:5d}  {pressure / 1e3:5.1f} kPa  inward {1e3 * inward:6.2f} mm  "
+            f"fastest node {speed:8.3f} m/s",
+            flush=True,
+        )
+    print(f"  held {final / 1e3:.0f} kPa for 3000 steps")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default="all", help=f"comma-separated of {', '.join(CASES)}, or all")
     parser.add_argument("--chunk-steps", type=int, default=1000)
     parser.add_argument("--edges-per-diameter", type=float, default=3.0, help="membrane edge D/n (preset: 3)")
+    parser.add_argument("--ramp", action="store_true", help="the ramp study of 1 mm of 700 kPa (docstring)")
+    parser.add_argument("--ramp-steps", type=int, default=2000)
+    parser.add_argument("--law", default="neo_hookean", choices=("neo_hookean", "svk"))
     args = parser.parse_args()
+    if args.ramp:
+        for across in (6, 8):
+            ramp_case(across, args.ramp_steps, args.law)
+        return
     names = list(CASES) if args.cases == "all" else args.cases.split(",")
     outcomes = [run_case(name, args.chunk_steps, args.edges_per_diameter) for name in names]
     print("\ncase     | spheres | nodes | deepest inner reach mm |    s | outcome")

@@ -40,6 +40,7 @@ import os
 import platform
 import time
 import types
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
@@ -49,7 +50,7 @@ import numpy as np
 
 from membrax import __version__, native, theory
 from membrax.batch import stack
-from membrax.config import TriaxialConfig, config_to_dict
+from membrax.config import INFLATION_WARNING_RATIO, TriaxialConfig, config_to_dict, inflation_ratio
 from membrax.defaults import COMPACTION_STRESS, default_consolidation_tolerance
 from membrax.driver import advance, drive, record_blocks
 from membrax.errors import OVERFLOWS, ErrorCode, RunError, SimulationError, describe
@@ -147,6 +148,9 @@ def build_test(
     ``time_step`` (s) and ``nodes_around`` (membrane nodes per ring) override the test's own choices, as a
     batch does (:mod:`membrax.sweep`: one Δt and one mesh topology for all its members).
     """
+    warning = inflation_warning(config)
+    if warning is not None:
+        warnings.warn(warning, stacklevel=2)
     specimen = build_specimen(config)
     contact = ContactParams.paper(
         friction_angle_deg=config.friction_angle_deg,
@@ -173,6 +177,23 @@ def build_test(
         time_step=time_step,
         nodes_around=nodes_around,
         contact_offset_factor=config.membrane_contact_offset_factor,
+    )
+
+
+def inflation_warning(config: TriaxialConfig) -> str | None:
+    """The warning for a membrane near its inflation limit (:func:`membrax.config.inflation_ratio`), or None.
+
+    Configurations at or above the limit are refused when built; from
+    :data:`membrax.config.INFLATION_WARNING_RATIO` of it, FCC runs went non-finite, so the run is warned.
+    """
+    ratio = inflation_ratio(config_to_dict(config))
+    if ratio < INFLATION_WARNING_RATIO:
+        return None
+    return (
+        f"{config.name}: the cell pressure is {ratio:.2f} of the membrane's inflation limit over the windows "
+        f"between the particles (membrax.config.inflation_ratio); FCC runs went non-finite from "
+        f"{INFLATION_WARNING_RATIO:g}–1 of it, the membrane ballooning into the specimen. A thicker or "
+        "stiffer membrane or a lower cell pressure keeps away from it."
     )
 
 

@@ -41,8 +41,11 @@ __all__ = [
     "TETRAHEDRAL",
     "CorrectedStresses",
     "MembraneCorrection",
+    "BULGE_LIMIT_COEFFICIENT",
+    "BULGE_LIMIT_HEIGHT_RATIO",
     "MolenkampLugerValidity",
     "RowePacking",
+    "SQUARE_WINDOW_RATIO",
     "apply_membrane_correction",
     "area_correction",
     "astm_shell_correction",
@@ -61,6 +64,8 @@ __all__ = [
     "mobilised_friction_angle",
     "mobilised_friction_angle_deg",
     "molenkamp_luger_indentation_ratio",
+    "membrane_bulge_pressure",
+    "membrane_limit_pressure",
     "molenkamp_luger_validity",
     "paper_eq1_peak_friction_angle_deg",
     "radial_strain",
@@ -544,6 +549,94 @@ def baldi_nova_volumetric_strain(penetration, specimen_diameter):
     """
     check_range("specimen_diameter", specimen_diameter, **_POSITIVE)
     return 4.0 * _as_float(penetration) / _as_float(specimen_diameter)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Membrane inflation into a surface void: the neo-Hookean limit point
+# ---------------------------------------------------------------------------------------------------------
+
+#: a/R of the window between four touching equal spheres on a square grid (an FCC {100} face), measured in
+#: the plane of their centres: a = (√2 − 1) R, the narrowest opening a membrane bulging into that surface
+#: void must pass to reach the spheres behind it.
+SQUARE_WINDOW_RATIO = math.sqrt(2.0) - 1.0
+
+
+def _bulge_shape(relative_height):
+    """4x(1 − λ⁻⁶)/(1 + x²) with λ² = 1 + x²: :func:`membrane_bulge_pressure` over μ t₀/a."""
+    squared = 1.0 + relative_height * relative_height
+    return 4.0 * relative_height * (1.0 - squared**-3) / squared
+
+
+def _bulge_limit() -> tuple[float, float]:
+    """(x*, max) of :func:`_bulge_shape` over x > 0, by golden-section search on [0.5, 3] to round-off."""
+    ratio = 0.5 * (math.sqrt(5.0) - 1.0)
+    low, high = 0.5, 3.0
+    for _ in range(200):
+        left, right = high - ratio * (high - low), low + ratio * (high - low)
+        if _bulge_shape(left) < _bulge_shape(right):
+            low = left
+        else:
+            high = right
+    best = 0.5 * (low + high)
+    return best, _bulge_shape(best)
+
+
+#: (h/a, p a/(μ t₀)) at the maximum of :func:`membrane_bulge_pressure`: (1.2588, 1.8353).
+BULGE_LIMIT_HEIGHT_RATIO, BULGE_LIMIT_COEFFICIENT = _bulge_limit()
+
+
+def membrane_bulge_pressure(membrane_modulus, membrane_thickness, aperture_radius, bulge_height):
+    """Pressure that holds a neo-Hookean membrane bulged to height h into a circular opening of radius a.
+
+    p = 4 μ t₀ h (1 − λ⁻⁶)/(a² + h²),  λ² = 1 + (h/a)²,  μ = E_m/3   [D]
+
+    Derivation (one-parameter Ritz estimate): the sheet over the opening becomes a spherical cap of height h
+    with a uniform equibiaxial stretch λ (its area over the flat disc's, λ² = 1 + (h/a)²). The incompressible
+    neo-Hookean membrane (:func:`membrax.membrane.energies.stretching_energy`) stores
+    W = (μ t₀ π a²/2)(2λ² + λ⁻⁴ − 3), the cap encloses V = π h (3a² + h²)/6, and p = dW/dV. The pressure
+    rises as 12 μ t₀ h³/a⁴ for a shallow bulge, peaks at p_max = 1.8353 μ t₀/a when h = 1.259 a and falls
+    beyond: the limit point of inflated rubber membranes (Adkins & Rivlin 1952, Phil. Trans. R. Soc. A
+    244, 505–531; the same law's closed sphere peaks at λ = 7^(1/6)). A cell pressure above p_max cannot
+    be held by the sheet over that opening: it balloons through (:func:`membrane_limit_pressure`). The
+    exact clamped-sheet solution has a non-uniform stretch; this estimate is the uniform-stretch mode's.
+
+    Args:
+      membrane_modulus: E_m (Pa, or any stress unit: the result is in it), > 0.
+      membrane_thickness: t₀, m (any length unit, the same as the other lengths), > 0.
+      aperture_radius: a, > 0.
+      bulge_height: h, >= 0.
+    """
+    check_range("membrane_modulus", membrane_modulus, **_POSITIVE)
+    check_range("membrane_thickness", membrane_thickness, **_POSITIVE)
+    check_range("aperture_radius", aperture_radius, **_POSITIVE)
+    check_range("bulge_height", bulge_height, lower=0.0)
+    aperture = _as_float(aperture_radius)
+    shear_modulus = _as_float(membrane_modulus) / 3.0
+    tension_scale = shear_modulus * _as_float(membrane_thickness) / aperture
+    return tension_scale * _bulge_shape(_as_float(bulge_height) / aperture)
+
+
+def membrane_limit_pressure(membrane_modulus, membrane_thickness, aperture_radius):
+    """The largest pressure a neo-Hookean membrane over a circular opening of radius a can hold, [D].
+
+    p_max = 1.8353 (E_m/3) t₀/a, the maximum of :func:`membrane_bulge_pressure` (see there). Over an FCC
+    specimen's square surface windows, a = :data:`SQUARE_WINDOW_RATIO` × R: 1 mm of 700 kPa over 25 mm
+    spheres holds 82.7 kPa, 1 mm of 1400 kPa 165 kPa. Above it, the membrane balloons into the specimen.
+
+    Args:
+      membrane_modulus: E_m (any stress unit: the result is in it), > 0.
+      membrane_thickness: t₀, > 0.
+      aperture_radius: a, in the length unit of ``membrane_thickness``, > 0.
+    """
+    check_range("membrane_modulus", membrane_modulus, **_POSITIVE)
+    check_range("membrane_thickness", membrane_thickness, **_POSITIVE)
+    check_range("aperture_radius", aperture_radius, **_POSITIVE)
+    return (
+        BULGE_LIMIT_COEFFICIENT
+        * (_as_float(membrane_modulus) / 3.0)
+        * _as_float(membrane_thickness)
+        / _as_float(aperture_radius)
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------

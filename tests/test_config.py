@@ -10,12 +10,14 @@ import math
 
 import pytest
 
+from membrax import runner
 from membrax.config import (
     ConfigError,
     TriaxialConfig,
     config_from_dict,
     config_to_dict,
     dump_config_toml,
+    inflation_ratio,
     load_config,
     parse_overrides,
     with_overrides,
@@ -444,3 +446,37 @@ def test_random_specimen_fields_are_refused_with_the_point_and_the_fix(fields, e
     with pytest.raises(ConfigError) as error:
         TriaxialConfig(**fields)
     assert expected in str(error.value)
+
+
+def test_a_membrane_beyond_its_inflation_limit_is_refused_with_the_limit_and_the_fix():
+    # Hand calculation: over the square window of 25 mm spheres, a = (√2 − 1) 12.5 = 5.178 mm, 1 mm of
+    # 700 kPa holds 1.8353 (700/3)(1)/5.178 = 82.7 kPa (membrax.theory.membrane_limit_pressure).
+    with pytest.raises(ConfigError) as error:
+        TriaxialConfig(cell_pressure_kpa=100.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=700.0)
+    message = str(error.value)
+    for named in (
+        "cell_pressure_kpa = 100",
+        "membrane_thickness_mm = 1",
+        "membrane_modulus_kpa = 700",
+        "82.7 kPa",
+    ):
+        assert named in message
+    assert "846 kPa·mm" in message  # E_m t_m × 100/82.7, the least that holds 100 kPa
+    # 1 mm of 1400 kPa holds 165 kPa; 0.60 of it is quiet.
+    config = TriaxialConfig(cell_pressure_kpa=100.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=1400.0)
+    assert inflation_ratio(config_to_dict(config)) == pytest.approx(100.0 / 165.42, rel=1e-4)
+    assert runner.inflation_warning(config) is None
+    # 60 kPa on 1 mm of 700 kPa: 0.725 of the limit, built with a warning.
+    near = TriaxialConfig(cell_pressure_kpa=60.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=700.0)
+    assert "0.73 of the membrane's inflation limit" in runner.inflation_warning(near)
+    # A grading's windows are partly filled by its smaller particles: warned on its largest size, not refused.
+    graded = TriaxialConfig(
+        packing="random",
+        grading=[[10.0, 0.0], [25.0, 100.0]],
+        specimen_diameter_mm=150.0,
+        specimen_height_mm=300.0,
+        cell_pressure_kpa=100.0,
+        membrane_thickness_mm=1.0,
+        membrane_modulus_kpa=700.0,
+    )
+    assert inflation_ratio(config_to_dict(graded)) > 1.0

@@ -167,6 +167,40 @@ def test_closed_cylinder_inflation_matches_thin_shell_theory():
     np.testing.assert_allclose((mean_radius - radius) / radius, theory, rtol=0.02)
 
 
+def test_neo_hookean_band_has_the_inflation_limit_point_and_svk_has_none(precision):
+    """Why a thin, soft membrane balloons into a surface void (docs/model.md, the inflation limit).
+
+    A closed band scaled uniformly by λ (every triangle stretched equibiaxially in its plane) stores
+    W = μ t A₀ (2λ² + λ⁻⁴ − 3)/2 and encloses V = λ³ V₀, so the pressure it holds, p = dW/dV (from the
+    energy's gradient here), is (2/3)(μ t A₀/V₀)(λ⁻¹ − λ⁻⁷) for the neo-Hookean law: it peaks at λ = 7^(1/6)
+    and falls beyond, the limit point of inflated rubber (Adkins & Rivlin 1952). The St Venant–Kirchhoff law,
+    W = t A₀ (μ + λ*)(λ² − 1)²/2 per unit area in equibiaxial stretch, only stiffens: no limit point.
+    """
+    dtype = precision
+    modulus, thickness = 7e5, 1e-3
+    mesh = cylinder_mesh(0.125, 0.25, 0.02, dtype=dtype)
+    rest = mesh.reference_position
+    area = float(jnp.sum(mesh.reference_area))
+    volume = float(enclosed_volume(rest, mesh))
+
+    def held_pressure(stretch, model):
+        def energy(s):
+            return energies.stretching_energy(s * rest, mesh, modulus, thickness, model=model)
+
+        return jax.grad(energy)(stretch) / jax.grad(lambda s: enclosed_volume(s * rest, mesh))(stretch)
+
+    stretches = jnp.linspace(1.02, 2.5, 149, dtype=dtype)
+    neo_hookean = np.asarray(jax.vmap(lambda s: held_pressure(s, "neo_hookean"))(stretches))
+    svk = np.asarray(jax.vmap(lambda s: held_pressure(s, "svk"))(stretches))
+    lam = np.asarray(stretches, dtype=np.float64)
+    expected = 2.0 / 3.0 * (modulus / 3.0) * thickness * area / volume * (1.0 / lam - lam**-7)
+    np.testing.assert_allclose(neo_hookean, expected, rtol=50 * tolerance(dtype))
+    peak = lam[np.argmax(neo_hookean)]
+    assert abs(peak - 7.0 ** (1.0 / 6.0)) <= 0.01  # the grid's step
+    assert neo_hookean[-1] < 0.8 * neo_hookean.max()
+    assert np.all(np.diff(svk) > 0.0)
+
+
 def test_pressure_forces_close_and_cap_carries_p_times_area(precision):
     mesh = cylinder_mesh(0.1, 0.3, 0.03)
     key = jax.random.PRNGKey(0)

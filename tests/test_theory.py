@@ -299,6 +299,44 @@ def test_leps_log_linear():
     assert_close(theory.leps_friction_angle_deg(45.0, 7.0, 10.13), 52.0, rtol=1e-12)
 
 
+def test_bulge_pressure_is_the_derivative_of_the_caps_energy_over_its_volume():
+    # Hand calculation: a cap of height h over a hole of radius a, uniform stretch λ² = 1 + (h/a)², stores
+    # W = (μ t π a²/2)(2λ² + λ⁻⁴ − 3) and encloses V = π h (3a² + h²)/6; p = dW/dV by central differences.
+    modulus, thickness, aperture = 700.0, 1.0, 5.18  # kPa, mm, mm
+
+    def energy(height):
+        squared = 1.0 + (height / aperture) ** 2
+        return modulus / 3.0 * thickness * math.pi * aperture**2 / 2.0 * (2.0 * squared + squared**-2 - 3.0)
+
+    def volume(height):
+        return math.pi * height * (3.0 * aperture**2 + height**2) / 6.0
+
+    for height in (0.5, 2.0, 6.52, 12.0):
+        step = 1e-5
+        expected = (energy(height + step) - energy(height - step)) / (
+            volume(height + step) - volume(height - step)
+        )
+        got = float(theory.membrane_bulge_pressure(modulus, thickness, aperture, height))
+        assert got == pytest.approx(expected, rel=1e-7), height
+    # Shallow bulge: p → 12 μ t h³/a⁴.
+    shallow = 1e-3 * aperture
+    assert float(theory.membrane_bulge_pressure(modulus, thickness, aperture, shallow)) == pytest.approx(
+        12.0 * modulus / 3.0 * thickness * shallow**3 / aperture**4, rel=1e-5
+    )
+
+
+def test_limit_pressure_is_the_bulge_curves_maximum():
+    heights = np.linspace(0.01, 4.0, 40001)
+    curve = np.asarray(theory.membrane_bulge_pressure(3.0, 1.0, 1.0, jnp.asarray(heights)))
+    assert float(theory.membrane_limit_pressure(3.0, 1.0, 1.0)) == pytest.approx(curve.max(), rel=1e-8)
+    assert theory.BULGE_LIMIT_HEIGHT_RATIO == pytest.approx(heights[curve.argmax()], abs=2e-4)
+    # The corners of the calibration grid over 25 mm spheres' square windows, a = (√2 − 1) 12.5 mm.
+    window = theory.SQUARE_WINDOW_RATIO * 12.5
+    assert window == pytest.approx(math.hypot(12.5, 12.5) - 12.5, rel=1e-14)
+    assert float(theory.membrane_limit_pressure(700.0, 1.0, window)) == pytest.approx(82.71, abs=0.01)
+    assert float(theory.membrane_limit_pressure(1400.0, 1.0, window)) == pytest.approx(165.42, abs=0.01)
+
+
 # ------------------------------------------------------------------------------------------------------
 # Gradients, vmap, jit, dtype
 # ------------------------------------------------------------------------------------------------------
@@ -351,6 +389,8 @@ SMOOTH_FUNCTIONS = [
         (1400.0, 0.002, 0.15, 0.05, -0.02),
     ),
     ("filter_paper", lambda *a: theory.filter_paper_correction(*a).axial_stress, (0.19, 0.06, 1.1e-3, 0.01)),
+    ("membrane_bulge_pressure", theory.membrane_bulge_pressure, (700.0, 1.0, 5.18, 4.0)),
+    ("membrane_limit_pressure", theory.membrane_limit_pressure, (700.0, 1.0, 5.18)),
 ]
 
 
@@ -417,6 +457,8 @@ BAD_INPUTS = [
     (lambda: theory.bolton_peak_friction_angle_deg(36.0, 1.7, 50.0), "relative_density"),
     (lambda: theory.rowe_peak_friction_angle_deg(95.0), "interparticle_friction_angle_deg"),
     (lambda: theory.rowe_stress_ratio(1.0), "interparticle_friction_angle"),
+    (lambda: theory.membrane_limit_pressure(700.0, 1.0, 0.0), "aperture_radius"),
+    (lambda: theory.membrane_bulge_pressure(700.0, 1.0, 5.0, -1.0), "bulge_height"),
 ]
 
 
