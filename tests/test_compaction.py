@@ -77,11 +77,6 @@ def test_frictionless_compaction_reaches_random_close_packing(dense):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    reason="near jamming the relaxation is slow: after 1.2e5-2.5e5 steps the unbalanced-force ratio is still "
-    "0.03 and the core coordination 5.4-5.6, below the isostatic 6 of a fully relaxed frictionless packing",
-    strict=False,
-)
 def test_frictionless_compaction_is_isostatic(dense):
     """Core coordination 5.8–6.3 without rattlers (isostatic frictionless packing, Z = 2d = 6)."""
     assert 5.8 <= dense.measures["coordination_number"] <= 6.3, dense.measures
