@@ -373,9 +373,16 @@ def common_nodes_around(configs: Sequence[TriaxialConfig]) -> int:
     return max(3, round(float(np.mean(perimeters)) / config.membrane_edge_length))
 
 
-def _member(tree, index: int):
-    """Member ``index`` of a stacked pytree."""
-    return jax.tree_util.tree_map(lambda leaf: leaf[index], tree)
+def _members(tree, count: int) -> list:
+    """The first ``count`` members of a stacked pytree, as host (numpy) pytrees.
+
+    The stacked arrays are copied to the host first, shard by shard: indexing a member out of an array
+    sharded over devices would compile an SPMD gather with a cross-device all-reduce, which waits for every
+    device, so a device still busy with its part of a chunk (launched asynchronously) stalls it, and XLA ends
+    the process after 40 s (issue 46). Host copies need no collective.
+    """
+    host = jax.device_get(tree)
+    return [jax.tree_util.tree_map(lambda leaf, b=b: np.asarray(leaf)[b], host) for b in range(count)]
 
 
 def _shared_neighbors(frame, positions: Sequence, capacity: int = 0, cell_capacity: int = 0) -> list:
@@ -500,11 +507,11 @@ class BatchedTest:
 
     def unstack(self, states) -> list:
         """The real members' states of a stacked state."""
-        return [_member(states, b) for b in range(self.num_members)]
+        return _members(states, self.num_members)
 
     def _grow(self, states, error, overflowed):
         """Reallocate every member's neighbour list and/or candidate table with one larger capacity."""
-        members = [_member(states, b) for b in range(self.num_padded)]
+        members = _members(states, self.num_padded)
         frame = self.tests[0].runner.neighbor_frame
         particles = self.tests[0].particles
         if np.any(error & ErrorCode.NEIGHBOR_OVERFLOW):
@@ -785,7 +792,7 @@ def _template(batch: BatchedTest, capacities: dict):
     states = batch.initial_state
     if _capacities(states) == capacities:
         return states
-    members = [_member(states, b) for b in range(batch.num_padded)]
+    members = _members(states, batch.num_padded)
     thickness = np.asarray(batch.params.membrane.contact_thickness)
     particles = batch.tests[0].particles
     members = [

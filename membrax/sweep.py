@@ -27,7 +27,9 @@ padded with frozen copies to a multiple of the device count). On a CPU this is t
 device per core (:func:`membrax.devices.split_cpu_devices`, called before other membrax imports;
 ``membrax sweep`` and ``membrax reproduce`` do it) runs each core's members side by side, each member's
 arrays on one core, which beats both one device using the cores for every operation and the members run
-one after another (``benchmarks/bench_sweep.py``). Across several hosts, call
+one after another (``benchmarks/bench_sweep.py``). No program a sweep compiles holds a cross-device
+collective (the driver splits stacked members on the host, :func:`membrax.runner.BatchedTest.unstack`), so
+a device busy with a long chunk never stalls another, which XLA would end after 40 s. Across several hosts, call
 ``jax.distributed.initialize()`` in every process before :func:`run_sweep`: ``jax.devices()`` then lists
 every host's devices, but a batch shards over the local ones only: between chunks the driver reads every
 member's error bits and records on the host. Give each process its share of the grid (e.g.

@@ -2,12 +2,14 @@
 it was sampled from and the sampled fractions in the results, the external stresses by definition, the
 mobilised friction below Rowe's FCC bound."""
 
+import meshio
 import numpy as np
 import pytest
 
 from membrax import theory
 from membrax.config import SMOKE_CONFIG, TriaxialConfig
 from membrax.io.results import dataset_attrs_to_python
+from membrax.io.vtk import read_pvd
 from membrax.run import run_test
 from membrax.triaxial import analysis
 
@@ -24,10 +26,24 @@ def test_a_graded_random_specimen_runs_and_its_grading_reaches_the_results(tmp_p
             "grading": GRADING,
             "specimen_diameter_mm": 125.0,
             "specimen_height_mm": 150.0,
+            "vtk_every_steps": 100_000,  # the first and the last state
         }
     )
     result = run_test(config, tmp_path / "run", progress=False)
     specimen = dataset_attrs_to_python(result.results)["specimen"]
+    # The VTK snapshot holds every sphere with its own radius: their volume over the specimen's cylinder is
+    # the solid fraction reported, and every diameter lies within the grading's sizes.
+    folder = tmp_path / "run" / "vtk"
+    (_, first), *_ = read_pvd(folder / "specimen_particles.pvd")
+    spheres = meshio.read(folder / first)
+    radius = np.asarray(spheres.point_data["radius"])
+    assert radius.size == specimen["num_spheres"]
+    assert np.all((2e3 * radius >= 20.0 - 1e-9) & (2e3 * radius <= 30.0 + 1e-9))
+    cylinder = np.pi / 4.0 * specimen["width_mm"] ** 2 * specimen["height_mm"] * 1e-9
+    assert np.sum(4.0 / 3.0 * np.pi * radius**3) / cylinder == pytest.approx(
+        specimen["solid_fraction"], rel=1e-5
+    )
+    np.testing.assert_allclose(spheres.point_data["diameter"], 2.0 * radius)
     assert specimen["packing"] == "random"
     assert specimen["grading_size_mm"] == pytest.approx([20.0, 25.0, 30.0])
     assert specimen["grading_percent_passing"] == pytest.approx([0.0, 50.0, 100.0])
