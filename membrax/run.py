@@ -92,7 +92,7 @@ class RunResult:
 
 def _vtk_snapshot(series, state, test: MembraneTest) -> None:
     nodes, spheres = state.membrane, state.dem
-    stretch = np.asarray(triangle_stretches(nodes.position, test.mesh)).T
+    largest, smallest = np.asarray(triangle_stretches(nodes.position, test.mesh))
     series.add(
         int(state.step),
         float(state.step) * test.dt,
@@ -100,7 +100,7 @@ def _vtk_snapshot(series, state, test: MembraneTest) -> None:
             np.asarray(nodes.position),
             np.asarray(test.mesh.triangles),
             {"force": np.asarray(nodes.node_force), "velocity": np.asarray(nodes.velocity)},
-            {"stretch": stretch},
+            {"stretch_largest": largest, "stretch_smallest": smallest},
         ),
         particles=(
             np.asarray(spheres.position),

@@ -44,6 +44,11 @@ def test_a_graded_random_specimen_runs_and_its_grading_reaches_the_results(tmp_p
         specimen["solid_fraction"], rel=1e-5
     )
     np.testing.assert_allclose(spheres.point_data["diameter"], 2.0 * radius)
+    # The membrane's first snapshot is its rest shape: both principal stretches 1 in every triangle.
+    (_, first), *_ = read_pvd(folder / "specimen_membrane.pvd")
+    membrane = meshio.read(folder / first)
+    for name in ("stretch_largest", "stretch_smallest"):
+        np.testing.assert_allclose(membrane.cell_data[name][0], 1.0, atol=1e-5)
     assert specimen["packing"] == "random"
     assert specimen["grading_size_mm"] == pytest.approx([20.0, 25.0, 30.0])
     assert specimen["grading_percent_passing"] == pytest.approx([0.0, 50.0, 100.0])
