@@ -254,6 +254,11 @@ def _sweep(args: argparse.Namespace) -> int:
         return 2
     print((result.folder / "summary.csv").read_text())
     print(f"{result.seconds:.0f} s; results in {result.folder}: " + ", ".join(sorted(result.files)))
+    failed = [str(status) for status in result.dataset["status"].values.ravel() if status != "completed"]
+    if failed:
+        print(
+            f"membrax: {len(failed)} member(s) failed; see the status column of summary.csv", file=sys.stderr
+        )
     return 0
 
 

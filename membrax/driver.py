@@ -225,7 +225,9 @@ class ChunkRunner:
         return state, concatenate_records(chunks)
 
 
-def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors, grow, fail, accept):
+def drive(
+    chunk, state, budgets, record_every: int, chunk_steps: int, *, errors, grow, fail, accept, isolate=None
+):
     """The chunk loop: every long run of membrax (a test's stage, a batch's phase) goes through it.
 
     Each pass launches one compiled chunk of up to ``chunk_steps`` steps (whole records of
@@ -233,7 +235,8 @@ def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors,
 
     1. reads the error bits; on a table overflow (:data:`membrax.errors.OVERFLOWS`) grows the tables from
        the chunk's *starting* state and reruns the chunk, so contacts are never dropped;
-    2. on any other error raises what ``fail`` builds (the state before the chunk is attached there);
+    2. on any other error raises what ``fail`` builds (the state before the chunk is attached there), or,
+       given ``isolate``, ends the budgets of the members in error and reruns the chunk for the others;
     3. accepts the chunk: ``accept`` stores its records, reports progress, writes checkpoints and names the
        members that stop early (their budgets end).
 
@@ -251,6 +254,10 @@ def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors,
       fail: ``fail(error, new_state, state) -> Exception`` for error bits that growing does not clear.
       accept: ``accept(state, records, valid, left) -> members`` after each good chunk: the members
         (indices) whose budgets end now.
+      isolate: ``isolate(error, new_state, left) -> left``: the budgets with those of the members in
+        error ended (it reports them, and raises when none is left to go on); the chunk is then run again
+        from its starting state, so the failed members stay at their last good state and records, before
+        any table growth (a blown-up member's tables overflow too). None: ``fail``.
 
     Returns:
       (state, left): the final state and the steps each member had left (0 unless stopped by errors).
@@ -261,6 +268,9 @@ def drive(chunk, state, budgets, record_every: int, chunk_steps: int, *, errors,
         count = min(records_per_chunk, math.ceil(left.max() / record_every))
         new_state, new_left, records, valid = chunk(state, left, count)
         error = errors(new_state)
+        if isolate is not None and np.any(error & ~OVERFLOWS):
+            left = np.asarray(isolate(error & ~OVERFLOWS, new_state, left), dtype=np.int64).copy()
+            continue
         if np.any(error & OVERFLOWS):
             grown = grow(state, error, new_state)
             if grown is not None:

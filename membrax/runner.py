@@ -446,6 +446,8 @@ class BatchedTest:
     initial_state: object
     order: list = pydataclasses.field(default_factory=list)
     reallocations: int = 0
+    #: member → {"error", "step", "phase"} of the members :func:`run_group` froze (``isolate_failures``).
+    failures: dict = pydataclasses.field(default_factory=dict)
 
     def __post_init__(self):
         self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
@@ -548,6 +550,7 @@ class BatchedTest:
         record_every: int,
         stop_fn: Callable | None = None,
         on_chunk: Callable | None = None,
+        on_failure: Callable | None = None,
     ):
         """Advance every member until its step budget is spent (or ``stop_fn`` ends it).
 
@@ -560,7 +563,13 @@ class BatchedTest:
             it (``records``: that member's records of the chunk, a namespace of arrays); True spends its
             budget (the consolidation stop test).
           on_chunk: ``on_chunk(states, chunk, budgets)`` after each accepted chunk, ``chunk`` a dict of
-            stacked (B, T, …) arrays of the real members plus ``valid`` (B, T).
+            stacked (B, T, …) arrays of the real members plus ``valid`` (B, T); it may return members to
+            stop now (their budgets end).
+          on_failure: failure isolation: ``on_failure(member, names, step)`` (the :class:`ErrorCode` names
+            joined by ``|``) for a member whose error
+            bits (other than an overflow) are set after a chunk (``step``: the chunk's end); its budget
+            ends and the chunk is run again without it, so it stays at its state and records before that
+            chunk, and the others go on. None: the first such member raises.
 
         Returns:
           (states, budgets).
@@ -593,7 +602,7 @@ class BatchedTest:
             )
 
         def accept(states, records, valid, left):
-            valid = np.asarray(valid)[:num]
+            valid = np.array(valid)[:num]  # writable: a failed member's records are masked
             chunk = {
                 field.name: np.asarray(getattr(records, field.name))[:num]
                 for field in pydataclasses.fields(records)
@@ -610,8 +619,17 @@ class BatchedTest:
             if on_chunk is not None:
                 remaining = left[:num].copy()
                 remaining[stopped] = 0
-                on_chunk(states, chunk, remaining)
+                stopped.extend(int(b) for b in on_chunk(states, chunk, remaining) or ())
             return stopped
+
+        def isolate(error, new, left):
+            steps = np.asarray(new.dem.step)
+            left = np.asarray(left).copy()
+            for b in np.flatnonzero(error[:num]):
+                left[b] = 0
+                names = [code.name for code in ErrorCode if int(error[b]) & code]
+                on_failure(int(b), "|".join(names), int(steps[b]))
+            return left
 
         states, left = drive(
             chunk,
@@ -624,8 +642,24 @@ class BatchedTest:
             grow=lambda s, error, overflowed: self._grow(s, error, overflowed.membrane.candidates),
             fail=fail,
             accept=accept,
+            isolate=None if on_failure is None else isolate,
         )
         return states, left[:num]
+
+
+def describe_failure(failure: dict) -> str:
+    """A failed member's record as one line: the error's name, the phase and the step."""
+    return f"{failure['error']} in {failure['phase']} (chunk ending at step {failure['step']})"
+
+
+def _raise_if_all_failed(batch: BatchedTest, failures: dict, records: dict) -> None:
+    """``RunError`` naming every member's failure, once no member of ``batch`` is left running."""
+    if len(failures) < batch.num_members:
+        return
+    lines = [
+        f"member {b} ({batch.configs[b].name}): {describe_failure(f)}" for b, f in sorted(failures.items())
+    ]
+    raise RunError("every member failed:\n" + "\n".join(lines), records)
 
 
 def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
@@ -821,6 +855,9 @@ def member_chunk_records(records: dict, b: int) -> dict:
             out[phase] = []
             continue
         valid = joined["valid"][b]
+        if not valid.any():  # a member that never reached this phase (it failed before)
+            out[phase] = []
+            continue
         out[phase] = [{name: value[b][valid] for name, value in joined.items() if name != "valid"}]
     return out
 
@@ -857,6 +894,7 @@ def run_group(
     interrupt_after_chunks: int | None = None,
     chunk_counter: list | None = None,
     after_chunk: Callable | None = None,
+    isolate_failures: bool = False,
 ):
     """Run one batch through the three phases of :data:`PHASES` (module docstring).
 
@@ -869,6 +907,9 @@ def run_group(
         ``chunk_counter``, after that chunk's checkpoint), as a killed process would stop.
       chunk_counter: a one-element list counting chunks across groups (default: this call's own).
       after_chunk: ``after_chunk(states, phase)`` after each accepted chunk (e.g. VTK snapshots).
+      isolate_failures: a member that blows up (error bits, or a runaway kinetic energy) is frozen at its
+        last good records and the others go on; ``batch.failures`` maps it to its error, step and phase
+        (kept in checkpoints). Only if every member failed is ``RunError`` raised. False: the first raises.
 
     Returns:
       (records by phase: lists of chunk dicts of stacked (B, T, ...) arrays with ``valid``; the start of
@@ -879,6 +920,8 @@ def run_group(
         records so far, as returned.
     """
     chunk_counter = [0] if chunk_counter is None else chunk_counter
+    failures: dict[int, dict] = {}
+    batch.failures = failures
 
     config = batch.configs[0]
     checkpoint_path = folder / CHECKPOINT_NAME
@@ -895,6 +938,7 @@ def run_group(
         phase_index, elapsed = host["phase_index"], host["elapsed_s"]
         budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
         shear_height, shear_volume = np.asarray(host["shear_height"]), np.asarray(host["shear_volume"])
+        failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
         for phase in PHASES:
             names = host.get(f"names_{phase}", [])
             if names:
@@ -913,6 +957,7 @@ def run_group(
             "shear_height": shear_height,
             "shear_volume": shear_volume,
             "member_steps": [int(step) for step in np.asarray(current.dem.step)[:num]],
+            "failures": {str(b): failure for b, failure in failures.items()},
         }
         for phase in PHASES:
             joined = join_records(records[phase], axis=1)
@@ -929,6 +974,8 @@ def run_group(
             if phase == "shear_fine":
                 members = batch.unstack(states)
                 for b, test in enumerate(batch.tests):
+                    if b in failures:  # frozen: it never shears
+                        continue
                     shear_height[b] = _last_member_value(records["consolidation"], "height", b)
                     shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
                     c = batch.configs[b]
@@ -937,23 +984,32 @@ def run_group(
                     )
                 states = batch.restack(members)
             budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
+            budgets[list(failures)] = 0  # a failed member stays frozen
         record_every = plans[0][phase][1]
         total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
         bar = phase_bar(phase, num, total, progress)
 
         def on_chunk(current, chunk, left, phase=phase, bar=bar, record_every=record_every):
             nonlocal budgets
-            records[phase].append(chunk)
             budgets = left
             kinetic = chunk["kinetic_energy"].reshape(num, chunk["valid"].shape[1], -1)[:, -1, 0]
             runaway = ~np.isfinite(kinetic) | (kinetic > RUNAWAY_KINETIC_FRACTION * volume_work)
-            if np.any(runaway):
-                b = int(np.flatnonzero(runaway)[0])
-                raise RunError(
+            runaway[list(failures)] = False
+            stop = []
+            for b in np.flatnonzero(runaway):
+                message = (
                     f"member {b} ({batch.configs[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
                     f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = {RUNAWAY_KINETIC_FRACTION * volume_work[b]:.3g} J: "
                     f"the run is unstable. Lower dt_safety (now {config.dt_safety}) or the stiffness."
                 )
+                if not isolate_failures:
+                    raise RunError(message)
+                step = int(np.asarray(current.dem.step)[b])
+                failures[int(b)] = {"error": "RUNAWAY_KINETIC_ENERGY", "step": step, "phase": phase}
+                chunk["valid"][b] = False  # frozen at its last good records
+                stop.append(int(b))
+            _raise_if_all_failed(batch, failures, records)
+            records[phase].append(chunk)
             bar.update(chunk["valid"].shape[1] * record_every)
             postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}
             if phase == "consolidation":
@@ -985,6 +1041,11 @@ def run_group(
                 save(current, left)
             if interrupt_after_chunks is not None and chunk_counter[0] >= interrupt_after_chunks:
                 raise KeyboardInterrupt(f"interrupted after {chunk_counter[0]} chunks (testing aid)")
+            return stop
+
+        def on_failure(b, names, step, phase=phase):
+            failures[b] = {"error": names, "step": step, "phase": phase}
+            _raise_if_all_failed(batch, failures, records)
 
         stop_fn = None
         if phase == "consolidation":
@@ -994,7 +1055,13 @@ def run_group(
 
         try:
             states, budgets = batch.run_phase(
-                states, budgets, config.chunk_steps, record_every, stop_fn=stop_fn, on_chunk=on_chunk
+                states,
+                budgets,
+                config.chunk_steps,
+                record_every,
+                stop_fn=stop_fn,
+                on_chunk=on_chunk,
+                on_failure=on_failure if isolate_failures else None,
             )
         except SimulationError as error:
             raise RunError(

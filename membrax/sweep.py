@@ -22,19 +22,18 @@ consolidating at its own step and shears for its own steps (ε̇ ∝ √σc at a
 that change array shapes or compiled constants (specimen size, mesh resolution, density, record cadence,
 dtype) split the grid into groups, run one after another.
 
-Devices. With several devices the member axis is sharded across them with ``jax.shard_map`` (members
-padded with frozen copies to a multiple of the device count). On a CPU this is the fast batching: one
-device per core (:func:`membrax.devices.split_cpu_devices`, called before other membrax imports;
-``membrax sweep`` and ``membrax reproduce`` do it) runs each core's members side by side, each member's
-arrays on one core, which beats both one device using the cores for every operation and the members run
-one after another (``benchmarks/bench_sweep.py``). No program a sweep compiles holds a cross-device
-collective (the driver splits stacked members on the host, :func:`membrax.runner.BatchedTest.unstack`), so
-a device busy with a long chunk never stalls another, which XLA would end after 40 s. Across several hosts, call
-``jax.distributed.initialize()`` in every process before :func:`run_sweep`: ``jax.devices()`` then lists
-every host's devices, but a batch shards over the local ones only: between chunks the driver reads every
-member's error bits and records on the host. Give each process its share of the grid (e.g.
-``jax.process_index()`` picks the pressures) and merge the ``sweep.nc`` files with
-``xarray.combine_by_coords`` (README).
+Devices. With several devices the member axis is sharded across them with ``jax.shard_map`` (members padded
+with frozen copies to a multiple of the device count). On a CPU this is the fast batching: one device per core
+(:func:`membrax.devices.split_cpu_devices`, called before other membrax imports; ``membrax sweep`` and
+``membrax reproduce`` do it) runs each core's members side by side, each member's arrays on one core, which
+beats both one device using the cores for every operation and the members run one after another
+(``benchmarks/bench_sweep.py``). No program a sweep compiles holds a cross-device collective (the driver
+splits stacked members on the host, :func:`membrax.runner.BatchedTest.unstack`), so a device busy with a long
+chunk never stalls another, which XLA would end after 40 s. Across several hosts, call
+``jax.distributed.initialize()`` in every process before :func:`run_sweep`: ``jax.devices()`` then lists every
+host's devices, but a batch shards over the local ones only: between chunks the driver reads every member's
+error bits and records on the host. Give each process its share of the grid (e.g. ``jax.process_index()``
+picks the pressures) and merge the ``sweep.nc`` files with ``xarray.combine_by_coords`` (README).
 
 Long runs. :func:`membrax.runner.run_group`'s progress bars, checkpoints and ``resume=True`` (results
 identical to an uninterrupted sweep), one checkpoint per group; finished groups are kept in ``groups/``.
@@ -64,11 +63,13 @@ from membrax.config import (
     with_overrides,
 )
 from membrax.devices import cpu_cores
+from membrax.errors import RunError
 from membrax.io import dataset_attrs_to_python, read_results, write_netcdf
 from membrax.runner import (
     BOOKKEEPING_FIELDS,
     build_batch,
     consolidation_tolerance,
+    describe_failure,
     member_chunk_records,
     results_datasets,
     run_group,
@@ -232,13 +233,19 @@ def _grid_dataset(datasets: list, coordinates: dict, indices: list, extra: dict,
     return xr.Dataset(variables, coords=coords, attrs={**attrs, "grid_fields": ",".join(dims)})
 
 
+def _member_label(coordinates: dict, index: tuple) -> str:
+    """A grid member by its coordinates, e.g. ``cell_pressure_kpa=10, membrane_thickness_mm=5``."""
+    return ", ".join(f"{dim}={coordinates[dim][i]:g}" for dim, i in zip(coordinates, index, strict=True))
+
+
 def _write_summary_csv(path: Path, coordinates: dict, configs_by_index: dict, dataset: xr.Dataset) -> None:
     names = ["consolidation_steps", "shear_steps", "num_records", *_SCALARS]
-    lines = [",".join(list(coordinates) + names)]
+    lines = [",".join([*coordinates, *names, "status"])]
     for index in configs_by_index:
         point = {dim: coordinates[dim][i] for dim, i in zip(coordinates, index, strict=True)}
         cells = [repr(float(v)) for v in point.values()]
         cells += [repr(float(dataset[name].values[index])) for name in names]
+        cells.append(json.dumps(str(dataset["status"].values[index])))
         lines.append(",".join(cells))
     path.write_text("\n".join(lines) + "\n")
 
@@ -270,7 +277,8 @@ def run_sweep(
       A :class:`SweepResult`.
 
     Raises:
-      ConfigError: a bad grid. RunError: a member blew up (its name and the fix in the message).
+      ConfigError: a bad grid. RunError: every member failed (each one's error, phase and step); a member
+        that fails alone is frozen at its last good records and marked in ``status`` (a warning lists them).
     """
     started = time.perf_counter()
     grid = dict(DEFAULT_GRID if grid is None else grid)
@@ -295,7 +303,7 @@ def run_sweep(
         groups.setdefault(structure_key(config), []).append((index, config))
     # The base configuration's precision, scoped to this call (thread-local), as in run_test.
     with jax.enable_x64(base.float64):
-        shear_sets, consolidation_sets, indices, extra = [], [], [], {}
+        shear_sets, consolidation_sets, indices, extra, statuses = [], [], [], {}, {}
         chunk_counter = [0]
         for g, group in enumerate(groups.values()):
             group_folder = folder / "groups" / f"group_{g}"
@@ -321,7 +329,13 @@ def run_sweep(
                 order_file.write_text(json.dumps(batch.order))
                 build_seconds = time.perf_counter() - build_start
                 records, shear_start, elapsed = run_group(
-                    batch, group_folder, resume, progress, interrupt_after_chunks, chunk_counter
+                    batch,
+                    group_folder,
+                    resume,
+                    progress,
+                    interrupt_after_chunks,
+                    chunk_counter,
+                    isolate_failures=True,
                 )
                 shear_group, consolidation_group = [], []
                 for k, ((_, config), test) in enumerate(zip(group, batch.tests, strict=True)):
@@ -329,12 +343,16 @@ def run_sweep(
                     metadata = run_metadata(
                         config, test, mine, build_seconds, elapsed, consolidation_tolerance(config)
                     )
+                    failure = batch.failures.get(k)
                     metadata.update(
                         batch_members=batch.num_members,
                         batch_devices=batch.num_devices,
                         nodes_around=batch.nodes_around,
+                        status="completed" if failure is None else f"failed: {describe_failure(failure)}",
                     )
                     shear, consolidation = results_datasets(mine, shear_start[k], metadata)
+                    if shear is None:  # a member that failed before shearing
+                        shear = xr.Dataset(attrs=consolidation.attrs)
                     write_netcdf(shear, group_folder / f"shear_{k}.nc")
                     write_netcdf(consolidation, group_folder / f"consolidation_{k}.nc")
                     shear_group.append(shear)
@@ -342,6 +360,9 @@ def run_sweep(
                 write_netcdf(xr.Dataset(attrs={"members": len(group)}), done_file)
             for (index, _), shear, consolidation in zip(group, shear_group, consolidation_group, strict=True):
                 attrs = dataset_attrs_to_python(shear)
+                statuses[index] = attrs.get("status", "completed")
+                if statuses[index] != "completed":
+                    continue  # its records stop at the failure (groups/); the grid shows the status only
                 indices.append(index)
                 shear_sets.append(shear)
                 consolidation_sets.append(consolidation)
@@ -357,14 +378,32 @@ def run_sweep(
         "grid": {key: list(values) for key, values in coordinates.items()},
         "groups": len(groups),
     }
+    failed = {index: status for index, status in statuses.items() if status != "completed"}
+    if len(failed) == len(statuses):
+        raise RunError(
+            "every member failed:\n"
+            + "\n".join(f"{_member_label(coordinates, i)}: {status}" for i, status in failed.items()),
+        )
     dataset = _grid_dataset(shear_sets, coordinates, indices, extra, attrs)
     consolidation = _grid_dataset(consolidation_sets, coordinates, indices, {}, attrs)
+    status = np.full(tuple(len(v) for v in coordinates.values()), "completed", dtype=object)
+    for index, value in statuses.items():
+        status[index] = value
+    for ds in (dataset, consolidation):
+        ds["status"] = xr.Variable(tuple(coordinates), status.astype(str))
+    if failed:
+        warnings.warn(
+            f"{len(failed)} of {len(statuses)} members failed and were frozen at their last good records "
+            "(their other variables are NaN here; groups/ keeps their records):\n"
+            + "\n".join(f"{_member_label(coordinates, i)}: {status}" for i, status in failed.items()),
+            stacklevel=2,
+        )
     seconds = time.perf_counter() - started
     dataset.attrs["run_s"] = seconds
     files = {
         "sweep": write_netcdf(dataset, folder / "sweep.nc"),
         "consolidation": write_netcdf(consolidation, folder / "sweep_consolidation.nc"),
     }
-    _write_summary_csv(folder / "summary.csv", coordinates, dict.fromkeys(indices), dataset)
+    _write_summary_csv(folder / "summary.csv", coordinates, dict.fromkeys(statuses), dataset)
     files["summary"] = folder / "summary.csv"
     return SweepResult(folder, dataset, consolidation, files, seconds)

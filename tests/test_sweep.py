@@ -8,12 +8,14 @@ import subprocess
 import sys
 import textwrap
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from helpers import SMALL_SPECIMEN
 
 from membrax import paper, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
+from membrax.io import read_results
 from membrax.run import run_test
 from membrax.spheres.packing import GRANITE_DENSITY
 
@@ -321,3 +323,45 @@ def test_the_cpu_splits_into_one_device_per_core_before_jax_starts():
     done = subprocess.run([sys.executable, "-c", SPLIT], env=env, capture_output=True, text=True, check=False)
     assert done.returncode == 0, done.stderr[-3000:]
     assert json.loads(done.stdout.strip().splitlines()[-1]) == {"made": 3, "count": 3, "late": 3, "warned": 1}
+
+
+@pytest.mark.slow
+def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchanged(tmp_path, monkeypatch):
+    """Failure isolation: the 100 kPa member's sphere stiffness raised 1e6-fold (the batch's Δt then far past
+    its stable step, a test-only sabotage) goes non-finite in its first chunk. It is flagged with the error,
+    the phase and the step; the 10 and 40 kPa members of the same batch end bitwise equal to a sweep of them
+    alone; the sweep returns."""
+    base = TriaxialConfig(**SHORT)
+    grid = {"cell_pressure_kpa": (10.0, 40.0, 100.0), "membrane_thickness_mm": (5.0,)}
+    build = sweep.build_batch
+
+    def sabotaged(configs, *args, **kwargs):
+        batch = build(configs, *args, **kwargs)
+        bad = [t.cell_pressure for t in batch.tests].index(1e5)
+        contact = batch.params.dem.contact
+        stiffness = np.asarray(contact.normal_stiffness).copy()
+        stiffness[bad] *= 1e6
+        contact = contact.set(normal_stiffness=jnp.asarray(stiffness))
+        batch.params = batch.params.set(dem=batch.params.dem.set(contact=contact))
+        return batch
+
+    monkeypatch.setattr(sweep, "build_batch", sabotaged)
+    with pytest.warns(UserWarning, match="1 of 3 members failed"):
+        mixed = sweep.run_sweep(base, grid, tmp_path / "mixed", progress=False, num_devices=1)
+    monkeypatch.setattr(sweep, "build_batch", build)
+    alone = sweep.run_sweep(
+        base, {**grid, "cell_pressure_kpa": (10.0, 40.0)}, tmp_path / "alone", progress=False, num_devices=1
+    )
+    status = mixed.dataset["status"].values[:, 0]
+    assert list(status[:2]) == ["completed", "completed"]
+    # Its spheres go non-finite or leave the neighbour box within its first chunk of 500 steps.
+    assert status[2].startswith("failed: ") and status[2].endswith(
+        " in consolidation (chunk ending at step 500)"
+    )
+    assert set(status[2].split()[1].split("|")) <= {"NOT_FINITE", "OUTSIDE_BOX"}, status[2]
+    assert str(read_results(tmp_path / "mixed" / "sweep.nc")["status"].values[2, 0]) == status[2]
+    assert np.all(np.isnan(mixed.dataset["peak_external_friction_angle_deg"].values[2]))
+    for name in COMPARED:
+        np.testing.assert_array_equal(mixed.dataset[name].values[:2], alone.dataset[name].values)
+    summary = (tmp_path / "mixed" / "summary.csv").read_text().splitlines()
+    assert summary[0].endswith(",status") and summary[3].endswith(json.dumps(str(status[2])))

@@ -259,6 +259,8 @@ def _netcdf3_variable(name: str, variable: xr.Variable) -> xr.Variable:
         stored = values
     elif dtype == np.dtype(np.float16):
         stored = values.astype(np.float32)
+    elif kind == "U":  # text (a member's status): xarray stores it as characters
+        stored = values
     else:
         raise ValueError(
             f"variable {name!r} has dtype {dtype}, which NetCDF3 cannot store; convert it to bool, integers "
