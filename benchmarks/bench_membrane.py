@@ -22,7 +22,7 @@ float32 for the whole step). The membrane-force rate includes bending (factor 1)
 paper's pure membrane (factor 0), whose compiled kernel skips the hinges.
 
 With ``--packing random`` the specimen is a random packing of the same spheres, 250 × 500 mm (about 1,740
-spheres, compacted first, about 6 min, not timed): its membrane is a cylinder (issue 45's target: coupled
+spheres, compacted first, about 40 s, not timed): its membrane is a cylinder (issue 45's target: coupled
 steps/s within 1.5× of the FCC row's).
 
 Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--dtypes float32]``;
@@ -161,7 +161,7 @@ def main():
         "--packing",
         choices=("fcc", "random"),
         default="fcc",
-        help="fcc: 10 across, 25 layers; random: 250 × 500 mm compacted (about 6 min, not timed)",
+        help="fcc: 10 across, 25 layers; random: 250 × 500 mm compacted (about 40 s, not timed)",
     )
     parser.add_argument("--dtypes", default="float32,float64")
     parser.add_argument("--child", help=argparse.SUPPRESS)
