@@ -330,7 +330,7 @@ def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchang
     """Failure isolation: the 100 kPa member's sphere stiffness raised 1e6-fold (the batch's Δt then far past
     its stable step, a test-only sabotage) goes non-finite in its first chunk. It is flagged with the error,
     the phase and the step; the 10 and 40 kPa members of the same batch end bitwise equal to a sweep of them
-    alone; the sweep returns."""
+    alone; the sweep returns, and the same sweep killed after 3 chunks and resumed ends the same."""
     base = TriaxialConfig(**SHORT)
     grid = {"cell_pressure_kpa": (10.0, 40.0, 100.0), "membrane_thickness_mm": (5.0,)}
     build = sweep.build_batch
@@ -348,6 +348,15 @@ def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchang
     monkeypatch.setattr(sweep, "build_batch", sabotaged)
     with pytest.warns(UserWarning, match="1 of 3 members failed"):
         mixed = sweep.run_sweep(base, grid, tmp_path / "mixed", progress=False, num_devices=1)
+        # Killed after 3 chunks and resumed: the failure is kept in the checkpoint, the results the same.
+        with pytest.raises(KeyboardInterrupt):
+            sweep.run_sweep(
+                base, grid, tmp_path / "cut", progress=False, num_devices=1, interrupt_after_chunks=3
+            )
+        resumed = sweep.run_sweep(base, grid, tmp_path / "cut", resume=True, progress=False, num_devices=1)
+    np.testing.assert_array_equal(resumed.dataset["status"].values, mixed.dataset["status"].values)
+    for name in COMPARED:
+        np.testing.assert_array_equal(resumed.dataset[name].values, mixed.dataset[name].values)
     monkeypatch.setattr(sweep, "build_batch", build)
     alone = sweep.run_sweep(
         base, {**grid, "cell_pressure_kpa": (10.0, 40.0)}, tmp_path / "alone", progress=False, num_devices=1
