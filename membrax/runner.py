@@ -1004,11 +1004,9 @@ def run_group(
                 )
                 if not isolate_failures:
                     raise RunError(message)
-                step = int(np.asarray(current.dem.step)[b])
-                failures[int(b)] = {"error": "RUNAWAY_KINETIC_ENERGY", "step": step, "phase": phase}
                 chunk["valid"][b] = False  # frozen at its last good records
                 stop.append(int(b))
-            _raise_if_all_failed(batch, failures, records)
+                on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]), phase)
             records[phase].append(chunk)
             bar.update(chunk["valid"].shape[1] * record_every)
             postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}

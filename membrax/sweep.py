@@ -379,11 +379,9 @@ def run_sweep(
         "groups": len(groups),
     }
     failed = {index: status for index, status in statuses.items() if status != "completed"}
+    failures = "\n".join(f"{_member_label(coordinates, i)}: {status}" for i, status in failed.items())
     if len(failed) == len(statuses):
-        raise RunError(
-            "every member failed:\n"
-            + "\n".join(f"{_member_label(coordinates, i)}: {status}" for i, status in failed.items()),
-        )
+        raise RunError("every member failed:\n" + failures)
     dataset = _grid_dataset(shear_sets, coordinates, indices, extra, attrs)
     consolidation = _grid_dataset(consolidation_sets, coordinates, indices, {}, attrs)
     status = np.full(tuple(len(v) for v in coordinates.values()), "completed", dtype=object)
@@ -394,8 +392,7 @@ def run_sweep(
     if failed:
         warnings.warn(
             f"{len(failed)} of {len(statuses)} members failed and were frozen at their last good records "
-            "(their other variables are NaN here; groups/ keeps their records):\n"
-            + "\n".join(f"{_member_label(coordinates, i)}: {status}" for i, status in failed.items()),
+            "(their other variables are NaN here; groups/ keeps their records):\n" + failures,
             stacklevel=2,
         )
     seconds = time.perf_counter() - started

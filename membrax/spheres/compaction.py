@@ -275,6 +275,29 @@ def _quench(before, after):
     )
 
 
+def _mould_radial_load(mould_force, position):
+    """The mould's radial load, N: the spheres push it outward by −Σ F_i·ρ̂_i (F_i its force on sphere i)."""
+    rho = jnp.sqrt(jnp.sum(position[:, :2] ** 2, axis=1)) + jnp.finfo(position.dtype).tiny
+    return -jnp.sum((mould_force[:, 0] * position[:, 0] + mould_force[:, 1] * position[:, 1]) / rho)
+
+
+def _mean_stress(wall_force, radial_load, mould_radius, mould_height):
+    """σ = (σ_a + 2σ_r)/3, Pa, of the mould and its platens.
+
+    σ_a is the platens' mean normal force (``wall_force``: one member's (W,) wall forces) over the mould's
+    area, σ_r the mould's radial load over its lateral area.
+    """
+    axial = 0.5 * (wall_force[BOTTOM] + wall_force[TOP]) / (math.pi * mould_radius**2)
+    return (axial + 2.0 * radial_load / (2.0 * math.pi * mould_radius * mould_height)) / 3.0
+
+
+def _unbalanced_ratio(net_force, forces, particles, neighbors):
+    """The packing's unbalanced-force ratio (:func:`membrax.spheres.measure.unbalanced_force_ratio`)."""
+    first = neighbors.idx[0]
+    pair_member = particles.member[jnp.where(first < particles.num_particles, first, 0)]
+    return unbalanced_force_ratio(net_force, forces, particles, pair_member)[0]
+
+
 class _FireRelaxer:
     """Frictionless spheres at fixed radii relaxed to rest with FIRE, and the growth that gives a stress.
 
@@ -289,9 +312,8 @@ class _FireRelaxer:
 
     def __init__(self, particles, params, frame, template, dt, mould_radius, mould_height, chunk_steps):
         self.particles, self.params, self.frame, self.template = particles, params, frame, template
-        self.dt, self.mould_radius, self.chunk_steps = dt, mould_radius, chunk_steps
-        self.platen_area = math.pi * mould_radius**2
-        self.lateral_area = 2.0 * math.pi * mould_radius * mould_height
+        self.dt, self.mould_radius, self.mould_height = dt, mould_radius, mould_height
+        self.chunk_steps = chunk_steps
         self.neighbors = None
         self._chunk = jax.jit(self._chunk_impl)
         self._measure = jax.jit(self._measure_impl)
@@ -344,15 +366,9 @@ class _FireRelaxer:
         """(σ = (σ_a + 2σ_r)/3 in Pa, unbalanced-force ratio, neighbour overflow) of the spheres at rest."""
         neighbors = self.frame.update(position, neighbors)
         net, forces, mould = self._forces(position, compensation, neighbors, growth)
-        axial = (
-            0.5 * (forces.wall_total_force[0, BOTTOM] + forces.wall_total_force[0, TOP]) / self.platen_area
-        )
-        rho = jnp.sqrt(jnp.sum(position[:, :2] ** 2, axis=1)) + jnp.finfo(position.dtype).tiny
-        radial = -jnp.sum((mould[:, 0] * position[:, 0] + mould[:, 1] * position[:, 1]) / rho)
-        stress = (axial + 2.0 * radial / self.lateral_area) / 3.0
-        first = neighbors.idx[0]
-        pair_member = self.particles.member[jnp.where(first < self.particles.num_particles, first, 0)]
-        ratio = unbalanced_force_ratio(net, forces, self.particles, pair_member)[0]
+        radial = _mould_radial_load(mould, position)
+        stress = _mean_stress(forces.wall_total_force[0], radial, self.mould_radius, self.mould_height)
+        ratio = _unbalanced_ratio(net, forces, self.particles, neighbors)
         return stress, ratio, neighbors.did_buffer_overflow
 
     def relax(self, position, growth, target, tolerance, max_steps, on_chunk=None):
@@ -587,29 +603,18 @@ def compact(
     state = init_fn(jnp.asarray(position, dtype), walls, frame.allocate(jnp.asarray(position, dtype)))
     mean_diameter = float(np.mean(diameters))
     wall_stiffness = law.wall_normal_stiffness
-    platen_area = math.pi * mould_radius**2
-    lateral_area = 2.0 * math.pi * mould_radius * mould_height
-
-    def mean_stress(state_, force_on_mould):
-        """σ = (σ_a + 2σ_r)/3, Pa: the platens' and the mould's loads over their areas."""
-        axial = 0.5 * (state_.walls.force[0, BOTTOM] + state_.walls.force[0, TOP]) / platen_area
-        return (axial + 2.0 * force_on_mould / lateral_area) / 3.0
-
     stiffness_scale = float(law.normal_stiffness) / mean_diameter
 
     def one_step(carry, _params):
         state_, growth, average = carry
         contact_radius = growth * particles.radius
         force = -jax.grad(mould_energy)(state_.position, contact_radius, mould_radius, wall_stiffness)
-        rho = jnp.sqrt(jnp.sum(state_.position[:, :2] ** 2, axis=1)) + jnp.finfo(dtype).tiny
-        # The mould's radial load: the spheres push it outward by −F·ρ̂.
-        radial_load = -jnp.sum(
-            (force[:, 0] * state_.position[:, 0] + force[:, 1] * state_.position[:, 1]) / rho
-        )
+        radial_load = _mould_radial_load(force, state_.position)
         before = state_
         state_ = _quench(before, step_fn(state_, params, sphere_force=force, contact_radius=contact_radius))
         # Collisions in the cloud load the walls in spikes; the control reads a running mean.
-        average = average + (mean_stress(state_, radial_load) - average) / averaging_steps
+        stress = _mean_stress(state_.walls.force[0], radial_load, mould_radius, mould_height)
+        average = average + (stress - average) / averaging_steps
         error = target_stress - average
         free = growth_rate * error / target_stress
         servo = jnp.clip(servo_gain * error / stiffness_scale, -servo_growth, servo_growth)
@@ -626,9 +631,7 @@ def compact(
         net = forces.force - jax.grad(mould_energy)(
             state_.position, touching.radius, mould_radius, wall_stiffness
         )
-        first = state_.neighbors.idx[0]
-        pair_member = particles.member[jnp.where(first < particles.num_particles, first, 0)]
-        return unbalanced_force_ratio(net, forces, particles, pair_member)[0]
+        return _unbalanced_ratio(net, forces, particles, state_.neighbors)
 
     carry = (state, jnp.asarray(start, dtype), jnp.asarray(0.0, dtype))
     began = time.perf_counter()
