@@ -16,7 +16,9 @@ stresses depend on the groups the models use (t_m/D, E_m t_m/(σc D), D/D_s, the
 spans, rather than on the specimen's height. The held-out members lie off every grid line: σc 25 and 70
 kPa, t_m 2 and 4 mm, E_m 1000 and 2000 kPa, 7 spheres across (D/D_s = 1/7).
 
-Run: ``python -m calibrate.grid OUT [--held-out]`` (one JAX CPU device per core, as ``membrax sweep``).
+Run: ``python -m calibrate.grid OUT [--held-out]`` (one JAX CPU device per core, as ``membrax sweep``), or
+``python -m calibrate.grid OUT --scheduler local|ADDRESS`` to send every group's members to Dask workers at
+once (:mod:`membrax.campaign`).
 """
 
 from __future__ import annotations
@@ -105,28 +107,54 @@ def sweep_commands(groups=None, folder: str = "calibration") -> list[str]:
     return lines
 
 
-def run_grid(folder, groups=None, progress: bool = True) -> list[Path]:
+def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list[Path]:
     """Run every group of ``groups`` (default :data:`CALIBRATION`) into ``folder/<group>/``.
 
-    A group whose ``sweep.nc`` exists is skipped; one with a checkpoint resumes.
+    A group whose ``sweep.nc`` exists is skipped; one with a checkpoint resumes. With ``scheduler``
+    (:func:`membrax.campaign.connect`: ``"local"``, an address or a scheduler file) every group's tasks go
+    to one Dask client at once, the groups' sweeps side by side (one thread each waits for its tasks).
 
     Returns:
       The ``sweep.nc`` paths, in the order of ``groups``.
+
+    Raises:
+      RunError: naming each group whose sweep failed, after the others finished.
     """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from membrax import campaign
     from membrax.config import TriaxialConfig
+    from membrax.errors import RunError
     from membrax.sweep import run_sweep
 
     groups = CALIBRATION if groups is None else groups
-    paths = []
-    for name, (specimen, grid) in groups.items():
+    paths = [Path(folder) / name / "sweep.nc" for name in groups]
+    todo = {name: item for (name, item), path in zip(groups.items(), paths, strict=True) if not path.exists()}
+
+    def one(name, client=None):
+        specimen, grid = todo[name]
         out = Path(folder) / name
-        path = out / "sweep.nc"
-        if not path.exists():
-            base = TriaxialConfig(name=f"calibration_{name}", **{**base_fields(), **specimen})
-            run_sweep(
-                base, {k: list(v) for k, v in grid.items()}, out, resume=out.exists(), progress=progress
-            )
-        paths.append(path)
+        base = TriaxialConfig(name=f"calibration_{name}", **{**base_fields(), **specimen})
+        grid = {k: list(v) for k, v in grid.items()}
+        alone = client is None  # side by side, the groups' bars would overwrite each other
+        run_sweep(base, grid, out, resume=out.exists(), progress=progress and alone, scheduler=client)
+
+    if scheduler is None:
+        for name in todo:
+            one(name)
+        return paths
+    client, cluster, owned = campaign.connect(scheduler)
+    try:
+        with ThreadPoolExecutor(max_workers=max(1, len(todo))) as pool:
+            futures = {name: pool.submit(one, name, client) for name in todo}
+        errors = {name: future.exception() for name, future in futures.items() if future.exception()}
+    finally:
+        if owned:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    if errors:
+        raise RunError("\n".join(f"calibration group {name}: {error}" for name, error in errors.items()))
     return paths
 
 
@@ -139,15 +167,22 @@ def main(argv=None) -> int:
     parser.add_argument("folder", help="where each group's sweep folder is written")
     parser.add_argument("--held-out", action="store_true", help="run the held-out members instead")
     parser.add_argument("--commands", action="store_true", help="print the membrax sweep commands only")
+    parser.add_argument(
+        "--scheduler",
+        default=None,
+        metavar="ADDRESS|local",
+        help="run the groups' members as tasks on Dask ('local' or a scheduler's address or file)",
+    )
     args = parser.parse_args(argv)
     groups = HELD_OUT if args.held_out else CALIBRATION
     if args.commands:
         print("\n".join(sweep_commands(groups, args.folder)))
         return 0
-    from membrax.devices import split_cpu_devices
+    if args.scheduler is None:
+        from membrax.devices import split_cpu_devices
 
-    split_cpu_devices()
-    for path in run_grid(args.folder, groups):
+        split_cpu_devices()
+    for path in run_grid(args.folder, groups, scheduler=args.scheduler):
         print(path)
     return 0
 

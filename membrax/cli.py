@@ -11,8 +11,8 @@ Sub-commands:
   run      ``membrax run config.toml [--out DIR] [--set key=value] [--resume]``: the test of a TOML
            configuration (:mod:`membrax.config`) into a results folder
   sweep    ``membrax sweep config.toml --grid cell_pressure_kpa=10,40,100 --grid membrane_thickness_mm=2.5,5
-           [--out DIR] [--set key=value] [--resume] [--devices N]``: the grid as one batched compiled
-           simulation (:mod:`membrax.sweep`)
+           [--out DIR] [--set key=value] [--resume] [--devices N] [--scheduler ADDRESS|local]``: the grid
+           as one batched compiled simulation, or as tasks on Dask workers (:mod:`membrax.sweep`)
   reproduce ``membrax reproduce [--size small|paper]``: the paper's Table 1, then its Tables 2–3 and
            Figs 5–9 (:mod:`membrax.reproduce`)
   sensitivity ``membrax sensitivity config.toml [--wrt membrane_modulus_kpa,membrane_thickness_mm]
@@ -248,6 +248,8 @@ def _sweep(args: argparse.Namespace) -> int:
             resume=args.resume,
             progress=not args.no_progress,
             num_devices=args.devices,
+            scheduler=args.scheduler,
+            members_per_task=args.task_members,
         )
     except (ConfigError, FileNotFoundError, ValueError, RunError) as error:
         print(f"membrax: {error}", file=sys.stderr)
@@ -270,7 +272,13 @@ def _reproduce(args: argparse.Namespace) -> int:
 
     try:
         done = reproduce(
-            args.size, args.out, resume=args.resume, progress=not args.no_progress, num_devices=args.devices
+            args.size,
+            args.out,
+            resume=args.resume,
+            progress=not args.no_progress,
+            num_devices=args.devices,
+            scheduler=args.scheduler,
+            members_per_task=args.task_members,
         )
     except (ValueError, RunError) as error:
         print(f"membrax: {error}", file=sys.stderr)
@@ -396,14 +404,18 @@ SUBCOMMAND_HELP = {
         "examples:\n"
         "  membrax sweep test.toml --grid cell_pressure_kpa=10,40,100 \\\n"
         "      --grid membrane_thickness_mm=2.5,3.33,5\n"
-        "  membrax sweep test.toml --grid membrane_modulus_kpa=700,1400,2800 --out study --devices 2",
+        "  membrax sweep test.toml --grid membrane_modulus_kpa=700,1400,2800 --out study --devices 2\n"
+        "  membrax sweep test.toml --scheduler local             # a Dask worker process per core\n"
+        "  membrax sweep test.toml --scheduler tcp://head:8786 --out /shared/study  # a cluster\n"
+        "  membrax sweep test.toml --scheduler local --resume    # after an interruption",
     ),
     "reproduce": (
         "Run the paper's Table 1 (10, 40, 100 kPa x 2.5, 3.33, 5 mm) as one sweep, then write its Tables\n"
         "2-3 beside the paper's (table2/table3 .csv and .md), Figs 5-9 and reproduction.md.",
         "examples:\n"
         "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
-        "  membrax reproduce --size paper --out paper_run        # about 22 min on 2 CPU cores",
+        "  membrax reproduce --size paper --out paper_run        # about 22 min on 2 CPU cores\n"
+        "  membrax reproduce --size paper --scheduler tcp://head:8786 --out /shared/paper_run",
     ),
     "fit": (
         "Fit a membrane correction (calibrate.models: 'paper' or 'rich') on the records of one or more\n"
@@ -505,6 +517,21 @@ def build_parser() -> argparse.ArgumentParser:
             type=int,
             default=None,
             help="devices to shard over (default all; on a CPU one device per core)",
+        )
+        command.add_argument(
+            "--scheduler",
+            default=None,
+            metavar="ADDRESS|local",
+            help="run the members as tasks on Dask: 'local' (a worker process per core or GPU here), a "
+            "scheduler's tcp://host:port or its scheduler file (a cluster; the output folder must be on a "
+            "filesystem every worker sees); default: in this process",
+        )
+        command.add_argument(
+            "--task-members",
+            type=int,
+            default=None,
+            metavar="N",
+            help="with --scheduler: members per task (default: each group shared evenly over the workers)",
         )
     for command in (demo, run, sweep, reproduce):
         command.add_argument("--resume", action="store_true", help="continue from the folder's checkpoint")

@@ -62,6 +62,8 @@ def reproduce(
     progress: bool = True,
     num_devices: int | None = None,
     overrides: dict | None = None,
+    scheduler=None,
+    members_per_task: int | None = None,
 ) -> dict:
     """Run the paper's Table 1 and write its Tables 2–3 and Figs 5–9 (module docstring).
 
@@ -72,6 +74,8 @@ def reproduce(
       progress: progress bars.
       num_devices: devices to shard the batch over (default all).
       overrides: further configuration fields (e.g. ``{"target_axial_strain": 0.05}``).
+      scheduler: run the members on Dask (:func:`membrax.sweep.run_sweep`); None: in this process.
+      members_per_task: with ``scheduler``, members per task.
 
     Returns:
       ``{"folder", "sweep" (the SweepResult), "files", "seconds"}``.
@@ -84,7 +88,16 @@ def reproduce(
     started = time.perf_counter()
     folder = Path(folder if folder is not None else f"results_reproduce_{size}")
     base = TriaxialConfig(name=f"reproduce_{size}", **{**SIZES[size], **(overrides or {})})
-    result = run_sweep(base, None, folder, resume=resume, progress=progress, num_devices=num_devices)
+    result = run_sweep(
+        base,
+        None,
+        folder,
+        resume=resume,
+        progress=progress,
+        num_devices=num_devices,
+        scheduler=scheduler,
+        members_per_task=members_per_task,
+    )
     dataset = result.dataset
     cases = {
         (float(pressure), float(thickness)): member_records(

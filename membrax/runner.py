@@ -87,6 +87,7 @@ __all__ = [
     "loading",
     "join_records",
     "member_chunk_records",
+    "plan_members",
     "rebase_to_shear_start",
     "results_datasets",
     "run_group",
@@ -652,16 +653,6 @@ def describe_failure(failure: dict) -> str:
     return f"{failure['error']} in {failure['phase']} (chunk ending at step {failure['step']})"
 
 
-def _raise_if_all_failed(batch: BatchedTest, failures: dict, records: dict) -> None:
-    """``RunError`` naming every member's failure, once no member of ``batch`` is left running."""
-    if len(failures) < batch.num_members:
-        return
-    lines = [
-        f"member {b} ({batch.configs[b].name}): {describe_failure(f)}" for b, f in sorted(failures.items())
-    ]
-    raise RunError("every member failed:\n" + "\n".join(lines), records)
-
-
 def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
     """An order of the members whose contiguous device shares carry about equal work.
 
@@ -708,6 +699,35 @@ def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
     return [b for block in blocks for b in sorted(block)]
 
 
+def plan_members(
+    configs: Sequence[TriaxialConfig], time_step: float | None = None, nodes_around: int | None = None
+) -> tuple[list, float, int, list[int]]:
+    """The members' tests on a common Δt and n_θ, and each member's expected steps (its work).
+
+    Args:
+      configs: the members' configurations (one structure).
+      time_step: the common Δt, s (default: the smallest of the members' own).
+      nodes_around: the common n_θ (default: :func:`common_nodes_around`).
+
+    Returns:
+      (tests, Δt, n_θ, work): shear steps are planned; consolidation stops when its test holds (unknown
+      beforehand, about alike for all members), so every member is charged two chunks of it.
+    """
+    nodes_around = common_nodes_around(configs) if nodes_around is None else int(nodes_around)
+    tests = [build_test(c, time_step, nodes_around) for c in configs]
+    dt = min(t.dt for t in tests)
+    tests = [
+        t if t.dt == dt else build_test(c, time_step=dt, nodes_around=nodes_around)
+        for t, c in zip(tests, configs, strict=True)
+    ]
+    plans = [t.phase_plan(loading(c)) for c, t in zip(configs, tests, strict=True)]
+    work = [
+        min(c.consolidation_max_steps, 2 * c.chunk_steps) + sum(plan[phase][0] for phase in PHASES[1:])
+        for c, plan in zip(configs, plans, strict=True)
+    ]
+    return tests, float(dt), nodes_around, work
+
+
 def build_batch(
     configs: Sequence[TriaxialConfig],
     num_devices: int | None = None,
@@ -752,21 +772,8 @@ def build_batch(
     if not 1 <= num_devices <= available:
         raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
     num_devices = min(num_devices, len(configs))
-    nodes_around = common_nodes_around(configs) if nodes_around is None else int(nodes_around)
-    tests = [build_test(c, time_step, nodes_around) for c in configs]
-    dt = min(t.dt for t in tests)
-    tests = [
-        t if t.dt == dt else build_test(c, time_step=dt, nodes_around=nodes_around)
-        for t, c in zip(tests, configs, strict=True)
-    ]
+    tests, dt, nodes_around, work = plan_members(configs, time_step, nodes_around)
     if order is None:
-        # Shear steps are planned; consolidation stops when its test holds (unknown beforehand, about
-        # alike for all members), so every member is charged two chunks of it.
-        plans = [t.phase_plan(loading(c)) for c, t in zip(configs, tests, strict=True)]
-        work = [
-            min(c.consolidation_max_steps, 2 * c.chunk_steps) + sum(plan[phase][0] for phase in PHASES[1:])
-            for c, plan in zip(configs, plans, strict=True)
-        ]
         order = balanced_order(work, num_devices)
     order = [int(i) for i in order]
     if sorted(order) != list(range(len(configs))):
@@ -909,7 +916,8 @@ def run_group(
       after_chunk: ``after_chunk(states, phase)`` after each accepted chunk (e.g. VTK snapshots).
       isolate_failures: a member that blows up (error bits, or a runaway kinetic energy) is frozen at its
         last good records and the others go on; ``batch.failures`` maps it to its error, step and phase
-        (kept in checkpoints). Only if every member failed is ``RunError`` raised. False: the first raises.
+        (kept in checkpoints); the group runs on even when every member has failed (the caller judges: a
+        sweep fails only when all its members did). False: the first raises.
 
     Returns:
       (records by phase: lists of chunk dicts of stacked (B, T, ...) arrays with ``valid``; the start of
@@ -1043,7 +1051,6 @@ def run_group(
 
         def on_failure(b, names, step, phase=phase):
             failures[b] = {"error": names, "step": step, "phase": phase}
-            _raise_if_all_failed(batch, failures, records)
 
         stop_fn = None
         if phase == "consolidation":

@@ -28,15 +28,24 @@ with frozen copies to a multiple of the device count). On a CPU this is the fast
 ``membrax reproduce`` do it) runs each core's members side by side, each member's arrays on one core, which
 beats both one device using the cores for every operation and the members run one after another
 (``benchmarks/bench_sweep.py``). No program a sweep compiles holds a cross-device collective (the driver
-splits stacked members on the host, :func:`membrax.runner.BatchedTest.unstack`), so a device busy with a long
-chunk never stalls another, which XLA would end after 40 s. Across several hosts, call
-``jax.distributed.initialize()`` in every process before :func:`run_sweep`: ``jax.devices()`` then lists every
-host's devices, but a batch shards over the local ones only: between chunks the driver reads every member's
-error bits and records on the host. Give each process its share of the grid (e.g. ``jax.process_index()``
-picks the pressures) and merge the ``sweep.nc`` files with ``xarray.combine_by_coords`` (README).
+splits stacked members on the host, :func:`membrax.runner.BatchedTest.unstack`), so a device busy
+with a long chunk never stalls another, which XLA would end after 40 s.
+
+Campaigns (``scheduler=``, ``membrax sweep --scheduler``). The members run as tasks on ``dask.distributed``
+workers (:mod:`membrax.campaign`): a worker process per core or GPU on this machine (``"local"``), or the
+workers of a running scheduler (workstations, a SLURM allocation). Each group is planned once on a worker
+(its Δt, n_θ and each member's expected steps, kept in ``groups/group_{g}/plan.json``) and split into tasks
+of ``members_per_task`` members (default: the group shared evenly over the workers, by
+:func:`membrax.runner.balanced_order`); a task is one batch on its worker's devices, with the group's Δt
+and n_θ, so every member takes the steps it takes in-process. A task writes its results and checkpoints
+into ``groups/group_{g}/task_{t}`` (the folder must be on a filesystem every worker sees) and resumes from
+its checkpoint when its worker died and the scheduler ran it again; ``resume=True`` reuses the plans and
+submits only the unfinished tasks. The client writes ``sweep.nc`` from the task folders as in-process.
 
 Long runs. :func:`membrax.runner.run_group`'s progress bars, checkpoints and ``resume=True`` (results
-identical to an uninterrupted sweep), one checkpoint per group; finished groups are kept in ``groups/``.
+identical to an uninterrupted sweep), one checkpoint per group (per task in a campaign); finished groups
+are kept in ``groups/``. A member that fails is frozen at its last good records and marked in ``status``;
+the sweep fails only when every member did.
 """
 
 from __future__ import annotations
@@ -44,6 +53,10 @@ from __future__ import annotations
 import dataclasses as pydataclasses
 import itertools
 import json
+import math
+import os
+import shutil
+import socket
 import time
 import warnings
 from collections.abc import Mapping, Sequence
@@ -53,7 +66,7 @@ import jax
 import numpy as np
 import xarray as xr
 
-from membrax import __version__, paper
+from membrax import __version__, campaign, paper
 from membrax.config import (
     ConfigError,
     TriaxialConfig,
@@ -64,13 +77,16 @@ from membrax.config import (
 )
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
-from membrax.io import dataset_attrs_to_python, read_results, write_netcdf
+from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
 from membrax.runner import (
     BOOKKEEPING_FIELDS,
+    CHECKPOINT_NAME,
+    balanced_order,
     build_batch,
     consolidation_tolerance,
     describe_failure,
     member_chunk_records,
+    plan_members,
     results_datasets,
     run_group,
     run_metadata,
@@ -250,6 +266,189 @@ def _write_summary_csv(path: Path, coordinates: dict, configs_by_index: dict, da
     path.write_text("\n".join(lines) + "\n")
 
 
+# ----------------------------------------------------------------------------------------------------------
+# Units of work: a batch of members run into one folder (a whole group here, or one task on a worker)
+# ----------------------------------------------------------------------------------------------------------
+
+_DONE = "results.nc"
+
+
+def _run_unit(
+    configs: list,
+    folder: Path,
+    resume: bool,
+    progress: bool,
+    num_devices: int | None = None,
+    mode: str | None = None,
+    order: Sequence[int] | None = None,
+    time_step: float | None = None,
+    nodes_around: int | None = None,
+    interrupt_after_chunks: int | None = None,
+    chunk_counter: list | None = None,
+) -> list[int]:
+    """Run ``configs`` as one batch into ``folder`` (in this process or as a task on a worker).
+
+    Writes ``shear_{k}.nc``/``consolidation_{k}.nc`` for the batch's member k (``configs[order[k]]``),
+    ``members.json`` (the order) and, last, ``results.nc``. A member that fails is frozen and written
+    with its ``status`` (:func:`membrax.runner.run_group`'s ``isolate_failures``). Returns the order.
+    """
+    build_start = time.perf_counter()
+    batch = build_batch(configs, num_devices, mode, order, time_step, nodes_around)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "members.json").write_text(json.dumps(batch.order))
+    build_seconds = time.perf_counter() - build_start
+    records, shear_start, elapsed = run_group(
+        batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
+    )
+    for k, (config, test) in enumerate(zip(batch.configs, batch.tests, strict=True)):
+        mine = member_chunk_records(records, k)
+        metadata = run_metadata(config, test, mine, build_seconds, elapsed, consolidation_tolerance(config))
+        failure = batch.failures.get(k)
+        metadata.update(
+            batch_members=batch.num_members,
+            batch_devices=batch.num_devices,
+            nodes_around=batch.nodes_around,
+            status="completed" if failure is None else f"failed: {describe_failure(failure)}",
+        )
+        shear, consolidation = results_datasets(mine, shear_start[k], metadata)
+        if shear is None:  # a member that failed before shearing
+            shear = xr.Dataset(attrs=consolidation.attrs)
+        write_netcdf(shear, folder / f"shear_{k}.nc")
+        write_netcdf(consolidation, folder / f"consolidation_{k}.nc")
+    write_netcdf(xr.Dataset(attrs={"members": batch.num_members}), folder / _DONE)
+    return batch.order
+
+
+def _read_unit(folder: Path, members: list) -> list:
+    """(grid index, shear, consolidation) of each of ``members`` ((index, config) in the unit's order)."""
+    return [
+        (index, read_results(folder / f"shear_{k}.nc"), read_results(folder / f"consolidation_{k}.nc"))
+        for k, (index, _) in enumerate(members)
+    ]
+
+
+def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks) -> list:
+    """Every group as one batch in this process, one after another (``groups/group_{g}``)."""
+    outcomes, chunk_counter = [], [0]
+    for g, group in enumerate(groups.values()):
+        group_folder = folder / "groups" / f"group_{g}"
+        # The batch order (balanced_order) depends on the device count: a resumed group keeps its own.
+        order_file = group_folder / "members.json"
+        order = None
+        if resume and order_file.exists():
+            order = json.loads(order_file.read_text())
+        elif resume and group_folder.exists():
+            order = list(range(len(group)))  # a folder written before members.json: grid order
+        if not (resume and (group_folder / _DONE).exists()):
+            order = _run_unit(
+                [config for _, config in group],
+                group_folder,
+                resume,
+                progress,
+                num_devices,
+                mode,
+                order,
+                interrupt_after_chunks=interrupt_after_chunks,
+                chunk_counter=chunk_counter,
+            )
+        outcomes += _read_unit(group_folder, [group[i] for i in order])
+    return outcomes
+
+
+def plan_group(configs: list) -> dict:
+    """A group's common Δt and n_θ and each member's expected steps (run on a worker: it builds the tests)."""
+    with jax.enable_x64(configs[0].float64):
+        _, time_step, nodes_around, work = plan_members(configs)
+    return {"time_step": time_step, "nodes_around": nodes_around, "work": work}
+
+
+def run_task(configs: list, folder: str, time_step: float, nodes_around: int) -> int:
+    """One task of a Dask campaign, run on a worker: ``configs`` as one batch, into ``folder``.
+
+    The batch shards over the worker's devices, with the group's Δt and n_θ (so each member takes the
+    steps it takes in-process). Always resumes from the folder's checkpoint: a task whose worker died
+    goes on where it stopped; a finished folder is left as it is. Each start appends a line to
+    ``attempts.jsonl`` (process, host, and the steps the checkpoint had reached). Returns the members.
+    """
+    folder = Path(folder)
+    if (folder / _DONE).exists():
+        return len(configs)
+    folder.mkdir(parents=True, exist_ok=True)
+    checkpoint = folder / CHECKPOINT_NAME
+    steps = read_checkpoint_host(checkpoint).get("member_steps") if checkpoint.exists() else None
+    attempt = {"pid": os.getpid(), "host": socket.gethostname(), "time": time.time(), "resumed_steps": steps}
+    with (folder / "attempts.jsonl").open("a") as log:
+        log.write(json.dumps(attempt) + "\n")
+    with jax.enable_x64(configs[0].float64):
+        _run_unit(
+            configs,
+            folder,
+            True,
+            False,
+            order=list(range(len(configs))),
+            time_step=time_step,
+            nodes_around=nodes_around,
+        )
+    return len(configs)
+
+
+def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per_task, interrupt_after_tasks):
+    """Every group split into tasks (``groups/group_{g}/task_{t}``), all sent to a Dask scheduler at once.
+
+    Each group's Δt, n_θ and split are planned on a worker and kept in ``groups/group_{g}/plan.json``; a
+    resumed campaign reuses them and submits only the tasks without ``results.nc``.
+    """
+    client, cluster, owned = campaign.connect(scheduler)
+    try:
+        workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]) or 1)
+        plans = {}
+        for g, group in enumerate(groups.values()):
+            group_folder = folder / "groups" / f"group_{g}"
+            plan_file = group_folder / "plan.json"
+            if resume and plan_file.exists():
+                plans[g] = json.loads(plan_file.read_text())
+                continue
+            if group_folder.exists():
+                shutil.rmtree(group_folder)  # a fresh run: no stale task checkpoints to resume from
+            plans[g] = client.submit(plan_group, [config for _, config in group], pure=False)
+        for g, group in enumerate(groups.values()):
+            if isinstance(plans[g], dict):
+                continue
+            plan = plans[g].result()
+            per_task = members_per_task or math.ceil(len(group) / workers)
+            if per_task < 1:
+                raise ConfigError(f"members_per_task = {per_task}; give at least 1.")
+            count = math.ceil(len(group) / per_task)
+            order = balanced_order(plan.pop("work"), count)
+            size = math.ceil(len(group) / count)
+            plan["tasks"] = [order[t * size : (t + 1) * size] for t in range(count)]
+            plan_file = folder / "groups" / f"group_{g}" / "plan.json"
+            plan_file.parent.mkdir(parents=True, exist_ok=True)
+            plan_file.write_text(json.dumps(plan))
+            plans[g] = plan
+        tasks, units = {}, []
+        for g, group in enumerate(groups.values()):
+            plan = plans[g]
+            for t, positions in enumerate(plan["tasks"]):
+                task_folder = (folder / "groups" / f"group_{g}" / f"task_{t}").resolve()
+                members = [group[i] for i in positions]
+                units.append((task_folder, members))
+                if not (task_folder / _DONE).exists():
+                    tasks[str(task_folder)] = {
+                        "configs": [config for _, config in members],
+                        "folder": str(task_folder),
+                        "time_step": plan["time_step"],
+                        "nodes_around": plan["nodes_around"],
+                    }
+        campaign.run_tasks(client, run_task, tasks, progress, "sweep tasks", interrupt_after_tasks)
+    finally:
+        if owned:
+            client.close()
+        if cluster is not None:
+            cluster.close()
+    return [outcome for task_folder, members in units for outcome in _read_unit(task_folder, members)]
+
+
 def run_sweep(
     base: TriaxialConfig,
     grid: Mapping[str, Sequence] | None = None,
@@ -259,6 +458,9 @@ def run_sweep(
     num_devices: int | None = None,
     mode: str | None = None,
     interrupt_after_chunks: int | None = None,
+    scheduler: str | None = None,
+    members_per_task: int | None = None,
+    interrupt_after_tasks: int | None = None,
 ) -> SweepResult:
     """Run every member of ``grid`` over ``base`` into ``folder`` (module docstring).
 
@@ -272,6 +474,11 @@ def run_sweep(
         :func:`membrax.devices.split_cpu_devices`).
       mode: ``"map"``/``"vmap"`` (default by backend, :func:`build_batch`).
       interrupt_after_chunks: testing aid: ``KeyboardInterrupt`` after this many chunks of this call.
+      scheduler: run the members as tasks on ``dask.distributed`` (module docstring): ``"local"``, a
+        scheduler's address or file, or a connected ``Client`` (:func:`membrax.campaign.connect`); None
+        runs them in this process.
+      members_per_task: members per task (default: a group's members shared evenly over the workers).
+      interrupt_after_tasks: testing aid: ``KeyboardInterrupt`` after this many finished tasks.
 
     Returns:
       A :class:`SweepResult`.
@@ -291,7 +498,10 @@ def run_sweep(
             + "\n[grid]\n"
             + "".join(f"{key} = {json.dumps(list(values))}\n" for key, values in coordinates.items())
         )
-    if jax.default_backend() == "cpu" and jax.local_device_count() == 1 and cpu_cores() > 1 < len(members):
+    # (A Dask client starts no JAX backend here: on a GPU machine that would hold the workers' memory.)
+    in_process = scheduler is None
+    one_cpu_device = in_process and jax.default_backend() == "cpu" and jax.local_device_count() == 1
+    if one_cpu_device and cpu_cores() > 1 < len(members):
         warnings.warn(
             f"one CPU device on {cpu_cores()} cores: call membrax.devices.split_cpu_devices() before "
             "importing the rest of membrax (or any JAX operation) to run the members side by side, one "
@@ -303,75 +513,27 @@ def run_sweep(
         groups.setdefault(structure_key(config), []).append((index, config))
     # The base configuration's precision, scoped to this call (thread-local), as in run_test.
     with jax.enable_x64(base.float64):
-        shear_sets, consolidation_sets, indices, extra, statuses = [], [], [], {}, {}
-        chunk_counter = [0]
-        for g, group in enumerate(groups.values()):
-            group_folder = folder / "groups" / f"group_{g}"
-            done_file = group_folder / "results.nc"
-            # The batch order (balanced_order) depends on the device count: a resumed group keeps its own.
-            order_file = group_folder / "members.json"
-            order = None
-            if resume and order_file.exists():
-                order = json.loads(order_file.read_text())
-            elif resume and group_folder.exists():
-                order = list(range(len(group)))  # a folder written before members.json: grid order
-            if resume and done_file.exists():
-                group = [group[i] for i in order]
-                shear_group = [read_results(group_folder / f"shear_{k}.nc") for k in range(len(group))]
-                consolidation_group = [
-                    read_results(group_folder / f"consolidation_{k}.nc") for k in range(len(group))
-                ]
-            else:
-                build_start = time.perf_counter()
-                batch = build_batch([config for _, config in group], num_devices, mode, order)
-                group = [group[i] for i in batch.order]
-                group_folder.mkdir(parents=True, exist_ok=True)
-                order_file.write_text(json.dumps(batch.order))
-                build_seconds = time.perf_counter() - build_start
-                records, shear_start, elapsed = run_group(
-                    batch,
-                    group_folder,
-                    resume,
-                    progress,
-                    interrupt_after_chunks,
-                    chunk_counter,
-                    isolate_failures=True,
-                )
-                shear_group, consolidation_group = [], []
-                for k, ((_, config), test) in enumerate(zip(group, batch.tests, strict=True)):
-                    mine = member_chunk_records(records, k)
-                    metadata = run_metadata(
-                        config, test, mine, build_seconds, elapsed, consolidation_tolerance(config)
-                    )
-                    failure = batch.failures.get(k)
-                    metadata.update(
-                        batch_members=batch.num_members,
-                        batch_devices=batch.num_devices,
-                        nodes_around=batch.nodes_around,
-                        status="completed" if failure is None else f"failed: {describe_failure(failure)}",
-                    )
-                    shear, consolidation = results_datasets(mine, shear_start[k], metadata)
-                    if shear is None:  # a member that failed before shearing
-                        shear = xr.Dataset(attrs=consolidation.attrs)
-                    write_netcdf(shear, group_folder / f"shear_{k}.nc")
-                    write_netcdf(consolidation, group_folder / f"consolidation_{k}.nc")
-                    shear_group.append(shear)
-                    consolidation_group.append(consolidation)
-                write_netcdf(xr.Dataset(attrs={"members": len(group)}), done_file)
-            for (index, _), shear, consolidation in zip(group, shear_group, consolidation_group, strict=True):
-                attrs = dataset_attrs_to_python(shear)
-                statuses[index] = attrs.get("status", "completed")
-                if statuses[index] != "completed":
-                    continue  # its records stop at the failure (groups/); the grid shows the status only
-                indices.append(index)
-                shear_sets.append(shear)
-                consolidation_sets.append(consolidation)
-                extra.setdefault("consolidation_steps", []).append(attrs["consolidation_steps"])
-                extra.setdefault("shear_steps", []).append(attrs["shear_steps"])
-                extra.setdefault("dt_s", []).append(attrs["dt_s"])
-                extra.setdefault("nodes_around", []).append(attrs["nodes_around"])
-                for name, value in _member_scalars(shear).items():
-                    extra.setdefault(name, []).append(value)
+        if scheduler is None:
+            outcomes = _run_groups_here(
+                groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks
+            )
+        else:
+            outcomes = _run_groups_on_dask(
+                groups, folder, resume, progress, scheduler, members_per_task, interrupt_after_tasks
+            )
+    shear_sets, consolidation_sets, indices, extra, statuses = [], [], [], {}, {}
+    for index, shear, consolidation in outcomes:
+        attrs = dataset_attrs_to_python(shear)
+        statuses[index] = attrs.get("status", "completed")
+        if statuses[index] != "completed":
+            continue  # its records stop at the failure (groups/); the grid shows the status only
+        indices.append(index)
+        shear_sets.append(shear)
+        consolidation_sets.append(consolidation)
+        for name in ("consolidation_steps", "shear_steps", "dt_s", "nodes_around"):
+            extra.setdefault(name, []).append(attrs[name])
+        for name, value in _member_scalars(shear).items():
+            extra.setdefault(name, []).append(value)
     attrs = {
         "membrax_version": __version__,
         "base_config": config_to_dict(base),

@@ -43,7 +43,7 @@ LAYERS = (
     # runs: the stage loop every run and sweep shares, then one test, a grid, the paper
     ("runner",),
     ("run", "sensitivities", "gradients"),
-    ("sweep",),
+    ("campaign", "sweep"),
     ("reproduce",),
     # commands: nothing imports them
     ("cli",),

@@ -1,0 +1,184 @@
+"""Campaigns on Dask: tasks on worker processes give the in-process results, and survive lost processes.
+
+The cluster is real: two worker processes of :func:`membrax.campaign.local_cluster` (one per core), a
+scheduler in this process. Each test runs the three-pressure grid as three one-member tasks, so with two
+workers the third task waits for a free one.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import dask
+import numpy as np
+import pytest
+from test_sweep import COMPARED, SHORT
+
+from membrax import campaign, sweep
+from membrax.config import TriaxialConfig, dump_config_toml
+from membrax.errors import RunError
+
+# Every test here runs simulations on worker processes (the module's fixtures alone take about 2 min).
+pytestmark = pytest.mark.slow
+
+GRID = {"cell_pressure_kpa": (10.0, 40.0, 100.0), "membrane_thickness_mm": (5.0,)}
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    """Two worker processes; a lock held by a killed worker is released after 2 s (dask's default: 30 s)."""
+    short_leases = {
+        "distributed.scheduler.locks.lease-timeout": "2s",
+        "distributed.scheduler.locks.lease-validation-interval": "500ms",
+    }
+    with dask.config.set(short_leases), campaign.local_cluster(2) as workers:
+        yield workers
+
+
+@pytest.fixture(scope="module")
+def on_dask(cluster, tmp_path_factory):
+    """The grid as three uninterrupted one-member tasks."""
+    folder = tmp_path_factory.mktemp("campaign") / "whole"
+    base = TriaxialConfig(**SHORT)
+    result = sweep.run_sweep(
+        base, GRID, folder, progress=False, scheduler=cluster.scheduler_address, members_per_task=1
+    )
+    return result
+
+
+def _task_folders(folder):
+    return sorted((folder / "groups" / "group_0").glob("task_*"))
+
+
+def _attempts(task_folder) -> list[dict]:
+    path = task_folder / "attempts.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def test_tasks_on_worker_processes_give_the_in_process_results(on_dask, tmp_path):
+    """Each task builds its member with the group's Δt and n_θ (planned once, on a worker), so every member
+    takes the steps it takes in the in-process batch: the same consolidation and shear step counts, and
+    the records agree to rounding (1e-9 over the first records; the packing's chaos may amplify the last
+    bits later, test_sweep). Each task ran once, in a worker process, not in this one."""
+    here = sweep.run_sweep(TriaxialConfig(**SHORT), GRID, tmp_path / "here", progress=False, num_devices=1)
+    for name in ("consolidation_steps", "shear_steps", "num_records", "dt_s", "nodes_around"):
+        np.testing.assert_array_equal(on_dask.dataset[name].values, here.dataset[name].values, err_msg=name)
+    for name in COMPARED:
+        ours, theirs = on_dask.consolidation[name].values, here.consolidation[name].values
+        scale = np.nanmax(np.abs(theirs))
+        assert np.nanmax(np.abs(ours[..., :5] - theirs[..., :5])) <= 1e-9 * scale, name
+        ours, theirs = on_dask.dataset[name].values, here.dataset[name].values
+        assert np.nanmax(np.abs(ours[..., 0] - theirs[..., 0])) <= 1e-3 * scale, name
+    tasks = _task_folders(on_dask.folder)
+    assert len(tasks) == 3
+    plan = json.loads((on_dask.folder / "groups" / "group_0" / "plan.json").read_text())
+    assert sorted(i for task in plan["tasks"] for i in task) == [0, 1, 2]
+    assert plan["time_step"] == pytest.approx(float(here.dataset["dt_s"].values[0, 0]), rel=1e-15)
+    for task in tasks:
+        (attempt,) = _attempts(task)
+        assert attempt["pid"] != os.getpid() and attempt["resumed_steps"] is None
+    assert set(on_dask.dataset["status"].values.ravel()) == {"completed"}
+
+
+def _wait_for(condition, seconds: float, what: str):
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        found = condition()
+        if found:
+            return found
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {seconds} s waiting for {what}")
+
+
+def test_a_killed_worker_and_a_killed_client_lose_only_the_work_since_the_last_checkpoint(
+    cluster, on_dask, tmp_path
+):
+    """``membrax sweep --scheduler`` in a subprocess. Once a task has written a checkpoint, its worker
+    process is killed (SIGKILL): the scheduler runs the task again on a restarted worker, which resumes
+    from that checkpoint (its second attempt starts at the checkpoint's steps). Once a task has finished,
+    the client itself is killed (SIGKILL); the campaign resumed from another client runs only the tasks
+    without results. The records equal the uninterrupted campaign's to the last bit."""
+    folder = tmp_path / "killed"
+    config = tmp_path / "base.toml"
+    config.write_text(dump_config_toml(TriaxialConfig(**SHORT)))
+    command = [
+        sys.executable,
+        "-m",
+        "membrax.cli",
+        "sweep",
+        str(config),
+        "--grid",
+        "cell_pressure_kpa=10,40,100",
+        "--grid",
+        "membrane_thickness_mm=5",
+        "--scheduler",
+        cluster.scheduler_address,
+        "--task-members",
+        "1",
+        "--out",
+        str(folder),
+        "--no-progress",
+    ]
+    client = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+
+        def checkpointed_task():
+            for task in _task_folders(folder):
+                attempts = _attempts(task)
+                if (task / "checkpoint.npz").exists() and not (task / "results.nc").exists() and attempts:
+                    return task, attempts[-1]["pid"]
+            return None
+
+        killed_task, worker_pid = _wait_for(checkpointed_task, 600, "a task's first checkpoint")
+        os.kill(worker_pid, signal.SIGKILL)
+        finished = _wait_for(
+            lambda: [t for t in _task_folders(folder) if (t / "results.nc").exists()], 600, "a finished task"
+        )
+        client.kill()
+    finally:
+        if client.poll() is None:
+            client.kill()
+        client.wait()
+    assert client.returncode == -signal.SIGKILL, client.stderr.read()[-2000:]
+    assert len(finished) < 3, "every task finished before the client was killed: nothing left to resume"
+    finished_before = {task.name: len(_attempts(task)) for task in finished}
+
+    resumed = sweep.run_sweep(
+        TriaxialConfig(**SHORT),
+        GRID,
+        folder,
+        resume=True,
+        progress=False,
+        scheduler=cluster.scheduler_address,
+        members_per_task=1,
+    )
+    for task in _task_folders(folder):
+        if task.name in finished_before:
+            assert len(_attempts(task)) == finished_before[task.name], task.name  # not run again
+    attempts = _attempts(killed_task)
+    assert len(attempts) >= 2, attempts
+    assert attempts[1]["pid"] != worker_pid
+    assert attempts[1]["resumed_steps"] is not None and min(attempts[1]["resumed_steps"]) > 0, attempts
+    for name in (*COMPARED, "consolidation_steps", "shear_steps"):
+        ours, theirs = resumed.dataset[name].values, on_dask.dataset[name].values
+        np.testing.assert_array_equal(ours, theirs, err_msg=name)
+
+
+def test_a_task_that_raises_is_reported_after_the_others_finish(cluster):
+    """A task that raises does not stop the others: all are waited for, then one RunError names it."""
+    from distributed import Client
+
+    with Client(cluster.scheduler_address) as client:
+        tasks = {"a": {"s": "2"}, "b": {"s": "{"}, "c": {"s": "3"}}
+        with pytest.raises(RunError, match=r"(?s)1 of 3 tasks failed.*b: JSONDecodeError"):
+            campaign.run_tasks(client, json.loads, tasks, progress=False)
+        del tasks["b"]
+        assert campaign.run_tasks(client, json.loads, tasks, progress=False) == {"a": 2, "c": 3}
+
+
+def test_a_scheduler_that_does_not_answer_is_named():
+    with pytest.raises(ValueError, match=r"tcp://127\.0\.0\.1:9: no Dask scheduler answered"):
+        campaign.connect("tcp://127.0.0.1:9", timeout_s=2.0)
