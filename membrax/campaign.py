@@ -29,6 +29,7 @@ import shutil
 import subprocess
 from collections.abc import Callable, Mapping
 
+from membrax import native
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
 
@@ -52,6 +53,9 @@ def local_cluster(num_workers: int | None = None):
     Each worker is one process with one thread. A CPU worker sees one JAX device and keeps XLA's own
     thread pool to one thread (``--xla_cpu_multi_thread_eigen=false``), so the workers do not compete for
     the cores; a GPU worker sees only its GPU (``CUDA_VISIBLE_DEVICES``) and allocates memory as it goes.
+    The workers share JAX's persistent compilation cache (``$JAX_COMPILATION_CACHE_DIR``, else ``jax/`` in
+    membrax's cache folder, :func:`membrax.native.cache_dir`), every program kept: the workers compile the
+    same programs (a group's members share their shapes), and each would otherwise compile them again.
     Worker memory is not capped (dask's default cap would pause or restart a worker whose XLA buffers pass
     its share of the memory).
 
@@ -67,6 +71,13 @@ def local_cluster(num_workers: int | None = None):
     count = (gpus or cpu_cores()) if num_workers is None else int(num_workers)
     if count < 1:
         raise ValueError(f"num_workers = {count}; give at least 1 worker.")
+    shared = {
+        "JAX_COMPILATION_CACHE_DIR": os.environ.get("JAX_COMPILATION_CACHE_DIR")
+        or str(native.cache_dir() / "jax"),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": os.environ.get(
+            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0"
+        ),
+    }
     workers = {}
     for w in range(count):
         if gpus:
@@ -74,7 +85,7 @@ def local_cluster(num_workers: int | None = None):
         else:
             flags = os.environ.get("XLA_FLAGS", "")
             env = {"JAX_PLATFORMS": "cpu", "XLA_FLAGS": f"{flags} --xla_cpu_multi_thread_eigen=false".strip()}
-        options = {"nthreads": 1, "memory_limit": 0, "env": env, "silence_logs": logging.ERROR}
+        options = {"nthreads": 1, "memory_limit": 0, "env": {**shared, **env}, "silence_logs": logging.ERROR}
         workers[f"membrax-{w}"] = {"cls": Nanny, "options": options}
     scheduler = {"cls": Scheduler, "options": {"dashboard_address": None}}
     return SpecCluster(workers=workers, scheduler=scheduler, silence_logs=logging.ERROR)

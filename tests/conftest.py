@@ -62,6 +62,7 @@ def precision(request):
 LONG_FIRST = (
     "tests/test_gradients.py",
     "tests/test_sweep.py",
+    "tests/test_campaign.py",
     "notebooks/04_gradients.ipynb",
     "tests/test_run.py",
     "tests/test_loading.py",

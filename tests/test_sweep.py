@@ -15,6 +15,7 @@ from helpers import SMALL_SPECIMEN
 
 from membrax import paper, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
+from membrax.errors import RunError
 from membrax.io import read_results
 from membrax.run import run_test
 from membrax.spheres.packing import GRANITE_DENSITY
@@ -136,8 +137,6 @@ def test_initial_membrane_stresses_follow_the_papers_trends(grid_sweep):
 
 def test_the_sweep_dataset_is_written_with_the_grid_as_dimensions(grid_sweep):
     """sweep.nc reads back with the grid's dimensions and values, padding marked by num_records."""
-    from membrax.io import read_results
-
     back = read_results(grid_sweep.files["sweep"])
     assert back["internal_axial_stress"].dims == ("cell_pressure_kpa", "membrane_thickness_mm", "record")
     np.testing.assert_array_equal(back["cell_pressure_kpa"].values, GRID["cell_pressure_kpa"])
@@ -374,3 +373,25 @@ def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchang
         np.testing.assert_array_equal(mixed.dataset[name].values[:2], alone.dataset[name].values)
     summary = (tmp_path / "mixed" / "summary.csv").read_text().splitlines()
     assert summary[0].endswith(",status") and summary[3].endswith(json.dumps(str(status[2])))
+
+
+def test_a_runaway_kinetic_energy_freezes_the_member_and_a_sweep_of_only_runaways_fails(
+    tmp_path, monkeypatch
+):
+    """The kinetic-energy guard (E_k > f σc V₀ after a chunk) with its fraction f set to 0, so every member
+    trips it in its first chunk: each is frozen before that chunk's records and named with
+    RUNAWAY_KINETIC_ENERGY, its phase and step; with no member left the sweep raises, listing both. A
+    single test (run_test, no isolation) stops with the energy and the bound in the message."""
+    monkeypatch.setattr(runner, "RUNAWAY_KINETIC_FRACTION", 0.0)
+    base = TriaxialConfig(**SHORT)
+    with pytest.raises(RunError, match="every member failed") as failed:
+        sweep.run_sweep(base, SHORT_GRID, tmp_path / "sweep", progress=False, num_devices=1)
+    lines = str(failed.value).splitlines()[1:]
+    assert len(lines) == 2
+    for line in lines:
+        assert line.endswith(": RUNAWAY_KINETIC_ENERGY in consolidation (chunk ending at step 500)"), line
+    for k in range(2):
+        frozen = read_results(tmp_path / "sweep" / "groups" / "group_0" / f"consolidation_{k}.nc")
+        assert frozen.sizes.get("record", 0) == 0  # the chunk that tripped the guard is not kept
+    with pytest.raises(RunError, match=r"kinetic energy .* J exceeds 0\.0 σc V₀ = 0 J: the run is unstable"):
+        run_test(base, tmp_path / "single", progress=False)
