@@ -335,6 +335,11 @@ def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interr
         # The batch order (balanced_order) depends on the device count: a resumed group keeps its own.
         order_file = group_folder / "members.json"
         order = None
+        if resume and (group_folder / "plan.json").exists():
+            raise ConfigError(
+                f"{group_folder} holds a Dask campaign's tasks; resume it with the same --scheduler option, "
+                "or give a new output folder."
+            )
         if resume and order_file.exists():
             order = json.loads(order_file.read_text())
         elif resume and group_folder.exists():
@@ -400,7 +405,7 @@ def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per
     """
     client, cluster, owned = campaign.connect(scheduler)
     try:
-        workers = max(1, len(client.scheduler_info(n_workers=-1)["workers"]) or 1)
+        workers = max(1, sum(client.nthreads().values()))  # task slots (0 while none has joined yet)
         plans = {}
         for g, group in enumerate(groups.values()):
             group_folder = folder / "groups" / f"group_{g}"
@@ -408,6 +413,11 @@ def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per
             if resume and plan_file.exists():
                 plans[g] = json.loads(plan_file.read_text())
                 continue
+            if resume and (group_folder / "members.json").exists():
+                raise ConfigError(
+                    f"{group_folder} holds an in-process sweep's results; resume it without --scheduler, "
+                    "or give a new output folder."
+                )
             if group_folder.exists():
                 shutil.rmtree(group_folder)  # a fresh run: no stale task checkpoints to resume from
             plans[g] = client.submit(plan_group, [config for _, config in group], pure=False)

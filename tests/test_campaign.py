@@ -20,7 +20,7 @@ import pytest
 from test_sweep import COMPARED, SHORT
 
 from membrax import campaign, runner, sweep
-from membrax.config import TriaxialConfig, dump_config_toml
+from membrax.config import ConfigError, TriaxialConfig, dump_config_toml
 from membrax.errors import RunError
 
 # Every test here runs simulations on worker processes (the module's fixtures alone take about 2 min).
@@ -233,3 +233,14 @@ def test_a_task_that_raises_is_reported_after_the_others_finish(cluster):
 def test_a_scheduler_that_does_not_answer_is_named():
     with pytest.raises(ValueError, match=r"tcp://127\.0\.0\.1:9: no Dask scheduler answered"):
         campaign.connect("tcp://127.0.0.1:9", timeout_s=2.0)
+
+
+def test_a_campaign_folder_is_not_resumed_in_process(tmp_path):
+    """A Dask campaign's folder (its groups hold plan.json and task folders) resumed without --scheduler
+    is refused with the fix, before anything runs or is overwritten."""
+    group = tmp_path / "groups" / "group_0"
+    group.mkdir(parents=True)
+    (group / "plan.json").write_text(json.dumps({"time_step": 1e-5, "nodes_around": 34, "tasks": [[0]]}))
+    with pytest.raises(ConfigError, match="resume it with the same --scheduler option"):
+        sweep.run_sweep(TriaxialConfig(**SHORT), GRID, tmp_path, resume=True, progress=False, num_devices=1)
+    assert sorted(path.name for path in group.iterdir()) == ["plan.json"]
