@@ -17,7 +17,7 @@ ext − int curves). The tolerance of issue 47: a rate is acceptable if its peak
 Table 3 within 0.3 kPa of the slowest run's.
 
 Run: ``python examples/loading_rate_study.py [--rates 1e-3,2e-3,5e-3] [--out results/loading_rate]``
-(about 22 + 12 + 6 min on 2 CPU cores).
+(measured 2026-11-27 on 2 CPU cores: 45 min 49 s at 1e-3, 20 min 55 s at 5e-3; docs/loading_rate.md).
 """
 
 import argparse

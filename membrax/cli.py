@@ -414,7 +414,7 @@ SUBCOMMAND_HELP = {
         "2-3 beside the paper's (table2/table3 .csv and .md), Figs 5-9 and reproduction.md.",
         "examples:\n"
         "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
-        "  membrax reproduce --size paper --out paper_run        # about 22 min on 2 CPU cores\n"
+        "  membrax reproduce --size paper --out paper_run        # about 46 min on 2 CPU cores\n"
         "  membrax reproduce --size paper --scheduler tcp://head:8786 --out /shared/paper_run",
     ),
     "fit": (
@@ -507,7 +507,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="small",
         help=(
             "small: 6 × 10 specimen, ≈ 3 min on 2 CPU cores; "
-            "paper: 10 × 25, a CPU command, ≈ 22 min on 2 CPU cores (22 min 26 s measured)"
+            "paper: 10 × 25, ≈ 46 min on 2 CPU cores (45 min 49 s measured); add --scheduler to share it"
         ),
     )
     reproduce.add_argument("--out", default=None, help="results folder (default: results_reproduce_<size>)")
