@@ -14,6 +14,7 @@ import time
 
 import cloudpickle
 import dask
+import distributed  # noqa: F401  (its config defaults loaded before dask.config.set below: see cluster)
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -31,7 +32,11 @@ GRID = {"cell_pressure_kpa": (10.0, 40.0, 100.0), "membrane_thickness_mm": (5.0,
 
 @pytest.fixture(scope="module")
 def cluster():
-    """Two worker processes; a lock held by a killed worker is released after 2 s (dask's default: 30 s)."""
+    """Two worker processes; a lock held by a killed worker is released after 2 s (dask's default: 30 s).
+
+    ``distributed`` is imported at the top of this module: ``dask.config.set`` restores on exit what it
+    found, and a ``distributed`` section it did not find is deleted, which left later tests of the same
+    process (xarray's ``to_netcdf`` asks distributed for a client) without distributed's configuration."""
     short_leases = {
         "distributed.scheduler.locks.lease-timeout": "2s",
         "distributed.scheduler.locks.lease-validation-interval": "500ms",
