@@ -139,7 +139,6 @@ def run_tasks(
     tasks: Mapping[str, Mapping],
     progress: bool = True,
     description: str = "tasks",
-    interrupt_after: int | None = None,
 ) -> dict:
     """Run ``function(**arguments)`` for every ``name → arguments`` of ``tasks`` on the client's workers.
 
@@ -149,8 +148,6 @@ def run_tasks(
       tasks: task name (unique in the campaign, e.g. its results folder) → keyword arguments.
       progress: a tqdm bar over the tasks.
       description: the bar's label.
-      interrupt_after: testing aid: ``KeyboardInterrupt`` once this many tasks have finished (the others
-        are cancelled), as a killed client would stop.
 
     Returns:
       {task name: the function's result}.
@@ -174,9 +171,6 @@ def run_tasks(
             else:
                 results[name] = future.result()
             bar.update()
-            if interrupt_after is not None and len(results) + len(errors) >= interrupt_after:
-                client.cancel(list(futures))
-                raise KeyboardInterrupt(f"interrupted after {interrupt_after} tasks (testing aid)")
     if errors:
         lines = "\n".join(f"{name}: {error}" for name, error in errors.items())
         raise RunError(

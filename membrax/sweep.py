@@ -397,7 +397,7 @@ def run_task(configs: list, folder: str, time_step: float, nodes_around: int) ->
     return len(configs)
 
 
-def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per_task, interrupt_after_tasks):
+def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per_task):
     """Every group split into tasks (``groups/group_{g}/task_{t}``), all sent to a Dask scheduler at once.
 
     Each group's Δt, n_θ and split are planned on a worker and kept in ``groups/group_{g}/plan.json``; a
@@ -426,8 +426,6 @@ def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per
                 continue
             plan = plans[g].result()
             per_task = members_per_task or math.ceil(len(group) / workers)
-            if per_task < 1:
-                raise ConfigError(f"members_per_task = {per_task}; give at least 1.")
             count = math.ceil(len(group) / per_task)
             order = balanced_order(plan.pop("work"), count)
             size = math.ceil(len(group) / count)
@@ -450,7 +448,7 @@ def _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per
                         "time_step": plan["time_step"],
                         "nodes_around": plan["nodes_around"],
                     }
-        campaign.run_tasks(client, run_task, tasks, progress, "sweep tasks", interrupt_after_tasks)
+        campaign.run_tasks(client, run_task, tasks, progress, "sweep tasks")
     finally:
         if owned:
             client.close()
@@ -470,7 +468,6 @@ def run_sweep(
     interrupt_after_chunks: int | None = None,
     scheduler: str | None = None,
     members_per_task: int | None = None,
-    interrupt_after_tasks: int | None = None,
 ) -> SweepResult:
     """Run every member of ``grid`` over ``base`` into ``folder`` (module docstring).
 
@@ -488,7 +485,6 @@ def run_sweep(
         scheduler's address or file, or a connected ``Client`` (:func:`membrax.campaign.connect`); None
         runs them in this process.
       members_per_task: members per task (default: a group's members shared evenly over the workers).
-      interrupt_after_tasks: testing aid: ``KeyboardInterrupt`` after this many finished tasks.
 
     Returns:
       A :class:`SweepResult`.
@@ -498,6 +494,8 @@ def run_sweep(
         that fails alone is frozen at its last good records and marked in ``status`` (a warning lists them).
     """
     started = time.perf_counter()
+    if members_per_task is not None and members_per_task < 1:
+        raise ConfigError(f"members_per_task = {members_per_task}; give at least 1 (or None: even shares).")
     grid = dict(DEFAULT_GRID if grid is None else grid)
     coordinates, members = grid_members(base, grid)
     folder = Path(folder if folder is not None else f"results_{base.name}_sweep")
@@ -528,9 +526,7 @@ def run_sweep(
                 groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks
             )
         else:
-            outcomes = _run_groups_on_dask(
-                groups, folder, resume, progress, scheduler, members_per_task, interrupt_after_tasks
-            )
+            outcomes = _run_groups_on_dask(groups, folder, resume, progress, scheduler, members_per_task)
     shear_sets, consolidation_sets, indices, extra, statuses = [], [], [], {}, {}
     for index, shear, consolidation in outcomes:
         attrs = dataset_attrs_to_python(shear)

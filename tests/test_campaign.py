@@ -48,12 +48,14 @@ def cluster():
 @pytest.fixture(scope="module")
 def on_dask(cluster, tmp_path_factory):
     """The grid as three uninterrupted one-member tasks."""
-    folder = tmp_path_factory.mktemp("campaign") / "whole"
-    base = TriaxialConfig(**SHORT)
-    result = sweep.run_sweep(
-        base, GRID, folder, progress=False, scheduler=cluster.scheduler_address, members_per_task=1
+    return _campaign(tmp_path_factory.mktemp("campaign") / "whole", cluster.scheduler_address)
+
+
+def _campaign(folder, scheduler, resume: bool = False):
+    """The grid as three one-member tasks on ``scheduler``, into ``folder``."""
+    return sweep.run_sweep(
+        TriaxialConfig(**SHORT), GRID, folder, resume, progress=False, scheduler=scheduler, members_per_task=1
     )
-    return result
 
 
 def _task_folders(folder):
@@ -149,15 +151,7 @@ def test_a_killed_worker_and_a_killed_client_lose_only_the_work_since_the_last_c
     assert len(finished) < 3, "every task finished before the client was killed: nothing left to resume"
     finished_before = {task.name: len(_attempts(task)) for task in finished}
 
-    resumed = sweep.run_sweep(
-        TriaxialConfig(**SHORT),
-        GRID,
-        folder,
-        resume=True,
-        progress=False,
-        scheduler=cluster.scheduler_address,
-        members_per_task=1,
-    )
+    resumed = _campaign(folder, cluster.scheduler_address, resume=True)
     for task in _task_folders(folder):
         if task.name in finished_before:
             assert len(_attempts(task)) == finished_before[task.name], task.name  # not run again
@@ -204,14 +198,7 @@ def test_a_member_that_blows_up_on_a_worker_is_flagged_and_the_others_are_unchan
         client.run(_sabotage, 1e5)
         try:
             with pytest.warns(UserWarning, match="1 of 3 members failed"):
-                mixed = sweep.run_sweep(
-                    TriaxialConfig(**SHORT),
-                    GRID,
-                    tmp_path,
-                    progress=False,
-                    scheduler=client,
-                    members_per_task=1,
-                )
+                mixed = _campaign(tmp_path, client)
         finally:
             client.run(_sabotage, None)
     status = mixed.dataset["status"].values[:, 0]
@@ -249,3 +236,9 @@ def test_a_campaign_folder_is_not_resumed_in_process(tmp_path):
     with pytest.raises(ConfigError, match="resume it with the same --scheduler option"):
         sweep.run_sweep(TriaxialConfig(**SHORT), GRID, tmp_path, resume=True, progress=False, num_devices=1)
     assert sorted(path.name for path in group.iterdir()) == ["plan.json"]
+
+
+def test_a_task_size_below_one_is_refused_before_a_cluster_starts(tmp_path):
+    with pytest.raises(ConfigError, match=r"members_per_task = 0; give at least 1"):
+        sweep.run_sweep(TriaxialConfig(**SHORT), GRID, tmp_path, scheduler="local", members_per_task=0)
+    assert not (tmp_path / "groups").exists()
