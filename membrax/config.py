@@ -225,6 +225,14 @@ _SPECS: dict[str, _Spec] = {
     "inertial_number": _Spec(
         float, "(dimensionless)", **_POSITIVE, upper=0.1, upper_open=False, hint="quasi-static: 1e-3"
     ),
+    "coarse_inertial_number": _Spec(
+        float,
+        "(dimensionless)",
+        **_NON_NEGATIVE,
+        upper=0.1,
+        upper_open=False,
+        hint="the inertial number after fine_until_strain; 0 keeps inertial_number throughout",
+    ),
     "shear_ramp_strain": _Spec(
         float,
         "(strain, dimensionless)",
@@ -277,6 +285,7 @@ _SPECS: dict[str, _Spec] = {
     "checkpoint_every_chunks": _Spec(int, "chunks", lower=1),
     "vtk_every_steps": _Spec(int, "steps", lower=0, hint="0 writes no VTK snapshots"),
     "float64": _Spec(bool),
+    "float32_shearing": _Spec(bool),
     "viscous_damping": _Spec(bool),
     "dt_safety": _Spec(float, "(fraction of the critical time step)", **_FRACTION_OPEN, upper_open=False),
 }
@@ -311,6 +320,9 @@ class TriaxialConfig:
         Default 0.10.
       inertial_number (float): inertial number setting the shear strain rate (dimensionless), in
         (0, 0.1]. Default 1e-3.
+      coarse_inertial_number (float): inertial number of the shearing after ``fine_until_strain``
+        (dimensionless), in [0, 0.1]; the platens change speed linearly over ``shear_ramp_strain``. 0 keeps
+        ``inertial_number`` throughout. Default 0.
       shear_ramp_strain (float): axial strain (dimensionless) at which the platens reach full speed after
         a linear ramp from rest, in [0, 0.1]; 0 starts them at full speed (a step change, whose stress
         wave shows as a spurious peak). Default 1e-2 (see membrax.defaults.SHEAR_RAMP_STRAIN).
@@ -348,6 +360,9 @@ class TriaxialConfig:
       checkpoint_every_chunks (int): chunks between checkpoints, in [1, inf). Default 10.
       vtk_every_steps (int): steps between VTK snapshots, in [0, inf); 0 writes none. Default 0.
       float64 (bool): run in double precision. Default false.
+      float32_shearing (bool): with ``float64``: consolidate in double precision (the stresses at the start
+        of shearing, Table 3) and shear in single precision (faster); no effect without ``float64``.
+        Default false.
       dt_safety (float): time step as a fraction of the critical one (dimensionless), in (0, 1].
         Default 0.5.
       viscous_damping (bool): the smooth mode for gradients through a rollout: mass-proportional viscous
@@ -374,6 +389,7 @@ class TriaxialConfig:
     membrane_bending_factor: float = 0.0
     target_axial_strain: float = 0.10
     inertial_number: float = 1.0e-3
+    coarse_inertial_number: float = 0.0
     shear_ramp_strain: float = defaults.SHEAR_RAMP_STRAIN
     symmetric_loading: bool = True
     membrane_contact_offset_factor: float = 1.0
@@ -394,6 +410,7 @@ class TriaxialConfig:
     checkpoint_every_chunks: int = 10
     vtk_every_steps: int = 0
     float64: bool = False
+    float32_shearing: bool = False
     dt_safety: float = 0.5
     viscous_damping: bool = False
 

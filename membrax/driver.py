@@ -286,7 +286,11 @@ def drive(
 
 
 def two_rate_plan(
-    steps_per_strain: float, target_strain: float, fine_until_strain: float, ramp_strain: float = 0.0
+    steps_per_strain: float,
+    target_strain: float,
+    fine_until_strain: float,
+    ramp_strain: float = 0.0,
+    coarse_steps_per_strain: float | None = None,
 ) -> tuple[int, int]:
     """Steps of the two recording phases of a strain-controlled stage: (fine, coarse).
 
@@ -294,10 +298,20 @@ def two_rate_plan(
     to ``fine_until_strain`` (capped at the target), the coarse phase to ``target_strain``. A linear ramp
     from rest that ends at strain ``ramp_strain`` (:func:`membrax.spheres.walls.set_control`) lasts 2 ε_ramp/ε̇
     and so delays every later strain by ε_ramp/ε̇: the fine phase takes that many steps more.
+
+    A coarse phase at another rate (``coarse_steps_per_strain`` = 1/(ε̇₂ Δt)) starts with a linear change of
+    speed over the strain ε_t = min(``ramp_strain``, coarse strain)
+    (:func:`membrax.spheres.walls.change_speed`): it covers ε_t at the mean rate (ε̇₁ + ε̇₂)/2 and the
+    rest at ε̇₂, so it takes (ε_coarse − ε_t)/(ε̇₂ Δt) + 2 ε_t/((ε̇₁ + ε̇₂) Δt) steps.
     """
     fine_strain = min(fine_until_strain, target_strain)
     fine = math.ceil((fine_strain + ramp_strain) * steps_per_strain)
-    coarse = max(math.ceil((target_strain - fine_strain) * steps_per_strain), 0)
+    coarse_strain = max(target_strain - fine_strain, 0.0)
+    if coarse_steps_per_strain is None or coarse_steps_per_strain == steps_per_strain:
+        return fine, math.ceil(coarse_strain * steps_per_strain)
+    change = min(ramp_strain, coarse_strain)
+    mean_rate_dt = 0.5 * (1.0 / steps_per_strain + 1.0 / coarse_steps_per_strain)  # (ε̇₁ + ε̇₂) Δt / 2
+    coarse = math.ceil((coarse_strain - change) * coarse_steps_per_strain + change / mean_rate_dt)
     return fine, coarse
 
 

@@ -15,9 +15,10 @@ writes into ``folder``:
 
 Sizes (:data:`SIZES`). ``small``: 6 spheres across and 10 layers (~330 spheres, a membrane of edge D/3,
 I = 5e-3) — the demo's specimen, 2 min 52 s on 2 CPU cores for all nine cases;
-``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), a CPU command: 2,445
-CPU-seconds, about 20 min on 2 cores with the compiled kernels of :mod:`membrax.native` (float64, peak RSS
-3.8 GB; 27 min 46 s wall when the test suite shared the cores).
+``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), a CPU command: 22 min 49 s on
+2 cores with the compiled kernels of :mod:`membrax.native` (float64, 2026-11-28; peak RSS 3.8 GB). A faster
+coarse phase (``overrides={"coarse_inertial_number": 5e-3}``) leaves Tables 2–3 bit-identical in 12 min
+27 s but raises φ' after 1 % strain by 2.4–4.3° on average (docs/loading_rate.md), so it is not the preset.
 Both use the paper's materials (25 mm granite spheres, μ = tan 25°, latex 1400 kPa without bending
 stiffness) and protocol (platens ramped to full speed at 1 % strain, both moving,
 :mod:`membrax.triaxial.membrane_cell`). Both run in float64 and end consolidation at an unbalanced-force
@@ -30,7 +31,8 @@ import time
 from pathlib import Path
 
 from membrax import paper, plots
-from membrax.config import DEMO_CONFIG, TriaxialConfig
+from membrax.config import DEMO_CONFIG, TriaxialConfig, with_overrides
+from membrax.runner import precision_name
 from membrax.sweep import member_records, run_sweep
 
 __all__ = ["SIZES", "TABLE_3_PRECISION", "reproduce"]
@@ -87,7 +89,7 @@ def reproduce(
         raise ValueError(f"size = {size!r}; choose one of {sorted(SIZES)}.")
     started = time.perf_counter()
     folder = Path(folder if folder is not None else f"results_reproduce_{size}")
-    base = TriaxialConfig(name=f"reproduce_{size}", **{**SIZES[size], **(overrides or {})})
+    base = with_overrides(TriaxialConfig(name=f"reproduce_{size}", **SIZES[size]), **(overrides or {}))
     result = run_sweep(
         base,
         None,
@@ -121,8 +123,14 @@ def reproduce(
         f"# membrax reproduction ({size})\n",
         f"Specimen {base.particles_across} × {base.layers} layers, "
         f"membrane edge D/{base.membrane_edges_per_diameter:g}, "
-        f"I = {base.inertial_number:g}, to {100 * base.target_axial_strain:g} % axial strain, "
-        f"{'float64' if base.float64 else 'float32'}; {timed} {result.seconds:.0f} s, "
+        f"I = {base.inertial_number:g}"
+        + (
+            f" (then {base.coarse_inertial_number:g} after {100 * base.fine_until_strain:g} %)"
+            if base.coarse_inertial_number
+            else ""
+        )
+        + f", to {100 * base.target_axial_strain:g} % axial strain, "
+        f"{precision_name(base)}; {timed} {result.seconds:.0f} s, "
         f"everything in {seconds:.0f} s.\n",
         "Members' consolidation steps (rows σc, columns t_m):\n",
         "```\n" + str(dataset["consolidation_steps"].values.astype(int)) + "\n```\n",

@@ -12,7 +12,9 @@ intervals from :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan` of its :
   ``consolidation_max_steps``;
 - ``shear_fine`` and ``shear_coarse``: drained shearing at the strain rate of ``inertial_number``
   (ramped from rest), recorded every ``record_every_fine`` steps below ``fine_until_strain`` and every
-  ``record_every_coarse`` steps after, to ``target_axial_strain``.
+  ``record_every_coarse`` steps after, to ``target_axial_strain``; after ``fine_until_strain`` at the
+  rate of ``coarse_inertial_number`` where it is set (the speed changed linearly over
+  ``shear_ramp_strain``).
 
 The loop (:func:`membrax.driver.drive`) reallocates tables and checks error bits; :func:`run_group` adds
 what a long run needs: a progress bar per phase, a checkpoint (stacked state, records so far, budgets)
@@ -32,6 +34,7 @@ would take alone with the same Δt and mesh (tests/test_sweep.py checks batched 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses as pydataclasses
 import hashlib
 import itertools
@@ -47,6 +50,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax_md.partition import NeighborListFormat
 
 from membrax import __version__, native, theory
 from membrax.batch import stack
@@ -112,6 +116,7 @@ BATCHED_FIELDS = frozenset(
         "friction_angle_deg",
         "particle_stiffness_n_m",
         "inertial_number",
+        "coarse_inertial_number",
         "target_axial_strain",
         "fine_until_strain",
         "shear_ramp_strain",
@@ -284,6 +289,7 @@ def loading(config: TriaxialConfig) -> Loading:
         ramp_strain=config.shear_ramp_strain,
         record_every_fine=config.record_every_fine,
         record_every_coarse=config.record_every_coarse,
+        coarse_inertial_number=config.coarse_inertial_number or None,
     )
 
 
@@ -401,6 +407,11 @@ def _shared_neighbors(frame, positions: Sequence, capacity: int = 0, cell_capaci
         occupancy = max([capacity] + [int(nl.max_occupancy) for nl in allocated])
         cells = max([cell_capacity] + [int(nl.cell_list_capacity or 0) for nl in allocated])
         template = allocated[0]
+        if cells and template.format is not NeighborListFormat.Dense:
+            # A rebuild's table holds at most the cell list's candidates, N · 3^d · cell capacity
+            # (jax-md truncates to the smaller), so a larger capacity than that cannot be asked for.
+            count, dimension = positions[0].shape
+            occupancy = min(occupancy, count * 3**dimension * cells)
         # The template's pair table must have the capacity it claims: update's rebuild and its no-rebuild
         # branch return tables of those two sizes, which lax.cond needs equal.
         padding = occupancy - template.idx.shape[-1]
@@ -853,6 +864,59 @@ def _template(batch: BatchedTest, capacities: dict):
     return stack(members)
 
 
+def float32_batch(batch: BatchedTest) -> BatchedTest:
+    """The batch rebuilt in float32 (call inside ``jax.enable_x64(False)``), for ``float32_shearing``.
+
+    Same configurations, order, Δt, n_θ, devices and mode: only the arrays' precision differs, so a state
+    of ``batch`` carried over by :func:`cast_state` goes on with the same steps.
+    """
+    shear = build_batch(
+        batch.configs,
+        batch.num_devices,
+        batch.mode,
+        order=list(range(batch.num_members)),
+        time_step=batch.dt,
+        nodes_around=batch.nodes_around,
+    )
+    shear.order = list(batch.order)
+    shear.failures = batch.failures
+    return shear
+
+
+def cast_state(state, like):
+    """``state``'s values in the dtypes (and static structure) of ``like``, a template of the same shapes.
+
+    Where a body keeps its position as a compensated pair (``position`` + ``position_compensation``:
+    spheres, walls, membrane nodes), the float64 sum is split anew into a float32 high part and the
+    rounding residual, so the narrower pair still carries the position to about float64 resolution.
+    """
+
+    def split(body, like_body):
+        dtype = np.dtype(like_body.position.dtype)
+        if np.dtype(body.position.dtype) == dtype:
+            return body
+        exact = np.asarray(body.position, np.float64) + np.asarray(body.position_compensation, np.float64)
+        high = exact.astype(dtype)
+        return body.set(position=high.astype(np.float64), position_compensation=exact - high)
+
+    walls = split(state.dem.walls, like.dem.walls)
+    dem = split(state.dem, like.dem).set(walls=walls)
+    state = state.set(dem=dem, membrane=split(state.membrane, like.membrane))
+    leaves = jax.tree_util.tree_leaves(state)
+    like_leaves, structure = jax.tree_util.tree_flatten(like)
+    if len(leaves) != len(like_leaves):
+        raise ValueError(f"cast_state: {len(leaves)} leaves against the template's {len(like_leaves)}.")
+    cast = []
+    for value, template in zip(leaves, like_leaves, strict=True):
+        if np.shape(value) != np.shape(template):
+            raise ValueError(
+                f"cast_state: shape {np.shape(value)} against the template's {np.shape(template)}."
+            )
+        dtype = getattr(template, "dtype", None)
+        cast.append(value if dtype is None else jnp.asarray(np.asarray(value).astype(dtype)))
+    return jax.tree_util.tree_unflatten(structure, cast)
+
+
 def member_chunk_records(records: dict, b: int) -> dict:
     """Member b's records of every phase, as :func:`membrax.run.results_datasets` takes them."""
     out = {}
@@ -905,6 +969,10 @@ def run_group(
 ):
     """Run one batch through the three phases of :data:`PHASES` (module docstring).
 
+    With ``float32_shearing`` (and ``float64``) consolidation runs in float64 and the shearing in float32:
+    at the start of shearing the batch is rebuilt in float32 (:func:`float32_batch`) and the state carried
+    over (:func:`cast_state`); the rest runs inside ``jax.enable_x64(False)``.
+
     Args:
       batch: from :func:`build_batch`.
       folder: where ``checkpoint.npz`` is written (and read with ``resume``).
@@ -927,9 +995,44 @@ def run_group(
       RunError: a member blew up (error bits or runaway kinetic energy); ``error.records`` holds the
         records so far, as returned.
     """
+    with contextlib.ExitStack() as scope:
+        return _run_group(
+            batch,
+            folder,
+            resume,
+            progress,
+            interrupt_after_chunks,
+            chunk_counter,
+            after_chunk,
+            isolate_failures,
+            scope,
+        )
+
+
+def _run_group(
+    batch,
+    folder,
+    resume,
+    progress,
+    interrupt_after_chunks,
+    chunk_counter,
+    after_chunk,
+    isolate_failures,
+    scope,
+):
+    """:func:`run_group`'s loop; ``scope`` holds the float32 shearing's ``enable_x64(False)``."""
     chunk_counter = [0] if chunk_counter is None else chunk_counter
     failures: dict[int, dict] = {}
     batch.failures = failures
+    float32_shearing = batch.configs[0].float64 and batch.configs[0].float32_shearing
+
+    def to_float32():
+        """Rebuild the batch in float32 and run the rest in float32 (once)."""
+        nonlocal batch
+        if np.dtype(batch.initial_state.dem.position.dtype) == np.float32:
+            return
+        scope.enter_context(jax.enable_x64(False))
+        batch = float32_batch(batch)
 
     config = batch.configs[0]
     checkpoint_path = folder / CHECKPOINT_NAME
@@ -942,6 +1045,8 @@ def run_group(
     states = batch.initial_state
     if resume and checkpoint_path.exists():
         host = read_checkpoint_host(checkpoint_path)
+        if float32_shearing and host.get("dtype") == "float32":
+            to_float32()
         states, host = load_checkpoint(checkpoint_path, _template(batch, host["capacities"]))
         phase_index, elapsed = host["phase_index"], host["elapsed_s"]
         budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
@@ -965,6 +1070,7 @@ def run_group(
             "shear_height": shear_height,
             "shear_volume": shear_volume,
             "member_steps": [int(step) for step in np.asarray(current.dem.step)[:num]],
+            "dtype": str(np.dtype(current.dem.position.dtype)),
             "failures": {str(b): failure for b, failure in failures.items()},
         }
         for phase in PHASES:
@@ -979,6 +1085,10 @@ def run_group(
     while phase_index < len(PHASES):
         phase = PHASES[phase_index]
         if budgets is None:
+            if phase == "shear_fine" and float32_shearing:
+                capacities = _capacities(states)
+                to_float32()
+                states = cast_state(states, _template(batch, capacities))
             if phase == "shear_fine":
                 members = batch.unstack(states)
                 for b, test in enumerate(batch.tests):
@@ -990,6 +1100,15 @@ def run_group(
                     members[b] = test.start_shear(
                         members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
                     )
+                states = batch.restack(members)
+            elif phase == "shear_coarse" and any(c.coarse_inertial_number for c in batch.configs):
+                members = batch.unstack(states)
+                for b, test in enumerate(batch.tests):
+                    c = batch.configs[b]
+                    if b not in failures and c.coarse_inertial_number:
+                        members[b] = test.change_shear_rate(
+                            members[b], c.inertial_number, c.coarse_inertial_number, c.shear_ramp_strain
+                        )
                 states = batch.restack(members)
             budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
             budgets[list(failures)] = 0  # a failed member stays frozen
@@ -1110,11 +1229,18 @@ def run_metadata(config, test, records, build_seconds, elapsed, tolerance) -> di
         "shear_steps": int(shear_steps),
         "build_s": build_seconds,
         "run_s": elapsed,
-        "dtype": "float64" if config.float64 else "float32",
+        "dtype": precision_name(config),
         "machine": platform.platform(),
         "jax_backend": jax.default_backend(),
         "specimen": specimen_metadata(test.specimen),
     }
+
+
+def precision_name(config: TriaxialConfig) -> str:
+    """The run's precision: ``"float64"``, ``"float32"`` or ``"float64 consolidation, float32 shearing"``."""
+    if not config.float64:
+        return "float32"
+    return "float64 consolidation, float32 shearing" if config.float32_shearing else "float64"
 
 
 def specimen_metadata(specimen) -> dict:

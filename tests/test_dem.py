@@ -349,6 +349,27 @@ def test_shared_lists_with_a_larger_capacity_hold_the_brute_force_pairs():
         assert pairs == within
 
 
+def test_shared_lists_asked_for_more_than_the_cell_list_holds_get_its_candidate_count():
+    """A capacity above the cell list's candidates, N · 3³ · cell capacity, is capped there (a rebuild
+    truncates to it, and the no-rebuild branch must match it for lax.cond): the lists stack, keep the
+    brute-force pairs and flag no overflow."""
+    from membrax.runner import _shared_neighbors
+
+    specimen = packing.fcc_specimen(D, 4, 5)
+    frame = triaxial.rigid_wall_test(specimen, 40e3).runner.neighbor_frame
+    position = np.asarray(specimen.position)
+    allocated = frame.allocate(jnp.asarray(position))
+    cells = int(allocated.cell_list_capacity)
+    n = position.shape[0]
+    lists = _shared_neighbors(frame, [position, position], capacity=10 * n * 27 * cells, cell_capacity=cells)
+    for nl in lists:
+        assert nl.idx.shape[1] == n * 27 * cells and not bool(nl.did_buffer_overflow)
+        pairs = {tuple(sorted(pair)) for pair in np.asarray(nl.idx).T if pair[0] < n and pair[1] < n}
+        distance = np.linalg.norm(position[:, None, :] - position[None, :, :], axis=-1)
+        close = np.nonzero(distance < frame.cutoff + frame.skin)
+        assert pairs == {(i, j) for i, j in zip(*close, strict=True) if i < j}
+
+
 def test_compensated_summation_keeps_subresolution_motion_in_float32():
     # 1e-9 m per step at 0.075 m is below float32 resolution (ulp 7.5e-9): a plain sum never moves.
     value = jnp.full((1,), 0.075, jnp.float32)

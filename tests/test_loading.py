@@ -22,6 +22,7 @@ from membrax.spheres.walls import (
     BOTTOM,
     TOP,
     advance_walls,
+    change_speed,
     ramp_acceleration,
     ramped_velocity,
     set_control,
@@ -70,6 +71,29 @@ def test_a_ramp_delays_every_later_strain_by_the_ramp_strain():
     ε_ramp, so the fine phase takes ε_ramp × steps-per-strain more steps and the coarse phase the same."""
     assert two_rate_plan(1024.0, 0.5, 0.125) == (128, 384)
     assert two_rate_plan(1024.0, 0.5, 0.125, ramp_strain=0.0625) == (192, 384)
+
+
+def test_a_rate_change_covers_its_strain_at_the_mean_rate():
+    """The platen at ε̇₁ H changes to ε̇₂ H = 4 ε̇₁ H linearly in t = 2 ε_t/(ε̇₁ + ε̇₂), so meanwhile it
+    travels ε_t H (the mean speed's), then ε̇₂ H per unit time; the plan counts the same steps."""
+    dt, height, rate, change_strain = 1e-5, 0.3, 2.0, 0.01  # ε̇₁ Δt = 2e-5 per step
+    walls = set_control(triaxial_walls(np.zeros((0, 2)), np.zeros(0), height), False, -rate * height, 0.0)
+    faster = change_speed(walls, 4.0, rate, change_strain)
+    steps = round(2.0 * change_strain / (5.0 * rate) / dt)  # 200 steps of change
+    assert float(faster.target_velocity[0, TOP]) == pytest.approx(-4.0 * rate * height, rel=1e-12)
+    velocity, position = jax.jit(_ramp, static_argnums=2)(faster, dt, 2 * steps)
+    n = np.arange(1, 2 * steps + 1)
+    expected = -rate * height * np.minimum(1.0 + 3.0 * n / steps, 4.0)
+    np.testing.assert_allclose(np.asarray(velocity)[:, 0, TOP], expected, rtol=1e-12)
+    travel = height - float(position[steps, 0, TOP])  # after the change's steps (leapfrog: one step late)
+    assert travel == pytest.approx(change_strain * height, rel=2.0 / steps)
+    unchanged = change_speed(walls, 1.0, rate, change_strain)
+    np.testing.assert_array_equal(np.asarray(unchanged.acceleration), np.asarray(walls.acceleration))
+    step_change = change_speed(walls, 4.0, rate, 0.0)
+    assert float(step_change.acceleration[0, TOP]) == math.inf
+    # The plan: (ε_coarse − ε_t)/(ε̇₂ Δt) + 2 ε_t/((ε̇₁ + ε̇₂) Δt) steps after the fine phase.
+    assert two_rate_plan(1024.0, 0.5, 0.125, 0.0625, coarse_steps_per_strain=256.0) == (192, 106)
+    assert two_rate_plan(1024.0, 0.5, 0.125, 0.0625, coarse_steps_per_strain=1024.0) == (192, 384)
 
 
 @pytest.fixture(scope="module")

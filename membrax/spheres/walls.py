@@ -42,6 +42,7 @@ __all__ = [
     "BOTTOM",
     "TOP",
     "WallState",
+    "change_speed",
     "advance_walls",
     "compensated_add",
     "cross_section",
@@ -268,6 +269,35 @@ def set_control(walls: WallState, servo, velocity, target_stress, acceleration=n
         target_velocity=target_velocity,
         acceleration=acceleration,
         target_stress=full(target_stress, walls.target_stress),
+    )
+
+
+def change_speed(walls: WallState, factor: float, strain_rate: float, ramp_strain: float) -> WallState:
+    """A copy of ``walls`` whose constant-velocity walls go ``factor`` times as fast, changing speed linearly.
+
+    A strain-controlled stage that changes its strain rate from ε̇₁ = ``strain_rate`` to ε̇₂ = factor ε̇₁ keeps
+    each wall's current velocity and ramps it to factor × its target (:func:`ramped_velocity`). The change
+    lasts t = 2 ε_t/(ε̇₁ + ε̇₂), the time in which the mean rate covers the strain ε_t = ``ramp_strain``, so
+    a = |v₂ − v₁|/t; ``ramp_strain`` = 0 is a step change (a = inf). Servo walls are left as they are.
+
+    Args:
+      walls: the walls of a strain-controlled stage.
+      factor: ε̇₂/ε̇₁, > 0.
+      strain_rate: ε̇₁, 1/s.
+      ramp_strain: ε_t, the axial strain over which the speed changes, >= 0.
+    """
+    check_range("factor", factor, lower=0.0, lower_open=True)
+    check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
+    target = jnp.where(walls.servo, walls.target_velocity, factor * walls.target_velocity)
+    change = jnp.abs(target - walls.target_velocity)
+    if ramp_strain > 0.0:
+        duration = 2.0 * ramp_strain / (strain_rate * (1.0 + factor))
+        acceleration = jnp.where(change > 0.0, change / duration, walls.acceleration)
+    else:
+        acceleration = jnp.where(change > 0.0, jnp.inf, walls.acceleration)
+    return walls.set(
+        target_velocity=target.astype(walls.target_velocity.dtype),
+        acceleration=acceleration.astype(walls.acceleration.dtype),
     )
 
 

@@ -7,7 +7,8 @@ Contract. :class:`StagedTest` runs the two stages of the test with the chunk dri
    holds (:meth:`is_consolidated`: an unbalanced-force ratio below the tolerance, stresses at σc, ...);
 2. :meth:`StagedTest.shear`: strain-controlled drained shearing from an inertial number (ramped from
    rest where the cell says so), recorded every ``record_every_fine`` steps up to ``fine_until_strain``
-   and every ``record_every_coarse`` steps after (:func:`membrax.driver.two_rate_plan`).
+   and every ``record_every_coarse`` steps after (:func:`membrax.driver.two_rate_plan`), optionally at
+   another inertial number after ``fine_until_strain`` (:meth:`StagedTest.change_shear_rate`).
 
 A cell (:class:`membrax.triaxial.rigid.RigidWallTest`, :class:`membrax.triaxial.membrane_cell.MembraneTest`)
 says what its platens and walls do at each stage.
@@ -25,7 +26,8 @@ import dataclasses
 import numpy as np
 
 from membrax.defaults import default_consolidation_tolerance
-from membrax.driver import run_phases, two_rate_plan
+from membrax.driver import concatenate_records, run_phases, two_rate_plan
+from membrax.spheres.walls import change_speed
 from membrax.validation import check_range
 
 __all__ = ["CONSOLIDATION_RECORD_EVERY", "PHASES", "Loading", "StagedTest"]
@@ -54,6 +56,9 @@ class Loading:
       record_every_fine: steps between records below ``fine_until_strain``.
       record_every_coarse: steps between records after it.
       consolidation_record_every: steps between consolidation records.
+      coarse_inertial_number: I of the coarse phase, reached by a linear change of speed over
+        ``ramp_strain`` after ``fine_until_strain`` (:meth:`StagedTest.change_shear_rate`); None: the
+        fine phase's ``inertial_number`` throughout.
     """
 
     consolidation_max_steps: int
@@ -64,6 +69,7 @@ class Loading:
     record_every_fine: int
     record_every_coarse: int
     consolidation_record_every: int = CONSOLIDATION_RECORD_EVERY
+    coarse_inertial_number: float | None = None
 
 
 class StagedTest:
@@ -129,19 +135,40 @@ class StagedTest:
         inertial_number: float = 1e-3,
         fine_until_strain: float = 0.01,
         ramp_strain: float | None = None,
+        coarse_inertial_number: float | None = None,
     ) -> tuple[int, int]:
         """Steps of the two recording phases of stage 2: (fine, coarse).
 
         Axial strain counts from the start of shearing: at full speed the platens close ε̇ H Δt per step, so
         ε_a reaches ``fine_until_strain`` after (ε + ε_ramp)/(ε̇ Δt) steps (the ramp delays it by ε_ramp/ε̇,
-        :func:`membrax.driver.two_rate_plan`) and the target after the rest.
+        :func:`membrax.driver.two_rate_plan`) and the target after the rest, at the strain rate of
+        ``coarse_inertial_number`` (None: ``inertial_number``) once the speed has changed over ε_ramp.
         """
         check_range(
             "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
         )
         ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
         steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
-        return two_rate_plan(steps_per_strain, target_axial_strain, fine_until_strain, ramp)
+        coarse_steps_per_strain = None
+        if coarse_inertial_number is not None:
+            coarse_steps_per_strain = 1.0 / (self.shear_rate(coarse_inertial_number) * self.dt)
+        return two_rate_plan(
+            steps_per_strain, target_axial_strain, fine_until_strain, ramp, coarse_steps_per_strain
+        )
+
+    def change_shear_rate(
+        self, state, inertial_number: float, coarse_inertial_number: float, ramp_strain: float | None = None
+    ):
+        """Switch a shearing ``state`` to the strain rate of ``coarse_inertial_number``.
+
+        The constant-velocity platens change speed from ``inertial_number``'s linearly over the axial strain
+        ``ramp_strain`` (default the cell's; 0: a step change), :func:`membrax.spheres.walls.change_speed`.
+        """
+        ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
+        rate = self.shear_rate(inertial_number)
+        factor = self.shear_rate(coarse_inertial_number) / rate
+        dem = self.runner.dem_of(state)
+        return self.runner.with_dem(state, dem.set(walls=change_speed(dem.walls, factor, rate, ramp)))
 
     def phase_plan(self, loading: Loading) -> dict[str, tuple[int, int]]:
         """(steps, steps between records) of each phase of :data:`PHASES` under ``loading``.
@@ -154,6 +181,7 @@ class StagedTest:
             loading.inertial_number,
             loading.fine_until_strain,
             loading.ramp_strain,
+            loading.coarse_inertial_number,
         )
         return {
             "consolidation": (loading.consolidation_max_steps, loading.consolidation_record_every),
@@ -172,6 +200,7 @@ class StagedTest:
         chunk_steps: int = 5000,
         on_chunk=None,
         ramp_strain: float | None = None,
+        coarse_inertial_number: float | None = None,
         **loading,
     ):
         """Stage 2: strain-controlled drained shearing, recorded at two rates (module docstring).
@@ -185,7 +214,9 @@ class StagedTest:
           record_every_coarse: steps between records after it.
           chunk_steps: steps per compiled chunk.
           on_chunk: progress callback ``on_chunk(state, records)``.
-          ramp_strain: axial strain at which the platens reach full speed (default the cell's).
+          ramp_strain: axial strain at which the platens reach full speed (default the cell's), and over
+            which they change speed to ``coarse_inertial_number``'s.
+          coarse_inertial_number: I after ``fine_until_strain`` (None: ``inertial_number`` throughout).
           **loading: the cell's further loading options (``symmetric`` for the membrane test).
 
         Returns:
@@ -201,8 +232,14 @@ class StagedTest:
                 ramp_strain=ramp,
                 record_every_fine=record_every_fine,
                 record_every_coarse=record_every_coarse,
+                coarse_inertial_number=coarse_inertial_number,
             )
         )
         state = self.start_shear(state, inertial_number, ramp, **loading)
-        phases = [plan[phase] for phase in PHASES[1:]]
-        return run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)
+        state, fine = run_phases(self.runner, state, self.params, [plan["shear_fine"]], chunk_steps, on_chunk)
+        if coarse_inertial_number is not None:
+            state = self.change_shear_rate(state, inertial_number, coarse_inertial_number, ramp)
+        state, coarse = run_phases(
+            self.runner, state, self.params, [plan["shear_coarse"]], chunk_steps, on_chunk
+        )
+        return state, concatenate_records([part for part in (fine, coarse) if part is not None])
