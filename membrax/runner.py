@@ -995,218 +995,196 @@ def run_group(
       RunError: a member blew up (error bits or runaway kinetic energy); ``error.records`` holds the
         records so far, as returned.
     """
+    # scope holds the float32 shearing's enable_x64(False) until the group ends.
     with contextlib.ExitStack() as scope:
-        return _run_group(
-            batch,
-            folder,
-            resume,
-            progress,
-            interrupt_after_chunks,
-            chunk_counter,
-            after_chunk,
-            isolate_failures,
-            scope,
-        )
+        chunk_counter = [0] if chunk_counter is None else chunk_counter
+        failures: dict[int, dict] = {}
+        batch.failures = failures
+        float32_shearing = batch.configs[0].float64 and batch.configs[0].float32_shearing
 
+        def to_float32():
+            """Rebuild the batch in float32 and run the rest in float32 (once)."""
+            nonlocal batch
+            if np.dtype(batch.initial_state.dem.position.dtype) == np.float32:
+                return
+            scope.enter_context(jax.enable_x64(False))
+            batch = float32_batch(batch)
 
-def _run_group(
-    batch,
-    folder,
-    resume,
-    progress,
-    interrupt_after_chunks,
-    chunk_counter,
-    after_chunk,
-    isolate_failures,
-    scope,
-):
-    """:func:`run_group`'s loop; ``scope`` holds the float32 shearing's ``enable_x64(False)``."""
-    chunk_counter = [0] if chunk_counter is None else chunk_counter
-    failures: dict[int, dict] = {}
-    batch.failures = failures
-    float32_shearing = batch.configs[0].float64 and batch.configs[0].float32_shearing
-
-    def to_float32():
-        """Rebuild the batch in float32 and run the rest in float32 (once)."""
-        nonlocal batch
-        if np.dtype(batch.initial_state.dem.position.dtype) == np.float32:
-            return
-        scope.enter_context(jax.enable_x64(False))
-        batch = float32_batch(batch)
-
-    config = batch.configs[0]
-    checkpoint_path = folder / CHECKPOINT_NAME
-    num = batch.num_members
-    records: dict[str, list[dict]] = {phase: [] for phase in PHASES}
-    phase_index, elapsed = 0, 0.0
-    budgets = None
-    shear_height = np.zeros(num)
-    shear_volume = np.zeros(num)
-    states = batch.initial_state
-    if resume and checkpoint_path.exists():
-        host = read_checkpoint_host(checkpoint_path)
-        if float32_shearing and host.get("dtype") == "float32":
-            to_float32()
-        states, host = load_checkpoint(checkpoint_path, _template(batch, host["capacities"]))
-        phase_index, elapsed = host["phase_index"], host["elapsed_s"]
-        budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
-        shear_height, shear_volume = np.asarray(host["shear_height"]), np.asarray(host["shear_volume"])
-        failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
-        for phase in PHASES:
-            names = host.get(f"names_{phase}", [])
-            if names:
-                records[phase] = [{name: np.asarray(host[f"rec_{phase}_{name}"]) for name in names}]
-    tolerances = [consolidation_tolerance(c) for c in batch.configs]
-    volume_work = np.array([t.cell_pressure * t.initial_volume for t in batch.tests])
-    clock = time.perf_counter()
-
-    def save(current, current_budgets):
-        host = {
-            "phase_index": phase_index,
-            "elapsed_s": elapsed + time.perf_counter() - clock,
-            "capacities": _capacities(current),
-            # None at a phase's end: the next phase computes its budgets (and starts shearing) on resume.
-            "budgets": None if current_budgets is None else [int(v) for v in current_budgets],
-            "shear_height": shear_height,
-            "shear_volume": shear_volume,
-            "member_steps": [int(step) for step in np.asarray(current.dem.step)[:num]],
-            "dtype": str(np.dtype(current.dem.position.dtype)),
-            "failures": {str(b): failure for b, failure in failures.items()},
-        }
-        for phase in PHASES:
-            joined = join_records(records[phase], axis=1)
-            host[f"names_{phase}"] = list(joined)
-            host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
-        save_checkpoint(checkpoint_path, current, host)
-
-    # The protocol's stage sequence (membrax.triaxial.protocol): each member's steps and record interval per
-    # phase. The record interval is shared: it is not a batched field, so all members have the same.
-    plans = [t.phase_plan(loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
-    while phase_index < len(PHASES):
-        phase = PHASES[phase_index]
-        if budgets is None:
-            if phase == "shear_fine" and float32_shearing:
-                capacities = _capacities(states)
-                to_float32()
-                states = cast_state(states, _template(batch, capacities))
-            if phase == "shear_fine":
-                members = batch.unstack(states)
-                for b, test in enumerate(batch.tests):
-                    if b in failures:  # frozen: it never shears
-                        continue
-                    shear_height[b] = _last_member_value(records["consolidation"], "height", b)
-                    shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
-                    c = batch.configs[b]
-                    members[b] = test.start_shear(
-                        members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
-                    )
-                states = batch.restack(members)
-            elif phase == "shear_coarse" and any(c.coarse_inertial_number for c in batch.configs):
-                members = batch.unstack(states)
-                for b, test in enumerate(batch.tests):
-                    c = batch.configs[b]
-                    if b not in failures and c.coarse_inertial_number:
-                        members[b] = test.change_shear_rate(
-                            members[b], c.inertial_number, c.coarse_inertial_number, c.shear_ramp_strain
-                        )
-                states = batch.restack(members)
-            budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
-            budgets[list(failures)] = 0  # a failed member stays frozen
-        record_every = plans[0][phase][1]
-        total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
-        bar = phase_bar(phase, num, total, progress)
-
-        def on_chunk(current, chunk, left, phase=phase, bar=bar, record_every=record_every):
-            nonlocal budgets
-            budgets = left
-            kinetic = chunk["kinetic_energy"].reshape(num, chunk["valid"].shape[1], -1)[:, -1, 0]
-            runaway = ~np.isfinite(kinetic) | (kinetic > RUNAWAY_KINETIC_FRACTION * volume_work)
-            runaway[list(failures)] = False
-            stop = []
-            for b in np.flatnonzero(runaway):
-                message = (
-                    f"member {b} ({batch.configs[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
-                    f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = {RUNAWAY_KINETIC_FRACTION * volume_work[b]:.3g} J: "
-                    f"the run is unstable. Lower dt_safety (now {config.dt_safety}) or the stiffness."
-                )
-                if not isolate_failures:
-                    raise RunError(message)
-                chunk["valid"][b] = False  # frozen at its last good records
-                stop.append(int(b))
-                on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]), phase)
-            records[phase].append(chunk)
-            bar.update(chunk["valid"].shape[1] * record_every)
-            postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}
-            if phase == "consolidation":
-                # The worst member's unbalanced-force ratio against the stop value (tqdm sorts the keys).
-                ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
-                last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
-                postfix = {
-                    "unbalanced": f"{max(last, default=0.0):.1e}",
-                    "until": f"{min(tolerances):.0e}",
-                    **({} if num == 1 else {"active": postfix["active"]}),
-                }
-            elif num == 1:
-                # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
-                last = {name: float(chunk[name][0][chunk["valid"][0]][-1].ravel()[0]) for name in _PROGRESS}
-                external, internal = analysis.friction_angle_deg(
-                    [last["external_axial_stress"], last["internal_axial_stress"]],
-                    [last["external_radial_stress"], last["internal_radial_stress"]],
-                )
-                postfix = {
-                    "strain": f"{100 * last['axial_strain']:.3f}%",
-                    "phi_ext": f"{external:.1f}",
-                    "phi_int": f"{internal:.1f}",
-                }
-            bar.set_postfix(**postfix)
-            if after_chunk is not None:
-                after_chunk(current, phase)
-            chunk_counter[0] += 1
-            if chunk_counter[0] % config.checkpoint_every_chunks == 0:
-                save(current, left)
-            if interrupt_after_chunks is not None and chunk_counter[0] >= interrupt_after_chunks:
-                raise KeyboardInterrupt(f"interrupted after {chunk_counter[0]} chunks (testing aid)")
-            return stop
-
-        def on_failure(b, names, step, phase=phase):
-            failures[b] = {"error": names, "step": step, "phase": phase}
-
-        stop_fn = None
-        if phase == "consolidation":
-
-            def stop_fn(b, mine):
-                return batch.tests[b].is_consolidated(mine, tolerances[b])
-
-        try:
-            states, budgets = batch.run_phase(
-                states,
-                budgets,
-                config.chunk_steps,
-                record_every,
-                stop_fn=stop_fn,
-                on_chunk=on_chunk,
-                on_failure=on_failure if isolate_failures else None,
-            )
-        except SimulationError as error:
-            raise RunError(
-                f"{error}. Lower dt_safety (now {config.dt_safety}) or particle_stiffness_n_m; a membrane "
-                "modulus far above the paper's 1400 kPa also shortens the stable step.",
-                records,
-            ) from error
-        except RunError as error:
-            error.records = records
-            raise
-        finally:
-            bar.close()
-        phase_index += 1
+        config = batch.configs[0]
+        checkpoint_path = folder / CHECKPOINT_NAME
+        num = batch.num_members
+        records: dict[str, list[dict]] = {phase: [] for phase in PHASES}
+        phase_index, elapsed = 0, 0.0
         budgets = None
-        save(states, None)
-    elapsed += time.perf_counter() - clock
-    shear_start = [
-        {"height": shear_height[b], "volume": shear_volume[b], "platen_area": batch.tests[b].platen_area}
-        for b in range(num)
-    ]
-    return records, shear_start, elapsed
+        shear_height = np.zeros(num)
+        shear_volume = np.zeros(num)
+        states = batch.initial_state
+        if resume and checkpoint_path.exists():
+            host = read_checkpoint_host(checkpoint_path)
+            if float32_shearing and host.get("dtype") == "float32":
+                to_float32()
+            states, host = load_checkpoint(checkpoint_path, _template(batch, host["capacities"]))
+            phase_index, elapsed = host["phase_index"], host["elapsed_s"]
+            budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
+            shear_height, shear_volume = np.asarray(host["shear_height"]), np.asarray(host["shear_volume"])
+            failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
+            for phase in PHASES:
+                names = host.get(f"names_{phase}", [])
+                if names:
+                    records[phase] = [{name: np.asarray(host[f"rec_{phase}_{name}"]) for name in names}]
+        tolerances = [consolidation_tolerance(c) for c in batch.configs]
+        volume_work = np.array([t.cell_pressure * t.initial_volume for t in batch.tests])
+        clock = time.perf_counter()
+
+        def save(current, current_budgets):
+            host = {
+                "phase_index": phase_index,
+                "elapsed_s": elapsed + time.perf_counter() - clock,
+                "capacities": _capacities(current),
+                # None at a phase's end: the next phase computes its budgets (and starts shearing) on resume.
+                "budgets": None if current_budgets is None else [int(v) for v in current_budgets],
+                "shear_height": shear_height,
+                "shear_volume": shear_volume,
+                "member_steps": [int(step) for step in np.asarray(current.dem.step)[:num]],
+                "dtype": str(np.dtype(current.dem.position.dtype)),
+                "failures": {str(b): failure for b, failure in failures.items()},
+            }
+            for phase in PHASES:
+                joined = join_records(records[phase], axis=1)
+                host[f"names_{phase}"] = list(joined)
+                host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
+            save_checkpoint(checkpoint_path, current, host)
+
+        # The protocol's stage sequence (membrax.triaxial.protocol): each member's steps and record interval
+        # per phase. The record interval is shared: it is not a batched field, so all members have the same.
+        plans = [t.phase_plan(loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
+        while phase_index < len(PHASES):
+            phase = PHASES[phase_index]
+            if budgets is None:
+                if phase == "shear_fine" and float32_shearing:
+                    capacities = _capacities(states)
+                    to_float32()
+                    states = cast_state(states, _template(batch, capacities))
+                if phase == "shear_fine":
+                    members = batch.unstack(states)
+                    for b, test in enumerate(batch.tests):
+                        if b in failures:  # frozen: it never shears
+                            continue
+                        shear_height[b] = _last_member_value(records["consolidation"], "height", b)
+                        shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
+                        c = batch.configs[b]
+                        members[b] = test.start_shear(
+                            members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
+                        )
+                    states = batch.restack(members)
+                elif phase == "shear_coarse" and any(c.coarse_inertial_number for c in batch.configs):
+                    members = batch.unstack(states)
+                    for b, test in enumerate(batch.tests):
+                        c = batch.configs[b]
+                        if b not in failures and c.coarse_inertial_number:
+                            members[b] = test.change_shear_rate(
+                                members[b], c.inertial_number, c.coarse_inertial_number, c.shear_ramp_strain
+                            )
+                    states = batch.restack(members)
+                budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
+                budgets[list(failures)] = 0  # a failed member stays frozen
+            record_every = plans[0][phase][1]
+            total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
+            bar = phase_bar(phase, num, total, progress)
+
+            def on_chunk(current, chunk, left, phase=phase, bar=bar, record_every=record_every):
+                nonlocal budgets
+                budgets = left
+                kinetic = chunk["kinetic_energy"].reshape(num, chunk["valid"].shape[1], -1)[:, -1, 0]
+                runaway = ~np.isfinite(kinetic) | (kinetic > RUNAWAY_KINETIC_FRACTION * volume_work)
+                runaway[list(failures)] = False
+                stop = []
+                for b in np.flatnonzero(runaway):
+                    message = (
+                        f"member {b} ({batch.configs[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
+                        f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = "
+                        f"{RUNAWAY_KINETIC_FRACTION * volume_work[b]:.3g} J: "
+                        f"the run is unstable. Lower dt_safety (now {config.dt_safety}) or the stiffness."
+                    )
+                    if not isolate_failures:
+                        raise RunError(message)
+                    chunk["valid"][b] = False  # frozen at its last good records
+                    stop.append(int(b))
+                    on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]), phase)
+                records[phase].append(chunk)
+                bar.update(chunk["valid"].shape[1] * record_every)
+                postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}
+                if phase == "consolidation":
+                    # The worst member's unbalanced-force ratio against the stop value (tqdm sorts the keys).
+                    ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
+                    last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
+                    postfix = {
+                        "unbalanced": f"{max(last, default=0.0):.1e}",
+                        "until": f"{min(tolerances):.0e}",
+                        **({} if num == 1 else {"active": postfix["active"]}),
+                    }
+                elif num == 1:
+                    # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
+                    valid = chunk["valid"][0]
+                    last = {name: float(chunk[name][0][valid][-1].ravel()[0]) for name in _PROGRESS}
+                    external, internal = analysis.friction_angle_deg(
+                        [last["external_axial_stress"], last["internal_axial_stress"]],
+                        [last["external_radial_stress"], last["internal_radial_stress"]],
+                    )
+                    postfix = {
+                        "strain": f"{100 * last['axial_strain']:.3f}%",
+                        "phi_ext": f"{external:.1f}",
+                        "phi_int": f"{internal:.1f}",
+                    }
+                bar.set_postfix(**postfix)
+                if after_chunk is not None:
+                    after_chunk(current, phase)
+                chunk_counter[0] += 1
+                if chunk_counter[0] % config.checkpoint_every_chunks == 0:
+                    save(current, left)
+                if interrupt_after_chunks is not None and chunk_counter[0] >= interrupt_after_chunks:
+                    raise KeyboardInterrupt(f"interrupted after {chunk_counter[0]} chunks (testing aid)")
+                return stop
+
+            def on_failure(b, names, step, phase=phase):
+                failures[b] = {"error": names, "step": step, "phase": phase}
+
+            stop_fn = None
+            if phase == "consolidation":
+
+                def stop_fn(b, mine):
+                    return batch.tests[b].is_consolidated(mine, tolerances[b])
+
+            try:
+                states, budgets = batch.run_phase(
+                    states,
+                    budgets,
+                    config.chunk_steps,
+                    record_every,
+                    stop_fn=stop_fn,
+                    on_chunk=on_chunk,
+                    on_failure=on_failure if isolate_failures else None,
+                )
+            except SimulationError as error:
+                raise RunError(
+                    f"{error}. Lower dt_safety (now {config.dt_safety}) or particle_stiffness_n_m; a "
+                    "membrane modulus far above the paper's 1400 kPa also shortens the stable step.",
+                    records,
+                ) from error
+            except RunError as error:
+                error.records = records
+                raise
+            finally:
+                bar.close()
+            phase_index += 1
+            budgets = None
+            save(states, None)
+        elapsed += time.perf_counter() - clock
+        shear_start = [
+            {"height": shear_height[b], "volume": shear_volume[b], "platen_area": batch.tests[b].platen_area}
+            for b in range(num)
+        ]
+        return records, shear_start, elapsed
 
 
 def run_metadata(config, test, records, build_seconds, elapsed, tolerance) -> dict:
