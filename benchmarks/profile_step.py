@@ -17,8 +17,12 @@ step, share of the device time). It also counts the ``conditional`` instructions
 (under ``vmap`` a ``lax.cond`` whose predicate differs between members becomes a select: both branches,
 e.g. a neighbour-list or candidate rebuild, run on every step).
 
+Each stage first runs ``--warmup-steps`` steps (default 0) and profiles from the state they reach: the
+first steps from a freshly built batch rebuild every member's tables, so a steady run's share of rebuilds
+shows only after a warm-up.
+
 Run: ``python benchmarks/profile_step.py [--size small|paper] [--dtype float32] [--steps 200]
-[--mode map|vmap] [--top 15] [--out DIR]`` (``--out``: where the traces and a JSON summary go).
+[--warmup-steps 0] [--mode map|vmap] [--top 15] [--out DIR]`` (``--out``: where the traces and a JSON summary go).
 """
 
 import argparse
@@ -69,6 +73,17 @@ def is_copy(name: str) -> str | None:
         if marker in key:
             return kind
     return "D2D"
+
+
+def advance(chunk, states, left, steps: int, record_every: int):
+    """The states after ``steps`` steps (rounded up to whole record intervals) of ``chunk``."""
+    import jax
+
+    if steps <= 0:
+        return states
+    num_records = -(-steps // record_every)
+    states, *_ = chunk(states, left, num_records=num_records, record_every=record_every)
+    return jax.block_until_ready(states)
 
 
 def profile(chunk, states, left, steps: int, record_every: int, top: int, trace_dir: str) -> dict:
@@ -130,6 +145,13 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument("--mode", default="", help="map or vmap (default: by backend)")
     parser.add_argument("--record-every", type=int, default=0, help="consolidation's (default: config's)")
+    parser.add_argument(
+        "--warmup-steps",
+        type=int,
+        default=0,
+        help="steps run in each stage before the profiled chunk (the state carried on: a steady run's "
+        "rebuild frequency instead of the first steps' forced rebuilds)",
+    )
     parser.add_argument("--top", type=int, default=15)
     parser.add_argument("--out", default="", help="folder for the traces and profile.json")
     args = parser.parse_args()
@@ -196,7 +218,9 @@ def main() -> None:
         "conditionals_in_chunk": conditionals,
         "stages": {},
     }
+    results["warmup_steps"] = args.warmup_steps
     for name, (states, record_every) in stages.items():
+        states = advance(chunk, states, left, args.warmup_steps, record_every)
         results["stages"][name] = profile(
             chunk, states, left, args.steps, record_every, args.top, os.path.join(out, name)
         )
@@ -206,7 +230,7 @@ def main() -> None:
     print(
         f"{results['members']} members ({results['mode']}, {results['backend']}: {results['device']}), "
         f"{results['spheres']} spheres + {results['nodes']} nodes, {args.dtype}; build {build:.1f} s, "
-        f"compile {compile_s:.1f} s; "
+        f"compile {compile_s:.1f} s; {args.warmup_steps} warm-up steps per stage; "
         f"'conditional' instructions in the compiled chunk: {conditionals}"
     )
     print(
