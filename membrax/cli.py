@@ -281,13 +281,32 @@ def _reproduce(args: argparse.Namespace) -> int:
             scheduler=args.scheduler,
             members_per_task=args.task_members,
             overrides=parse_overrides(args.set),
+            packing=args.packing,
+            seeds=args.seeds,
+            reference_folder=args.reference,
         )
     except (ConfigError, ValueError, RunError) as error:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
     print(done["files"]["report"].read_text())
+    if args.packing == "random":
+        _random_correlations(done)
     print(f"results in {done['folder']}")
     return 0
+
+
+def _random_correlations(done: dict) -> None:
+    """The paper's correlations on the random members beside the FCC reference (calibrate.correlations)."""
+    from calibrate.correlations import write_correlations
+    from calibrate.datasets import fitting_table
+
+    tables = {}
+    reference = done.get("reference_dataset")
+    if reference is not None:
+        tables["FCC"] = fitting_table(reference)
+    tables["random"] = fitting_table(done["sweep"].dataset)
+    written = write_correlations(tables, done["folder"])
+    print(written["files"]["correlations.md"].read_text())
 
 
 def _fit(args: argparse.Namespace) -> int:
@@ -514,6 +533,22 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     reproduce.add_argument("--out", default=None, help="results folder (default: results_reproduce_<size>)")
+    reproduce.add_argument(
+        "--packing",
+        choices=("fcc", "random"),
+        default="fcc",
+        help="fcc: the paper's lattice; random: every case on --seeds random specimens of equal spheres "
+        "(compacted without friction), Tables 2-3 as mean ± s.d. (min…max) beside the FCC reproduction "
+        "in --reference, and the paper's correlations for both (default results_<...>_random)",
+    )
+    reproduce.add_argument("--seeds", type=int, default=3, help="with --packing random: seeds per case")
+    reproduce.add_argument(
+        "--reference",
+        default=None,
+        metavar="FOLDER",
+        help="with --packing random: an FCC reproduction of the same size for the FCC columns "
+        "(default results_reproduce_<size>)",
+    )
     reproduce.add_argument(
         "--set",
         action="append",

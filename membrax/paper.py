@@ -21,6 +21,9 @@ first record being the end of consolidation). Each case needs the series ``axial
   stresses (:func:`membrax.triaxial.analysis.initial_state`, first record) and the additional (membrane)
   stresses internal − external.
 - :func:`write_tables` writes both as CSV (exact floats) and Markdown (2 decimals, "–" for NaN).
+- :func:`spread_tables` and :func:`write_spread_tables`: the same tables over several specimens per case
+  (the seeds of a random packing): mean, sample s.d., min and max, beside a reference packing's values
+  (the FCC lattice) and the paper's.
 - :func:`fig9_data` and :func:`paper_fig9_data` give, per thickness, the numbers of the paper's Fig. 9:
   the Molenkamp & Luger indentation ratio and the negative of the relative initial axial stress ratio
   (see below); :func:`membrax.plots.plot_fig9` draws them.
@@ -57,6 +60,7 @@ required series (or holding none) raise ``ValueError`` naming the case and the f
 
 from __future__ import annotations
 
+import functools
 import math
 import numbers
 from collections.abc import Mapping, Sequence
@@ -84,6 +88,8 @@ __all__ = [
     "PAPER_TABLE_2",
     "PAPER_TABLE_3",
     "REQUIRED_SERIES",
+    "spread_tables",
+    "write_spread_tables",
     "paper_key",
     "table_2",
     "table_3",
@@ -479,7 +485,7 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
         directory or cannot be created.
     """
     rows_2, rows_3 = table_2(results), table_3(results, particle_radius)
-    quantities_3 = (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
+    quantities_3 = _table_3_quantities(particle_radius)
     folder = ensure_folder(folder)
     note = (
         "Ours from membrax; paper from Tables 2 and 3 of the paper (– where it has no such case; its "
@@ -493,6 +499,153 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
         "table3.csv": _csv_text(rows_3),
         "table3.md": _markdown_text(
             rows_3, quantities_3, "Table 3: initial stresses and additional membrane stresses", note
+        ),
+    }
+    paths = {}
+    for name, text in texts.items():
+        paths[name] = folder / name
+        atomic_write_bytes(paths[name], text.encode("utf-8"))
+    return paths
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Tables 2 and 3 over several specimens per case (random packings: one per seed)
+# ---------------------------------------------------------------------------------------------------------
+
+_SPREAD_STATISTICS = ("mean", "sd", "min", "max")
+
+
+def spread_tables(results_by_specimen, reference=None, particle_radius: float | None = None) -> dict:
+    """Tables 2 and 3 over several specimens of each case: mean, s.d., min and max, beside a reference.
+
+    For each case and quantity of :func:`table_2` / :func:`table_3` over the specimens (e.g. the seeds of
+    a random packing), with n specimens of values v_k:
+
+        mean = Σ v_k / n,   sd = √(Σ (v_k − mean)² / (n − 1))  (NaN for n = 1),   min, max
+
+    Args:
+      results_by_specimen: ``{specimen label: results}``, each ``results`` as :func:`table_2` takes it
+        (``{(cell_pressure_kpa, membrane_thickness_mm): shear records}``); a case missing from some
+        specimens (a failed member) is summarised over the others.
+      reference: optional ``results`` of the same cases on another packing (the FCC lattice), shown as
+        ``reference_{quantity}`` (NaN where it lacks the case).
+      particle_radius: as :func:`table_3`.
+
+    Returns:
+      ``{"table2": rows, "table3": rows}``: one dict of floats per case, sorted by thickness then pressure,
+      with ``cell_pressure_kpa``, ``membrane_thickness_mm``, ``specimens`` (n) and, per quantity ``q``:
+      ``q_mean``, ``q_sd``, ``q_min``, ``q_max``, ``reference_q`` and ``paper_q``.
+
+    Raises:
+      ValueError: no specimens, or bad ``results`` (see the module docstring).
+    """
+    if not isinstance(results_by_specimen, Mapping) or not results_by_specimen:
+        raise ValueError(
+            "results_by_specimen must map a specimen label (e.g. the packing seed) to its results; "
+            f"got {results_by_specimen!r:.80}."
+        )
+    tables = {}
+    for name, table, quantities in (
+        ("table2", table_2, _TABLE_2_QUANTITIES),
+        (
+            "table3",
+            functools.partial(table_3, particle_radius=particle_radius),
+            _table_3_quantities(particle_radius),
+        ),
+    ):
+        per_case: dict[tuple, list[dict]] = {}
+        for results in results_by_specimen.values():
+            for row in table(results):
+                per_case.setdefault((row["cell_pressure_kpa"], row["membrane_thickness_mm"]), []).append(row)
+        references = (
+            {(r["cell_pressure_kpa"], r["membrane_thickness_mm"]): r for r in table(reference)}
+            if reference
+            else {}
+        )
+        rows = []
+        for key in sorted(per_case, key=lambda k: (k[1], k[0])):
+            specimens = per_case[key]
+            row = {"cell_pressure_kpa": key[0], "membrane_thickness_mm": key[1], "specimens": len(specimens)}
+            for quantity, _, _ in quantities:
+                values = np.array([float(r[quantity]) for r in specimens])
+                row[f"{quantity}_mean"] = float(np.mean(values))
+                row[f"{quantity}_sd"] = float(np.std(values, ddof=1)) if values.size > 1 else math.nan
+                row[f"{quantity}_min"] = float(np.min(values))
+                row[f"{quantity}_max"] = float(np.max(values))
+                row[f"reference_{quantity}"] = float(references.get(key, {}).get(quantity, math.nan))
+                row[f"paper_{quantity}"] = float(specimens[0][f"paper_{quantity}"])
+            rows.append(row)
+        tables[name] = rows
+    return tables
+
+
+def _table_3_quantities(particle_radius):
+    return (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
+
+
+def _spread_cell(row: dict, quantity: str) -> str:
+    mean, sd = row[f"{quantity}_mean"], row[f"{quantity}_sd"]
+    spread = f" ± {sd:.2f}" if math.isfinite(sd) else ""
+    return f"{mean:.2f}{spread} ({row[f'{quantity}_min']:.2f}…{row[f'{quantity}_max']:.2f})"
+
+
+def _spread_markdown(rows: list[dict], quantities, title: str, note: str, reference_label: str) -> str:
+    header = [f"{label} ({unit})" for _, label, unit in _KEY_COLUMNS] + ["specimens"]
+    for _, label, unit in quantities:
+        header += [
+            f"{label}, mean ± s.d. (min…max) ({unit})",
+            f"{reference_label} ({unit})",
+            f"paper ({unit})",
+        ]
+    lines = [f"# {title}", "", note, "", "| " + " | ".join(header) + " |", "|" + "---:|" * len(header)]
+    for row in rows:
+        cells = [_markdown_cell(row[name]) for name, _, _ in _KEY_COLUMNS] + [str(int(row["specimens"]))]
+        for quantity, _, _ in quantities:
+            cells += [
+                _spread_cell(row, quantity),
+                _markdown_cell(row[f"reference_{quantity}"]),
+                _markdown_cell(row[f"paper_{quantity}"]),
+            ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_spread_tables(
+    results_by_specimen,
+    folder,
+    reference=None,
+    particle_radius: float | None = None,
+    stem: str = "random",
+    reference_label: str = "FCC",
+) -> dict[str, Path]:
+    """Write :func:`spread_tables` as ``{stem}_table2.csv/.md`` and ``{stem}_table3.csv/.md`` in ``folder``.
+
+    The CSV files hold every column of :func:`spread_tables` (exact floats); the Markdown tables show per
+    quantity "mean ± s.d. (min…max)" over the specimens, the reference's value (``reference_label``) and
+    the paper's, to 2 decimals ("–" for NaN).
+    """
+    tables = spread_tables(results_by_specimen, reference, particle_radius)
+    folder = ensure_folder(folder)
+    note = (
+        f"Over the specimens of each case (one per seed); {reference_label} from membrax on the lattice of "
+        "the same size (– where not run); paper from its Tables 2 and 3 (FCC, paper size)."
+    )
+    texts = {
+        f"{stem}_table2.csv": _csv_text(tables["table2"]),
+        f"{stem}_table2.md": _spread_markdown(
+            tables["table2"],
+            _TABLE_2_QUANTITIES,
+            "Table 2 on random specimens: peak mobilised φ'",
+            note,
+            reference_label,
+        ),
+        f"{stem}_table3.csv": _csv_text(tables["table3"]),
+        f"{stem}_table3.md": _spread_markdown(
+            tables["table3"],
+            _table_3_quantities(particle_radius),
+            "Table 3 on random specimens: initial and additional membrane stresses",
+            note,
+            reference_label,
         ),
     }
     paths = {}

@@ -19,6 +19,16 @@ I = 5e-3) — the demo's specimen, 2 min 52 s on 2 CPU cores for all nine cases;
 2 cores with the compiled kernels of :mod:`membrax.native` (float64, 2026-11-28; peak RSS 3.8 GB). A faster
 coarse phase (``overrides={"coarse_inertial_number": 5e-3}``) leaves Tables 2–3 bit-identical in 12 min
 27 s but raises φ' after 1 % strain by 2.4–4.3° on average (docs/loading_rate.md), so it is not the preset.
+Random specimens (``packing="random"``, ``membrax reproduce --packing random``; the paper's open
+question, its §6). Every case of Table 1 on ``seeds`` random packings of equal 25 mm spheres compacted
+without friction (:data:`RANDOM_SIZES`: ``small`` in a 150 × 250 mm mould, ``paper`` in 250 × 500 mm), the
+packing seed a third grid axis. Written into ``results_reproduce_{size}_random``: the sweep's files,
+``random_table2``/``random_table3`` (``.csv``/``.md``; :func:`membrax.paper.write_spread_tables`: per case
+mean ± s.d. (min…max) over the seeds beside the FCC reproduction of the same size, read from
+``reference_folder``'s ``sweep.nc`` when it exists, and the paper's), Figs 5–8 of the 10 kPa / 5 mm case
+for each seed (``seed{k}_fig5_friction.png`` …) and ``reproduction.md``. The command line adds the paper's
+correlations for both families (:mod:`calibrate.correlations`: ``correlations.md/.csv/.png``).
+
 Both use the paper's materials (25 mm granite spheres, μ = tan 25°, latex 1400 kPa without bending
 stiffness) and protocol (platens ramped to full speed at 1 % strain, both moving,
 :mod:`membrax.triaxial.membrane_cell`). Both run in float64 and end consolidation at an unbalanced-force
@@ -31,11 +41,20 @@ import time
 from pathlib import Path
 
 from membrax import paper, plots
-from membrax.config import DEMO_CONFIG, TriaxialConfig, with_overrides
+from membrax.config import DEMO_CONFIG, DEMO_RANDOM_CONFIG, TriaxialConfig, with_overrides
+from membrax.io.results import read_results
 from membrax.runner import precision_name
 from membrax.sweep import member_records, run_sweep
 
-__all__ = ["SIZES", "TABLE_3_PRECISION", "reproduce"]
+__all__ = [
+    "RANDOM_SIZES",
+    "SIZES",
+    "TABLE_3_PRECISION",
+    "fcc_cases",
+    "fcc_dataset",
+    "random_cases",
+    "reproduce",
+]
 
 #: Table 3 is read at the end of consolidation, which stops at an unbalanced-force ratio of 1e-3. float32
 #: cannot get there with the membrane: its force round-off floors the ratio at ~1e-2 at 10 kPa (3e-3 at
@@ -56,6 +75,14 @@ SIZES = {
     "paper": dict(chunk_steps=5000, checkpoint_every_chunks=5, **TABLE_3_PRECISION),
 }
 
+#: ``packing="random"``'s changes to :data:`SIZES`: equal spheres compacted without friction in a mould of
+#: the FCC specimen's size class: ``small`` the random demo's 150 × 250 mm (about 313 spheres, 6 diameters
+#: across as the FCC demo), ``paper`` the paper's 250 × 500 mm (about 1,740 spheres).
+RANDOM_SIZES = {
+    "small": {key: value for key, value in DEMO_RANDOM_CONFIG.items() if key != "name"},
+    "paper": dict(packing="random", specimen_diameter_mm=250.0, specimen_height_mm=500.0),
+}
+
 
 def reproduce(
     size: str = "small",
@@ -66,6 +93,9 @@ def reproduce(
     overrides: dict | None = None,
     scheduler=None,
     members_per_task: int | None = None,
+    packing: str = "fcc",
+    seeds: int = 3,
+    reference_folder=None,
 ) -> dict:
     """Run the paper's Table 1 and write its Tables 2–3 and Figs 5–9 (module docstring).
 
@@ -78,21 +108,35 @@ def reproduce(
       overrides: further configuration fields (e.g. ``{"target_axial_strain": 0.05}``).
       scheduler: run the members on Dask (:func:`membrax.sweep.run_sweep`); None: in this process.
       members_per_task: with ``scheduler``, members per task.
+      packing: ``"fcc"`` (the paper's lattice) or ``"random"`` (:data:`RANDOM_SIZES`: every case on
+        ``seeds`` random specimens, Tables 2–3 as spreads over them beside the FCC lattice's and the
+        paper's).
+      seeds: with ``packing="random"``, the packing seeds 0 … seeds − 1 (at least 1; 3 by default).
+      reference_folder: with ``packing="random"``, an FCC reproduction of the same size
+        (``results_reproduce_{size}`` by default) whose ``sweep.nc``, when present, gives the FCC columns.
 
     Returns:
-      ``{"folder", "sweep" (the SweepResult), "files", "seconds"}``.
+      ``{"folder", "sweep" (the SweepResult), "files", "seconds"}``; with ``packing="random"`` also
+      ``"reference"`` (the FCC cases, or None) and ``"reference_dataset"`` (its ``sweep.nc``, or None).
 
     Raises:
       ValueError: an unknown size.
     """
     if size not in SIZES:
         raise ValueError(f"size = {size!r}; choose one of {sorted(SIZES)}.")
+    if packing not in ("fcc", "random"):
+        raise ValueError(f"packing = {packing!r}; choose 'fcc' or 'random'.")
+    if packing == "random" and (isinstance(seeds, bool) or not isinstance(seeds, int) or seeds < 1):
+        raise ValueError(f"seeds = {seeds!r}; give the number of random specimens per case, at least 1.")
     started = time.perf_counter()
-    folder = Path(folder if folder is not None else f"results_reproduce_{size}")
-    base = with_overrides(TriaxialConfig(name=f"reproduce_{size}", **SIZES[size]), **(overrides or {}))
+    random = packing == "random"
+    suffix = "_random" if random else ""
+    folder = Path(folder if folder is not None else f"results_reproduce_{size}{suffix}")
+    fields = {**SIZES[size], **(RANDOM_SIZES[size] if random else {})}
+    base = with_overrides(TriaxialConfig(name=f"reproduce_{size}{suffix}", **fields), **(overrides or {}))
     result = run_sweep(
         base,
-        None,
+        {**paper.TABLE_1_GRID, "packing_seed": tuple(range(seeds))} if random else None,
         folder,
         resume=resume,
         progress=progress,
@@ -100,17 +144,13 @@ def reproduce(
         scheduler=scheduler,
         members_per_task=members_per_task,
     )
+    if random:
+        return _random_outputs(result, base, size, folder, resume, reference_folder, started)
     dataset = result.dataset
-    cases = {
-        (float(pressure), float(thickness)): member_records(
-            dataset, cell_pressure_kpa=pressure, membrane_thickness_mm=thickness
-        )
-        for pressure in dataset["cell_pressure_kpa"].values
-        for thickness in dataset["membrane_thickness_mm"].values
-    }
+    cases = fcc_cases(dataset)
     files = dict(result.files)
     files.update(paper.write_tables(cases, folder, particle_radius=base.particle_radius))
-    files["figures"] = plots.save_test_figures(cases[(10.0, 5.0)], folder)
+    files["figures"] = plots.save_test_figures(cases[(10.0, 5.0)], folder) if (10.0, 5.0) in cases else []
     diameter_mm = 1e3 * base.particle_diameter
     ours = paper.fig9_data(
         cases, particle_diameter_mm=diameter_mm, membrane_modulus_kpa=base.membrane_modulus_kpa
@@ -141,3 +181,97 @@ def reproduce(
     (folder / "reproduction.md").write_text("\n".join(text))
     files["report"] = folder / "reproduction.md"
     return {"folder": folder, "sweep": result, "files": files, "seconds": seconds}
+
+
+def random_cases(dataset) -> dict:
+    """``{seed: {(cell_pressure_kpa, membrane_thickness_mm): shear records}}`` of a random reproduction.
+
+    Members that failed (``status`` other than completed) are left out; a seed with none left is dropped.
+    """
+    by_seed = {}
+    for seed in dataset["packing_seed"].values:
+        cases = {}
+        for pressure in dataset["cell_pressure_kpa"].values:
+            for thickness in dataset["membrane_thickness_mm"].values:
+                where = dict(cell_pressure_kpa=pressure, membrane_thickness_mm=thickness, packing_seed=seed)
+                if str(dataset["status"].sel(**where).values) != "completed":
+                    continue
+                cases[(float(pressure), float(thickness))] = member_records(dataset, **where)
+        if cases:
+            by_seed[int(seed)] = cases
+    return by_seed
+
+
+def fcc_dataset(folder):
+    """The ``sweep.nc`` of an FCC reproduction in ``folder``, or None when there is none."""
+    path = Path(folder) / "sweep.nc"
+    return read_results(path) if path.is_file() else None
+
+
+def fcc_cases(dataset) -> dict:
+    """``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` of an FCC reproduction's dataset.
+
+    Members that failed (``status`` other than completed) are left out.
+    """
+    return {
+        (float(pressure), float(thickness)): member_records(
+            dataset, cell_pressure_kpa=pressure, membrane_thickness_mm=thickness
+        )
+        for pressure in dataset["cell_pressure_kpa"].values
+        for thickness in dataset["membrane_thickness_mm"].values
+        if str(dataset["status"].sel(cell_pressure_kpa=pressure, membrane_thickness_mm=thickness).values)
+        == "completed"
+    }
+
+
+def _random_outputs(result, base, size, folder, resume, reference_folder, started) -> dict:
+    """:func:`reproduce`'s files for ``packing="random"``: spread tables, figures per seed, the report."""
+    by_seed = random_cases(result.dataset)
+    reference_folder = Path(reference_folder if reference_folder is not None else f"results_reproduce_{size}")
+    reference_dataset = fcc_dataset(reference_folder)
+    reference = fcc_cases(reference_dataset) if reference_dataset is not None else None
+    files = dict(result.files)
+    files.update(
+        paper.write_spread_tables(by_seed, folder, reference=reference, particle_radius=base.particle_radius)
+    )
+    files["figures"] = []
+    for seed, cases in by_seed.items():
+        if (10.0, 5.0) in cases:
+            files["figures"] += plots.save_test_figures(cases[(10.0, 5.0)], folder, stem=f"seed{seed}_fig")
+    seconds = time.perf_counter() - started
+    timed = "this call (resumed from any checkpoints) ran the sweep in" if resume else "the sweep ran in"
+    fcc_note = (
+        f"FCC columns from {reference_folder / 'sweep.nc'}."
+        if reference is not None
+        else f"No FCC reproduction in {reference_folder}: run `membrax reproduce --size {size}` for the "
+        "FCC columns."
+    )
+    dataset = result.dataset
+    per_seed = [
+        f"seed {seed}: {int(dataset['num_particles'].sel(packing_seed=seed).max())} spheres, solid fraction "
+        f"{float(dataset['solid_fraction'].sel(packing_seed=seed).max()):.4f}"
+        for seed in by_seed
+    ]
+    text = [
+        f"# membrax reproduction on random specimens ({size})\n",
+        f"Random packings of equal {1e3 * base.particle_diameter:g} mm spheres in a mould "
+        f"{base.specimen_diameter_mm:g} × {base.specimen_height_mm:g} mm, compacted without friction "
+        f"(compaction friction {base.compaction_friction_deg:g}°), seeds {', '.join(map(str, by_seed))}; "
+        f"membrane edge D/{base.membrane_edges_per_diameter:g}, I = {base.inertial_number:g}, to "
+        f"{100 * base.target_axial_strain:g} % axial strain, {precision_name(base)}; {timed} "
+        f"{result.seconds:.0f} s, everything in {seconds:.0f} s. {fcc_note}\n",
+        "Specimens: " + "; ".join(per_seed) + ".\n",
+        (folder / "random_table2.md").read_text(),
+        (folder / "random_table3.md").read_text(),
+        "Figures (10 kPa, 5 mm, one set per seed): " + ", ".join(p.name for p in files["figures"]) + "\n",
+    ]
+    (folder / "reproduction.md").write_text("\n".join(text))
+    files["report"] = folder / "reproduction.md"
+    return {
+        "folder": folder,
+        "sweep": result,
+        "files": files,
+        "seconds": seconds,
+        "reference": reference,
+        "reference_dataset": reference_dataset,
+    }

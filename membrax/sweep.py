@@ -538,6 +538,9 @@ def run_sweep(
         consolidation_sets.append(consolidation)
         for name in ("consolidation_steps", "shear_steps", "dt_s", "nodes_around"):
             extra.setdefault(name, []).append(attrs[name])
+        # The specimen (a random packing differs between seeds): its sphere count and solid fraction.
+        extra.setdefault("num_particles", []).append(attrs.get("num_particles", -1))
+        extra.setdefault("solid_fraction", []).append(attrs.get("specimen", {}).get("solid_fraction", np.nan))
         for name, value in _member_scalars(shear).items():
             extra.setdefault(name, []).append(value)
     attrs = {

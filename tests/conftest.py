@@ -75,6 +75,7 @@ LONG_FIRST = (
     "notebooks/03_parameter_study.ipynb",
     "tests/test_compaction.py",
     "notebooks/06_random_specimens.ipynb",
+    "notebooks/07_random_vs_fcc.ipynb",
     "tests/test_random_run.py",
 )
 

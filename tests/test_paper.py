@@ -400,3 +400,65 @@ def test_missing_or_empty_series_raise(tmp_path):
         paper.write_tables({}, tmp_path)
     assert list(tmp_path.iterdir()) == []  # nothing written
     assert len(paper.REQUIRED_SERIES) == 5
+
+
+# ---------------------------------------------------------------------------------------------------------
+# Tables over several specimens per case (random packings)
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _scaled_peak(records, factor):
+    """The records with the external axial stress scaled by ``factor`` (a different specimen)."""
+    return {**records, "external_axial_stress": factor * records["external_axial_stress"]}
+
+
+def test_spread_tables_give_mean_sd_min_max_over_specimens_by_hand(tmp_path):
+    # Three specimens of two cases: the external peak ratio R = 4 f for f = 1, 1.1, 1.25, so φ'_ext peak
+    # = asin((4f − 1)/(4f + 1)); the initial σ1,ext = 3 f σc.
+    factors = (1.0, 1.1, 1.25)
+    cases = [(10.0, 5.0), (40.0, 2.5)]
+    by_seed = {
+        seed: {case: _scaled_peak(make_records(case[0]), f) for case in cases}
+        for seed, f in enumerate(factors)
+    }
+    reference = {(10.0, 5.0): make_records(10.0)}  # a lattice with f = 1 for one case only
+    tables = paper.spread_tables(by_seed, reference=reference)
+    peaks = np.degrees(np.arcsin([(4 * f - 1) / (4 * f + 1) for f in factors]))
+    mean = peaks.sum() / 3
+    sd = math.sqrt(((peaks - mean) ** 2).sum() / 2)
+    rows = tables["table2"]
+    assert [(r["cell_pressure_kpa"], r["membrane_thickness_mm"]) for r in rows] == [(40.0, 2.5), (10.0, 5.0)]
+    for row in rows:
+        assert row["specimens"] == 3
+        assert row["peak_external_friction_angle_deg_mean"] == pytest.approx(mean, abs=1e-12)
+        assert row["peak_external_friction_angle_deg_sd"] == pytest.approx(sd, abs=1e-12)
+        assert row["peak_external_friction_angle_deg_min"] == pytest.approx(peaks[0], abs=1e-12)
+        assert row["peak_external_friction_angle_deg_max"] == pytest.approx(peaks[2], abs=1e-12)
+        # The internal stresses are the same in every specimen: no spread.
+        assert row["peak_internal_friction_angle_deg_sd"] == 0.0
+    assert rows[1]["reference_peak_external_friction_angle_deg"] == pytest.approx(
+        PEAK_EXTERNAL_DEG, abs=1e-12
+    )
+    assert math.isnan(rows[0]["reference_peak_external_friction_angle_deg"])
+    assert rows[1]["paper_peak_external_friction_angle_deg"] == 41.1  # the paper's (10, 5)
+    sigma1 = [3.0 * f * 10.0 for f in factors]  # kPa
+    row3 = tables["table3"][1]
+    assert row3["sigma1_external_kpa_mean"] == pytest.approx(np.mean(sigma1), abs=1e-9)
+    assert row3["sigma1_external_kpa_sd"] == pytest.approx(np.std(sigma1, ddof=1), abs=1e-9)
+    # Δσ1 = σ1,int − σ1,ext = (3.6 − 3 f) σc per specimen.
+    assert row3["additional_sigma1_kpa_min"] == pytest.approx((3.6 - 3.0 * 1.25) * 10.0, abs=1e-9)
+    paths = paper.write_spread_tables(by_seed, tmp_path, reference=reference)
+    with open(paths["random_table2.csv"]) as handle:
+        read = list(csv.DictReader(handle))
+    assert float(read[1]["peak_external_friction_angle_deg_sd"]) == pytest.approx(sd, abs=1e-12)
+    markdown = paths["random_table2.md"].read_text()
+    assert f"{mean:.2f} ± {sd:.2f} ({peaks[0]:.2f}…{peaks[2]:.2f})" in markdown
+
+
+def test_spread_tables_of_one_specimen_have_no_sd_and_refuse_nothing():
+    tables = paper.spread_tables({0: {(10.0, 5.0): make_records(10.0)}})
+    row = tables["table2"][0]
+    assert row["specimens"] == 1 and math.isnan(row["peak_external_friction_angle_deg_sd"])
+    assert row["peak_external_friction_angle_deg_mean"] == pytest.approx(PEAK_EXTERNAL_DEG, abs=1e-12)
+    with pytest.raises(ValueError, match="specimen label"):
+        paper.spread_tables({})

@@ -279,6 +279,8 @@ def test_cli_run_reports_bad_configuration_fields(tmp_path, capsys):
     assert "coarse_inertial_number = -1" in capsys.readouterr().err and not out.exists()
     assert cli.main(["reproduce", "--set", "coarse_inertial_numbr=5e-3", "--out", str(out)]) == 2
     assert "coarse_inertial_number" in capsys.readouterr().err and not out.exists()
+    assert cli.main(["reproduce", "--packing", "random", "--seeds", "0", "--out", str(out)]) == 2
+    assert "seeds = 0" in capsys.readouterr().err and not out.exists()
     # --resume with nothing to resume: one line naming the missing checkpoint, exit 2, no traceback
     assert cli.main(["run", str(good), "--out", str(tmp_path / "fresh"), "--resume"]) == 2
     assert capsys.readouterr().err == (
