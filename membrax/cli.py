@@ -435,6 +435,8 @@ SUBCOMMAND_HELP = {
         "2-3 beside the paper's (table2/table3 .csv and .md), Figs 5-9 and reproduction.md.",
         "examples:\n"
         "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
+        "  membrax reproduce --size small --packing random       # 3 seeds per case, 5 min; beside the\n"
+        "                                                        # FCC run in results_reproduce_small\n"
         "  membrax reproduce --size paper --out paper_run        # about 23 min on 2 CPU cores\n"
         "  membrax reproduce --size paper --scheduler tcp://head:8786 --out /shared/paper_run",
     ),
