@@ -22,7 +22,8 @@ first steps from a freshly built batch rebuild every member's tables, so a stead
 shows only after a warm-up.
 
 Run: ``python benchmarks/profile_step.py [--size small|paper] [--dtype float32] [--steps 200]
-[--warmup-steps 0] [--mode map|vmap] [--top 15] [--out DIR]`` (``--out``: where the traces and a JSON summary go).
+[--warmup-steps 0] [--mode map|vmap] [--top 15] [--out DIR]`` (``--out``: where the traces and a JSON
+summary go).
 """
 
 import argparse
