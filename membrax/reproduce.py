@@ -27,7 +27,9 @@ packing seed a third grid axis. Written into ``results_reproduce_{size}_random``
 mean ± s.d. (min…max) over the seeds beside the FCC reproduction of the same size, read from
 ``reference_folder``'s ``sweep.nc`` when it exists, and the paper's), Figs 5–8 of the 10 kPa / 5 mm case
 for each seed (``seed{k}_fig5_friction.png`` …) and ``reproduction.md``. The command line adds the paper's
-correlations for both families (:mod:`calibrate.correlations`: ``correlations.md/.csv/.png``).
+correlations for both families (:mod:`calibrate.correlations`: ``correlations.md/.csv/.png``). On 2 CPU
+cores: ``small`` 5 min for 3 seeds (27 members); ``paper`` about 22 min per seed (44 min 27 s for 2,
+2026-11-28).
 
 Both use the paper's materials (25 mm granite spheres, μ = tan 25°, latex 1400 kPa without bending
 stiffness) and protocol (platens ramped to full speed at 1 % strain, both moving,
