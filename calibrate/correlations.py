@@ -271,12 +271,11 @@ def write_correlations(tables: Mapping, folder, reference: str | None = None) ->
 
 
 def _figure(tables: Mapping, results: Mapping, path: Path) -> Path:
-    import matplotlib
+    # A Figure without pyplot: no backend switched in the caller's session (as membrax.plots).
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4.5))
+    figure = Figure(figsize=(11, 4.5), layout="constrained")
+    axes = figure.subplots(1, 2)
     labels = {
         "axial": ("dε_r/dε_a", "Δσ_a/σc"),
         "radial": ("hoop ratio 2 E_m t_m (−ε_r)/(D_s σc)", "Δσ_r/σc"),
@@ -299,7 +298,5 @@ def _figure(tables: Mapping, results: Mapping, path: Path) -> Path:
         axis.set_ylabel(labels[name][1])
         axis.set_title(statement, fontsize=9)
         axis.legend(fontsize=8)
-    figure.tight_layout()
     figure.savefig(path, dpi=120)
-    plt.close(figure)
     return path
