@@ -455,7 +455,7 @@ def test_spread_tables_give_mean_sd_min_max_over_specimens_by_hand(tmp_path):
     assert f"{mean:.2f} ± {sd:.2f} ({peaks[0]:.2f}…{peaks[2]:.2f})" in markdown
 
 
-def test_spread_tables_of_one_specimen_have_no_sd_and_refuse_nothing():
+def test_spread_tables_of_one_specimen_have_no_sd_and_an_empty_mapping_is_refused():
     tables = paper.spread_tables({0: {(10.0, 5.0): make_records(10.0)}})
     row = tables["table2"][0]
     assert row["specimens"] == 1 and math.isnan(row["peak_external_friction_angle_deg_sd"])

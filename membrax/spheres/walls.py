@@ -290,11 +290,9 @@ def change_speed(walls: WallState, factor: float, strain_rate: float, ramp_strai
     check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
     target = jnp.where(walls.servo, walls.target_velocity, factor * walls.target_velocity)
     change = jnp.abs(target - walls.target_velocity)
-    if ramp_strain > 0.0:
-        duration = 2.0 * ramp_strain / (strain_rate * (1.0 + factor))
-        acceleration = jnp.where(change > 0.0, change / duration, walls.acceleration)
-    else:
-        acceleration = jnp.where(change > 0.0, jnp.inf, walls.acceleration)
+    # a = |v₂ − v₁|/t = |Δv| (ε̇₁ + ε̇₂)/(2 ε_t): the ramp from rest's law with Δv and ε̇₁ + ε̇₂.
+    ramp = ramp_acceleration(change, strain_rate * (1.0 + factor), ramp_strain)
+    acceleration = jnp.where(change > 0.0, ramp, walls.acceleration)
     return walls.set(
         target_velocity=target.astype(walls.target_velocity.dtype),
         acceleration=acceleration.astype(walls.acceleration.dtype),
