@@ -32,6 +32,9 @@ the in-range one: with δ the largest distance outside a range, per row, in unit
 (in logarithms for the ratios of sizes and stiffnesses, :data:`LOG_DISTANCE`), the standard deviation is
 multiplied by 1 + δ (it doubles one range's width outside), and beyond δ = :data:`MAX_EXTRAPOLATION` the
 fitted method is withheld (NaN): a linear model carried further than the span it was fitted on is a guess.
+The specimen is also checked against the packing family the correction was fitted on (its JSON's
+``packing_family``, :func:`family_warnings`): a correction fitted on FCC lattices alone is warned about, and
+so is a void ratio (``Specimen.solid_fraction``) outside the fitted members' range.
 
 :func:`write_correction` writes the CSV and the plot (σ1, σ3, φ' side by side) atomically: a failure
 leaves no file half-written. ``membrax correct`` is :func:`correct_file`: it never writes over the record
@@ -61,6 +64,7 @@ __all__ = [
     "correct_file",
     "correct_record",
     "default_corrections",
+    "family_warnings",
     "example_record_path",
     "extrapolation_distances",
     "output_paths",
@@ -116,22 +120,43 @@ class Specimen(NamedTuple):
       particle_diameter: D, the characteristic particle size (e.g. d50), > 0.
       membrane_thickness: t_m, > 0.
       membrane_modulus: E_m, > 0.
+      solid_fraction: the specimen's solid fraction 1/(1 + e) after consolidation, or None when not
+        known (it is checked against the correction's packing family, :func:`family_warnings`).
     """
 
     specimen_diameter: float
     particle_diameter: float
     membrane_thickness: float
     membrane_modulus: float
+    solid_fraction: float | None = None
 
     @classmethod
-    def from_mm_kpa(cls, specimen_diameter_mm, particle_size_mm, membrane_thickness_mm, membrane_modulus_kpa):
+    def from_mm_kpa(
+        cls,
+        specimen_diameter_mm,
+        particle_size_mm,
+        membrane_thickness_mm,
+        membrane_modulus_kpa,
+        void_ratio=None,
+    ):
         """A specimen from the user-facing units, each checked to be a positive finite number.
+
+        ``void_ratio`` e (optional, the laboratory's measure of density) is stored as the solid fraction
+        1/(1 + e).
 
         Raises:
           ValueError: a value that is not a positive finite number, a particle size not below the specimen
-            diameter, a membrane thicker than a quarter of the diameter, or a modulus below
-            :data:`SMALLEST_MEMBRANE_MODULUS_KPA` (MPa written as kPa), each named with an example.
+            diameter, a membrane thicker than a quarter of the diameter, a modulus below
+            :data:`SMALLEST_MEMBRANE_MODULUS_KPA` (MPa written as kPa), or a void ratio outside 0.1–3 (a
+            porosity or a percentage given for it), each named with an example.
         """
+        if void_ratio is not None and not (
+            isinstance(void_ratio, numbers.Real) and np.isfinite(void_ratio) and 0.1 <= void_ratio <= 3.0
+        ):
+            raise ValueError(
+                f"void_ratio = {void_ratio!r}; give the void ratio e = V_voids/V_solids, between 0.1 and 3 "
+                "(ballast is about 0.6-0.8: --void-ratio 0.7; a porosity n converts as e = n/(1 - n))."
+            )
         values = {
             "specimen_diameter_mm": specimen_diameter_mm,
             "particle_size_mm": particle_size_mm,
@@ -164,6 +189,7 @@ class Specimen(NamedTuple):
             1e-3 * particle_size_mm,
             1e-3 * membrane_thickness_mm,
             1e3 * membrane_modulus_kpa,
+            None if void_ratio is None else 1.0 / (1.0 + float(void_ratio)),
         )
 
 
@@ -272,6 +298,35 @@ def range_warnings(inputs: dict, input_ranges: dict, distances: dict | None = No
             f"{words}, {symbol}, {value}; the correction was fitted on {low:.3g} to {high:.3g}{unit} "
             f"({rows} of {distance.size} rows outside it, by up to {np.max(distance):.2g} of that range's "
             f"width{scaled})."
+        )
+    return messages
+
+
+def family_warnings(specimen: Specimen, packing_family: dict | None) -> list[str]:
+    """Messages for a specimen outside the packing family a correction was fitted on (module docstring).
+
+    A correction fitted on FCC lattices only is warned about for every laboratory specimen (a random
+    packing, on which such a correction scored worse than no correction: docs/calibration.md); a specimen
+    whose solid fraction (from ``--void-ratio``) lies outside the random members' range is warned about
+    with both in void ratios. A correction without a recorded family (written before it existed) gives none.
+    """
+    if not packing_family:
+        return []
+    messages = []
+    if "random" not in packing_family.get("packings", ()):
+        messages.append(
+            "the correction was fitted on FCC lattices only; a laboratory specimen is a random packing, on "
+            "which FCC-fitted corrections scored worse than no correction (docs/calibration.md): use the "
+            "shipped correction (fitted on random packings) or fit one on specimens like yours."
+        )
+    fraction, span = specimen.solid_fraction, packing_family.get("solid_fraction")
+    if fraction is not None and span and not (span[0] <= fraction <= span[1]):
+        low_e, high_e = 1.0 / span[1] - 1.0, 1.0 / span[0] - 1.0
+        messages.append(
+            f"void ratio e = {1.0 / fraction - 1.0:.3g} (solid fraction {fraction:.3f}); the correction was "
+            f"fitted on random packings of e = {low_e:.3g} to {high_e:.3g} (solid fraction {span[0]:.3f} to "
+            f"{span[1]:.3f}; {', '.join(packing_family.get('states', ()))}): a denser or looser specimen "
+            "than any it has seen."
         )
     return messages
 
@@ -398,6 +453,7 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
     messages = range_warnings(inputs, corrections.input_ranges, distances)
     if messages:
         messages.append(extrapolation_summary(extrapolation, undefined))
+    messages += family_warnings(specimen, corrections.packing_family)
     for message in messages:
         warnings.warn(message, stacklevel=2)
     return CorrectedRecord(record, sigma_1, sigma_3, friction, std, inputs, tuple(messages), extrapolation)
@@ -593,7 +649,12 @@ def correct_file(
         f"membrane corrections of {Path(record_path).name} by membrax correct",
         f"specimen diameter {1e3 * specimen.specimen_diameter:g} mm, particle size "
         f"{1e3 * specimen.particle_diameter:g} mm, membrane {1e3 * specimen.membrane_thickness:g} mm of "
-        f"{1e-3 * specimen.membrane_modulus:g} kPa",
+        f"{1e-3 * specimen.membrane_modulus:g} kPa"
+        + (
+            ""
+            if specimen.solid_fraction is None
+            else f", void ratio {1.0 / specimen.solid_fraction - 1.0:.3g}"
+        ),
         f"fitted model {corrections.model.name!r} from {model_path or 'the shipped default'} "
         f"(membrax {corrections.provenance.get('membrax_version', '?')}); std: one standard deviation, "
         "widened by 1 + fitted_extrapolation outside the fitted range",

@@ -10,8 +10,9 @@ Inputs, each a quantity a laboratory measures or knows (SI, compression positive
   start of shearing; ``strain_ratio_change`` dε_r/dε_a (the paper's Fig. 7,
   :func:`membrax.triaxial.analysis.strain_ratio_change`); ``hoop_strain`` ε_θ, the mid-height
   circumferential strain from the start of shearing, extension positive (a tape measure);
-- ``cell_pressure`` σc, ``membrane_thickness`` t_m, ``membrane_modulus`` E_m, ``particle_diameter`` D and
-  ``specimen_diameter`` D_s (√(4A₀/π), A₀ the platen area at the start of shearing);
+- ``cell_pressure`` σc, ``membrane_thickness`` t_m, ``membrane_modulus`` E_m, ``particle_diameter`` D
+  (d50 of a graded specimen, :func:`membrax.config.characteristic_size_mm`) and ``specimen_diameter`` D_s
+  (√(4A₀/π), A₀ the platen area at the start of shearing);
 
 and the dimensionless groups the models use:
 
@@ -43,6 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from membrax import theory
+from membrax.config import characteristic_size_mm
 
 __all__ = [
     "INPUTS",
@@ -51,6 +53,7 @@ __all__ = [
     "fitting_table",
     "load_table",
     "measured_inputs",
+    "packing_family",
     "save_table",
     "sweep_members",
 ]
@@ -214,6 +217,46 @@ def sweep_members(dataset):
         yield config, member.isel(record=slice(0, count))
 
 
+def packing_family(sweeps) -> dict:
+    """What the specimens of ``sweeps`` were: the packing family a correction fitted on them covers.
+
+    Args:
+      sweeps: sweep datasets (``sweep.nc``, :func:`sweep_members`).
+
+    Returns:
+      ``{"packings": sorted kinds ("fcc", "random"), "states": sorted compaction states of the random
+      ones ("dense", "loose"), "gradings": the distinct gradings ("equal D mm" or "d_min–d_max mm, d50 …"),
+      "solid_fraction": [min, max] over the random members (whole specimen; None when there are none)}``.
+    """
+    from membrax.defaults import COMPACTION_FRICTION_DEG
+
+    states_by_friction = {friction: state for state, friction in COMPACTION_FRICTION_DEG.items()}
+    packings, states, gradings, fractions = set(), set(), set(), []
+    for dataset in sweeps:
+        for config, rows in sweep_members(dataset):
+            packing = config.get("packing", "fcc")
+            packings.add(packing)
+            if packing != "random":
+                continue
+            friction = float(config.get("compaction_friction_deg", 0.0))
+            states.add(states_by_friction.get(friction, f"compaction friction {friction:g}°"))
+            pairs = config.get("grading") or ()
+            if pairs:
+                gradings.add(
+                    f"{pairs[0][0]:.3g}–{pairs[-1][0]:.3g} mm, d50 {characteristic_size_mm(config):.3g} mm"
+                )
+            else:
+                gradings.add(f"equal {float(config['particle_diameter_mm']):g} mm")
+            if "solid_fraction" in rows and np.isfinite(float(rows["solid_fraction"])):
+                fractions.append(float(rows["solid_fraction"]))
+    return {
+        "packings": sorted(packings),
+        "states": sorted(states),
+        "gradings": sorted(gradings),
+        "solid_fraction": [min(fractions), max(fractions)] if fractions else None,
+    }
+
+
 def fitting_table(dataset) -> FittingTable:
     """The fitting table of a sweep dataset (module docstring).
 
@@ -235,7 +278,7 @@ def fitting_table(dataset) -> FittingTable:
             cell_pressure=1e3 * config["cell_pressure_kpa"],
             membrane_thickness=1e-3 * config["membrane_thickness_mm"],
             membrane_modulus=1e3 * config["membrane_modulus_kpa"],
-            particle_diameter=1e-3 * config["particle_diameter_mm"],
+            particle_diameter=1e-3 * characteristic_size_mm(config),
             specimen_diameter=math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi),
             hoop_strain=np.asarray(rows["hoop_strain"], dtype=np.float64),
         )

@@ -20,11 +20,14 @@ from pathlib import Path
 import numpy as np
 
 from calibrate import correct, datasets, lab
+from membrax.config import characteristic_size_mm
 
 __all__ = [
     "EXAMPLE_ARGUMENTS_PREFIX",
     "SPECIMEN_FLAGS",
+    "VOID_RATIO_FLAG",
     "example_arguments",
+    "example_void_ratio",
     "read_example_record",
     "friction_angle_errors",
     "friction_angle_table",
@@ -42,6 +45,8 @@ SPECIMEN_FLAGS = (
     "--membrane-thickness-mm",
     "--membrane-modulus-kpa",
 )
+#: The optional flag of the specimen's void ratio (:meth:`calibrate.correct.Specimen.from_mm_kpa`).
+VOID_RATIO_FLAG = "--void-ratio"
 
 
 def read_example_record():
@@ -52,7 +57,9 @@ def read_example_record():
     header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
     names = [cell.split("[")[0].strip() for cell in lines[header].split(",")]
     table = np.loadtxt(lines[header + 1 :], delimiter=",", ndmin=2)
-    specimen = correct.Specimen.from_mm_kpa(*example_arguments(record.comments))
+    specimen = correct.Specimen.from_mm_kpa(
+        *example_arguments(record.comments), void_ratio=example_void_ratio(record.comments)
+    )
     internal_1 = 1e3 * table[:, names.index("internal_sigma_1")]
     internal_3 = 1e3 * table[:, names.index("internal_sigma_3")]
     return record, specimen, internal_1, internal_3
@@ -72,6 +79,16 @@ def example_arguments(comments) -> tuple[float, float, float, float]:
     raise ValueError(f"no '# {EXAMPLE_ARGUMENTS_PREFIX} ...' comment in the record.")
 
 
+def example_void_ratio(comments) -> float | None:
+    """The void ratio in a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, or None when it has none."""
+    for line in comments:
+        if line.startswith(EXAMPLE_ARGUMENTS_PREFIX):
+            words = line[len(EXAMPLE_ARGUMENTS_PREFIX) :].split()
+            values = dict(zip(words[::2], words[1::2], strict=True))
+            return float(values[VOID_RATIO_FLAG]) if VOID_RATIO_FLAG in values else None
+    return None
+
+
 def lab_record_of(config: dict, rows):
     """(LabRecord, Specimen, internal σ1, internal σ3) of one sweep member (module docstring).
 
@@ -79,8 +96,9 @@ def lab_record_of(config: dict, rows):
     dropped, as a laboratory's logger would.
 
     Args:
-      config: the member's configuration (``cell_pressure_kpa`` kPa, ``particle_diameter_mm`` and
-        ``membrane_thickness_mm`` mm, ``membrane_modulus_kpa`` kPa).
+      config: the member's configuration (``cell_pressure_kpa`` kPa, ``particle_diameter_mm`` or
+        ``grading`` and ``membrane_thickness_mm`` mm, ``membrane_modulus_kpa`` kPa); the particle size is
+        :func:`membrax.config.characteristic_size_mm` (d50 of a grading).
       rows: its shearing records (stresses in Pa, strains dimensionless, ``platen_area`` m²).
 
     Returns:
@@ -101,11 +119,14 @@ def lab_record_of(config: dict, rows):
         cell,
         ("synthetic: a membrax simulation",),
     )
+    # A random member's solid fraction is a laboratory's void ratio (FCC members carry none: NaN).
+    fraction = float(rows["solid_fraction"]) if "solid_fraction" in rows else math.nan
     specimen = correct.Specimen(
         math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi),
-        1e-3 * config["particle_diameter_mm"],
+        1e-3 * characteristic_size_mm(config),
         1e-3 * config["membrane_thickness_mm"],
         1e3 * config["membrane_modulus_kpa"],
+        fraction if math.isfinite(fraction) else None,
     )
     internal_1 = np.asarray(rows["internal_axial_stress"], dtype=np.float64)[keep]
     internal_3 = np.asarray(rows["internal_radial_stress"], dtype=np.float64)[keep]
@@ -191,8 +212,27 @@ def held_out_errors(dataset, corrections=None, max_strain=0.10) -> dict:
     return {"members": members, "pooled": pooled}
 
 
-def write_example_record(dataset, path, version: str, **coordinates) -> Path:
-    """Write the member of ``dataset`` at ``coordinates`` as a laboratory-style CSV (module docstring)."""
+def specimen_words(config: dict, rows=None) -> str:
+    """A member's specimen in words: the FCC lattice, or a random packing (its grading and state)."""
+    if config.get("packing", "fcc") == "fcc":
+        return f"FCC specimen of {config['particles_across']} spheres across, {config['layers']} layers"
+    if config.get("grading"):
+        sizes = [size for size, _ in config["grading"]]
+        what = f"graded {sizes[0]:.3g}–{sizes[-1]:.3g} mm (d50 {characteristic_size_mm(config):.3g} mm)"
+    else:
+        what = f"equal {config['particle_diameter_mm']:g} mm"
+    state = "dense" if config.get("compaction_friction_deg", 0.0) == 0.0 else "loose"
+    words = f"random {state} packing of {what} spheres, seed {config.get('packing_seed', 0)}"
+    if rows is not None and "solid_fraction" in rows:
+        words += f", solid fraction {float(rows['solid_fraction']):.3f}"
+    return words
+
+
+def write_example_record(dataset, path, version: str, source: str = "", **coordinates) -> Path:
+    """Write the member of ``dataset`` at ``coordinates`` as a laboratory-style CSV (module docstring).
+
+    ``source`` names the design the member comes from (e.g. ``calibrate.grid.RANDOM_HELD_OUT``).
+    """
     from membrax.io.files import atomic_write_bytes
 
     chosen = [
@@ -204,7 +244,7 @@ def write_example_record(dataset, path, version: str, **coordinates) -> Path:
         raise ValueError(f"no member of the sweep at {coordinates}.")
     config, rows = chosen[0]
     record, specimen, internal_1, internal_3 = lab_record_of(config, rows)
-    particle = config["particle_diameter_mm"]
+    particle = round(characteristic_size_mm(config), 2)
     arguments = (
         round(1e3 * specimen.specimen_diameter, 1),
         particle,
@@ -213,15 +253,19 @@ def write_example_record(dataset, path, version: str, **coordinates) -> Path:
     )
     out = io.StringIO()
     out.write(
-        f"# synthetic: produced by a membrax {version} simulation (calibrate.grid.HELD_OUT), not a laboratory"
-        " test\n"
-        f"# FCC specimen of {config['particles_across']} spheres across, {config['layers']} layers: specimen "
-        f"diameter {1e3 * specimen.specimen_diameter:.1f} mm, particle size {particle:g} mm;"
-        f" membrane {config['membrane_thickness_mm']:g} mm of {config['membrane_modulus_kpa']:g} kPa\n"
+        f"# synthetic: produced by a membrax {version} simulation ({source}), not a laboratory test\n"
+        f"# {specimen_words(config, rows)}: specimen diameter {1e3 * specimen.specimen_diameter:.1f} mm, "
+        f"particle size {particle:g} mm; membrane {config['membrane_thickness_mm']:g} mm of "
+        f"{config['membrane_modulus_kpa']:g} kPa; cell pressure {config['cell_pressure_kpa']:g} kPa\n"
         "# internal_sigma_1/internal_sigma_3: the stresses the specimen carried (membrax's internal stresses,"
         " the paper's 4.3); membrax correct does not read them\n"
         f"# {EXAMPLE_ARGUMENTS_PREFIX} "
         + " ".join(f"{flag} {value:g}" for flag, value in zip(SPECIMEN_FLAGS, arguments, strict=True))
+        + (
+            ""
+            if specimen.solid_fraction is None
+            else f" {VOID_RATIO_FLAG} {round(1.0 / specimen.solid_fraction - 1.0, 3):g}"
+        )
         + "\n"
     )
     out.write(

@@ -24,10 +24,21 @@ once (:mod:`membrax.campaign`).
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
-__all__ = ["base_fields", "CALIBRATION", "HELD_OUT", "run_grid", "sweep_commands"]
+__all__ = [
+    "base_fields",
+    "CALIBRATION",
+    "HELD_OUT",
+    "RANDOM_CALIBRATION",
+    "RANDOM_HELD_OUT",
+    "PROTOCOL_CHECK",
+    "DESIGNS",
+    "run_grid",
+    "sweep_commands",
+]
 
 #: Cell pressures (kPa), membrane thicknesses (mm) and moduli (kPa) of the calibration grid.
 _PRESSURES = (10.0, 40.0, 100.0)
@@ -85,6 +96,152 @@ HELD_OUT = {
 }
 
 
+#: Random specimens (the random-specimen calibration; module docstring, "Random specimens"). The
+#: ``specimen`` fields of each group: mould size, grading and compaction state (see :func:`_random`).
+_LOOSE = "loose"
+
+#: group → (specimen fields, sweep grid) on random packings, the small protocol of :func:`base_fields`.
+#: Equal 25 mm spheres in moulds 150, 200 and 250 mm across (D/D_s = 1/6, 1/8, 1/10, heights ≈ 1.3–1.7 D_s),
+#: dense and loose; railway ballast scaled to a largest sieve of 25 mm = D_s/6 (d50 16.1 mm), dense and
+#: loose, on the Table 1 grid (the same members as ``membrax reproduce --size small --packing random
+#: --grading ballast [--state loose] --seeds 1``). Seed 0 everywhere: the seeds of the held-out members
+#: are 1.
+RANDOM_CALIBRATION = {
+    "r6": (
+        {"mould": (150.0, 250.0)},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (2.0, 3.0, 5.0),
+            "membrane_modulus_kpa": (1400.0, 2800.0),
+        },
+    ),
+    # 1 mm sheets of 2800 kPa: 0.30 of their inflation limit at 100 kPa over 25 mm spheres' windows
+    # (membrax.config.inflation_ratio); 1 mm of 1400 kPa is at 0.60, where FCC runs went non-finite.
+    "r6_thin": (
+        {"mould": (150.0, 250.0)},
+        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (1.0,), "membrane_modulus_kpa": (2800.0,)},
+    ),
+    "r6_soft": (
+        {"mould": (150.0, 250.0)},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (3.0, 5.0),
+            "membrane_modulus_kpa": (700.0,),
+        },
+    ),
+    "r6_loose": (
+        {"mould": (150.0, 250.0), "state": _LOOSE},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (2.0, 5.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+    "r8": (
+        {"mould": (200.0, 270.0)},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (2.0, 5.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+    "r10": (
+        {"mould": (250.0, 320.0)},
+        {
+            "cell_pressure_kpa": _PRESSURES,
+            "membrane_thickness_mm": (2.0, 5.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+    "g6": (
+        {"mould": (150.0, 250.0), "grading": "ballast"},
+        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (2.5, 3.33, 5.0)},
+    ),
+    "g6_loose": (
+        {"mould": (150.0, 250.0), "grading": "ballast", "state": _LOOSE},
+        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (2.5, 3.33, 5.0)},
+    ),
+}
+
+#: Random members off every grid line of :data:`RANDOM_CALIBRATION` (σc 25 and 70 kPa, t_m 4 mm, E_m 1000
+#: and 2000 kPa), on packings of seed 1 that no fit has seen: ballast-graded dense and loose in the 150 mm
+#: mould, and equal spheres in a 175 mm one (D/D_s = 1/7). The shipped example record is one of them.
+RANDOM_HELD_OUT = {
+    "g6_held": (
+        {"mould": (150.0, 250.0), "grading": "ballast", "seed": 1},
+        {
+            "cell_pressure_kpa": (25.0, 70.0),
+            "membrane_thickness_mm": (4.0,),
+            "membrane_modulus_kpa": (2000.0,),
+        },
+    ),
+    "g6_loose_held": (
+        {"mould": (150.0, 250.0), "grading": "ballast", "state": _LOOSE, "seed": 1},
+        {
+            "cell_pressure_kpa": (25.0, 70.0),
+            "membrane_thickness_mm": (4.0,),
+            "membrane_modulus_kpa": (1000.0,),
+        },
+    ),
+    "r7_held": (
+        {"mould": (175.0, 250.0), "seed": 1},
+        {
+            "cell_pressure_kpa": (25.0, 70.0),
+            "membrane_thickness_mm": (4.0,),
+            "membrane_modulus_kpa": (2000.0,),
+        },
+    ),
+}
+
+#: The loading rate and membrane resolution, checked rather than assumed: the r6 group's Table 1 members
+#: (equal spheres, 150 mm mould, seed 0, t_m 2.5/3.33/5) run with the paper's protocol (I = 1e-3, membrane
+#: edge D/5, :data:`membrax.reproduce.SIZES` ``"paper"``) instead of the small one; ``membrax reproduce
+#: --size small --packing random`` runs the same members with the small protocol.
+PROTOCOL_CHECK = {
+    "r6_paper_protocol": (
+        {"mould": (150.0, 250.0), "protocol": "paper"},
+        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (2.5, 3.33, 5.0)},
+    ),
+}
+
+#: ``python -m calibrate.grid --design NAME``'s designs.
+DESIGNS = {
+    "fcc": CALIBRATION,
+    "fcc_held_out": HELD_OUT,
+    "random": RANDOM_CALIBRATION,
+    "random_held_out": RANDOM_HELD_OUT,
+    "protocol_check": PROTOCOL_CHECK,
+}
+
+
+def specimen_fields(specimen: dict) -> dict:
+    """The configuration fields of a group's specimen: :func:`base_fields` and the group's own.
+
+    An FCC group's fields are configuration fields already (``particles_across``, ``layers``). A random
+    group's: ``mould`` (diameter, height) mm, ``grading`` (``"equal"`` or ``"ballast"``, scaled to D_s/6 as
+    :func:`membrax.reproduce.random_fields`), ``state`` (``"dense"``/``"loose"``,
+    :data:`membrax.defaults.COMPACTION_FRICTION_DEG`), ``seed`` (the packing seed, default 0) and
+    ``protocol`` (``"small"``, the default, or ``"paper"``: :data:`membrax.reproduce.SIZES`).
+    """
+    if "mould" not in specimen:
+        return {**base_fields(), **specimen}
+    from membrax.reproduce import random_fields
+
+    diameter, height = specimen["mould"]
+    fields = random_fields(specimen.get("protocol", "small"), specimen.get("grading", "equal"))
+    if specimen.get("grading", "equal") == "ballast" and diameter != fields["specimen_diameter_mm"]:
+        raise ValueError(f"a ballast-graded group's mould is scaled for {fields['specimen_diameter_mm']} mm.")
+    from membrax.defaults import COMPACTION_FRICTION_DEG
+
+    fields.update(
+        specimen_diameter_mm=diameter,
+        specimen_height_mm=height,
+        compaction_friction_deg=COMPACTION_FRICTION_DEG[specimen.get("state", "dense")],
+        packing_seed=specimen.get("seed", 0),
+    )
+    return fields
+
+
 def base_fields() -> dict:
     """The configuration fields every group shares: the small preset of ``membrax reproduce``.
 
@@ -101,10 +258,24 @@ def sweep_commands(groups=None, folder: str = "calibration") -> list[str]:
     groups = CALIBRATION if groups is None else groups
     lines = []
     for name, (specimen, grid) in groups.items():
-        sets = " ".join(f"--set {key}={value}" for key, value in {**base_fields(), **specimen}.items())
+        sets = " ".join(
+            f"--set {shlex.quote(f'{key}={_toml(value)}')}"
+            for key, value in specimen_fields(specimen).items()
+        )
         grids = " ".join(f"--grid {key}={','.join(f'{v:g}' for v in values)}" for key, values in grid.items())
         lines.append(f"membrax sweep base.toml {sets} {grids} --out {folder}/{name}")
     return lines
+
+
+def _toml(value) -> str:
+    """A field's value as ``--set`` reads it (TOML): arrays as [[a, b], ...], strings quoted."""
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_toml(item) for item in value) + "]"
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, bool):
+        return str(value).lower()
+    return repr(value)  # the shortest text that reads back to the same float (":g" would round)
 
 
 def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list[Path]:
@@ -134,7 +305,7 @@ def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list
     def one(name, client=None):
         specimen, grid = todo[name]
         out = Path(folder) / name
-        base = TriaxialConfig(name=f"calibration_{name}", **{**base_fields(), **specimen})
+        base = TriaxialConfig(name=f"calibration_{name}", **specimen_fields(specimen))
         grid = {k: list(v) for k, v in grid.items()}
         alone = client is None  # side by side, the groups' bars would overwrite each other
         run_sweep(base, grid, out, resume=out.exists(), progress=progress and alone, scheduler=client)
@@ -159,13 +330,23 @@ def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list
 
 
 def main(argv=None) -> int:
-    """``python -m calibrate.grid FOLDER [--held-out] [--commands]``: run (or print) the calibration sweeps.
+    """``python -m calibrate.grid FOLDER [--design NAME] [--commands]``: run (or print) a design's sweeps.
 
     Returns the exit status (0).
     """
     parser = argparse.ArgumentParser(prog="python -m calibrate.grid", description=__doc__.split("\n")[0])
     parser.add_argument("folder", help="where each group's sweep folder is written")
-    parser.add_argument("--held-out", action="store_true", help="run the held-out members instead")
+    parser.add_argument(
+        "--design",
+        choices=sorted(DESIGNS),
+        default="fcc",
+        help="fcc: the FCC calibration grid (the first shipped correction's); random: the random-specimen "
+        "grid the shipped correction is fitted on; *_held_out: their held-out members; protocol_check: "
+        "random members at the paper's rate and membrane resolution",
+    )
+    parser.add_argument(
+        "--held-out", action="store_true", help="the FCC held-out members (--design fcc_held_out)"
+    )
     parser.add_argument("--commands", action="store_true", help="print the membrax sweep commands only")
     parser.add_argument(
         "--scheduler",
@@ -174,7 +355,7 @@ def main(argv=None) -> int:
         help="run the groups' members as tasks on Dask ('local' or a scheduler's address or file)",
     )
     args = parser.parse_args(argv)
-    groups = HELD_OUT if args.held_out else CALIBRATION
+    groups = HELD_OUT if args.held_out else DESIGNS[args.design]
     if args.commands:
         print("\n".join(sweep_commands(groups, args.folder)))
         return 0

@@ -8,7 +8,10 @@ Contract. :func:`save_corrections` writes one JSON object:
 - ``input_ranges``: for each input column the model reads and each of :data:`RANGE_INPUTS`, [min, max]
   over the rows of the table, so a user's record can be checked against the fitted range;
 - ``provenance``: the membrax version, the SHA-256 of the sweep's base configuration and grid (the
-  ``base_config`` and ``grid`` attributes of ``sweep.nc``, canonical JSON), and the number of cases and rows.
+  ``base_config`` and ``grid`` attributes of ``sweep.nc``, canonical JSON), and the number of cases and rows;
+- ``packing_family``: what the specimens were (:func:`calibrate.datasets.packing_family`: FCC or random,
+  compaction states, gradings, the random members' solid-fraction range), which ``membrax correct`` checks
+  a laboratory specimen against. Files written before it existed load with an empty family.
 
 :func:`load_corrections` reads it back into a :class:`Corrections` (the model looked up by name), refusing a
 file that is not JSON, names an unknown model, or lacks a field, with a message naming the field and the
@@ -55,6 +58,7 @@ class Corrections(NamedTuple):
     rms: float
     input_ranges: dict
     provenance: dict
+    packing_family: dict | None = None
 
 
 def sweep_hash(dataset) -> str:
@@ -66,7 +70,9 @@ def sweep_hash(dataset) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def save_corrections(path, model, result, table, provenance: dict | None = None) -> Path:
+def save_corrections(
+    path, model, result, table, provenance: dict | None = None, packing_family: dict | None = None
+) -> Path:
     """Write a fitted correction to ``path`` (module docstring).
 
     Args:
@@ -75,6 +81,7 @@ def save_corrections(path, model, result, table, provenance: dict | None = None)
       result: its :class:`calibrate.fit.FitResult`.
       table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges).
       provenance: further provenance (e.g. ``{"sweep_sha256": sweep_hash(dataset)}``).
+      packing_family: :func:`calibrate.datasets.packing_family` of the sweeps (None: not recorded).
     """
     from membrax import __version__
 
@@ -99,6 +106,7 @@ def save_corrections(path, model, result, table, provenance: dict | None = None)
             "rows": int(table.num_rows),
             **(provenance or {}),
         },
+        "packing_family": packing_family or {},
     }
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -141,4 +149,5 @@ def load_corrections(path) -> Corrections:
         float(content["rms"]),
         {name: tuple(value) for name, value in content["input_ranges"].items()},
         dict(content["provenance"]),
+        dict(content.get("packing_family") or {}),
     )

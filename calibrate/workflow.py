@@ -3,8 +3,9 @@
 Contract. :func:`fit_sweeps` reads one or more ``sweep.nc`` files (:mod:`membrax.sweep`), joins their
 fitting tables (:func:`calibrate.datasets.concatenate`), fits a model (:func:`calibrate.fit.fit`), scores it
 by leave-one-case-out cross-validation when there are at least three cases, and writes the correction with
-its provenance (:func:`calibrate.persistence.save_corrections`: the membrax version and each sweep's
-SHA-256). It returns the report that ``membrax fit`` prints.
+its provenance (:func:`calibrate.persistence.save_corrections`: the membrax version, each sweep's
+SHA-256 and the specimens' packing family, :func:`calibrate.datasets.packing_family`). It returns the
+report that ``membrax fit`` prints.
 """
 
 from __future__ import annotations
@@ -42,9 +43,10 @@ def fit_sweeps(
     if model not in models.MODELS:
         raise ValueError(f"model = {model!r}; choose one of {sorted(models.MODELS)}.")
     chosen = models.MODELS[model]
-    tables, hashes = [], []
+    tables, hashes, sweeps = [], [], []
     for path in paths:
         dataset = read_results(path)
+        sweeps.append(dataset)
         try:
             tables.append(datasets.fitting_table(dataset))
         except ValueError as error:
@@ -70,7 +72,17 @@ def fit_sweeps(
             f"axial mean {axial.mean():.3g} (worst {axial.max():.3g}), "
             f"radial mean {radial.mean():.3g} (worst {radial.max():.3g})"
         )
-    written = persistence.save_corrections(out, chosen, result, table, provenance)
+    family = datasets.packing_family(sweeps)
+    lines.append(
+        f"packing family: {', '.join(family['packings'])}"
+        + (f" ({', '.join(family['states'])}; {'; '.join(family['gradings'])})" if family["states"] else "")
+        + (
+            f", solid fraction {family['solid_fraction'][0]:.3f}–{family['solid_fraction'][1]:.3f}"
+            if family["solid_fraction"]
+            else ""
+        )
+    )
+    written = persistence.save_corrections(out, chosen, result, table, provenance, packing_family=family)
     lines.append(f"written to {written}")
     if table_out is not None:
         datasets.save_table(table, table_out)

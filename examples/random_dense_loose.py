@@ -19,8 +19,6 @@ import argparse
 import time
 from pathlib import Path
 
-STATES = {"dense": 0.0, "loose": 26.565051177077994}  # compaction friction, degrees (tan = 0 and 0.5)
-
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -32,12 +30,13 @@ def main() -> None:
 
     from membrax import theory
     from membrax.config import DEMO_RANDOM_CONFIG, TriaxialConfig
+    from membrax.defaults import COMPACTION_FRICTION_DEG
     from membrax.io.results import dataset_attrs_to_python
     from membrax.run import run_test
     from membrax.triaxial import analysis
 
     rows = []
-    for state, friction in STATES.items():
+    for state, friction in COMPACTION_FRICTION_DEG.items():
         config = TriaxialConfig(
             **{
                 **DEMO_RANDOM_CONFIG,

@@ -284,6 +284,8 @@ def _reproduce(args: argparse.Namespace) -> int:
             packing=args.packing,
             seeds=args.seeds,
             reference_folder=args.reference,
+            grading=args.grading,
+            state=args.state,
         )
     except (ConfigError, ValueError, RunError) as error:
         print(f"membrax: {error}", file=sys.stderr)
@@ -350,6 +352,7 @@ def _correct(args: argparse.Namespace) -> int:
             args.particle_size_mm,
             args.membrane_thickness_mm,
             args.membrane_modulus_kpa,
+            void_ratio=args.void_ratio,
         )
         result, paths = correct_file(
             args.record, specimen, args.model, args.out, not args.no_plot, args.dilation_positive
@@ -545,6 +548,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     reproduce.add_argument("--seeds", type=int, default=3, help="with --packing random: seeds per case")
     reproduce.add_argument(
+        "--grading",
+        choices=("equal", "ballast"),
+        default="equal",
+        help="with --packing random: equal 25 mm spheres, or railway ballast's grading scaled so that its "
+        "largest sieve is 1/6 of the specimen's diameter (25 mm small, 41.7 mm paper)",
+    )
+    reproduce.add_argument(
+        "--state",
+        choices=("dense", "loose"),
+        default="dense",
+        help="with --packing random: compacted without friction (dense) or with tan⁻¹ 0.5 (loose)",
+    )
+    reproduce.add_argument(
         "--reference",
         default=None,
         metavar="FOLDER",
@@ -629,6 +645,13 @@ def build_parser() -> argparse.ArgumentParser:
         ("membrane-modulus-kpa", "kPa", "membrane Young's modulus (latex ≈ 1400 kPa)"),
     ):
         correct.add_argument(f"--{name}", type=float, required=True, help=f"{what} ({unit})")
+    correct.add_argument(
+        "--void-ratio",
+        type=float,
+        default=None,
+        help="the specimen's void ratio e after consolidation (optional): checked against the densities "
+        "the correction was fitted on",
+    )
     correct.add_argument("--model", default=None, help="corrections.json of membrax fit (default: shipped)")
     correct.add_argument(
         "--out", default=None, help="CSV to write (default <record>_corrected.csv in the working folder)"

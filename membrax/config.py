@@ -60,6 +60,9 @@ __all__ = [
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
     "DEMO_RANDOM_CONFIG",
+    "BALLAST_GRADING_MM",
+    "scaled_grading",
+    "characteristic_size_mm",
     "PACKINGS",
     "SMOKE_CONFIG",
     "SI_SCALE",
@@ -91,6 +94,43 @@ DEMO_RANDOM_CONFIG = dict(
     specimen_diameter_mm=150.0,
     specimen_height_mm=250.0,
 )
+
+#: Railway ballast's grading at full size, [sieve size mm, percent passing by mass]: the midpoints of the
+#: envelope of BS EN 13450 grading category A (31.5–50 mm), the one Network Rail specifies (22.4 mm 0–3 %,
+#: 31.5 mm 1–25 %, 40 mm 30–65 %, 50 mm 70–99 %, 63 mm 100 %; the 22.4 mm point set to 0 % so that the curve
+#: starts at nothing finer) [U: the envelope as commonly quoted, not read in the standard]. The paper's own
+#: laboratory specimens were a 1/3 parallel gradation of it (10–20 mm, its §3). Scale with
+#: :func:`scaled_grading`.
+BALLAST_GRADING_MM = ((22.4, 0.0), (31.5, 12.5), (40.0, 47.5), (50.0, 85.0), (63.0, 100.0))
+
+
+def scaled_grading(pairs, largest_mm: float) -> tuple[tuple[float, float], ...]:
+    """A parallel gradation of ``pairs`` ([size mm, percent passing]) whose last sieve is ``largest_mm``.
+
+    Every size is multiplied by ``largest_mm`` / the last size; the percentages stay (the laboratory's
+    "1/3-scale parallel gradation").
+
+    Raises:
+      ValueError: a ``largest_mm`` that is not a positive finite number.
+    """
+    if not (isinstance(largest_mm, numbers.Real) and math.isfinite(largest_mm) and largest_mm > 0.0):
+        raise ValueError(f"largest_mm = {largest_mm!r}; give the largest sieve size in mm, > 0.")
+    factor = float(largest_mm) / float(pairs[-1][0])
+    return tuple((float(size) * factor, float(percent)) for size, percent in pairs)
+
+
+def characteristic_size_mm(values: Mapping) -> float:
+    """The particle size D a laboratory quotes for a configuration, mm: d50 of ``grading``, else the diameter.
+
+    ``values``: a configuration as a mapping (:func:`config_to_dict`, a sweep's member). d50 is read off
+    the grading curve (:meth:`~membrax.spheres.random_packing.Grading.size_passing`), as a laboratory reads
+    it off its sieve analysis; the membrane corrections' D (``calibrate``) is this size.
+    """
+    pairs = values.get("grading") or ()
+    if not pairs:
+        return float(values["particle_diameter_mm"])
+    return 1e3 * grading_of(pairs).size_passing(0.5)
+
 
 #: The notebooks' smoke preset (``MEMBRAX_SMOKE=1``, what CI sets; ``notebooks/01``–``03`` add their cell
 #: pressure, thickness or strain): 4 across, 5 layers, a membrane of edge D/3, sheared at I = 5e-3 after a

@@ -52,6 +52,12 @@ SHEAR_RAMP_STRAIN = 1.0e-2
 #: pressure starts from the same specimen, as a laboratory's series would.
 COMPACTION_STRESS = 1.0e4
 
+#: Interparticle friction during a random specimen's compaction, degrees, by packing state: none gives the
+#: densest packing (solid fraction ≈ 0.639 for equal spheres, Agnolin & Roux 2007); tan⁻¹ 0.5 a loose one
+#: (whole-specimen solid fraction 0.518 against 0.569 dense in the 150 × 250 mm demo mould,
+#: docs/validation.md). The test's own friction is set after compaction (YADE's and PFC's practice).
+COMPACTION_FRICTION_DEG = {"dense": 0.0, "loose": 26.565051177077994}
+
 #: The unbalanced-force ratio that ends consolidation when none is given, by cell (``"rigid"`` walls or a
 #: ``"membrane"``) and precision (float64 or not): the one rule of ``RigidWallTest.consolidate``,
 #: ``MembraneTest.consolidate`` and a configuration's ``consolidation_tolerance = 0``. float32's force

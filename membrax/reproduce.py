@@ -43,18 +43,31 @@ import time
 from pathlib import Path
 
 from membrax import paper, plots
-from membrax.config import DEMO_CONFIG, DEMO_RANDOM_CONFIG, TriaxialConfig, with_overrides
+from membrax.config import (
+    BALLAST_GRADING_MM,
+    DEMO_CONFIG,
+    DEMO_RANDOM_CONFIG,
+    TriaxialConfig,
+    characteristic_size_mm,
+    config_to_dict,
+    scaled_grading,
+    with_overrides,
+)
+from membrax.defaults import COMPACTION_FRICTION_DEG
 from membrax.io.results import read_results
 from membrax.runner import precision_name
 from membrax.sweep import member_records, run_sweep
 
 __all__ = [
+    "BALLAST_LARGEST_FRACTION",
+    "RANDOM_GRADINGS",
     "RANDOM_SIZES",
     "SIZES",
     "TABLE_3_PRECISION",
     "fcc_cases",
     "fcc_dataset",
     "random_cases",
+    "random_fields",
     "reproduce",
 ]
 
@@ -85,6 +98,41 @@ RANDOM_SIZES = {
     "paper": dict(packing="random", specimen_diameter_mm=250.0, specimen_height_mm=500.0),
 }
 
+#: ``grading="ballast"``'s largest sieve as a fraction of the mould's diameter: 1/6, Marachi's limit for
+#: laboratory specimens (the paper's §1), the cheapest end of the issue's 1/6–1/10 (a smaller fraction
+#: means more spheres and, the smallest sphere being smaller, a shorter time step).
+BALLAST_LARGEST_FRACTION = 1.0 / 6.0
+
+#: The gradings of ``membrax reproduce --packing random --grading``: ``equal`` spheres of the particle
+#: diameter, or railway ``ballast`` (:data:`membrax.config.BALLAST_GRADING_MM`) scaled parallel so that its
+#: largest sieve is :data:`BALLAST_LARGEST_FRACTION` of the mould's diameter (25 mm in the small mould,
+#: 41.7 mm in the paper's).
+RANDOM_GRADINGS = ("equal", "ballast")
+
+
+def random_fields(size: str, grading: str = "equal", state: str = "dense") -> dict:
+    """The configuration fields of a random reproduction: :data:`SIZES`, :data:`RANDOM_SIZES`, grading, state.
+
+    Args:
+      size: ``"small"`` or ``"paper"``.
+      grading: one of :data:`RANDOM_GRADINGS`.
+      state: a key of :data:`membrax.defaults.COMPACTION_FRICTION_DEG` (``"dense"``, ``"loose"``).
+
+    Raises:
+      ValueError: an unknown size, grading or state, named with the choices.
+    """
+    if size not in SIZES:
+        raise ValueError(f"size = {size!r}; choose one of {sorted(SIZES)}.")
+    if grading not in RANDOM_GRADINGS:
+        raise ValueError(f"grading = {grading!r}; choose one of {list(RANDOM_GRADINGS)}.")
+    if state not in COMPACTION_FRICTION_DEG:
+        raise ValueError(f"state = {state!r}; choose one of {list(COMPACTION_FRICTION_DEG)}.")
+    fields = {**SIZES[size], **RANDOM_SIZES[size], "compaction_friction_deg": COMPACTION_FRICTION_DEG[state]}
+    if grading == "ballast":
+        largest_mm = BALLAST_LARGEST_FRACTION * fields["specimen_diameter_mm"]
+        fields["grading"] = scaled_grading(BALLAST_GRADING_MM, largest_mm)
+    return fields
+
 
 def reproduce(
     size: str = "small",
@@ -98,6 +146,8 @@ def reproduce(
     packing: str = "fcc",
     seeds: int = 3,
     reference_folder=None,
+    grading: str = "equal",
+    state: str = "dense",
 ) -> dict:
     """Run the paper's Table 1 and write its Tables 2–3 and Figs 5–9 (module docstring).
 
@@ -116,13 +166,16 @@ def reproduce(
       seeds: with ``packing="random"``, the packing seeds 0 … seeds − 1 (at least 1; 3 by default).
       reference_folder: with ``packing="random"``, an FCC reproduction of the same size
         (``results_reproduce_{size}`` by default) whose ``sweep.nc``, when present, gives the FCC columns.
+      grading: with ``packing="random"``, ``"equal"`` spheres or scaled railway ``"ballast"``
+        (:func:`random_fields`).
+      state: with ``packing="random"``, ``"dense"`` (compacted without friction) or ``"loose"``.
 
     Returns:
       ``{"folder", "sweep" (the SweepResult), "files", "seconds"}``; with ``packing="random"`` also
       ``"reference"`` (the FCC cases, or None) and ``"reference_dataset"`` (its ``sweep.nc``, or None).
 
     Raises:
-      ValueError: an unknown size.
+      ValueError: an unknown size, packing, grading or state, or a bad number of seeds.
     """
     if size not in SIZES:
         raise ValueError(f"size = {size!r}; choose one of {sorted(SIZES)}.")
@@ -133,8 +186,10 @@ def reproduce(
     started = time.perf_counter()
     random = packing == "random"
     suffix = "_random" if random else ""
+    if random:
+        suffix += ("_ballast" if grading == "ballast" else "") + ("_loose" if state == "loose" else "")
     folder = Path(folder if folder is not None else f"results_reproduce_{size}{suffix}")
-    fields = {**SIZES[size], **(RANDOM_SIZES[size] if random else {})}
+    fields = random_fields(size, grading, state) if random else SIZES[size]
     base = with_overrides(TriaxialConfig(name=f"reproduce_{size}{suffix}", **fields), **(overrides or {}))
     result = run_sweep(
         base,
@@ -185,6 +240,17 @@ def reproduce(
     return {"folder": folder, "sweep": result, "files": files, "seconds": seconds}
 
 
+def _spheres_words(base: TriaxialConfig) -> str:
+    """The spheres of a random reproduction in words: equal ones, or the grading's sieves and d50."""
+    if not base.grading:
+        return f"equal {1e3 * base.particle_diameter:g} mm spheres"
+    sieves = ", ".join(f"{size:.3g} mm {percent:g} %" for size, percent in base.grading)
+    return (
+        f"spheres graded as scaled railway ballast (percent passing by mass: {sieves}; d50 "
+        f"{characteristic_size_mm(config_to_dict(base)):.3g} mm)"
+    )
+
+
 def random_cases(dataset) -> dict:
     """``{seed: {(cell_pressure_kpa, membrane_thickness_mm): shear records}}`` of a random reproduction.
 
@@ -233,9 +299,9 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
     reference_dataset = fcc_dataset(reference_folder)
     reference = fcc_cases(reference_dataset) if reference_dataset is not None else None
     files = dict(result.files)
-    files.update(
-        paper.write_spread_tables(by_seed, folder, reference=reference, particle_radius=base.particle_radius)
-    )
+    # A graded specimen's particle radius: half its d50 (the size a laboratory quotes).
+    radius = 0.5e-3 * characteristic_size_mm(config_to_dict(base))
+    files.update(paper.write_spread_tables(by_seed, folder, reference=reference, particle_radius=radius))
     files["figures"] = []
     for seed, cases in by_seed.items():
         if (10.0, 5.0) in cases:
@@ -256,9 +322,9 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
     ]
     text = [
         f"# membrax reproduction on random specimens ({size})\n",
-        f"Random packings of equal {1e3 * base.particle_diameter:g} mm spheres in a mould "
-        f"{base.specimen_diameter_mm:g} × {base.specimen_height_mm:g} mm, compacted without friction "
-        f"(compaction friction {base.compaction_friction_deg:g}°), seeds {', '.join(map(str, by_seed))}; "
+        f"Random packings of {_spheres_words(base)} in a mould "
+        f"{base.specimen_diameter_mm:g} × {base.specimen_height_mm:g} mm, compacted with an interparticle "
+        f"friction of {base.compaction_friction_deg:.4g}°, seeds {', '.join(map(str, by_seed))}; "
         f"membrane edge D/{base.membrane_edges_per_diameter:g}, I = {base.inertial_number:g}, to "
         f"{100 * base.target_axial_strain:g} % axial strain, {precision_name(base)}; {timed} "
         f"{result.seconds:.0f} s, everything in {seconds:.0f} s. {fcc_note}\n",

@@ -269,3 +269,31 @@ def test_membrax_fit_writes_the_fit_of_the_sweep_files_and_names_a_bad_file(tmp_
     error = capsys.readouterr().err
     assert "other.nc" in error and "base_config" in error
     assert not (tmp_path / "x.json").exists()
+
+
+def test_the_packing_family_is_read_from_the_sweeps_and_kept_in_the_json(tmp_path):
+    random = _sweep_like()
+    base = json.loads(random.attrs["base_config"])
+    base.update(
+        packing="random", compaction_friction_deg=26.565051177077994, grading=[[20.0, 0.0], [30.0, 100.0]]
+    )
+    random.attrs["base_config"] = json.dumps(base)
+    random["solid_fraction"] = (
+        ("cell_pressure_kpa", "membrane_thickness_mm"),
+        [[0.57, np.nan], [np.nan, 0.59]],
+    )
+    family = datasets.packing_family([random, _sweep_like()])
+    assert family["packings"] == ["fcc", "random"] and family["states"] == ["loose"]
+    assert family["gradings"] == ["20–30 mm, d50 25 mm"]  # d50 halfway up a straight curve, by hand
+    assert family["solid_fraction"] == [0.57, 0.59]  # the members with records only
+    assert datasets.packing_family([_sweep_like()])["solid_fraction"] is None
+    table = _synthetic_table(cases=3, rows=30)
+    result = fit.fit(models.PAPER, table, adam_steps=50)
+    path = persistence.save_corrections(
+        tmp_path / "c.json", models.PAPER, result, table, packing_family=family
+    )
+    assert persistence.load_corrections(path).packing_family == family
+    content = json.loads(path.read_text())
+    del content["packing_family"]  # a file written before families were recorded
+    path.write_text(json.dumps(content))
+    assert persistence.load_corrections(path).packing_family == {}

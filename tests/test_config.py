@@ -480,3 +480,19 @@ def test_a_membrane_beyond_its_inflation_limit_is_refused_with_the_limit_and_the
         membrane_modulus_kpa=700.0,
     )
     assert inflation_ratio(config_to_dict(graded)) > 1.0
+
+
+def test_the_ballast_grading_scales_parallel_and_its_d50_is_the_hand_value():
+    from membrax.config import BALLAST_GRADING_MM, characteristic_size_mm, scaled_grading
+
+    scaled = scaled_grading(BALLAST_GRADING_MM, 25.0)
+    factor = 25.0 / 63.0
+    for (size, percent), (full_size, full_percent) in zip(scaled, BALLAST_GRADING_MM, strict=True):
+        assert size == pytest.approx(factor * full_size, rel=1e-12) and percent == full_percent
+    # d50 at full size: 40 + (50 − 47.5)/(85 − 47.5) × 10 = 40.667 mm, by hand; scaled by 25/63
+    d50 = characteristic_size_mm({"grading": scaled, "particle_diameter_mm": 99.0})
+    assert d50 == pytest.approx(factor * (40.0 + 2.5 / 37.5 * 10.0), rel=1e-12)
+    assert characteristic_size_mm({"grading": (), "particle_diameter_mm": 25.0}) == 25.0
+    for bad in (0.0, -3.0, float("nan")):
+        with pytest.raises(ValueError, match="largest_mm"):
+            scaled_grading(BALLAST_GRADING_MM, bad)

@@ -271,18 +271,20 @@ def test_membrax_correct_writes_the_csv_and_the_plot_of_the_example(tmp_path, ca
 
 
 @pytest.mark.slow
-def test_on_a_fresh_held_out_simulation_the_fitted_correction_beats_none_and_the_classical_ones(tmp_path):
-    """A member off every grid line (55 kPa, 2.5 mm, 1800 kPa), simulated here, corrected by each method."""
+def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_and_the_classical_ones(
+    tmp_path,
+):
+    """A random packing no fit has seen (seed 2), off every grid line (55 kPa, 2.5 mm, 1800 kPa), run here."""
     from calibrate import evaluate, grid
     from membrax.config import TriaxialConfig
     from membrax.io import read_results
     from membrax.sweep import run_sweep
 
-    specimen = {"particles_across": 6, "layers": 10}
-    base = TriaxialConfig(name="held_out", **{**grid.base_fields(), **specimen})
+    specimen = {"mould": (150.0, 250.0), "seed": 2}
+    base = TriaxialConfig(name="held_out", **grid.specimen_fields(specimen))
     held = {"cell_pressure_kpa": [55.0], "membrane_thickness_mm": [2.5], "membrane_modulus_kpa": [1800.0]}
     for field, values in held.items():
-        for _, design in grid.CALIBRATION.values():
+        for _, design in grid.RANDOM_CALIBRATION.values():
             assert values[0] not in design.get(field, ())  # off the grid
     run_sweep(base, held, tmp_path, progress=False)
     errors = evaluate.held_out_errors(read_results(tmp_path / "sweep.nc"))["pooled"]
@@ -417,3 +419,82 @@ def test_the_report_marks_a_withheld_fitted_correction(tmp_path, capsys):
     header, table = _table(tmp_path / "sand.csv")
     column = header.split(",").index("fitted_extrapolation [-]")
     assert np.all(table[1:, column] > correct.MAX_EXTRAPOLATION)
+
+
+def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about():
+    # solid fractions 0.55–0.60 are void ratios 1/0.60 − 1 = 0.667 to 1/0.55 − 1 = 0.818, by hand
+    family = {
+        "packings": ["random"],
+        "states": ["dense", "loose"],
+        "gradings": [],
+        "solid_fraction": [0.55, 0.6],
+    }
+    inside = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.75)
+    assert inside.solid_fraction == pytest.approx(1.0 / 1.75, rel=1e-12)
+    assert correct.family_warnings(inside, family) == []
+    denser = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.5)
+    (message,) = correct.family_warnings(denser, family)
+    assert "e = 0.5" in message and "0.667 to 0.818" in message
+    unknown = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0)
+    assert correct.family_warnings(unknown, family) == []
+    (fcc_only,) = correct.family_warnings(unknown, {"packings": ["fcc"], "solid_fraction": None})
+    assert "FCC lattices only" in fcc_only
+    assert correct.family_warnings(unknown, {}) == []  # a file written before families were recorded
+    for bad in (0.0, 45.0, float("nan")):
+        with pytest.raises(ValueError, match="void_ratio"):
+            correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=bad)
+
+
+def test_the_shipped_correction_records_a_random_family_that_holds_the_example_specimen():
+    from calibrate import evaluate
+
+    shipped = correct.default_corrections()
+    family = shipped.packing_family
+    assert family["packings"] == ["random"] and family["states"] == ["dense", "loose"]
+    record, specimen = _example()[:2]
+    assert record.comments[0].startswith("synthetic") and "random" in record.comments[1]
+    low, high = family["solid_fraction"]
+    assert low <= specimen.solid_fraction <= high
+    assert evaluate.example_void_ratio(record.comments) == pytest.approx(
+        1.0 / specimen.solid_fraction - 1.0, rel=1e-12
+    )
+
+
+def test_the_random_grid_spans_the_issue_s_ranges_and_the_held_out_members_lie_off_it():
+    """σc 10–100 kPa, t_m 1–5 mm, E_m 700–2800 kPa, D/D_s 1/6–1/10, dense and loose, equal and graded."""
+    from calibrate import grid
+    from membrax.config import TriaxialConfig, characteristic_size_mm, config_to_dict
+
+    values = {"cell_pressure_kpa": set(), "membrane_thickness_mm": set(), "membrane_modulus_kpa": set()}
+    ratios, states, gradings = [], set(), set()
+    for specimen, design in grid.RANDOM_CALIBRATION.values():
+        config = config_to_dict(TriaxialConfig(**grid.specimen_fields(specimen)))
+        for field in values:
+            values[field] |= set(design.get(field, (config[field],)))
+        ratios.append(characteristic_size_mm(config) / config["specimen_diameter_mm"])
+        states.add(config["compaction_friction_deg"])
+        gradings.add(bool(config["grading"]))
+        assert config["packing"] == "random" and config["packing_seed"] == 0
+    assert (min(values["cell_pressure_kpa"]), max(values["cell_pressure_kpa"])) == (10.0, 100.0)
+    assert (min(values["membrane_thickness_mm"]), max(values["membrane_thickness_mm"])) == (1.0, 5.0)
+    assert (min(values["membrane_modulus_kpa"]), max(values["membrane_modulus_kpa"])) == (700.0, 2800.0)
+    # D = d50 for the ballast grading (16.1 mm in 150 mm, 1/9.3); its largest sieve is D_s/6
+    assert max(ratios) == pytest.approx(1 / 6) and min(ratios) == pytest.approx(1 / 10)
+    assert len(states) == 2 and gradings == {False, True}
+    for specimen, design in grid.RANDOM_HELD_OUT.values():
+        assert grid.specimen_fields(specimen)["packing_seed"] == 1  # packings no fit has seen
+        for field, chosen in design.items():
+            assert not set(chosen) & values[field], (field, chosen)  # off every grid line
+
+
+def test_the_grid_s_sweep_commands_rebuild_its_configurations():
+    import shlex
+
+    from calibrate import grid
+    from membrax.config import TriaxialConfig, parse_overrides
+
+    for name, line in zip(grid.RANDOM_CALIBRATION, grid.sweep_commands(grid.RANDOM_CALIBRATION), strict=True):
+        words = shlex.split(line)
+        sets = [words[i + 1] for i, word in enumerate(words) if word == "--set"]
+        rebuilt = TriaxialConfig(**parse_overrides(sets))
+        assert rebuilt == TriaxialConfig(**grid.specimen_fields(grid.RANDOM_CALIBRATION[name][0])), name

@@ -114,3 +114,14 @@ def test_random_specimen_geometry_is_the_circle_s():
     np.testing.assert_allclose(np.sum(vertices * np.roll(normals, 1, axis=0), axis=1), distances, rtol=1e-12)
     expected_porosity = 1.0 - np.sum(4.0 / 3.0 * math.pi * radius**3) / (math.pi * 0.01 * 0.3)
     assert specimen.porosity == pytest.approx(expected_porosity)
+
+
+def test_d50_is_read_off_the_grading_curve_linearly_between_sieves():
+    # 50 % lies between 40 mm (40 %) and 50 mm (80 %): 40 + (10/40) × 10 = 42.5 mm, by hand
+    assert BALLAST.size_passing(0.5) == pytest.approx(0.0425, rel=1e-12)
+    assert BALLAST.size_passing(0.1) == pytest.approx(0.0315, rel=1e-12)  # on a sieve
+    assert BALLAST.size_passing(1.0) == pytest.approx(0.0625, rel=1e-12)
+    assert Grading.equal(0.025).size_passing(0.5) == pytest.approx(0.025, rel=1e-8)
+    for bad in (0.0, 1.5, -0.1):
+        with pytest.raises(ValueError, match="d50"):
+            BALLAST.size_passing(bad)

@@ -379,3 +379,21 @@ def test_float32_shearing_keeps_the_float64_consolidation_and_resumes_in_float32
     resumed = run_test(config, cut, resume=True, progress=False)
     _compare(mixed.results, resumed.results)
     _compare(mixed.consolidation, resumed.consolidation)
+
+
+def test_the_random_reproduction_s_gradings_and_states():
+    """Ballast scaled to a largest sieve of D_s/6; loose compacted at tan⁻¹ 0.5; unknown names refused."""
+    import math
+
+    from membrax.reproduce import random_fields, reproduce
+
+    for size, diameter in (("small", 150.0), ("paper", 250.0)):
+        fields = random_fields(size, "ballast", "loose")
+        assert fields["specimen_diameter_mm"] == diameter
+        assert fields["grading"][-1][0] == pytest.approx(diameter / 6.0, rel=1e-12)
+        assert math.tan(math.radians(fields["compaction_friction_deg"])) == pytest.approx(0.5, rel=1e-12)
+        assert random_fields(size)["compaction_friction_deg"] == 0.0 and "grading" not in random_fields(size)
+    with pytest.raises(ValueError, match="'equal', 'ballast'"):
+        reproduce(packing="random", grading="sand")
+    with pytest.raises(ValueError, match="'dense', 'loose'"):
+        reproduce(packing="random", state="medium")

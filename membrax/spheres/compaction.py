@@ -469,7 +469,8 @@ class _FireRelaxer:
                 else:
                     above = log_growth
                 slope = stiffness_scale
-                if previous is not None and stress != previous[1]:
+                # A secant needs two distinct growths (a bisection can land on the previous one).
+                if previous is not None and stress != previous[1] and log_growth != previous[0]:
                     slope = max((stress - previous[1]) / (log_growth - previous[0]), 1e-2 * stiffness_scale)
                 previous = (log_growth, stress)
                 step_to = log_growth + (target - stress) / slope

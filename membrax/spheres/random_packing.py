@@ -134,6 +134,24 @@ class Grading:
         """The smallest diameter a sphere may have, m."""
         return self.bins[0][0]
 
+    def size_passing(self, fraction: float) -> float:
+        """The size through which ``fraction`` of the mass passes, m: d50 for 0.5 (a laboratory's D).
+
+        Read off the curve as it is sampled, linear in size between sieves; for :meth:`equal` spheres the
+        diameter.
+
+        Raises:
+          ValueError: ``fraction`` outside (0, 1].
+        """
+        if not (0.0 < fraction <= 1.0):
+            raise ValueError(f"fraction = {fraction}; give a mass fraction in (0, 1] (0.5 for d50).")
+        sizes, passing = np.asarray(self.sizes, dtype=float), np.asarray(self.passing, dtype=float)
+        upper = int(np.argmax(passing >= fraction))  # the first sieve passing at least the fraction
+        if upper == 0 or passing[upper] == passing[upper - 1]:
+            return float(sizes[upper])
+        share = (fraction - passing[upper - 1]) / (passing[upper] - passing[upper - 1])
+        return float(sizes[upper - 1] + share * (sizes[upper] - sizes[upper - 1]))
+
 
 def _one_size(a: float, b: float) -> bool:
     """Whether the bin (a, b] is one size, b (:meth:`Grading.equal`): its spheres are all of diameter b."""
