@@ -18,7 +18,8 @@ package but its command line (``membrax fit``, ``membrax correct``).
 - :mod:`calibrate.correct`: ``membrax correct``, a record corrected by none, the ASTM, Henkel & Gilbert
   and Kuerbis & Vaid corrections and the fitted one (with its uncertainty band), as a CSV and a plot;
   the shipped default correction (``data/default_corrections.json``).
-- :mod:`calibrate.grid`: the calibration and held-out sweeps (``python -m calibrate.grid OUT``);
+- :mod:`calibrate.grid`: the calibration and held-out sweeps on random packings (the shipped correction's)
+  and FCC lattices (``python -m calibrate.grid OUT --design random``);
   :mod:`calibrate.evaluate`: simulated tests as laboratory records, and each correction's φ' error
   against the internal φ'.
 """

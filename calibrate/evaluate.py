@@ -228,7 +228,9 @@ def specimen_words(config: dict, rows=None) -> str:
     return words
 
 
-def write_example_record(dataset, path, version: str, source: str = "", **coordinates) -> Path:
+def write_example_record(
+    dataset, path, version: str, source: str = "calibrate.grid.RANDOM_HELD_OUT", **coordinates
+) -> Path:
     """Write the member of ``dataset`` at ``coordinates`` as a laboratory-style CSV (module docstring).
 
     ``source`` names the design the member comes from (e.g. ``calibrate.grid.RANDOM_HELD_OUT``).

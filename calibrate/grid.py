@@ -1,24 +1,31 @@
-"""The calibration grid: the membrax sweeps the shipped correction is fitted on, and the held-out tests.
+"""The calibration designs: the membrax sweeps a correction is fitted on, and the held-out tests.
 
-Contract. :data:`CALIBRATION` and :data:`HELD_OUT` are the designs (one source for both): each maps a group
-name to ``(specimen, grid)``, the specimen fields over :func:`base_fields` and the ``membrax sweep`` grid
-of that specimen. :func:`run_grid` runs each group with :func:`membrax.sweep.run_sweep` (exactly what
-``membrax sweep`` runs) into ``folder/<group>/sweep.nc``, resuming a group interrupted part-way and
-skipping one that is done; :func:`sweep_commands` prints the equivalent ``membrax sweep`` command lines.
+Contract. :data:`DESIGNS` names the designs (one source for each): :data:`RANDOM_CALIBRATION` (the shipped
+correction's), :data:`RANDOM_HELD_OUT`, :data:`PROTOCOL_CHECK`, and the FCC :data:`CALIBRATION` and
+:data:`HELD_OUT` of the first correction. Each maps a group name to ``(specimen, grid)``: the specimen's
+fields (:func:`specimen_fields`) and the ``membrax sweep`` grid of that specimen. :func:`run_grid` runs
+each group with :func:`membrax.sweep.run_sweep` (exactly what ``membrax sweep`` runs) into
+``folder/<group>/sweep.nc``, resuming a group interrupted part-way and skipping one that is done;
+:func:`sweep_commands` prints the equivalent ``membrax sweep`` command lines.
 
-Why these sizes. The particle-to-specimen diameter ratio D/D_s is set by the number of spheres across the
-FCC specimen: 6, 8 and 10 across give D/D_s = 1/5.7, 1/7.4 and 1/10 (D_s = √(4A/π) of the platen area),
-spanning the issue's 1/6–1/10. Heights keep H/D_s ≈ 1.25 (10, 13 and 17 layers). Every group uses the
-small preset of ``membrax reproduce`` (:data:`membrax.reproduce.SIZES` ``"small"``: a membrane of edge D/3,
-inertial number 5e-3, float64, consolidation to an unbalanced-force ratio ≤ 1e-3). At paper size the
-same nine Table 1 cases take 22 min on 2 cores; this grid's 36 members take a fraction of that, and the extra
-stresses depend on the groups the models use (t_m/D, E_m t_m/(σc D), D/D_s, the strains), which the grid
-spans, rather than on the specimen's height. The held-out members lie off every grid line: σc 25 and 70
-kPa, t_m 2 and 4 mm, E_m 1000 and 2000 kPa, 7 spheres across (D/D_s = 1/7).
+Random specimens. A laboratory specimen is a random packing, and corrections do not transfer between
+packings (docs/calibration.md), so the shipped correction is fitted on random packings: equal 25 mm spheres
+in moulds 150, 200 and 250 mm across (D/D_s = 1/6, 1/8, 1/10), dense and loose, and railway ballast's
+grading scaled to a largest sieve of D_s/6 (:func:`membrax.reproduce.random_fields`), dense and loose;
+σc 10–100 kPa, t_m 1–5 mm, E_m 700–2800 kPa; packing seed 0. The held-out members are packings of seed 1
+off every grid line. :data:`PROTOCOL_CHECK` reruns nine members at the paper's rate and membrane resolution.
 
-Run: ``python -m calibrate.grid OUT [--held-out]`` (one JAX CPU device per core, as ``membrax sweep``), or
-``python -m calibrate.grid OUT --scheduler local|ADDRESS`` to send every group's members to Dask workers at
-once (:mod:`membrax.campaign`).
+Why small specimens. Every group uses the small preset of ``membrax reproduce`` (:data:`membrax.reproduce.
+SIZES` ``"small"``: a membrane of edge D/3, inertial number 5e-3, float64, consolidation to an
+unbalanced-force ratio ≤ 1e-3): the extra stresses depend on the groups the models use (t_m/D,
+E_m t_m/(σc D), D/D_s, the strains), which the grid spans, rather than on the specimen's height, and a
+paper-size member costs about 2.5 min on 2 cores. FCC: 6, 8 and 10 spheres across give D/D_s = 1/5.7, 1/7.4
+and 1/10 (D_s = √(4A/π) of the platen area), heights H/D_s ≈ 1.25; its held-out members (σc 25 and 70 kPa,
+t_m 2 and 4 mm, E_m 1000 and 2000 kPa) are 7 spheres across (D/D_s = 1/7).
+
+Run: ``python -m calibrate.grid OUT [--design random|random_held_out|protocol_check|fcc|fcc_held_out]``
+(one JAX CPU device per core, as ``membrax sweep``), or ``python -m calibrate.grid OUT --scheduler
+local|ADDRESS`` to send every group's members to Dask workers at once (:mod:`membrax.campaign`).
 """
 
 from __future__ import annotations
@@ -96,8 +103,7 @@ HELD_OUT = {
 }
 
 
-#: Random specimens (the random-specimen calibration; module docstring, "Random specimens"). The
-#: ``specimen`` fields of each group: mould size, grading and compaction state (see :func:`_random`).
+#: The loose state's name in a random group's ``specimen`` fields (:func:`specimen_fields`).
 _LOOSE = "loose"
 
 #: group → (specimen fields, sweep grid) on random packings, the small protocol of :func:`base_fields`.

@@ -1,7 +1,8 @@
 """The shipped synthetic example record corrected by every method, beside the stresses it really carried.
 
-Reads ``calibrate/data/example_record.csv`` (a membrax simulation held out of the fit: 7 spheres across,
-25 kPa, a 2 mm membrane of 1000 kPa), corrects it as ``membrax correct`` does, prints φ' at a few strains
+Reads ``calibrate/data/example_record.csv`` (a membrax simulation held out of every fit: a dense random
+packing of ballast-graded spheres, seed 1, 147 mm across, d50 16.1 mm, 25 kPa, a 4 mm membrane of 2000 kPa),
+corrects it as ``membrax correct`` does, prints φ' at a few strains
 by method with the internal φ', and writes the plot with the internal stresses drawn in grey
 (``docs/example_record_corrected.png`` in the README).
 
@@ -23,9 +24,12 @@ print(
     + ", ".join(f"{m} {e[0]:.2f}/{e[1]:.2f}°" for m, e in errors.items())
 )
 out = sys.argv[1] if len(sys.argv) > 1 else "example_record_corrected.png"
-figure = correct.plot_correction(
-    result, "synthetic example: 25 kPa, 2 mm membrane of 1000 kPa, D/D_s = 1/7", (internal_1, internal_3)
+title = (
+    f"synthetic example: graded random packing, {record.cell_pressure[0] / 1e3:g} kPa, "
+    f"{1e3 * specimen.membrane_thickness:g} mm membrane of {specimen.membrane_modulus / 1e3:g} kPa, "
+    f"D/D_s = 1/{specimen.specimen_diameter / specimen.particle_diameter:.1f}"
 )
+figure = correct.plot_correction(result, title, (internal_1, internal_3))
 figure.savefig(out, dpi=110)
 plt.close(figure)
 print(f"plot written to {out}")

@@ -4,8 +4,8 @@ Reads a random reproduction (``membrax reproduce --packing random``, seeds as a 
 (``membrax reproduce``) of the same size. Fits the shipped model (:data:`calibrate.models.RICH`, or
 ``--model paper``) on the random members of ``--train-seeds`` and scores, as
 ``examples/held_out_corrections.py`` does (mean and worst |φ' − φ'_internal| over 0–10 % strain,
-:func:`calibrate.evaluate.held_out_errors`), both the shipped correction (fitted on FCC lattices) and the
-random-fitted one on
+:func:`calibrate.evaluate.held_out_errors`), both the FCC-fitted correction (``calibrate/data/
+fcc_corrections.json``, shipped until the random calibration grid's) and the random-fitted one on
 
 - the random members of the other seeds (held out of the random fit), and
 - the FCC members,
@@ -22,6 +22,7 @@ Run: ``python examples/random_transfer.py RANDOM_FOLDER FCC_FOLDER [--train-seed
 
 import argparse
 import warnings
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -74,6 +75,8 @@ def main() -> None:
         args.out, model, result, table, {"packing": "random", "seeds": train_seeds}
     )
     random_fit = persistence.load_corrections(path)
+    with resources.as_file(resources.files("calibrate") / "data" / "fcc_corrections.json") as fcc_path:
+        fcc_fit = persistence.load_corrections(fcc_path)
     print(
         f"random-fitted ({model.name}, seeds {train_seeds}, {table.num_cases} members): RMS "
         f"{result.rms:.4f} σc; written to {path}"
@@ -84,7 +87,7 @@ def main() -> None:
     print(header + " |")
     print("|---|---|" + "---:|" * len(correct.METHODS))
     for label, data in ((f"random seeds {held_seeds} (held out)", held), ("FCC", lattice)):
-        for name, corrections in (("shipped (FCC-fitted)", None), ("random-fitted", random_fit)):
+        for name, corrections in (("FCC-fitted", fcc_fit), ("random-fitted", random_fit)):
             row = scores(data, corrections)
             cells = [f"{row[m][0]:.2f} / {row[m][1]:.2f}" for m in correct.METHODS if m != "fitted"]
             print(

@@ -503,7 +503,7 @@ def _fig9_line(axis, series, key, pressures, **style):
     axis.plot(pressure, np.asarray(series[key], dtype=np.float64), **style)
 
 
-def plot_fig9(data, paper=None) -> Figure:
+def plot_fig9(data, paper=None, labels=("membrax", "paper")) -> Figure:
     """Indentation ratio and −relative initial axial stress ratio against cell pressure (paper's Fig. 9).
 
     Lines, one per thickness of ``data`` in increasing thickness (k = 0, 1, …), one colour per thickness:
@@ -518,6 +518,7 @@ def plot_fig9(data, paper=None) -> Figure:
         "negative_relative_axial_stress_ratio", ...}}`` as :func:`membrax.paper.fig9_data` returns.
       paper: the same structure for the paper's values (:func:`membrax.paper.paper_fig9_data`), optional;
         only its stress ratio is drawn (its indentation ratio is the same theory).
+      labels: the legend's names of ``data`` and ``paper`` (e.g. random specimens beside FCC ones).
 
     Returns:
       The Figure.
@@ -548,7 +549,7 @@ def plot_fig9(data, paper=None) -> Figure:
             linestyle="--",
             marker="o",
             markerfacecolor="none",
-            label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, membrax",
+            label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, {labels[0]}",
         )
     for k, thickness in enumerate(sorted(paper or {})):
         _fig9_line(
@@ -559,7 +560,7 @@ def plot_fig9(data, paper=None) -> Figure:
             color=color.get(thickness, FIG9_COLORS[k % len(FIG9_COLORS)]),
             linestyle=":",
             marker="o",
-            label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, paper",
+            label=f"−(σ1,int/σ1,ext − 1), t_m = {thickness:.3g} mm, {labels[1]}",
         )
     ax.set_xscale("log")
     ticks = sorted(pressures)
@@ -578,7 +579,7 @@ def plot_fig9(data, paper=None) -> Figure:
     return figure
 
 
-def save_fig9(data, folder, paper=None, dpi=120) -> Path:
+def save_fig9(data, folder, paper=None, dpi=120, labels=("membrax", "paper")) -> Path:
     """Write :func:`plot_fig9` of ``data`` (and ``paper``) as ``fig9_indentation.png`` in ``folder``.
 
     Args:
@@ -586,13 +587,14 @@ def save_fig9(data, folder, paper=None, dpi=120) -> Path:
       folder: output directory (created if missing).
       paper: :func:`membrax.paper.paper_fig9_data`, optional.
       dpi: resolution of the PNG file.
+      labels: the legend's names of ``data`` and ``paper`` (:func:`plot_fig9`).
 
     Returns:
       The path written.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    figure = plot_fig9(data, paper)
+    figure = plot_fig9(data, paper, labels)
     path = folder / "fig9_indentation.png"
     figure.savefig(path, dpi=dpi)
     figure.clear()

@@ -20,16 +20,19 @@ I = 5e-3) — the demo's specimen, 2 min 52 s on 2 CPU cores for all nine cases;
 coarse phase (``overrides={"coarse_inertial_number": 5e-3}``) leaves Tables 2–3 bit-identical in 12 min
 27 s but raises φ' after 1 % strain by 2.4–4.3° on average (docs/loading_rate.md), so it is not the preset.
 Random specimens (``packing="random"``, ``membrax reproduce --packing random``; the paper's open
-question, its §6). Every case of Table 1 on ``seeds`` random packings of equal 25 mm spheres compacted
-without friction (:data:`RANDOM_SIZES`: ``small`` in a 150 × 250 mm mould, ``paper`` in 250 × 500 mm), the
-packing seed a third grid axis. Written into ``results_reproduce_{size}_random``: the sweep's files,
+question, its §6). Every case of Table 1 on ``seeds`` random packings (:data:`RANDOM_SIZES`: ``small`` in
+a 150 × 250 mm mould, ``paper`` in 250 × 500 mm), the packing seed a third grid axis: equal 25 mm spheres
+or railway ballast's grading scaled to a largest sieve of D_s/6 (``grading``, :func:`random_fields`),
+compacted without friction or loose (``state``). Written into ``results_reproduce_{size}_random[_ballast]
+[_loose]``: the sweep's files,
 ``random_table2``/``random_table3`` (``.csv``/``.md``; :func:`membrax.paper.write_spread_tables`: per case
 mean ± s.d. (min…max) over the seeds beside the FCC reproduction of the same size, read from
 ``reference_folder``'s ``sweep.nc`` when it exists, and the paper's), Figs 5–8 of the 10 kPa / 5 mm case
-for each seed (``seed{k}_fig5_friction.png`` …) and ``reproduction.md``. The command line adds the paper's
+for each seed (``seed{k}_fig5_friction.png`` …), ``fig9_indentation.png`` (Fig. 9: the mean over the seeds
+beside FCC, :func:`seed_mean_fig9`) and ``reproduction.md``. The command line adds the paper's
 correlations for both families (:mod:`calibrate.correlations`: ``correlations.md/.csv/.png``). On 2 CPU
-cores: ``small`` 5 min for 3 seeds (27 members); ``paper`` about 22 min per seed (44 min 27 s for 2,
-2026-11-28).
+cores: ``small`` 5 min for 3 seeds (27 members), ballast one seed 7 min dense, 21 min loose; ``paper``
+about 22 min per seed of equal spheres (44 min 27 s for 2, 2026-11-28).
 
 Both use the paper's materials (25 mm granite spheres, μ = tan 25°, latex 1400 kPa without bending
 stiffness) and protocol (platens ramped to full speed at 1 % strain, both moving,
@@ -41,6 +44,8 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+
+import numpy as np
 
 from membrax import paper, plots
 from membrax.config import (
@@ -68,6 +73,7 @@ __all__ = [
     "fcc_dataset",
     "random_cases",
     "random_fields",
+    "seed_mean_fig9",
     "reproduce",
 ]
 
@@ -251,6 +257,25 @@ def _spheres_words(base: TriaxialConfig) -> str:
     )
 
 
+def seed_mean_fig9(per_seed: list) -> dict:
+    """The mean over seeds of :func:`membrax.paper.fig9_data` (each seed's own dict, same theory columns).
+
+    A thickness whose pressures differ between seeds (a failed member) is averaged over the seeds that
+    have the first seed's pressures.
+    """
+    mean = {}
+    for thickness, first in per_seed[0].items():
+        same = [
+            seed[thickness]
+            for seed in per_seed
+            if thickness in seed
+            and np.array_equal(seed[thickness]["cell_pressure_kpa"], first["cell_pressure_kpa"])
+        ]
+        ratios = np.mean([seed["negative_relative_axial_stress_ratio"] for seed in same], axis=0)
+        mean[thickness] = {**first, "negative_relative_axial_stress_ratio": ratios}
+    return mean
+
+
 def random_cases(dataset) -> dict:
     """``{seed: {(cell_pressure_kpa, membrane_thickness_mm): shear records}}`` of a random reproduction.
 
@@ -306,6 +331,11 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
     for seed, cases in by_seed.items():
         if (10.0, 5.0) in cases:
             files["figures"] += plots.save_test_figures(cases[(10.0, 5.0)], folder, stem=f"seed{seed}_fig")
+    fig9 = dict(particle_diameter_mm=1e3 * 2.0 * radius, membrane_modulus_kpa=base.membrane_modulus_kpa)
+    ours = seed_mean_fig9([paper.fig9_data(cases, **fig9) for cases in by_seed.values()])
+    fcc = paper.fig9_data(reference, **fig9) if reference else None
+    files["fig9"] = plots.save_fig9(ours, folder, paper=fcc, labels=("random, mean over seeds", "FCC"))
+    files["figures"].append(files["fig9"])
     seconds = time.perf_counter() - started
     timed = "this call (resumed from any checkpoints) ran the sweep in" if resume else "the sweep ran in"
     fcc_note = (
@@ -331,7 +361,9 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
         "Specimens: " + "; ".join(per_seed) + ".\n",
         (folder / "random_table2.md").read_text(),
         (folder / "random_table3.md").read_text(),
-        "Figures (10 kPa, 5 mm, one set per seed): " + ", ".join(p.name for p in files["figures"]) + "\n",
+        "Figures (Figs 5–8 of 10 kPa, 5 mm, one set per seed; Fig. 9 over the seeds beside FCC): "
+        + ", ".join(p.name for p in files["figures"])
+        + "\n",
     ]
     (folder / "reproduction.md").write_text("\n".join(text))
     files["report"] = folder / "reproduction.md"

@@ -21,15 +21,17 @@
 # corrections get wrong. This notebook:
 #
 # 1. loads the correction that ships with membrax (`calibrate/data/default_corrections.json`) and fits
-#    it again from its own fitting table (`calibrate/data/calibration_table.npz`, 36 simulated tests);
+#    it again from its own fitting table (`calibrate/data/calibration_table.npz`, 63 simulated tests on
+#    random packings of equal and ballast-graded spheres, dense and loose);
 # 2. applies it to the example record `calibrate/data/example_record.csv` (a membrax simulation held out
-#    of the fit, written as a laboratory would: 25 kPa, a 2 mm membrane of 1000 kPa, 7 spheres across);
+#    of every fit, written as a laboratory would: a dense random packing of ballast-graded spheres, d50
+#    16.1 mm, 147 mm across, 25 kPa, a 4 mm membrane of 2000 kPa);
 # 3. compares it with the classical corrections (ASTM D4767/D7181, Henkel & Gilbert, Kuerbis & Vaid) and
 #    with the stresses the specimen really carried, which the record keeps in extra columns.
 #
 # The command line does step 2 in one go:
-# `membrax correct calibrate/data/example_record.csv --specimen-diameter-mm 175 --particle-size-mm 25
-# --membrane-thickness-mm 2 --membrane-modulus-kpa 1000`.
+# `membrax correct calibrate/data/example_record.csv --specimen-diameter-mm 147 --particle-size-mm 16.14
+# --membrane-thickness-mm 4 --membrane-modulus-kpa 2000 --void-ratio 0.623`.
 #
 # **Time** (2 CPU cores): smoke mode (`MEMBRAX_SMOKE=1`, what CI sets) 7 s measured; full size adds the
 # leave-one-case-out cross-validation of two models, 2 min 39 s measured (docs/benchmarks.md, "Notebooks").
@@ -95,8 +97,8 @@ refit_corrections = persistence.load_corrections(saved)
 # %% [markdown]
 # At full size the notebook also scores both models by leave-one-case-out cross-validation (what
 # `membrax fit` prints and what the correction's uncertainty band adds): each case is predicted by a fit
-# that never saw it. docs/calibration.md's table: axial 0.0709 (paper) against 0.0703 (rich), radial 0.0183
-# against 0.0161, in Δσ/σc.
+# that never saw it. docs/calibration.md's table: axial 0.0626 (paper) against 0.0603 (rich), radial 0.0196
+# against 0.0157, in Δσ/σc.
 
 # %%
 if not SMOKE:
@@ -134,7 +136,7 @@ print(evaluate.friction_angle_table(record, result, internal_1, internal_3))
 
 # %%
 figure = correct.plot_correction(
-    result, "synthetic example: 25 kPa, 2 mm membrane of 1000 kPa, D/D_s = 1/7", (internal_1, internal_3)
+    result, "synthetic example: " + record.comments[1].split(":")[0], (internal_1, internal_3)
 )
 figure
 
@@ -147,7 +149,7 @@ figure
 # - Henkel & Gilbert: σ3 + 2 E_m t_m ε_θ / D with D = D_s (1 − ε_r) and ε_θ = (D − D_s)/D_s, clipped at 0
 #   where the hoop would buckle.
 # - The fitted correction brings φ' closer to the internal φ' than any classical one
-#   (docs/calibration.md: mean error 0.15° against 1.0–1.4°).
+#   (docs/calibration.md: mean error 0.35° against 1.3–2.2°).
 
 # %%
 eps_a, eps_v, eps_r = record.axial_strain, record.volumetric_strain, record.radial_strain

@@ -153,27 +153,27 @@ def test_outside_the_fitted_range_the_band_widens_by_the_stated_rule_and_far_out
 
 
 def test_a_standard_small_sand_test_is_told_the_shipped_correction_does_not_cover_it():
-    """38 mm specimen, 1 mm sand, 0.3 mm membrane, 100 kPa: t_m/D = 0.3 and D/D_s = 1/38, far from ballast."""
+    """38 mm specimen, 1 mm sand, 0.3 mm membrane, 100 kPa: D/D_s = 1/38, far from ballast's 1/6–1/10."""
     record = _record(cell=100e3)
     sand = correct.Specimen.from_mm_kpa(38.0, 1.0, 0.3, 1400.0)
     with pytest.warns(UserWarning):
         result = correct.correct_record(record, sand)
     text = "\n".join(result.warnings)
+    low, high = correct.default_corrections().input_ranges["size_ratio"]
     assert (
-        "membrane thickness / particle size, t_m/D, = 0.3; the correction was fitted on 0.04 to 0.2" in text
+        f"particle size / specimen diameter, D/D_s, = 0.0263; the correction was fitted on {low:.3g} to "
+        f"{high:.3g}" in text
     )
-    assert (
-        "particle size / specimen diameter, D/D_s, = 0.0263; the correction was fitted on 0.1 to 0.176"
-        in text
-    )
-    # D/D_s is ln(0.1/0.0263)/ln(0.176/0.1) = 2.4 range widths below its fitted range: withheld
-    assert np.all(result.extrapolation > correct.MAX_EXTRAPOLATION)
+    # D/D_s is ln(low/0.0263)/ln(high/low) range widths below its fitted range (2.8 for 0.101–0.166): withheld
+    distance = math.log(low / (1.0 / 38.0)) / math.log(high / low)
+    assert distance > correct.MAX_EXTRAPOLATION
+    assert np.all(result.extrapolation >= distance * (1.0 - 1e-9))  # the largest distance over the inputs
     assert np.all(np.isnan(result.friction_angle["fitted"]))
     assert "size_ratio" not in text and "thickness_ratio" not in text  # no internal names
 
 
 def test_specimen_units_are_converted_once_and_bad_values_refused():
-    assert SPECIMEN == (0.15, 0.02, 0.002, 1.4e6)
+    assert SPECIMEN == (0.15, 0.02, 0.002, 1.4e6, None)
     with pytest.raises(
         ValueError, match=r"membrane_thickness_mm = -2.*positive.*--membrane-thickness-mm 2\)"
     ):
@@ -274,7 +274,7 @@ def test_membrax_correct_writes_the_csv_and_the_plot_of_the_example(tmp_path, ca
 def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_and_the_classical_ones(
     tmp_path,
 ):
-    """A random packing no fit has seen (seed 2), off every grid line (55 kPa, 2.5 mm, 1800 kPa), run here."""
+    """A random packing no fit has seen (seed 2), off every grid line (55 kPa, 4 mm, 1800 kPa), run here."""
     from calibrate import evaluate, grid
     from membrax.config import TriaxialConfig
     from membrax.io import read_results
@@ -282,7 +282,7 @@ def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_
 
     specimen = {"mould": (150.0, 250.0), "seed": 2}
     base = TriaxialConfig(name="held_out", **grid.specimen_fields(specimen))
-    held = {"cell_pressure_kpa": [55.0], "membrane_thickness_mm": [2.5], "membrane_modulus_kpa": [1800.0]}
+    held = {"cell_pressure_kpa": [55.0], "membrane_thickness_mm": [4.0], "membrane_modulus_kpa": [1800.0]}
     for field, values in held.items():
         for _, design in grid.RANDOM_CALIBRATION.values():
             assert values[0] not in design.get(field, ())  # off the grid

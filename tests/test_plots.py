@@ -263,3 +263,26 @@ def test_plot_section_cylinder_faces(cylinder):
         assert len(ax.collections[0].get_paths()) == 0
     finally:
         plt.close(fig)
+
+
+def test_fig9_of_random_specimens_is_the_mean_over_seeds_beside_fcc():
+    from membrax.plots import plot_fig9
+    from membrax.reproduce import seed_mean_fig9
+
+    def seed(ratios, pressures=(10.0, 40.0)):
+        return {
+            5.0: {
+                "cell_pressure_kpa": np.array(pressures),
+                "indentation_ratio": np.array([0.3, 0.2]),
+                "negative_relative_axial_stress_ratio": np.array(ratios),
+            }
+        }
+
+    # (−0.2 − 0.4)/2 = −0.3 and (−0.1 − 0.3)/2 = −0.2, by hand; a seed with other pressures is left out
+    mean = seed_mean_fig9([seed([-0.2, -0.1]), seed([-0.4, -0.3]), seed([9.0, 9.0], (10.0, 100.0))])
+    np.testing.assert_allclose(mean[5.0]["negative_relative_axial_stress_ratio"], [-0.3, -0.2], rtol=1e-12)
+    np.testing.assert_array_equal(mean[5.0]["indentation_ratio"], [0.3, 0.2])
+    figure = plot_fig9(mean, seed([-0.1, 0.0]), labels=("random", "FCC"))
+    labels = [line.get_label() for line in figure.axes[1].lines]
+    assert labels[0].endswith("random") and labels[1].endswith("FCC")
+    np.testing.assert_allclose(figure.axes[1].lines[0].get_ydata(), [-0.3, -0.2], rtol=1e-12)
