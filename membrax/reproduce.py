@@ -334,7 +334,7 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
     fig9 = dict(particle_diameter_mm=1e3 * 2.0 * radius, membrane_modulus_kpa=base.membrane_modulus_kpa)
     ours = seed_mean_fig9([paper.fig9_data(cases, **fig9) for cases in by_seed.values()])
     fcc = paper.fig9_data(reference, **fig9) if reference else None
-    files["fig9"] = plots.save_fig9(ours, folder, paper=fcc, labels=("random, mean over seeds", "FCC"))
+    files["fig9"] = plots.save_fig9(ours, folder, paper=fcc, labels=("random", "FCC"))
     files["figures"].append(files["fig9"])
     seconds = time.perf_counter() - started
     timed = "this call (resumed from any checkpoints) ran the sweep in" if resume else "the sweep ran in"
