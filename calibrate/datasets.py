@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from membrax import theory
-from membrax.config import characteristic_size_mm
+from membrax.config import characteristic_size_mm, compaction_state
 
 __all__ = [
     "INPUTS",
@@ -228,9 +228,6 @@ def packing_family(sweeps) -> dict:
       ones ("dense", "loose"), "gradings": the distinct gradings ("equal D mm" or "d_min–d_max mm, d50 …"),
       "solid_fraction": [min, max] over the random members (whole specimen; None when there are none)}``.
     """
-    from membrax.defaults import COMPACTION_FRICTION_DEG
-
-    states_by_friction = {friction: state for state, friction in COMPACTION_FRICTION_DEG.items()}
     packings, states, gradings, fractions = set(), set(), set(), []
     for dataset in sweeps:
         for config, rows in sweep_members(dataset):
@@ -238,8 +235,7 @@ def packing_family(sweeps) -> dict:
             packings.add(packing)
             if packing != "random":
                 continue
-            friction = float(config.get("compaction_friction_deg", 0.0))
-            states.add(states_by_friction.get(friction, f"compaction friction {friction:g}°"))
+            states.add(compaction_state(config.get("compaction_friction_deg", 0.0)))
             pairs = config.get("grading") or ()
             if pairs:
                 gradings.add(

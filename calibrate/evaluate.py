@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from calibrate import correct, datasets, lab
-from membrax.config import characteristic_size_mm
+from membrax.config import characteristic_size_mm, compaction_state
 
 __all__ = [
     "EXAMPLE_ARGUMENTS_PREFIX",
@@ -221,7 +221,7 @@ def specimen_words(config: dict, rows=None) -> str:
         what = f"graded {sizes[0]:.3g}–{sizes[-1]:.3g} mm (d50 {characteristic_size_mm(config):.3g} mm)"
     else:
         what = f"equal {config['particle_diameter_mm']:g} mm"
-    state = "dense" if config.get("compaction_friction_deg", 0.0) == 0.0 else "loose"
+    state = compaction_state(config.get("compaction_friction_deg", 0.0))
     words = f"random {state} packing of {what} spheres, seed {config.get('packing_seed', 0)}"
     if rows is not None and "solid_fraction" in rows:
         words += f", solid fraction {float(rows['solid_fraction']):.3f}"

@@ -231,20 +231,17 @@ def specimen_fields(specimen: dict) -> dict:
     """
     if "mould" not in specimen:
         return {**base_fields(), **specimen}
-    from membrax.reproduce import random_fields
+    from membrax.config import BALLAST_GRADING_MM, scaled_grading
+    from membrax.reproduce import BALLAST_LARGEST_FRACTION, random_fields
 
     diameter, height = specimen["mould"]
-    fields = random_fields(specimen.get("protocol", "small"), specimen.get("grading", "equal"))
-    if specimen.get("grading", "equal") == "ballast" and diameter != fields["specimen_diameter_mm"]:
-        raise ValueError(f"a ballast-graded group's mould is scaled for {fields['specimen_diameter_mm']} mm.")
-    from membrax.defaults import COMPACTION_FRICTION_DEG
-
+    grading = specimen.get("grading", "equal")
+    fields = random_fields(specimen.get("protocol", "small"), grading, specimen.get("state", "dense"))
     fields.update(
-        specimen_diameter_mm=diameter,
-        specimen_height_mm=height,
-        compaction_friction_deg=COMPACTION_FRICTION_DEG[specimen.get("state", "dense")],
-        packing_seed=specimen.get("seed", 0),
+        specimen_diameter_mm=diameter, specimen_height_mm=height, packing_seed=specimen.get("seed", 0)
     )
+    if grading == "ballast":  # scaled to this mould, as random_fields scales it to its own
+        fields["grading"] = scaled_grading(BALLAST_GRADING_MM, BALLAST_LARGEST_FRACTION * diameter)
     return fields
 
 

@@ -63,6 +63,7 @@ __all__ = [
     "BALLAST_GRADING_MM",
     "scaled_grading",
     "characteristic_size_mm",
+    "compaction_state",
     "PACKINGS",
     "SMOKE_CONFIG",
     "SI_SCALE",
@@ -117,6 +118,17 @@ def scaled_grading(pairs, largest_mm: float) -> tuple[tuple[float, float], ...]:
         raise ValueError(f"largest_mm = {largest_mm!r}; give the largest sieve size in mm, > 0.")
     factor = float(largest_mm) / float(pairs[-1][0])
     return tuple((float(size) * factor, float(percent)) for size, percent in pairs)
+
+
+def compaction_state(compaction_friction_deg: float) -> str:
+    """The packing state a compaction friction makes (:data:`membrax.defaults.COMPACTION_FRICTION_DEG`).
+
+    ``"dense"`` or ``"loose"`` for those frictions, else ``"compaction friction X°"``.
+    """
+    for state, friction in defaults.COMPACTION_FRICTION_DEG.items():
+        if math.isclose(float(compaction_friction_deg), friction, abs_tol=1e-9):
+            return state
+    return f"compaction friction {float(compaction_friction_deg):g}°"
 
 
 def characteristic_size_mm(values: Mapping) -> float:

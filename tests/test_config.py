@@ -496,3 +496,13 @@ def test_the_ballast_grading_scales_parallel_and_its_d50_is_the_hand_value():
     for bad in (0.0, -3.0, float("nan")):
         with pytest.raises(ValueError, match="largest_mm"):
             scaled_grading(BALLAST_GRADING_MM, bad)
+
+
+def test_a_compaction_friction_names_its_packing_state():
+    import math as m
+
+    from membrax.config import compaction_state
+
+    assert compaction_state(0.0) == "dense"
+    assert compaction_state(m.degrees(m.atan(0.5))) == "loose"  # tan⁻¹ 0.5, as COMPACTION_FRICTION_DEG
+    assert compaction_state(10.0) == "compaction friction 10°"
