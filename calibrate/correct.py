@@ -325,8 +325,8 @@ def family_warnings(specimen: Specimen, packing_family: dict | None) -> list[str
         messages.append(
             f"void ratio e = {1.0 / fraction - 1.0:.3g} (solid fraction {fraction:.3f}); the correction was "
             f"fitted on random packings of e = {low_e:.3g} to {high_e:.3g} (solid fraction {span[0]:.3f} to "
-            f"{span[1]:.3f}; {', '.join(packing_family.get('states', ()))}): a denser or looser specimen "
-            "than any it has seen."
+            f"{span[1]:.3f}; {', '.join(packing_family.get('states', ()))}): a "
+            f"{'denser' if fraction > span[1] else 'looser'} specimen than any it has seen."
         )
     return messages
 

@@ -105,8 +105,8 @@ RANDOM_SIZES = {
 }
 
 #: ``grading="ballast"``'s largest sieve as a fraction of the mould's diameter: 1/6, Marachi's limit for
-#: laboratory specimens (the paper's §1), the cheapest end of the issue's 1/6–1/10 (a smaller fraction
-#: means more spheres and, the smallest sphere being smaller, a shorter time step).
+#: laboratory specimens (the paper's §1), the cheapest end of the 1/6–1/10 used in practice (a smaller
+#: fraction means more spheres and, the smallest sphere being smaller, a shorter time step).
 BALLAST_LARGEST_FRACTION = 1.0 / 6.0
 
 #: The gradings of ``membrax reproduce --packing random --grading``: ``equal`` spheres of the particle

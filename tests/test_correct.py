@@ -434,7 +434,7 @@ def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about():
     assert correct.family_warnings(inside, family) == []
     denser = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.5)
     (message,) = correct.family_warnings(denser, family)
-    assert "e = 0.5" in message and "0.667 to 0.818" in message
+    assert "e = 0.5" in message and "0.667 to 0.818" in message and "a denser specimen" in message
     unknown = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0)
     assert correct.family_warnings(unknown, family) == []
     (fcc_only,) = correct.family_warnings(unknown, {"packings": ["fcc"], "solid_fraction": None})
