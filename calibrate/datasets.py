@@ -51,6 +51,7 @@ __all__ = [
     "FittingTable",
     "concatenate",
     "fitting_table",
+    "grading_words",
     "load_table",
     "measured_inputs",
     "packing_family",
@@ -217,6 +218,14 @@ def sweep_members(dataset):
         yield config, member.isel(record=slice(0, count))
 
 
+def grading_words(config: dict) -> str:
+    """A member's particle sizes in words: ``"equal 25 mm"``, or ``"8.89–25 mm, d50 16.1 mm"`` (a grading)."""
+    pairs = config.get("grading") or ()
+    if not pairs:
+        return f"equal {float(config['particle_diameter_mm']):g} mm"
+    return f"{pairs[0][0]:.3g}–{pairs[-1][0]:.3g} mm, d50 {characteristic_size_mm(config):.3g} mm"
+
+
 def packing_family(sweeps) -> dict:
     """What the specimens of ``sweeps`` were: the packing family a correction fitted on them covers.
 
@@ -236,13 +245,7 @@ def packing_family(sweeps) -> dict:
             if packing != "random":
                 continue
             states.add(compaction_state(config.get("compaction_friction_deg", 0.0)))
-            pairs = config.get("grading") or ()
-            if pairs:
-                gradings.add(
-                    f"{pairs[0][0]:.3g}–{pairs[-1][0]:.3g} mm, d50 {characteristic_size_mm(config):.3g} mm"
-                )
-            else:
-                gradings.add(f"equal {float(config['particle_diameter_mm']):g} mm")
+            gradings.add(grading_words(config))
             if "solid_fraction" in rows and np.isfinite(float(rows["solid_fraction"])):
                 fractions.append(float(rows["solid_fraction"]))
     return {

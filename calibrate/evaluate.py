@@ -216,11 +216,7 @@ def specimen_words(config: dict, rows=None) -> str:
     """A member's specimen in words: the FCC lattice, or a random packing (its grading and state)."""
     if config.get("packing", "fcc") == "fcc":
         return f"FCC specimen of {config['particles_across']} spheres across, {config['layers']} layers"
-    if config.get("grading"):
-        sizes = [size for size, _ in config["grading"]]
-        what = f"graded {sizes[0]:.3g}–{sizes[-1]:.3g} mm (d50 {characteristic_size_mm(config):.3g} mm)"
-    else:
-        what = f"equal {config['particle_diameter_mm']:g} mm"
+    what = ("graded " if config.get("grading") else "") + datasets.grading_words(config)
     state = compaction_state(config.get("compaction_friction_deg", 0.0))
     words = f"random {state} packing of {what} spheres, seed {config.get('packing_seed', 0)}"
     if rows is not None and "solid_fraction" in rows:

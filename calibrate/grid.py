@@ -231,18 +231,15 @@ def specimen_fields(specimen: dict) -> dict:
     """
     if "mould" not in specimen:
         return {**base_fields(), **specimen}
-    from membrax.config import BALLAST_GRADING_MM, scaled_grading
-    from membrax.reproduce import BALLAST_LARGEST_FRACTION, random_fields
+    from membrax.reproduce import random_fields
 
-    diameter, height = specimen["mould"]
-    grading = specimen.get("grading", "equal")
-    fields = random_fields(specimen.get("protocol", "small"), grading, specimen.get("state", "dense"))
-    fields.update(
-        specimen_diameter_mm=diameter, specimen_height_mm=height, packing_seed=specimen.get("seed", 0)
+    fields = random_fields(
+        specimen.get("protocol", "small"),
+        specimen.get("grading", "equal"),
+        specimen.get("state", "dense"),
+        mould_mm=specimen["mould"],
     )
-    if grading == "ballast":  # scaled to this mould, as random_fields scales it to its own
-        fields["grading"] = scaled_grading(BALLAST_GRADING_MM, BALLAST_LARGEST_FRACTION * diameter)
-    return fields
+    return {**fields, "packing_seed": specimen.get("seed", 0)}
 
 
 def base_fields() -> dict:
@@ -258,27 +255,18 @@ def base_fields() -> dict:
 
 def sweep_commands(groups=None, folder: str = "calibration") -> list[str]:
     """The ``membrax sweep`` command line of each group (the base written as ``--set`` overrides)."""
+    from membrax.config import toml_value
+
     groups = CALIBRATION if groups is None else groups
     lines = []
     for name, (specimen, grid) in groups.items():
         sets = " ".join(
-            f"--set {shlex.quote(f'{key}={_toml(value)}')}"
+            f"--set {shlex.quote(f'{key}={toml_value(value)}')}"
             for key, value in specimen_fields(specimen).items()
         )
         grids = " ".join(f"--grid {key}={','.join(f'{v:g}' for v in values)}" for key, values in grid.items())
         lines.append(f"membrax sweep base.toml {sets} {grids} --out {folder}/{name}")
     return lines
-
-
-def _toml(value) -> str:
-    """A field's value as ``--set`` reads it (TOML): arrays as [[a, b], ...], strings quoted."""
-    if isinstance(value, (tuple, list)):
-        return "[" + ", ".join(_toml(item) for item in value) + "]"
-    if isinstance(value, str):
-        return f'"{value}"'
-    if isinstance(value, bool):
-        return str(value).lower()
-    return repr(value)  # the shortest text that reads back to the same float (":g" would round)
 
 
 def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list[Path]:

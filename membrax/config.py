@@ -57,6 +57,7 @@ __all__ = [
     "dump_config_toml",
     "with_overrides",
     "parse_overrides",
+    "toml_value",
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
     "DEMO_RANDOM_CONFIG",
@@ -588,7 +589,7 @@ def _shown(value: Any) -> str:
 
 def _example(key: str) -> str:
     """``key = <default>`` in TOML, as a fix to show."""
-    return f"{key} = {_toml_value(_DEFAULTS[key])}"
+    return f"{key} = {toml_value(_DEFAULTS[key])}"
 
 
 def _check_name(value: Any) -> tuple[Any, str | None]:
@@ -884,15 +885,16 @@ def _toml_string(text: str) -> str:
     return '"' + "".join(escaped) + '"'
 
 
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
+    """A configuration value as TOML text that reads back to the same value (floats: shortest repr)."""
     if isinstance(value, tuple):
         return (
             "["
-            + ", ".join(_toml_value(list(item) if isinstance(item, tuple) else item) for item in value)
+            + ", ".join(toml_value(list(item) if isinstance(item, tuple) else item) for item in value)
             + "]"
         )
     if isinstance(value, list):
-        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+        return "[" + ", ".join(toml_value(item) for item in value) + "]"
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -916,7 +918,7 @@ def dump_config_toml(cfg: TriaxialConfig, *, table: bool = False) -> str:
     if table:
         lines.append(f"[{TABLE_NAME}]")
     for key in FIELD_NAMES:
-        lines.append(f"{key} = {_toml_value(getattr(cfg, key))}  # {_SPECS[key].describe()}".rstrip())
+        lines.append(f"{key} = {toml_value(getattr(cfg, key))}  # {_SPECS[key].describe()}".rstrip())
     return "\n".join(lines) + "\n"
 
 

@@ -116,13 +116,16 @@ BALLAST_LARGEST_FRACTION = 1.0 / 6.0
 RANDOM_GRADINGS = ("equal", "ballast")
 
 
-def random_fields(size: str, grading: str = "equal", state: str = "dense") -> dict:
+def random_fields(
+    size: str, grading: str = "equal", state: str = "dense", mould_mm: tuple[float, float] | None = None
+) -> dict:
     """The configuration fields of a random reproduction: :data:`SIZES`, :data:`RANDOM_SIZES`, grading, state.
 
     Args:
       size: ``"small"`` or ``"paper"``.
       grading: one of :data:`RANDOM_GRADINGS`.
       state: a key of :data:`membrax.defaults.COMPACTION_FRICTION_DEG` (``"dense"``, ``"loose"``).
+      mould_mm: (diameter, height) mm of another mould than the size's (a ballast grading is scaled to it).
 
     Raises:
       ValueError: an unknown size, grading or state, named with the choices.
@@ -134,6 +137,8 @@ def random_fields(size: str, grading: str = "equal", state: str = "dense") -> di
     if state not in COMPACTION_FRICTION_DEG:
         raise ValueError(f"state = {state!r}; choose one of {list(COMPACTION_FRICTION_DEG)}.")
     fields = {**SIZES[size], **RANDOM_SIZES[size], "compaction_friction_deg": COMPACTION_FRICTION_DEG[state]}
+    if mould_mm is not None:
+        fields.update(specimen_diameter_mm=float(mould_mm[0]), specimen_height_mm=float(mould_mm[1]))
     if grading == "ballast":
         largest_mm = BALLAST_LARGEST_FRACTION * fields["specimen_diameter_mm"]
         fields["grading"] = scaled_grading(BALLAST_GRADING_MM, largest_mm)
