@@ -205,6 +205,27 @@ def test_sphere_on_plane_slides_at_coulomb_limit(precision):
     assert acceleration == pytest.approx(expected, rel=1e-3)
 
 
+def test_frictionless_platens_push_back_with_k_times_overlap(precision):
+    # F = k_w δ e along each platen's inward normal: a sphere 1 mm into the bottom platen (z = 0) and one
+    # 0.5 mm into the top one (z = 1 m), far apart; the frictionless path (the paper's platens, jax.grad of
+    # the energy over the gaps) and the frictional one give the same hand values, and no torque.
+    position = [[0.0, 0.0, R - 1e-3], [0.5, 0.0, 1.0 - R + 5e-4]]
+    params = integrate.DEMParams(contact.ContactParams.paper(), integrate.DampingParams.none())
+    stiffness = float(params.contact.wall_normal_stiffness)
+    expected = np.zeros((2, 3))
+    expected[0, 2], expected[1, 2] = stiffness * 1e-3, -stiffness * 5e-4
+    for wall_friction in (False, True):
+        particles, frame, walls, init_fn, _, dt = free_system(position, wall_friction=wall_friction)
+        state = init_fn(jnp.asarray(position), walls, frame.allocate(jnp.asarray(position)))
+        compute = jax.jit(integrate.compute_forces, static_argnums=4)
+        forces = compute(state, particles, params, dt, wall_friction)
+        # float32: an overlap is a difference of coordinates near 1 m (ulp 1.2e-7 m of 5e-4 m: 2.4e-4).
+        np.testing.assert_allclose(forces.force, expected, rtol=100 * tolerance(precision))
+        np.testing.assert_allclose(forces.torque, 0.0, atol=1e-12)
+        platens = [stiffness * 1e-3, stiffness * 5e-4]
+        np.testing.assert_allclose(forces.wall_total_force[0], platens, rtol=1e-3)
+
+
 def random_cluster(num=40, seed=0):
     rng = np.random.default_rng(seed)
     position = rng.uniform(0.0, 3.2 * D, size=(num, 3)) + np.array([0.0, 0.0, 0.4])

@@ -39,3 +39,26 @@ def test_the_module_aliases_are_the_same_bits():
     assert integrate.ERROR_OUTSIDE_BOX is ErrorCode.OUTSIDE_BOX
     assert membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW is ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
     assert integrate.describe_errors is errors.describe
+
+
+def test_not_finite_bit_flags_one_bad_entry_among_many_in_both_dtypes():
+    # The steps' check sums each array: one NaN or infinity anywhere must survive the sum, +∞ and −∞
+    # together included (∞ − ∞ = NaN), while finite entries up to 1e30 (a sum of 5e34 < 3.4e38) pass.
+    rng = np.random.default_rng(0)
+    check = jax.jit(jax.vmap(errors.not_finite_bit))
+    for dtype in (jnp.float32, jnp.float64):
+        with jax.enable_x64(dtype == jnp.float64):
+            base = rng.uniform(-1.0, 1.0, (17115, 3))
+            cases, expected = [], []
+            for bad in ([], [np.nan], [np.inf], [-np.inf], [np.inf, -np.inf]):
+                spoiled = base.copy()
+                for value in bad:
+                    spoiled[tuple(rng.integers(0, s) for s in base.shape)] = value
+                cases.append(spoiled)
+                expected.append(int(ErrorCode.NOT_FINITE) if bad else 0)
+            cases.append(np.full(base.shape, 1e30))
+            expected.append(0)
+            positions = jnp.asarray(np.stack(cases), dtype)
+            velocities = jnp.zeros_like(positions)
+            np.testing.assert_array_equal(check(positions, velocities), expected)
+            np.testing.assert_array_equal(check(velocities, positions), expected)  # either argument

@@ -439,7 +439,11 @@ def _kernel_operands(args):
 
 
 def node_sphere_kernel(*args):
-    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc)."""
+    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc).
+
+    The springs are updated in place (operand 7 to result 3): in a loop whose carry holds them, XLA then
+    needs no copy of the new ones into the carry.
+    """
     flat, operands = _kernel_operands(args)
     node_position, sphere_position, spring = flat[0], flat[2], flat[6]
     dtype = node_position.dtype
@@ -450,6 +454,7 @@ def node_sphere_kernel(*args):
         dtype,
         (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
         *operands,
+        input_output_aliases={7: 3},
     )
 
 
@@ -619,13 +624,13 @@ def _select_candidates(
 
     # K passes of "smallest id above the previous": the row in increasing id order (8× faster than
     # lax.top_k on XLA-CPU for a brute-force table; the same order as a search over spheres in id order).
-    def next_id(previous, _):
-        found = jnp.min(jnp.where(within & (ids > previous[:, None]), ids, num_spheres), axis=1)
-        return found, found
-
-    start = jnp.full((node_position.shape[0],), -1, dtype=jnp.int32)
-    _, found = jax.lax.scan(next_id, start, None, length=capacity)  # (K, n_nodes)
-    return found.T.astype(jnp.int32), jnp.max(count, initial=0), max_cell_count
+    # Unrolled and stacked as columns: a scan's (K, n_nodes) rows transposed made XLA keep the table
+    # column-major through the rebuild's cond and copy it to the kernels' row-major layout on every step
+    # (three copies, 31 µs per paper-size member-step).
+    found = [jnp.full((node_position.shape[0],), -1, dtype=jnp.int32)]
+    for _ in range(capacity):
+        found.append(jnp.min(jnp.where(within & (ids > found[-1][:, None]), ids, num_spheres), axis=1))
+    return jnp.stack(found[1:], axis=1).astype(jnp.int32), jnp.max(count, initial=0), max_cell_count
 
 
 def sphere_slot_table(idx, num_spheres: int, sphere_capacity: int):

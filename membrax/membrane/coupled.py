@@ -64,7 +64,7 @@ import scipy.sparse.linalg
 
 from membrax import native, pytree
 from membrax.defaults import MEMBRANE_MODULUS
-from membrax.errors import ErrorCode
+from membrax.errors import not_finite_bit
 from membrax.membrane import energies
 from membrax.membrane.contact import (
     ContactNodes,
@@ -777,8 +777,7 @@ def membrane_dem(
             particles.radius,
             mp.contact_thickness,
         )
-        finite = jnp.all(jnp.isfinite(position)) & jnp.all(jnp.isfinite(velocity))
-        error = spheres.error | candidate_errors(candidates) | jnp.where(finite, 0, ErrorCode.NOT_FINITE)
+        error = spheres.error | candidate_errors(candidates) | not_finite_bit(position, velocity)
         return CoupledState(
             dem=spheres.set(error=error.astype(jnp.int32)),
             membrane=nodes.set(

@@ -144,7 +144,6 @@ ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dty
   T* on_sphere = sphere_force->typed_data();
   T* torque = sphere_torque->typed_data();
   return membrax::on_pool(pool, in.m, [=]() {
-    std::fill(springs, springs + 3 * in.m, T(0));
     std::fill(on_node, on_node + 3 * in.num_nodes, T(0));
     std::fill(on_sphere, on_sphere + 3 * in.num_spheres, T(0));
     std::fill(torque, torque + 3 * in.num_spheres, T(0));
@@ -154,8 +153,13 @@ ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dty
     touching_slots<T>(in.x, in.xs, in.radius, in.id, 0, in.num_nodes, in.capacity, in.num_spheres,
                       in.half_thickness, touching.data());
     // In slot order, so that each node's force is summed in the order of the JAX law.
+    // A slot's new spring is written after its old one is read, and no other slot's is read: so the
+    // springs may be updated in place (input_output_aliases, node_sphere_kernel).
     for (int64_t j = 0; j < in.m; ++j) {
-      if (!touching[j]) continue;
+      if (!touching[j]) {
+        springs[j] = springs[in.m + j] = springs[2 * in.m + j] = T(0);
+        continue;
+      }
       const int64_t node = j / in.capacity, sphere = in.id[j];
       const SlotKinematics<T> kinematics = slot_kinematics(in.x, in.v, in.xs, in.vs, in.ws, node, sphere);
       const Vec3<T> b = kinematics.branch, relative = kinematics.relative;
