@@ -30,7 +30,7 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from membrax import batch
+    from membrax import batch, native
     from membrax.spheres import contact, integrate, packing
     from membrax.triaxial import rigid as triaxial
 
@@ -42,7 +42,10 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     )
 
     def loop(step_fn, num):
-        return jax.jit(lambda s, p: jax.lax.fori_loop(0, num, lambda _, x: step_fn(x, p), s))
+        return jax.jit(  # compiled as membrax compiles a run's chunks
+            lambda s, p: jax.lax.fori_loop(0, num, lambda _, x: step_fn(x, p), s),
+            compiler_options=native.compiler_options(),
+        )
 
     run = loop(step, steps)
     _, compile_and_run = timed(run, state, single.params)

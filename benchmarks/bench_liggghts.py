@@ -67,6 +67,7 @@ def measure_membrax(dtype: str, steps: int, repeats: int) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
+    from membrax import native
     from membrax.spheres.contact import ContactParams
     from membrax.spheres.integrate import (
         DampingParams,
@@ -96,7 +97,10 @@ def measure_membrax(dtype: str, steps: int, repeats: int) -> dict:
     state = init_fn(x, walls, frame.allocate(x))
     dt = 0.5 * critical_time_step(state, particles, params)
     _, step_fn = sphere_dem(particles, frame, dt, wall_friction=False)
-    run = jax.jit(lambda s: jax.lax.fori_loop(0, steps, lambda _, y: step_fn(y, params), s))
+    run = jax.jit(  # compiled as membrax compiles a run's chunks
+        lambda s: jax.lax.fori_loop(0, steps, lambda _, y: step_fn(y, params), s),
+        compiler_options=native.compiler_options(),
+    )
     _, first = timed(run, state)
     total = best_of(run, state, runs=repeats)
     return {

@@ -126,8 +126,9 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
         edges_per_diameter=edges_per_diameter,
     )
     state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
-    coupled = jax.jit(
-        lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: test.runner.step_fn(x, test.params), s)
+    coupled = jax.jit(  # compiled as membrax compiles a run's chunks
+        lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: test.runner.step_fn(x, test.params), s),
+        compiler_options=native.compiler_options(),
     )
     state, coupled_first = timed(coupled, state)
     coupled_total = best_of(coupled, state)

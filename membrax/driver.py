@@ -32,6 +32,7 @@ from collections.abc import Callable
 import jax
 import numpy as np
 
+from membrax import native
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
 from membrax.spheres.neighbors import PairNeighborFn, remap_pair_history
 
@@ -130,7 +131,11 @@ class ChunkRunner:
         self.dem_of = (lambda state: state) if dem_of is None else dem_of
         self.with_dem = (lambda state, dem: dem) if with_dem is None else with_dem
         self.reallocations = 0
-        self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
+        self._chunk = jax.jit(
+            self._chunk_impl,
+            static_argnames=("num_records", "record_every"),
+            compiler_options=native.compiler_options(),
+        )
 
     def _chunk_impl(self, state, params, num_records: int, record_every: int):
         def block(s):

@@ -462,7 +462,11 @@ class BatchedTest:
     failures: dict = pydataclasses.field(default_factory=dict)
 
     def __post_init__(self):
-        self._chunk = jax.jit(self._chunk_impl, static_argnames=("num_records", "record_every"))
+        self._chunk = jax.jit(
+            self._chunk_impl,
+            static_argnames=("num_records", "record_every"),
+            compiler_options=native.compiler_options(),
+        )
 
     @property
     def num_members(self) -> int:

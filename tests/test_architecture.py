@@ -163,9 +163,8 @@ def test_membrax_never_imports_calibrate_except_the_command_line():
 
 
 #: Where a loop over time steps may be written (``lax.fori_loop``, ``lax.scan``): the driver's one chunk
-#: body (:func:`membrax.driver.advance`, :func:`membrax.driver.record_blocks`). The candidate search of
-#: the node–sphere contact scans table columns, not time steps.
-LOOP_HOMES = {"fori_loop": {"driver"}, "scan": {"driver", "membrane.contact"}, "while_loop": set()}
+#: body (:func:`membrax.driver.advance`, :func:`membrax.driver.record_blocks`).
+LOOP_HOMES = {"fori_loop": {"driver"}, "scan": {"driver"}, "while_loop": set()}
 
 
 def _loop_calls(path: Path) -> set[str]:

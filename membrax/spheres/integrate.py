@@ -46,7 +46,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 from membrax import native, pytree
-from membrax.errors import ErrorCode, describe
+from membrax.errors import ErrorCode, describe, not_finite_bit
 from membrax.spheres import contact
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.neighbors import PairNeighborFn, outside_box, remap_pair_history
@@ -634,8 +634,7 @@ def sphere_dem(
 
         error = state.error
         error = error | jnp.where(neighbors.did_buffer_overflow > 0, ErrorCode.NEIGHBOR_OVERFLOW, 0)
-        finite = jnp.all(jnp.isfinite(position)) & jnp.all(jnp.isfinite(velocity))
-        error = error | jnp.where(finite, 0, ErrorCode.NOT_FINITE)
+        error = error | not_finite_bit(position, velocity)
         error = error | jnp.where(outside_box(position, neighbor_frame), ErrorCode.OUTSIDE_BOX, 0)
         return state.set(
             position=position,
