@@ -201,7 +201,8 @@ def compiler_options() -> dict[str, str] | None:
     On the CPU backend, XLA's memory-optimised thunk scheduler in place of its default: the same
     operations and arithmetic (the same bits, ``tests/test_native.py``) in another order, in which the
     asynchronous kernels of a step overlap more. The paper-size coupled step ran at 1,320 steps/s against
-    1,188 with the default (float32, 2 CPU cores, ``benchmarks/bench_membrane.py``). None elsewhere.
+    1,188 with the default (float32, 2 CPU cores; 300 steps in a jitted loop as
+    ``benchmarks/bench_membrane.py`` times them, runs alternated). None elsewhere.
     """
     if jax.default_backend() != "cpu":
         return None
