@@ -96,13 +96,15 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     stacked_state = batch.stack(states)
     stacked_params = batch.stack([case_params(b) for b in range(CASES)])
     vmap_run = jax.jit(
-        batch.vmap_members(lambda s, p: jax.lax.fori_loop(0, batch_steps, lambda _, x: step(x, p), s))
+        batch.vmap_members(lambda s, p: jax.lax.fori_loop(0, batch_steps, lambda _, x: step(x, p), s)),
+        compiler_options=native.compiler_options(),
     )
     timed(vmap_run, stacked_state, stacked_params)
     _, vmap_time = timed(vmap_run, stacked_state, stacked_params)
 
     mapped_run = jax.jit(
-        batch.map_members(lambda s, p: jax.lax.fori_loop(0, batch_steps, lambda _, x: step(x, p), s))
+        batch.map_members(lambda s, p: jax.lax.fori_loop(0, batch_steps, lambda _, x: step(x, p), s)),
+        compiler_options=native.compiler_options(),
     )
     timed(mapped_run, stacked_state, stacked_params)
     _, mapped_time = timed(mapped_run, stacked_state, stacked_params)

@@ -126,7 +126,10 @@ def measure(dtype: str, repeats: int) -> dict:
         flops, jax_bytes = cost_of(one_step, state, kernels=False)
         _, xla_bytes = cost_of(one_step, state, kernels=kernels)
 
-    loop = jax.jit(lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: one_step(x), s))
+    loop = jax.jit(  # compiled as membrax compiles a run's chunks
+        lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: one_step(x), s),
+        compiler_options=native.compiler_options(),
+    )
     state, _ = timed(loop, state)
     seconds = best_of(loop, state) / repeats
     state_bytes = sum(leaf.nbytes for leaf in jax.tree_util.tree_leaves(state) if hasattr(leaf, "nbytes"))
