@@ -1,14 +1,19 @@
 """Random specimen generation: a loose cloud compacted in a mould (membrax.spheres.compaction).
 
 For each dtype, in a fresh process, builds a random packing of equal 25 mm spheres (default: the paper-like
-specimen, 250 mm across and 500 mm high, frictionless compaction to 10 kPa) and prints: the number of
+specimen, 250 mm across and 500 mm high, frictionless compaction to 10 kPa; with these defaults and
+``--seed k`` it is the specimen ``membrax reproduce --size paper --packing random`` builds for packing seed
+k, whose configuration's contact law and density are compact's defaults) and prints: the number of
 spheres, the steps run, the wall-clock time (compiling included) and steps/s, whether the stop test held
-(unbalanced-force ratio below 1e-2 at the target stress), the solid fractions (whole and core), the core's
-coordination number without rattlers, and the specimen's diameter.
+(``converged``), the unbalanced-force ratio, the final stress and how it was reached (``window``: ``yes``
+within ±2 % of the target, ``jump`` the nearest state at a stress jump, with the relaxed stresses on either
+side of it, ``no`` out of steps), the solid fractions (whole and core), the core's coordination number
+without rattlers, and the specimen's diameter.
 
-Issue target (issue 45): a paper-like specimen in under one minute on 2 cores.
+Issue targets: a paper-like specimen in under one minute on 2 cores (issue 45); every seed ends (issue 60).
 
-Run: ``python benchmarks/bench_compaction.py [--across 10 --high 20 --friction 0 --max-steps 400000]``.
+Run: ``python benchmarks/bench_compaction.py [--across 10 --high 20 --friction 0 --max-steps 400000
+--seed 0]``.
 """
 
 import argparse
@@ -18,7 +23,7 @@ import time
 from harness import print_table, run_each_dtype
 
 
-def measure(dtype: str, across: float, high: float, friction: float, max_steps: int) -> dict:
+def measure(dtype: str, across: float, high: float, friction: float, max_steps: int, seed: int) -> dict:
     import jax
 
     if dtype == "float64":
@@ -32,11 +37,13 @@ def measure(dtype: str, across: float, high: float, friction: float, max_steps: 
         Grading.equal(diameter),
         across * diameter,
         high * diameter,
+        seed=seed,
         friction_coefficient=friction,
         max_steps=max_steps,
     )
     seconds = time.perf_counter() - start
     measures = packing.measures
+    jump = packing.stress_jump
     return {
         "dtype": dtype,
         "spheres": measures["num_spheres"],
@@ -45,6 +52,10 @@ def measure(dtype: str, across: float, high: float, friction: float, max_steps: 
         "steps_per_s": packing.steps / packing.seconds,
         "converged": "yes" if packing.converged else "no",
         "ratio": packing.unbalanced_force_ratio,
+        "stress_kpa": packing.stress * 1e-3,
+        "window": "jump" if jump else "yes" if packing.converged else "no",
+        "below_kpa": f"{jump['stress_below'] * 1e-3:.3f}" if jump else "–",
+        "above_kpa": f"{jump['stress_above'] * 1e-3:.3f}" if jump else "–",
         "solid": measures["solid_fraction"],
         "core": measures["core_solid_fraction"],
         "coordination": measures["coordination_number"],
@@ -58,6 +69,7 @@ def main():
     parser.add_argument("--high", type=float, default=20.0, help="specimen height in sphere diameters")
     parser.add_argument("--friction", type=float, default=0.0, help="μ between spheres during compaction")
     parser.add_argument("--max-steps", type=int, default=400_000)
+    parser.add_argument("--seed", type=int, default=0, help="the packing seed (the loose cloud's)")
     parser.add_argument("--dtypes", default="float32,float64")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -66,17 +78,22 @@ def main():
         "high": args.high,
         "friction": args.friction,
         "max_steps": args.max_steps,
+        "seed": args.seed,
     }
     if args.child:
         print(json.dumps(measure(args.child, **options)))
         return
     rows = run_each_dtype(__file__, options, dtypes=tuple(args.dtypes.split(",")))
-    print(f"Compaction: {args.across:g} × {args.high:g} sphere diameters, μ = {args.friction:g}, to 10 kPa")
+    print(
+        f"Compaction: {args.across:g} × {args.high:g} sphere diameters, μ = {args.friction:g}, to 10 kPa, "
+        f"seed {args.seed}"
+    )
     print_table(
         rows,
-        "spheres|steps|s|steps/s|converged|ufr|φ whole|φ core|Z core|D mm",
-        "{spheres:>8d}{steps:>8d}{seconds:>7.1f}{steps_per_s:>9.0f}{converged:>10}{ratio:>8.3f}{solid:>9.3f}"
-        "{core:>8.3f}{coordination:>8.2f}{diameter_mm:>7.1f}",
+        "spheres|steps|s|steps/s|converged|ufr|σ kPa|window|below kPa|above kPa|φ whole|φ core|Z core|D mm",
+        "{spheres:>8d}{steps:>8d}{seconds:>7.1f}{steps_per_s:>9.0f}{converged:>10}{ratio:>9.1e}"
+        "{stress_kpa:>8.3f}{window:>7}{below_kpa:>10}{above_kpa:>10}{solid:>9.3f}{core:>8.3f}"
+        "{coordination:>8.2f}{diameter_mm:>7.1f}",
     )
 
 

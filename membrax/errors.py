@@ -113,7 +113,12 @@ class ConfigError(ValueError):
 
 
 class SimulationError(RuntimeError):
-    """A run stopped on an error bit; ``state`` and ``records`` hold what was computed before it."""
+    """A run stopped on an error bit; ``state`` and ``records`` hold what was computed before it.
+
+    Also raised (``state`` and ``records`` None) by a host loop that can make no more progress, e.g. the
+    frictionless search of :mod:`membrax.spheres.compaction` (its "Budgets"); the message names the loop's
+    state and what to change.
+    """
 
     def __init__(self, message, state=None, records=None):
         super().__init__(message)

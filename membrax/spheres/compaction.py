@@ -46,6 +46,25 @@ the growth factor is fixed and FIRE (``_FireRelaxer``; Bitzek et al. 2006) bring
 unjammed result (stress below 1 % of the target) grows s by a doubling step, a jammed one corrects s by a
 secant step in ln s (bisecting once the target is bracketed), until the relaxed stress is within
 ``stress_tolerance`` of the target. With friction the servo above runs to the end.
+
+Stress jumps. A jammed packing's relaxed stress is not a continuous function of s: where the contact network
+rearranges it jumps, and FIRE from the last state can land on either branch. Measured on the paper-size
+specimen (``benchmarks/bench_compaction.py``, float64): seed 8 relaxed to 7.73 kPa at s = 1.0169722844042632
+and to 11.29 kPa at the next float64, nothing in the ±2 % window around 10 kPa; seed 5 from unjammed (~0)
+to 35.5 kPa. When the bracket in s has closed to round-off (no growth of the packing's dtype lies strictly
+between its ends) with no relaxed state in the window, the search relaxes to rest an end whose relaxation
+stopped short (far from the target FIRE stops once the stress settles), then accepts the jammed state at
+rest (ratio below 10 × the FIRE tolerance, as in the window's test) nearest the target in ratio,
+|ln σ/σ_target| (its relaxed positions at its own growth), and records the jump in
+:attr:`Compaction.stress_jump`;
+``converged`` is True: the packing is jammed and at rest, and no growth the search can still try brings it
+nearer the target. Callers that need the window check ``stress_jump is None``.
+
+Budgets. Every host loop ends: the growth loop and each FIRE relaxation count steps against ``max_steps``
+and run at least one step per compiled chunk; a relaxation that gets no FIRE step from a neighbour list
+allocated afresh for its positions, and a search whose calls stop running FIRE steps without narrowing the
+bracket (:data:`_IDLE_CALLS` in a row), raise :class:`membrax.errors.SimulationError` naming the growth, the
+stress, the unbalanced-force ratio, the steps, the calls and the bracket.
 """
 
 from __future__ import annotations
@@ -62,7 +81,7 @@ import numpy as np
 import scipy.spatial
 
 from membrax.driver import advance
-from membrax.errors import describe
+from membrax.errors import SimulationError, describe
 from membrax.spheres.contact import ContactParams, normal_energy
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
@@ -100,6 +119,15 @@ __all__ = [
 #: comes out as the requested one times (guess/achieved)^(1/3)).
 SOLID_FRACTION_GUESS = 0.58
 
+#: The calls in a row, each running no FIRE step and leaving the growth bracket as it was, after which the
+#: frictionless search stops (:class:`membrax.errors.SimulationError`). Such a call relaxed the positions it
+#: was given at a growth whose logarithm is already an end of the bracket (a secant step rounded onto it), so
+#: it learnt nothing; a step that finds anything new runs FIRE or narrows the bracket and resets the count.
+#: 64, the bits of a float64, is far more than roundings repeat in a row, and ends a stuck search within a
+#: second: an idle call is one force evaluation (on the paper-size seed-8 specimen, 1,740 spheres in
+#: float64, the search before jumps were accepted repeated 3,963 of them in 55 s).
+_IDLE_CALLS = 64
+
 
 @dataclasses.dataclass(frozen=True)
 class Compaction:
@@ -115,8 +143,17 @@ class Compaction:
       seconds: wall-clock time of the run, s.
       stress: the final mean stress σ on mould and platens, Pa.
       unbalanced_force_ratio: at the end.
-      converged: whether the stop test held (False: ``max_steps`` ran out first).
+      converged: whether the packing ended jammed and at rest: the stop test held, or (frictionless) the
+        state nearest the target was accepted at a stress jump (``stress_jump``). False: ``max_steps`` ran
+        out first.
       measures: :func:`packing_measures` of the result.
+      seed: the cloud's seed.
+      stress_jump: None when the stress reached ``target_stress`` within ``stress_tolerance`` (or the run
+        ended unconverged); else the jump that kept it out of the window (module docstring, "Stress
+        jumps"): ``stress_below`` and ``stress_above`` (Pa), the relaxed stresses at the bracket's ends,
+        ``growth_below`` and ``growth_above`` their growth factors (neighbouring numbers of the packing's
+        dtype, or equal), and ``stress_accepted`` (Pa), the accepted state's stress (= ``stress``). Files
+        saved before this field load with None.
     """
 
     position: np.ndarray
@@ -131,6 +168,7 @@ class Compaction:
     converged: bool
     measures: dict
     seed: int = 0
+    stress_jump: dict | None = None
 
     def save(self, path) -> None:
         """Write the packing to ``path`` (``.npz``: the centres and radii as they are, the rest as JSON)."""
@@ -144,14 +182,23 @@ class Compaction:
 
     @classmethod
     def load(cls, path) -> Compaction:
-        """The packing :meth:`save` wrote to ``path``."""
+        """The packing :meth:`save` wrote to ``path`` (a field added since takes its default)."""
         with np.load(path) as data:
             scalars = json.loads(str(data["scalars"]))
             return cls(position=np.array(data["position"]), radius=np.array(data["radius"]), **scalars)
 
     def specimen(self, grading: Grading | None = None) -> RandomSpecimen:
-        """The packing as a :class:`~membrax.spheres.random_packing.RandomSpecimen` (JAX's default float)."""
+        """The packing as a :class:`~membrax.spheres.random_packing.RandomSpecimen` (JAX's default float).
+
+        Its ``packing_measures`` are :attr:`measures` and the compaction's stress: ``compaction_stress`` (Pa)
+        and, where the stress jumped over the window (:attr:`stress_jump`), ``compaction_stress_below`` and
+        ``compaction_stress_above`` (Pa, the jump's two sides).
+        """
         dtype = jnp.result_type(float)
+        measures = {**self.measures, "compaction_stress": float(self.stress)}
+        if self.stress_jump is not None:
+            measures["compaction_stress_below"] = float(self.stress_jump["stress_below"])
+            measures["compaction_stress_above"] = float(self.stress_jump["stress_above"])
         return RandomSpecimen(
             position=jnp.asarray(self.position, dtype),
             radius=jnp.asarray(self.radius, dtype),
@@ -160,7 +207,7 @@ class Compaction:
             grading=() if grading is None else (tuple(grading.sizes), tuple(grading.passing)),
             solid_fraction=self.measures["solid_fraction"],
             seed=self.seed,
-            packing_measures=tuple(self.measures.items()),
+            packing_measures=tuple(measures.items()),
         )
 
 
@@ -217,7 +264,7 @@ def packing_measures(
         & (position[:, 2] < core_high)
     )
     keep = np.ones(num, dtype=bool)
-    while True:
+    while True:  # ends: each pass that goes on removes a sphere, so at most N passes
         live = touching[keep[touching[:, 0]] & keep[touching[:, 1]]]
         counts = np.bincount(live.ravel(), minlength=num)
         drop = keep & in_core & (counts < least_contacts)
@@ -371,10 +418,17 @@ class _FireRelaxer:
         ratio = _unbalanced_ratio(net, forces, self.particles, neighbors)
         return stress, ratio, neighbors.did_buffer_overflow
 
-    def relax(self, position, growth, target, tolerance, max_steps, on_chunk=None):
+    def relax(self, position, growth, target, tolerance, max_steps, on_chunk=None, settle=True):
         """FIRE at growth s until the unbalanced-force ratio is below ``tolerance``.
 
-        ``position`` is (x, compensation); returns ((x, compensation), σ, ratio, steps).
+        ``position`` is (x, compensation); returns ((x, compensation), σ, ratio, steps), the very arrays
+        given when it ran no step. ``settle`` False relaxes to ``tolerance`` even far from the target (a
+        state the search may accept, module docstring "Stress jumps"). Each pass measures, then runs a chunk
+        of ``chunk_steps`` steps or returns: at most ``max_steps`` / ``chunk_steps`` + 1 passes, plus one
+        neighbour-list reallocation per chunk.
+
+        Raises:
+          SimulationError: the neighbour list overflowed again at the positions it was just allocated for.
         """
         position, compensation = position
         dtype = position.dtype
@@ -393,11 +447,31 @@ class _FireRelaxer:
         )
         growth = jnp.asarray(growth, dtype)
         steps, best, best_at, last_stress = 0, math.inf, 0, math.nan
+        calls, reallocated = 0, False
         while True:
             stress, ratio, overflow = (float(x) for x in self._measure(*carry[:2], carry[3], growth))
+            calls += 1
             if overflow:
+                # A list allocated at these very positions holds their pairs: overflowing again, it never
+                # will (non-finite positions, or a sphere outside the list's box).
+                if reallocated:
+                    finite = bool(np.isfinite(np.asarray(carry[0])).all())
+                    raise SimulationError(
+                        f"compaction: the FIRE relaxation at growth factor s = {float(growth)!r} overflowed "
+                        f"its neighbour list again right after allocating it for the same positions (stress "
+                        f"{stress:.6g} Pa, unbalanced-force ratio {ratio:.3g}, {steps} FIRE steps, {calls} "
+                        f"calls, positions {'finite' if finite else 'NOT finite'}). "
+                        + (
+                            "A sphere has left the mould's neighbour box: check the mould's size against "
+                            "the spheres (mould_diameter, mould_height) and the contact stiffness."
+                            if finite
+                            else "The relaxation went unstable (FIRE's step is capped at 1.8 times "
+                            "compaction_time_step's): report the seed and the arguments of compact."
+                        )
+                    )
                 self.neighbors = self.frame.allocate(carry[0])
                 carry = (*carry[:3], self.neighbors, *carry[4:])
+                reallocated = True
                 continue
             if on_chunk is not None and steps:
                 on_chunk(
@@ -415,16 +489,25 @@ class _FireRelaxer:
                 best, best_at = ratio, steps
             stalled = steps - best_at >= 5 * self.chunk_steps
             # Far from the target, a settled stress is all the growth correction needs.
-            settled = abs(stress - last_stress) < 0.01 * abs(stress - target) and ratio < 0.1
+            settled = settle and abs(stress - last_stress) < 0.01 * abs(stress - target) and ratio < 0.1
             last_stress = stress
             done = ratio < tolerance or unjammed or stalled or settled
             if done or steps >= max_steps or not math.isfinite(ratio):
                 return carry[:2], stress, ratio, steps
             carry = self._chunk(carry, growth)
             steps += self.chunk_steps
+            reallocated = False
 
     def relax_to_stress(
-        self, position, growth, target, stress_tolerance, tolerance, max_steps, on_chunk=None
+        self,
+        position,
+        growth,
+        target,
+        stress_tolerance,
+        tolerance,
+        max_steps,
+        on_chunk=None,
+        accept_jump=True,
     ):
         """Relax, then correct the growth s until the relaxed stress is within ``stress_tolerance`` of target.
 
@@ -432,16 +515,30 @@ class _FireRelaxer:
         unjammed state (stress below 1 % of the target at rest) grows s by a step that doubles each time
         (from Δ ln s = 1e-3); a jammed one takes a secant step in
         ln s through the last jammed state (the first with the stiffness scale), bisecting instead once a
-        state below and one above the target bracket it.
+        state below and one above the target bracket it. Where the stress jumps over the window, the bracket
+        closes to round-off and the jammed state at rest nearest the target is returned (module docstring,
+        "Stress jumps"; ``accept_jump`` False searches on, for tests of the budget).
 
         Returns:
-          (positions, growth, stress, ratio, steps, converged).
+          (positions, growth, stress, ratio, steps, converged, jump): ``jump`` None, or the
+          :attr:`Compaction.stress_jump` dict of an accepted jump.
+
+        Raises:
+          SimulationError: :data:`_IDLE_CALLS` calls in a row ran no FIRE step and left the bracket as it
+            was, or the bracket closed with no jammed state at rest to accept.
         """
         mean_diameter = float(2.0 * jnp.mean(self.particles.radius))
         stiffness_scale = float(self.params.contact.normal_stiffness) / mean_diameter
         increment = 1e-3  # Δ ln s of the first growth of an unjammed state: a jamming distance's scale
         below, above, previous = -math.inf, math.inf, None
         steps, stress, ratio = 0, math.nan, math.nan
+        # The device sees s rounded to the packing's dtype: the bracket is closed when none lies inside.
+        dtype = np.dtype(position[0].dtype)
+        # (growth, stress) at the bracket's ends; the jammed state at rest nearest the target.
+        low_end = high_end = closest = None
+        end_states = {}  # "below"/"above": the relaxed state at that end of the bracket
+        calls = idle = 0
+        window = (target, stress_tolerance, 10.0 * tolerance)
         while steps < max_steps:
             position, stress, ratio, used = self.relax(
                 position,
@@ -454,30 +551,107 @@ class _FireRelaxer:
                 else lambda info, done=steps: on_chunk({**info, "steps": done + info["steps"]}),
             )
             steps += used
+            calls += 1
             if not math.isfinite(ratio):
                 break
-            if abs(stress / target - 1.0) < stress_tolerance and ratio < 10.0 * tolerance:
-                return position, growth, stress, ratio, steps, True
+            at_rest = ratio < 10.0 * tolerance
+            if abs(stress / target - 1.0) < stress_tolerance and at_rest:
+                return position, growth, stress, ratio, steps, True, None
+            # Nearest in ratio, |ln σ/σ_target|: a jammed packing's stress spans decades above jamming, and a
+            # difference would rank a barely jammed state (−99 %) above one at 2.01 times the target. A tie
+            # goes to the later state: the bracket closes in, so it is the one nearer the jump.
+            if at_rest and stress >= 1e-2 * target:
+                if closest is None or abs(math.log(stress / target)) <= abs(math.log(closest[2] / target)):
+                    closest = (position, growth, stress, ratio)
+            bracket = (below, above)
             log_growth = math.log(growth)
+            state = (position, growth, stress, ratio)
             if stress < 1e-2 * target:  # unjammed
-                below = log_growth
+                below, low_end, end_states["below"] = log_growth, (growth, stress), state
                 step_to = log_growth + increment
                 increment *= 2.0
             else:
                 if stress < target:
-                    below = log_growth
+                    below, low_end, end_states["below"] = log_growth, (growth, stress), state
                 else:
-                    above = log_growth
+                    above, high_end, end_states["above"] = log_growth, (growth, stress), state
                 slope = stiffness_scale
                 # A secant needs two distinct growths (a bisection can land on the previous one).
                 if previous is not None and stress != previous[1] and log_growth != previous[0]:
                     slope = max((stress - previous[1]) / (log_growth - previous[0]), 1e-2 * stiffness_scale)
                 previous = (log_growth, stress)
                 step_to = log_growth + (target - stress) / slope
+            # Progress: a FIRE step, or an end of the bracket moved in.
+            idle = 0 if used or below > bracket[0] or above < bracket[1] else idle + 1
+            where = (growth, stress, ratio, steps, calls, (low_end, high_end), window)
+            if idle >= _IDLE_CALLS:
+                raise SimulationError(
+                    f"compaction: the search for the growth factor made no progress in {idle} calls in a row "
+                    f"(no FIRE step, the bracket unchanged): {_describe_search(*where)}. No growth left to "
+                    "try reaches the window: widen stress_tolerance, or report the seed and the arguments "
+                    "of compact."
+                )
+            if accept_jump and low_end is not None and high_end is not None:
+                low, high = dtype.type(low_end[0]), dtype.type(high_end[0])
+                if not np.nextafter(low, high) < high:
+                    # Closed: every further growth would repeat an end's, so the nearest state at rest is the
+                    # answer. Only a jump gets here: one spacing of s (1.2e-7 in float32) moves a smooth
+                    # branch's stress by ~1.2 k_n/d̄ × 1.2e-7 ≈ 60 Pa at k_n/d̄ = 4e8 Pa, under the window's
+                    # 2 × 2 % of 10 kPa, so a bisection lands in the window before the bracket closes.
+                    # An end left short of rest (its relaxation stopped once its stress settled, far from the
+                    # target) is relaxed to rest first: it may be the nearer state.
+                    for end in ("below", "above"):
+                        end_position, end_growth, end_stress, end_ratio = end_states[end]
+                        if end_ratio < 10.0 * tolerance or end_stress < 1e-2 * target or steps >= max_steps:
+                            continue
+                        end_position, end_stress, end_ratio, used = self.relax(
+                            end_position, end_growth, target, tolerance, max_steps - steps, settle=False
+                        )
+                        steps += used
+                        calls += 1
+                        if end == "below":
+                            low_end = (end_growth, end_stress)
+                        else:
+                            high_end = (end_growth, end_stress)
+                        if end_ratio < 10.0 * tolerance and end_stress >= 1e-2 * target:
+                            nearer = closest is None or abs(math.log(end_stress / target)) < abs(
+                                math.log(closest[2] / target)
+                            )
+                            if nearer:
+                                closest = (end_position, end_growth, end_stress, end_ratio)
+                    if closest is None:
+                        raise SimulationError(
+                            "compaction: the stress jumps over the window between neighbouring growths "
+                            f"and no jammed state was at rest to accept: {_describe_search(*where)}. Lower "
+                            "fire_tolerance or raise max_steps so that each relaxation reaches rest."
+                        )
+                    jump = {
+                        "stress_below": low_end[1],
+                        "stress_above": high_end[1],
+                        "growth_below": low_end[0],
+                        "growth_above": high_end[0],
+                        "stress_accepted": closest[2],
+                    }
+                    return *closest, steps, True, jump
             if not below < step_to < above:
                 step_to = 0.5 * (below + above)
             growth = math.exp(step_to)
-        return position, growth, stress, ratio, steps, False
+        return position, growth, stress, ratio, steps, False, None
+
+
+def _describe_search(growth, stress, ratio, steps, calls, ends, window) -> str:
+    """The state of :meth:`_FireRelaxer.relax_to_stress` in words, for an error message.
+
+    ``ends``: the bracket's (s, σ) ends, each None until set; ``window``: (target σ, its relative tolerance,
+    the unbalanced-force ratio at rest).
+    """
+    low, high = ("(none)" if end is None else f"s = {end[0]!r} at {end[1]:.6g} Pa" for end in ends)
+    target, stress_tolerance, at_rest = window
+    return (
+        f"growth factor s = {growth!r}, relaxed stress {stress:.6g} Pa (target {target:.6g} Pa "
+        f"± {stress_tolerance:.3g}), unbalanced-force ratio {ratio:.3g} (at rest below {at_rest:.3g}), "
+        f"{steps} FIRE steps, {calls} calls, bracket below {low}, above {high}"
+    )
 
 
 def compaction_time_step(smallest_diameter: float, contact_params: ContactParams, density: float) -> float:
@@ -552,6 +726,11 @@ def compact(
         ``unbalanced_force_ratio``) — progress for long runs.
       fire_tolerance: frictionless compaction: the unbalanced-force ratio each FIRE relaxation reaches
         (module docstring, "Frictionless: FIRE").
+
+    Raises:
+      ValueError: an argument out of range, named with its accepted range.
+      SimulationError: the frictionless search stalled (module docstring, "Budgets"); the message names
+        the growth factor, stress, unbalanced-force ratio, steps, calls and bracket, and what to change.
     """
     diameters = np.asarray(diameters, dtype=float)
     check_range("diameters", diameters, lower=0.0, lower_open=True)
@@ -559,6 +738,9 @@ def compact(
     check_range("mould_height", mould_height, lower=float(diameters.max()), lower_open=True, hint="m.")
     check_range("target_stress", target_stress, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
     check_range("friction_coefficient", friction_coefficient, lower=0.0)
+    # Each pass of the growth loop runs a chunk: with chunk_steps >= 1 it ends within max_steps.
+    check_range("max_steps", max_steps, lower=1, hint="time steps, e.g. 400000.")
+    check_range("chunk_steps", chunk_steps, lower=1, hint="steps per compiled chunk, e.g. 1000.")
     base = ContactParams.paper() if contact_params is None else contact_params
     law = base.set(
         friction_coefficient=jnp.asarray(friction_coefficient),
@@ -655,10 +837,10 @@ def compact(
         if abs(stress / target_stress - 1.0) < stress_tolerance and ratio < tolerance:
             converged = True
             break
-    position = (state.position, state.position_compensation)
+    position, jump = (state.position, state.position_compensation), None
     if frictionless and steps < max_steps:
         relaxer = _FireRelaxer(particles, params, frame, state, dt, mould_radius, mould_height, chunk_steps)
-        position, growth, stress, ratio, fire_steps, converged = relaxer.relax_to_stress(
+        position, growth, stress, ratio, fire_steps, converged, jump = relaxer.relax_to_stress(
             position,
             float(growth),
             target_stress,
@@ -691,6 +873,7 @@ def compact(
             least_contacts=4 if friction_coefficient == 0.0 else 2,
         ),
         seed=seed,
+        stress_jump=jump,
     )
 
 
