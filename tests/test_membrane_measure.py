@@ -4,11 +4,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import tolerance
 
 from membrax.membrane import energies
 from membrax.membrane import measure as mm
 from membrax.membrane.coupled import platen_reaction
-from membrax.membrane.mesh import cylinder_mesh, flat_mesh
+from membrax.membrane.mesh import cylinder_mesh, enclosed_volume, flat_mesh
 
 # jitted once: eager dispatch of these many small ops is slower than one compilation
 distance_to_triangle = jax.jit(mm.point_triangle_distance)
@@ -351,3 +352,159 @@ def test_platen_reaction_closed_cylinder_under_internal_pressure():
     # a cell pressure (outside) pushes the top platen down
     _, top_cell = platen_reaction(membrane_forces(x0, mesh, 1e6, 1e-3, pressure), mesh)
     assert float(top_cell[2]) == pytest.approx(-end_load, rel=1e-12)
+
+
+# ------------------------------------------------------------------------------ which internal stress
+
+
+def test_radial_projected_area_of_a_cylinder_and_of_an_indented_band(precision):
+    """A_r = Σ ∂V/∂x_i · r̂_i against two hand values and the cell pressure's radial resultant.
+
+    - Nodes all at radius R: scaling x and y by (1 + ε) scales V by (1 + ε)², so Σ ∂V/∂x_i · r̂_i R = 2V
+      and A_r = 2V/R exactly (a faceted cylinder: 2 × polygon area / R × H, → 2π R H as it refines);
+    - the nodal pressure forces are −p ∂V/∂x, so their inward radial resultant is p A_r to round-off, on
+      the cylinder and on a band indented by a wave (the surface §4.3's right cylinder does not see);
+    - pressing the odd rows in by up to 2a lowers A_r (the surface's mean radius falls), by less than 2a/R.
+    Under jit and vmap (two radii).
+    """
+    radius, height, pressure = 0.1, 0.2, 1e4
+    dtype = jnp.result_type(float)
+    mesh = cylinder_mesh(radius, height, 0.01, dtype=dtype)
+    x0 = mesh.reference_position
+    ring = x0[mesh.bottom_ring]
+    area = jax.jit(mm.radial_projected_area)(x0, mesh, ring)
+    volume = float(enclosed_volume(x0, mesh))
+    tol = 10 * tolerance(precision)
+    assert float(area) == pytest.approx(2.0 * volume / radius, rel=tol)
+    n = mesh.bottom_ring.shape[0]
+    assert float(area) == pytest.approx(n * radius * np.sin(2.0 * np.pi / n) * height, rel=1e-3)
+    assert abs(float(area) / (2.0 * np.pi * radius * height) - 1.0) < 2.0 * (np.pi / n) ** 2 / 3.0
+
+    def pressure_resultant(position):
+        force = -jax.grad(energies.pressure_energy)(position, mesh, pressure)
+        return -jnp.sum(mm.radial_components(force, position, ring))
+
+    angle = np.arctan2(np.asarray(x0[:, 1]), np.asarray(x0[:, 0]))
+    rows = np.arange(x0.shape[0]) // n
+    wave = np.where((rows % 2 == 1), 3e-3 * (1.0 + np.cos(7.0 * angle)), 0.0)
+    inward = -np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)
+    indented = x0 + jnp.asarray(wave[:, None] * inward, dtype)
+    for position in (x0, indented):
+        projected = mm.radial_projected_area(position, mesh, ring)
+        assert float(pressure_resultant(position)) == pytest.approx(pressure * float(projected), rel=tol)
+    indented_area = float(mm.radial_projected_area(indented, mesh, ring))
+    assert indented_area < float(area)
+    assert indented_area > float(area) * (1.0 - 2 * 3e-3 / radius)
+    # vmap over two radii: A_r = 2V/R for each
+    scales = jnp.asarray([1.0, 1.5], dtype)
+    stacked = x0[None] * jnp.stack([scales, scales, jnp.ones_like(scales)], axis=1)[:, None, :]
+    areas = jax.vmap(mm.radial_projected_area, in_axes=(0, None, 0))(
+        stacked, mesh, stacked[:, mesh.bottom_ring]
+    )
+    np.testing.assert_allclose(np.asarray(areas), float(area) * np.asarray(scales), rtol=tol)
+
+
+def _ring_of_four(dtype, node_push=3.0, platen_push=5.0, thickness=4e-3):
+    """A hand-built static case: four spheres of radius R in a ring (centres at a = R√2, neighbours touching),
+    between two platens at z = ±R, each pressed inward by one membrane node at radius a + R + t_m/2.
+
+    Each sphere is in equilibrium: the node's inward f is balanced by its two neighbours' contacts at ±45°,
+    N = f/√2 each; each platen pushes each sphere with F along z. Returns the forces as
+    :func:`membrane_love_weber_stress` reads them and the geometry.
+    """
+    from membrax.spheres.integrate import Forces, make_particles
+
+    radius = 0.0125
+    a = radius * np.sqrt(2.0)
+    angles = np.arange(4) * np.pi / 2.0
+    outward = np.stack([np.cos(angles), np.sin(angles), np.zeros(4)], axis=1)
+    centres = a * outward
+    pairs = [(0, 1), (1, 2), (2, 3), (0, 3)]
+    normal = node_push / np.sqrt(2.0)
+    branch = np.array([centres[j] - centres[i] for i, j in pairs])  # x_j − x_i, length 2R
+    pair_force = normal * branch / np.linalg.norm(branch, axis=1)[:, None]  # on j from i: compression
+    wall_force = np.zeros((4, 2, 3))
+    wall_force[:, 0, 2], wall_force[:, 1, 2] = platen_push, -platen_push  # bottom pushes up, top down
+    wall_arm = np.zeros((4, 2, 3))
+    wall_arm[:, 0, 2], wall_arm[:, 1, 2] = -radius, radius
+    reach = radius + 0.5 * thickness
+    slot_force = (node_push * outward)[:, None, :]  # of each sphere on its node, (n_nodes = 4, K = 1, 3)
+    slot_branch = (reach * outward)[:, None, :]
+    arr = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    forces = Forces(
+        force=arr(np.zeros((4, 3))),
+        torque=arr(np.zeros((4, 3))),
+        pair_spring=arr(np.zeros((4, 3))),
+        wall_spring=arr(np.zeros((4, 2, 3))),
+        pair_force=arr(pair_force),
+        pair_branch=arr(branch),
+        pair_normal_force=arr(np.full(4, normal)),
+        wall_force=arr(wall_force),
+        wall_arm=arr(wall_arm),
+        wall_normal_force=arr(np.full((4, 2), platen_push)),
+        wall_total_force=arr(np.array([[4 * platen_push, 4 * platen_push]])),
+        wall_contacts=jnp.asarray([[4, 4]], jnp.int32),
+    )
+    particles = make_particles(arr(np.full(4, radius)), 2650.0)
+    geometry = dict(radius=radius, a=a, reach=reach, centres=arr(centres), outward=outward)
+    return forces, arr(slot_force), arr(slot_branch), particles, geometry
+
+
+def test_love_weber_and_section_4_3_stresses_of_a_hand_built_static_ring(precision):
+    """The §4.3, received and Love–Weber stresses of :func:`_ring_of_four` against hand values.
+
+    Hand values (f the node push, F each platen's push on each sphere, R, a = R√2, r_c = a + R + t_m/2 the
+    nodes' radius, H = 2R, V a chosen volume, A the platen area):
+    - Love–Weber: σ_zz V = 4 spheres × 2 platens × F R; σ_xx V = pairs 4 N (2R)(1/2) + nodes 2 f (R + t_m/2)
+      = 2 f r_c, the boundary sum Σ f_r r_c / 2 (equilibrium), so σ_r = 2 f r_c / V;
+    - §4.3: the membrane's inward radial force on the spheres is 4f, σ3 = 4f / (2√(πA) H);
+    - so σ3_LW / σ3_§4.3 = r_c √(πA) H / V: with V = π r_c² H (the volume inside the nodes) it is √(A/π)/r_c,
+      R_A/r̄_c: Love–Weber over the nodes' own volume and §4.3 over a cylinder of the platen's area differ by
+      the ratio of the two radii alone.
+    """
+    dtype = jnp.result_type(float)
+    push, platen = 3.0, 5.0
+    forces, slot_force, slot_branch, particles, g = _ring_of_four(dtype, push, platen)
+    reach_radius = g["a"] + g["reach"]
+    height = 2.0 * g["radius"]
+    volume = np.pi * reach_radius**2 * height
+    pair_member = jnp.zeros(4, jnp.int32)
+    stress = jax.jit(mm.membrane_love_weber_stress)(
+        forces, slot_force, slot_branch, particles, pair_member, jnp.asarray([volume], dtype)
+    )
+    axial, radial = (float(x[0]) for x in mm.principal_axisymmetric(stress))
+    tol = 10 * tolerance(precision)
+    assert axial == pytest.approx(8.0 * platen * g["radius"] / volume, rel=tol)
+    assert radial == pytest.approx(2.0 * push * reach_radius / volume, rel=tol)
+    assert float(stress[0, 0, 1]) == pytest.approx(0.0, abs=tol * radial)
+    # §4.3: the membrane's force on the spheres is −f r̂ at each; the ring of nodes fixes the axis at 0
+    sphere_force = -push * jnp.asarray(g["outward"], dtype)
+    ring = jnp.asarray(reach_radius * g["outward"], dtype)
+    radial_force = float(mm.membrane_radial_force(sphere_force, g["centres"], ring))
+    assert radial_force == pytest.approx(4.0 * push, rel=tol)
+    platen_area = np.pi * (g["a"] + g["radius"]) ** 2
+    area, _, internal_axial, internal_radial = mm.right_cylinder_stresses(
+        4.0 * platen, 4.0 * platen, radial_force, height, volume, height, volume, platen_area
+    )
+    assert float(area) == pytest.approx(platen_area, rel=tol)
+    assert float(internal_axial) == pytest.approx(4.0 * platen / platen_area, rel=tol)
+    section = 4.0 * push / (2.0 * np.sqrt(np.pi * platen_area) * height)
+    assert float(internal_radial) == pytest.approx(section, rel=tol)
+    assert radial / float(internal_radial) == pytest.approx(
+        np.sqrt(platen_area / np.pi) / reach_radius, rel=tol
+    )
+    # vmap over two load levels: both stresses are linear in the forces
+    scale = jnp.asarray([1.0, 2.0], dtype)
+    scaled = jax.vmap(
+        lambda s: mm.membrane_love_weber_stress(
+            forces.set(pair_force=s * forces.pair_force, wall_force=s * forces.wall_force),
+            s * slot_force,
+            slot_branch,
+            particles,
+            pair_member,
+            jnp.asarray([volume], dtype),
+        )
+    )(scale)
+    np.testing.assert_allclose(
+        np.asarray(scaled[1]), 2.0 * np.asarray(scaled[0]), rtol=tol, atol=tol * radial
+    )

@@ -53,8 +53,19 @@ A = A₀ (1 − ε_v)/(1 − ε_a):
   spheres' load over the spheres' share of the area would give the same σ3. (For a regular octagon under
   uniform pressure the cylinder of equal area has a lateral area within 0.11 % of ∮ n·r̂ ds H, so the
   octagonal specimen needs no shape factor.)
+- received radial (``received_radial_stress``): the same radial load, spheres and clamps, over the radially
+  projected area of the membrane's mid-surface, A_r = Σ_nodes (∂V_mid/∂x_i)·r̂_i = ∮ n·r̂ dA
+  (:func:`radial_projected_area`), the area on which the cell pressure's radial resultant is exactly σc A_r
+  (the nodal pressure forces are −σc ∂V_mid/∂x). A membrane that keeps none of the pressure passes σc A_r to
+  the spheres and clamps, so this stress is σc exactly, whatever the shape of the indented surface; the
+  §4.3 one is then σc R̄/R_A (R̄ the mean radius of the loaded surface, R_A = √(A/π) the right cylinder's),
+  a few per cent off with no membrane stiffness at all (docs/model.md, "Which internal stress").
 - Love–Weber, with the membrane's node contacts as boundary contacts (force of the sphere on the node,
-  arm b = x_node − x_sphere).
+  arm b = x_node − x_sphere), over the inner-face volume V. In equilibrium its radial part is the
+  boundary sum Σ_c f_r,c r_c / (2V) with r_c the nodes' radii (the mid-surface), so against the §4.3 σ3 it
+  carries the factor r̄_c R_A / R_V² (R_V² = V/(πH)): moments taken at the mid-surface over the volume
+  inside the inner face; over the mid-surface's volume V_mid the same sum gives σc exactly for a membrane
+  that keeps no load (divergence theorem).
 
 The band functions (:func:`mean_radius`, :func:`normal_displacement`, :func:`indentation_field`) assume a
 band mesh from :func:`membrax.membrane.mesh.cylinder_mesh` or :func:`membrax.membrane.mesh.prism_mesh`: rows
@@ -100,8 +111,10 @@ __all__ = [
     "MembraneMeasurements",
     "hoop_strain",
     "measure_coupled",
+    "membrane_love_weber_stress",
     "membrane_radial_force",
     "radial_components",
+    "radial_projected_area",
     "right_cylinder_stresses",
 ]
 
@@ -480,6 +493,8 @@ class MembraneMeasurements:
     Stresses in Pa (compression positive), strains as fractions (compression positive), forces in N.
     ``membrane_platen_force`` is the axial force of the membrane on the top platen minus that on the
     bottom one, halved: negative when the membrane pulls the platens together (axial tension).
+    ``radial_projected_area`` (m²) and ``received_radial_stress`` need no reference state: the area is the
+    deformed mid-surface's own.
     """
 
     step: jnp.ndarray
@@ -513,6 +528,8 @@ class MembraneMeasurements:
     external_radial_stress: jnp.ndarray
     internal_axial_stress: jnp.ndarray
     internal_radial_stress: jnp.ndarray
+    radial_projected_area: jnp.ndarray
+    received_radial_stress: jnp.ndarray
 
 
 def measure_coupled(
@@ -547,12 +564,9 @@ def measure_coupled(
     walls = spheres.walls
     height = platen_separation(walls)
     volume = jnp.reshape(inner_volume(nodes.position, mesh, mp.contact_thickness), (1,))
-    membrane_dyad = jnp.sum(contact.slot_force[:, :, :, None] * contact.branch[:, :, None, :], axis=(0, 1))
-    stress = (
-        love_weber_stress(forces, particles, pair_member, volume)
-        + membrane_dyad[None] / volume[:, None, None]
+    stress = membrane_love_weber_stress(
+        forces, contact.slot_force, contact.branch, particles, pair_member, volume
     )
-    stress = 0.5 * (stress + jnp.swapaxes(stress, 1, 2))
     lw_axial, lw_radial = principal_axisymmetric(stress)
     platen_stress = 0.5 * (forces.wall_total_force[:, TOP] + forces.wall_total_force[:, BOTTOM]) / platen_area
     major = jnp.maximum(lw_axial, lw_radial)
@@ -584,6 +598,9 @@ def measure_coupled(
         -jnp.sum(radial_components(nodes.node_force[rings], nodes.position[rings], nodes.clamp_position[0])),
         (1,),
     )
+    projected_area = jnp.reshape(
+        radial_projected_area(nodes.position, mesh, nodes.clamp_position[0]), (1,)
+    ).astype(height.dtype)
     area, external_axial, internal_axial, internal_radial = right_cylinder_stresses(
         jnp.mean(ram)[None],
         jnp.mean(received)[None],
@@ -628,6 +645,8 @@ def measure_coupled(
         external_radial_stress=jnp.reshape(mp.cell_pressure, (1,)).astype(height.dtype),
         internal_axial_stress=internal_axial,
         internal_radial_stress=internal_radial,
+        radial_projected_area=projected_area,
+        received_radial_stress=(radial_force + clamp_force) / projected_area,
     )
 
 
@@ -698,6 +717,49 @@ def membrane_radial_force(sphere_force, sphere_position, ring_position):
       Scalar F_r (positive when the membrane presses the spheres inward).
     """
     return -jnp.sum(radial_components(sphere_force, sphere_position, ring_position))
+
+
+def membrane_love_weber_stress(forces, slot_force, branch, particles, pair_member, volume):
+    """Love–Weber stress (1, 3, 3) of a membrane cell's spheres, Pa, compression positive (reference §9).
+
+        σ_ij = (1/V) [Σ_pairs f_i l_j + Σ_platen contacts f_i b_j + Σ_node contacts f_i b_j], symmetrised,
+
+    f the force of a sphere on the other body (pair: of i on j, l = x_j − x_i; platen and node contacts:
+    of the sphere on the platen or node, b from the sphere's centre to the contact point, for a node the
+    node itself, on the membrane's mid-surface).
+
+    Args:
+      forces: the spheres' contact forces (:func:`membrax.spheres.integrate.compute_forces`).
+      slot_force: (n_nodes, K, 3) force of each candidate sphere on the node, N.
+      branch: (n_nodes, K, 3) x_node − x_sphere per slot, m.
+      particles: sphere properties (one specimen).
+      pair_member: (C,) member of each pair slot.
+      volume: (1,) the volume the stress is averaged over, m³.
+    """
+    membrane_dyad = jnp.sum(slot_force[:, :, :, None] * branch[:, :, None, :], axis=(0, 1))
+    stress = (
+        love_weber_stress(forces, particles, pair_member, volume)
+        + membrane_dyad[None] / volume[:, None, None]
+    )
+    return 0.5 * (stress + jnp.swapaxes(stress, 1, 2))
+
+
+def radial_projected_area(node_position, mesh, ring_position):
+    """The mid-surface's radially projected area A_r = Σ_i (∂V_mid/∂x_i)·r̂_i, m² (module docstring).
+
+    V_mid is :func:`membrax.membrane.mesh.enclosed_volume` (band and flat caps); the cell pressure's nodal
+    forces are −σc ∂V_mid/∂x (:func:`membrax.membrane.energies.pressure_energy`), so their inward radial
+    resultant is σc A_r exactly. For a smooth surface of revolution r = R(z) between the platens, A_r =
+    ∮ n·r̂ dA = ∫∫ R dθ dz (divergence theorem, ∇·r̂ = 1/r): 2π R H for a right cylinder, 2π R̄ H for an
+    indented one, R̄ the mean radius of the surface (not the radius of its volume).
+
+    Args:
+      node_position: (n_nodes, 3), m.
+      mesh: the membrane mesh.
+      ring_position: (n, 3) a clamped ring's nodes; their centroid is on the axis.
+    """
+    gradient = jax.grad(enclosed_volume)(node_position, mesh)
+    return jnp.sum(radial_components(gradient, node_position, ring_position))
 
 
 def radial_components(force, position, ring_position):
