@@ -11,6 +11,8 @@ package but its command line (``membrax fit``, ``membrax correct``).
   the paper's correlations, physically scaled; :data:`~calibrate.models.RICH` is a richer comparison.
 - :mod:`calibrate.fit`: optax fitting (Adam, then L-BFGS; float64 weighted least squares) with the
   Gauss–Newton covariance, leave-one-case-out cross-validation, and a scipy Nelder–Mead baseline.
+- :mod:`calibrate.abstention`: when the correction abstains: per region of E_m t_m/(σc D), the factor
+  toward no correction chosen on the cross-validated predictions, so it is never worse than none there.
 - :mod:`calibrate.persistence`: fitted corrections as JSON with provenance;
   :mod:`calibrate.workflow`: ``membrax fit``.
 - :mod:`calibrate.lab`: a laboratory record (CSV, units in the header) read into SI units. Every bad file

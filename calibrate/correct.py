@@ -1,7 +1,8 @@
 """Membrane corrections applied to a laboratory record: none, the classical three and the fitted one.
 
 Contract. :func:`correct_record` takes a :class:`calibrate.lab.LabRecord` (SI), the :class:`Specimen`
-(diameter after consolidation D_s, particle size D, membrane thickness t_m and modulus E_m) and a fitted
+(diameter after consolidation D_s, particle size D, membrane thickness t_m and modulus E_m; optionally
+the void ratio and the height H after consolidation) and a fitted
 correction (:class:`calibrate.persistence.Corrections`; default :func:`default_corrections`, shipped with
 the package) and returns a :class:`CorrectedRecord`: σ1, σ3 and the mobilised φ' by each method, with the
 fitted method's standard deviation, and the warnings for inputs outside the fitted range. Methods
@@ -36,6 +37,26 @@ The specimen is also checked against the packing family the correction was fitte
 ``packing_family``, :func:`family_warnings`): a correction fitted on FCC lattices alone is warned about, and
 so is a void ratio (``Specimen.solid_fraction``) outside the fitted members' range.
 
+Specimen height. The correction records the H/D_s of the specimens it was fitted on (1.28–1.67 for the
+shipped one, its moulds), below the 2–2.5 laboratories test at (ASTM D7181, BS 1377-8). A record whose
+height is not given is warned about (:func:`aspect_ratio_warnings`); one whose H/D_s lies outside is
+warned about like the other quantities and its band widened by the same 1 + δ (in logarithms), but the
+fitted column is not withheld for it. The withholding is for a model carried beyond the span of the inputs
+it reads; no model reads H/D_s, so its distance says how far an untested assumption (the extra stresses per
+unit area do not depend on the height) is carried, an uncertainty rather than an extrapolated term. And
+H/D_s spans a factor of 1.3 only, so one width in logarithms is H/D_s = 2.2: withholding there would
+withhold the correction on most standard tests, though on the paper-size random members (moulds of
+H/D_s = 2) it halved the uncorrected error (docs/calibration.md).
+
+Abstention (:mod:`calibrate.abstention`). A correction fitted with a rule carries, per region of
+E_m t_m/(σc D), a factor w in [0, 1] for each of its σ1 and σ3 corrections, chosen on the
+cross-validated predictions so that there the scaled correction erred no more than none on unseen cases.
+The record's region (of its median E_m t_m/(σc D)) gives the factors, applied to the whole record; where
+a factor is below 1 the fitted prediction and its parameter uncertainty are scaled by it, the prediction
+error in the band is the region's error of the chosen factor on unseen cases (its ``rms``), a warning says
+so, and the CSV carries the factors (``fitted_shrink_axial``, ``fitted_shrink_radial``). A correction
+without a rule never abstains.
+
 :func:`write_correction` writes the CSV and the plot (σ1, σ3, φ' side by side) atomically: a failure
 leaves no file half-written. ``membrax correct`` is :func:`correct_file`: it never writes over the record
 it reads, and writes into the working folder by default, never beside a record inside the package.
@@ -55,10 +76,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from calibrate import datasets, lab, models, persistence
+from calibrate import abstention, datasets, lab, models, persistence
 
 __all__ = [
     "METHODS",
+    "abstention_warning",
+    "aspect_ratio_warnings",
     "CorrectedRecord",
     "Specimen",
     "correct_file",
@@ -83,6 +106,13 @@ LABELS = {
 }
 #: Inputs whose fitted range a record is checked against (the dimensionless groups and the strains).
 CHECKED_INPUTS = persistence.RANGE_INPUTS
+#: The specimen's height over diameter H/D_s: checked against its fitted range when the height is given;
+#: it widens the band but does not withhold the fitted column (module docstring).
+ASPECT_RATIO = persistence.ASPECT_RATIO
+#: H/D_s outside these bounds is refused as a mistyped height (a triaxial specimen is 1-3 diameters tall).
+ASPECT_RATIO_BOUNDS = (0.5, 5.0)
+#: The height/diameter ratio laboratories test at (ASTM D7181 and BS 1377-8: 2 to 2.5).
+STANDARD_ASPECT_RATIO = (2.0, 2.5)
 DEFAULT_MODEL_FILE = "default_corrections.json"
 EXAMPLE_RECORD_FILE = "example_record.csv"
 #: The example values the specimen's errors suggest (a 150 mm ballast test, the paper's latex).
@@ -91,6 +121,7 @@ SPECIMEN_EXAMPLES = {
     "particle_size_mm": 20.0,
     "membrane_thickness_mm": 2.0,
     "membrane_modulus_kpa": 1400.0,
+    "specimen_height_mm": 300.0,
 }
 #: A membrane modulus below this many kPa is refused as MPa written as kPa (latex is about 1400 kPa).
 SMALLEST_MEMBRANE_MODULUS_KPA = 10.0
@@ -103,11 +134,12 @@ QUANTITY_WORDS = {
     "indentation_ratio": ("membrane indentation / particle size (Molenkamp & Luger)", "α/D", 1.0, ""),
     "hoop_ratio": ("hoop stress / cell pressure (Henkel & Gilbert)", "2E_m t_m ε_θ/(D_s σc)", 1.0, ""),
     "strain_ratio_change": ("radial / axial strain increment", "dε_r/dε_a", 1.0, ""),
+    ASPECT_RATIO: ("specimen height / diameter", "H/D_s", 1.0, ""),
 }
 #: Quantities whose distance outside the fitted range is counted in logarithms: positive ratios of sizes
-#: and stiffnesses, whose fitted ranges span factors (1.75 for D/D_s to 100 for E_m t_m/(σc D)). The
-#: strains and the hoop ratio, which start at or cross zero, are counted linearly.
-LOG_DISTANCE = ("thickness_ratio", "stiffness_ratio", "size_ratio", "indentation_ratio")
+#: and stiffnesses, whose fitted ranges span factors (1.3 for H/D_s, 1.75 for D/D_s to 67 for
+#: E_m t_m/(σc D)). The strains and the hoop ratio, which start at or cross zero, are counted linearly.
+LOG_DISTANCE = ("thickness_ratio", "stiffness_ratio", "size_ratio", "indentation_ratio", ASPECT_RATIO)
 #: Beyond this distance outside the fitted range (in the range's widths) the fitted correction is withheld.
 MAX_EXTRAPOLATION = 1.0
 
@@ -122,6 +154,8 @@ class Specimen(NamedTuple):
       membrane_modulus: E_m, > 0.
       solid_fraction: the specimen's solid fraction 1/(1 + e) after consolidation, or None when not
         known (it is checked against the correction's packing family, :func:`family_warnings`).
+      height: H after consolidation, or None when not known (H/D_s is checked against the heights the
+        correction was fitted on, :func:`aspect_ratio_warnings`).
     """
 
     specimen_diameter: float
@@ -129,6 +163,7 @@ class Specimen(NamedTuple):
     membrane_thickness: float
     membrane_modulus: float
     solid_fraction: float | None = None
+    height: float | None = None
 
     @classmethod
     def from_mm_kpa(
@@ -138,17 +173,19 @@ class Specimen(NamedTuple):
         membrane_thickness_mm,
         membrane_modulus_kpa,
         void_ratio=None,
+        specimen_height_mm=None,
     ):
         """A specimen from the user-facing units, each checked to be a positive finite number.
 
         ``void_ratio`` e (optional, the laboratory's measure of density) is stored as the solid fraction
-        1/(1 + e).
+        1/(1 + e); ``specimen_height_mm`` (optional) as the height in m.
 
         Raises:
           ValueError: a value that is not a positive finite number, a particle size not below the specimen
             diameter, a membrane thicker than a quarter of the diameter, a modulus below
-            :data:`SMALLEST_MEMBRANE_MODULUS_KPA` (MPa written as kPa), or a void ratio outside 0.1–3 (a
-            porosity or a percentage given for it), each named with an example.
+            :data:`SMALLEST_MEMBRANE_MODULUS_KPA` (MPa written as kPa), a void ratio outside 0.1–3 (a
+            porosity or a percentage given for it), or a height outside :data:`ASPECT_RATIO_BOUNDS`
+            diameters (a radius, or cm, given for it), each named with an example.
         """
         if void_ratio is not None and not (
             isinstance(void_ratio, numbers.Real) and np.isfinite(void_ratio) and 0.1 <= void_ratio <= 3.0
@@ -163,6 +200,8 @@ class Specimen(NamedTuple):
             "membrane_thickness_mm": membrane_thickness_mm,
             "membrane_modulus_kpa": membrane_modulus_kpa,
         }
+        if specimen_height_mm is not None:
+            values["specimen_height_mm"] = specimen_height_mm
         for name, value in values.items():
             if not (isinstance(value, numbers.Real) and np.isfinite(value) and value > 0):
                 raise ValueError(
@@ -184,12 +223,24 @@ class Specimen(NamedTuple):
                 f"membrane_modulus_kpa = {membrane_modulus_kpa:g}: no membrane is that soft; is it in MPa? "
                 f"Give it in kPa (latex is about 1400 kPa: --membrane-modulus-kpa 1400)."
             )
+        if specimen_height_mm is not None:
+            ratio = specimen_height_mm / specimen_diameter_mm
+            low, high = ASPECT_RATIO_BOUNDS
+            if not low <= ratio <= high:
+                raise ValueError(
+                    f"specimen_height_mm = {specimen_height_mm:g} is {ratio:.3g} × specimen_diameter_mm = "
+                    f"{specimen_diameter_mm:g}; a triaxial specimen is {low:g} to {high:g} diameters tall "
+                    f"(ASTM D7181 and BS 1377-8: {STANDARD_ASPECT_RATIO[0]:g}-{STANDARD_ASPECT_RATIO[1]:g}). "
+                    "Give the height after consolidation in mm, the same unit as the diameter "
+                    f"(e.g. --specimen-height-mm {STANDARD_ASPECT_RATIO[0] * specimen_diameter_mm:g})."
+                )
         return cls(
             1e-3 * specimen_diameter_mm,
             1e-3 * particle_size_mm,
             1e-3 * membrane_thickness_mm,
             1e3 * membrane_modulus_kpa,
             None if void_ratio is None else 1.0 / (1.0 + float(void_ratio)),
+            None if specimen_height_mm is None else 1e-3 * specimen_height_mm,
         )
 
 
@@ -204,7 +255,9 @@ class CorrectedRecord(NamedTuple):
       warnings: messages for inputs outside the fitted range.
       extrapolation: δ per row, the largest distance outside the fitted range
         (:func:`extrapolation_distances`); the band is widened by 1 + δ and the fitted method withheld
-        (NaN) where δ > :data:`MAX_EXTRAPOLATION`.
+        (NaN) where δ > :data:`MAX_EXTRAPOLATION` (H/D_s aside: it widens, never withholds).
+      shrink: (w for σ1, w for σ3), the factors the abstention rule scaled the fitted correction by
+        (:mod:`calibrate.abstention`; 1 without a rule).
     """
 
     record: object
@@ -215,6 +268,7 @@ class CorrectedRecord(NamedTuple):
     inputs: dict
     warnings: tuple
     extrapolation: np.ndarray
+    shrink: tuple = (1.0, 1.0)
 
 
 def default_corrections() -> persistence.Corrections:
@@ -246,15 +300,17 @@ def extrapolation_distances(inputs: dict, input_ranges: dict) -> dict:
     width gives infinity outside it.
 
     Args:
-      inputs: the record's input columns (:func:`calibrate.datasets.measured_inputs`).
+      inputs: the record's input columns (:func:`calibrate.datasets.measured_inputs`), and
+        :data:`ASPECT_RATIO` when the specimen's height is known.
       input_ranges: {name: (low, high)} of the fitted table (:class:`calibrate.persistence.Corrections`).
 
     Returns:
-      {name: float64 array over the rows} for each of :data:`CHECKED_INPUTS` with a known range.
+      {name: float64 array over the rows} for each of :data:`CHECKED_INPUTS` and :data:`ASPECT_RATIO` in
+      ``inputs`` with a known range.
     """
     distances = {}
-    for name in CHECKED_INPUTS:
-        if name not in input_ranges or None in input_ranges[name]:
+    for name in (*CHECKED_INPUTS, ASPECT_RATIO):
+        if name not in inputs or name not in input_ranges or None in input_ranges[name]:
             continue
         low, high = (float(v) for v in input_ranges[name])
         values = np.asarray(inputs[name], dtype=np.float64)
@@ -331,6 +387,47 @@ def family_warnings(specimen: Specimen, packing_family: dict | None) -> list[str
     return messages
 
 
+def aspect_ratio_warnings(specimen: Specimen, input_ranges: dict) -> list[str]:
+    """A message when the specimen's height is not given though the correction records its fitted H/D_s.
+
+    A height that is given is checked like the other quantities (:func:`range_warnings`); a correction
+    written before heights were recorded gives no message either way (nothing to check against).
+    """
+    span = input_ranges.get(ASPECT_RATIO)
+    if specimen.height is not None or not span or None in span:
+        return []
+    low, high = STANDARD_ASPECT_RATIO
+    return [
+        f"specimen height not given (--specimen-height-mm): the correction was fitted on specimens of "
+        f"height / diameter H/D_s = {span[0]:.3g} to {span[1]:.3g}, and laboratories test at H/D {low:g} to "
+        f"{high:g} (ASTM D7181, BS 1377-8), outside it. Give the height after consolidation to have it "
+        "checked and the band widened for it."
+    ]
+
+
+def abstention_warning(stiffness_ratio: float, region: dict, shrink: tuple) -> str:
+    """The message for a record whose fitted correction the abstention rule shrinks (module docstring)."""
+    parts = []
+    for symbol, target, weight in (("σ1", "axial", shrink[0]), ("σ3", "radial", shrink[1])):
+        if weight >= 1.0:
+            continue
+        scores = region[target]
+        action = "withdrawn (×0)" if weight == 0.0 else f"scaled by {weight:.2f}"
+        parts.append(
+            f"its {symbol} correction is {action}: on leave-one-case-out cross-validation of the "
+            f"{region['cases']} simulated tests there, its error in {symbol}/σc was "
+            f"{scores['fitted_rms']:.3f} RMS, against {scores['none_rms']:.3f} for no correction and "
+            f"{scores['held_out_rms']:.3f} shrunk by the least-squares factor {scores['shrinkage']:.2f}; the "
+            f"band takes the error of what is given, {scores['rms']:.3f}"
+        )
+    where = f"E_m t_m/(σc D) = {stiffness_ratio:.3g} lies in {region['low']:g} to {region['high']:g}"
+    return (
+        f"the fitted correction abstains in part: {where}, where {'; '.join(parts)}. The factors are in "
+        "the CSV (fitted_shrink_axial, fitted_shrink_radial); the rule is in docs/calibration.md, "
+        "'When the correction abstains'."
+    )
+
+
 def strain_ratio_window(axial_strain) -> float:
     """The strain window of dε_r/dε_a for a record: the sweeps' 0.5 %, or 4 readings where they are sparser.
 
@@ -359,7 +456,7 @@ def _corrections_fn(model_name: str, names: tuple):
 
     angle = theory.mobilised_friction_angle_deg  # unchecked on tracers
 
-    def corrections(theta, covariance, inputs, axial, volumetric, measured, cell, membrane, rms):
+    def corrections(theta, covariance, inputs, axial, volumetric, measured, cell, membrane, rms, shrink):
         modulus, thickness, diameter = membrane[0], membrane[1], membrane[2]
         classical = {
             "astm": theory.astm_shell_correction(modulus, thickness, diameter, axial),
@@ -374,7 +471,8 @@ def _corrections_fn(model_name: str, names: tuple):
             sigma_1[name], sigma_3[name] = theory.apply_membrane_correction(measured, cell, correction)
 
         def predict(flat):
-            return jnp.stack(model.predict(dict(zip(names, flat, strict=True)), inputs))
+            # The abstention rule's factors scale the prediction, and with it its parameter uncertainty.
+            return shrink[:, None] * jnp.stack(model.predict(dict(zip(names, flat, strict=True)), inputs))
 
         prediction = predict(theta)  # (2, rows): Δσ_a/σc, Δσ_r/σc
         jacobian = jax.jacfwd(predict)(theta)  # (2, rows, p)
@@ -427,7 +525,16 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
     model = corrections.model
     # Where the record's own strain-ratio change is undefined (NaN), so is the fitted correction.
     undefined = ~np.all([np.isfinite(inputs[name]) for name in model.inputs], axis=0)
-    axial_rms, radial_rms = _prediction_rms(corrections)
+    rms = np.asarray(_prediction_rms(corrections), dtype=np.float64)
+    # The abstention rule, per record: where it scales a stress's correction down, that stress's prediction
+    # error is the region's error of the chosen factor on unseen cases (calibrate.abstention).
+    shrink_axial, shrink_radial, region = abstention.record_shrink(
+        corrections.abstention, inputs["stiffness_ratio"]
+    )
+    shrink = np.array([shrink_axial, shrink_radial])
+    if region is not None:
+        chosen = np.array([region[target]["rms"] for target in abstention.TARGETS])
+        rms = np.where(shrink < 1.0, chosen, rms)
     # Thread-local float64 for the corrections (the process's setting is left alone); one compiled call.
     with jax.enable_x64(True), jax.numpy_dtype_promotion("standard"):
         arrays = _corrections_fn(model.name, tuple(corrections.names))(
@@ -439,30 +546,59 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
             jnp.asarray(measured),
             jnp.asarray(cell),
             jnp.asarray([specimen.membrane_modulus, specimen.membrane_thickness, specimen.specimen_diameter]),
-            jnp.asarray([axial_rms, radial_rms]),
+            jnp.asarray(rms),
+            jnp.asarray(shrink),
         )
     arrays = jax.tree_util.tree_map(lambda a: np.asarray(a, dtype=np.float64), arrays)
     sigma_1, sigma_3, friction, std = arrays
     # Outside the fitted range the band widens by 1 + δ; beyond MAX_EXTRAPOLATION the method is withheld.
-    distances = extrapolation_distances(inputs, corrections.input_ranges)
-    extrapolation = np.max(list(distances.values()), axis=0) if distances else np.zeros(cell.shape)
-    withheld = undefined | (extrapolation > MAX_EXTRAPOLATION)
+    # H/D_s, which no model reads, widens the band but does not withhold (module docstring).
+    checked = dict(inputs)
+    if specimen.height is not None:
+        checked[ASPECT_RATIO] = np.full(cell.shape, specimen.height / specimen.specimen_diameter)
+    distances = extrapolation_distances(checked, corrections.input_ranges)
+    zero = np.zeros(cell.shape)
+    extrapolation = np.max([zero, *distances.values()], axis=0)
+    model_extrapolation = np.max([zero, *(d for n, d in distances.items() if n != ASPECT_RATIO)], axis=0)
+    withheld = undefined | (model_extrapolation > MAX_EXTRAPOLATION)
     for values in (sigma_1, sigma_3, friction):
         values["fitted"] = np.where(withheld, np.nan, values["fitted"])
     std = {name: np.where(withheld, np.nan, value * (1.0 + extrapolation)) for name, value in std.items()}
-    messages = range_warnings(inputs, corrections.input_ranges, distances)
+    messages = range_warnings(checked, corrections.input_ranges, distances)
     if messages:
-        messages.append(extrapolation_summary(extrapolation, undefined))
+        messages.append(extrapolation_summary(extrapolation, undefined, model_extrapolation))
+    messages += aspect_ratio_warnings(specimen, corrections.input_ranges)
     messages += family_warnings(specimen, corrections.packing_family)
+    if region is not None and np.any(shrink < 1.0) and not np.all(withheld):
+        value = float(np.median(inputs["stiffness_ratio"][np.isfinite(inputs["stiffness_ratio"])]))
+        messages.append(abstention_warning(value, region, (shrink_axial, shrink_radial)))
     for message in messages:
         warnings.warn(message, stacklevel=2)
-    return CorrectedRecord(record, sigma_1, sigma_3, friction, std, inputs, tuple(messages), extrapolation)
+    return CorrectedRecord(
+        record,
+        sigma_1,
+        sigma_3,
+        friction,
+        std,
+        inputs,
+        tuple(messages),
+        extrapolation,
+        (shrink_axial, shrink_radial),
+    )
 
 
-def extrapolation_summary(extrapolation, undefined) -> str:
-    """The rule applied outside the fitted range, and what it did to this record (module docstring)."""
+def extrapolation_summary(extrapolation, undefined, model_extrapolation=None) -> str:
+    """The rule applied outside the fitted range, and what it did to this record (module docstring).
+
+    Args:
+      extrapolation: δ per row over every checked quantity (it widens the band).
+      undefined: rows where the fitted correction is undefined.
+      model_extrapolation: δ per row over the quantities that withhold the fitted correction (all but
+        H/D_s); default ``extrapolation``.
+    """
+    model_extrapolation = extrapolation if model_extrapolation is None else model_extrapolation
     largest = float(np.max(extrapolation))
-    beyond = int(np.sum((extrapolation > MAX_EXTRAPOLATION) & ~undefined))
+    beyond = int(np.sum((model_extrapolation > MAX_EXTRAPOLATION) & ~undefined))
     text = (
         "outside its fitted range the fitted correction's band is widened by the factor 1 + δ, δ being the "
         "largest distance outside the range in units of its width"
@@ -474,7 +610,10 @@ def extrapolation_summary(extrapolation, undefined) -> str:
             "given; a correction fitted on sweeps that cover this test (membrax sweep, then membrax fit) "
             "removes the warning."
         )
-    return f"{text}: up to ×{1.0 + largest:.2f} here (withheld beyond δ = {MAX_EXTRAPOLATION:g})."
+    return (
+        f"{text}: up to ×{1.0 + largest:.2f} here (withheld beyond δ = {MAX_EXTRAPOLATION:g}, except for "
+        "H/D_s, which no model reads: it only widens the band)."
+    )
 
 
 def _csv_text(result: CorrectedRecord, header_lines) -> str:
@@ -493,6 +632,9 @@ def _csv_text(result: CorrectedRecord, header_lines) -> str:
     columns["sigma_3_fitted_std [kPa]"] = 1e-3 * result.std["sigma_3"]
     columns["friction_angle_fitted_std [deg]"] = result.std["friction_angle"]
     columns["fitted_extrapolation [-]"] = result.extrapolation
+    # Per record, repeated on each row so that every reading carries what was done to it.
+    columns["fitted_shrink_axial [-]"] = np.full(record.axial_strain.shape, result.shrink[0])
+    columns["fitted_shrink_radial [-]"] = np.full(record.axial_strain.shape, result.shrink[1])
     out = io.StringIO()
     for line in header_lines:
         out.write(f"# {line}\n")
@@ -537,6 +679,8 @@ def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
         labels["fitted"] += ": withheld, outside its fitted range"
     elif np.any(result.extrapolation > 0.0):
         labels["fitted"] += ", band widened outside its fitted range"
+    if min(result.shrink) < 1.0 and not np.all(np.isnan(result.friction_angle["fitted"])):
+        labels["fitted"] += f", abstains in part (σ1 ×{result.shrink[0]:.2f}, σ3 ×{result.shrink[1]:.2f})"
     truth = None
     if reference is not None:
         s1, s3 = (np.asarray(v, dtype=np.float64) for v in reference)
@@ -654,10 +798,12 @@ def correct_file(
             ""
             if specimen.solid_fraction is None
             else f", void ratio {1.0 / specimen.solid_fraction - 1.0:.3g}"
-        ),
+        )
+        + ("" if specimen.height is None else f", specimen height {1e3 * specimen.height:g} mm"),
         f"fitted model {corrections.model.name!r} from {model_path or 'the shipped default'} "
         f"(membrax {corrections.provenance.get('membrax_version', '?')}); std: one standard deviation, "
-        "widened by 1 + fitted_extrapolation outside the fitted range",
+        "widened by 1 + fitted_extrapolation outside the fitted range; fitted_shrink_axial/_radial: the "
+        "factors the abstention rule scaled the fitted sigma_1/sigma_3 corrections by (1: kept)",
         "conventions: compression positive; strains in %, stresses in kPa",
         *(f"source: {line}" for line in record.comments),
         *(f"read: {line}" for line in record.notes),

@@ -49,6 +49,7 @@ from membrax.config import characteristic_size_mm, compaction_state
 __all__ = [
     "INPUTS",
     "FittingTable",
+    "aspect_ratios",
     "concatenate",
     "fitting_table",
     "grading_words",
@@ -254,6 +255,33 @@ def packing_family(sweeps) -> dict:
         "gradings": sorted(gradings),
         "solid_fraction": [min(fractions), max(fractions)] if fractions else None,
     }
+
+
+def aspect_ratios(sweeps) -> list[float]:
+    """Each member's height over diameter H/D_s at the start of shearing, over ``sweeps``.
+
+    No model reads H/D_s; a correction records the range it was fitted on so that ``membrax correct
+    --specimen-height-mm`` can check a laboratory specimen against it. H is the record ``height`` at the
+    first shearing record (over 1 − ε_a there, which is 0), D_s = √(4A₀/π) of the platen area as in
+    :func:`fitting_table`; a sweep without the height record gives a random specimen's mould,
+    ``specimen_height_mm``/``specimen_diameter_mm`` (the compacted specimen comes out within a few per cent
+    of it), and an FCC one nothing.
+
+    Args:
+      sweeps: sweep datasets (``sweep.nc``, :func:`sweep_members`).
+
+    Returns:
+      H/D_s per member with records, in the order of the sweeps and their members.
+    """
+    ratios = []
+    for dataset in sweeps:
+        for config, rows in sweep_members(dataset):
+            if "height" in rows and "platen_area" in rows:
+                height = float(rows["height"][0]) / (1.0 - float(rows["axial_strain"][0]))
+                ratios.append(height / math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi))
+            elif config.get("packing", "fcc") == "random":
+                ratios.append(float(config["specimen_height_mm"]) / float(config["specimen_diameter_mm"]))
+    return ratios
 
 
 def fitting_table(dataset) -> FittingTable:

@@ -11,9 +11,11 @@ It returns a :class:`FitResult` with the parameters, their covariance from the G
 optimum, C = s² (JᵀWJ)⁻¹ with s² = RSS_w / (n − p) (n the weighted residuals, 2 per row, p the parameters;
 J = ∂residuals/∂θ by ``jax.jacfwd``), and the number of loss evaluations each stage took.
 
-:func:`cross_validate` refits with each case (member) left out and scores the left-out case: the RMS of its
-residuals in Δσ/σc. :func:`nelder_mead_baseline` minimises the same loss with scipy's gradient-free
-Nelder–Mead, for the evaluation count it needs.
+:func:`cross_validated_predictions` refits with each case (member) left out and predicts the left-out
+case; :func:`cross_validate` scores each case by the RMS of those predictions' residuals in Δσ/σc (and
+:mod:`calibrate.abstention` turns them into the rule of when the correction abstains).
+:func:`nelder_mead_baseline` minimises the same loss with scipy's gradient-free Nelder–Mead, for the
+evaluation count it needs.
 
 Precision: the fit runs inside ``jax.enable_x64(True)`` and standard dtype promotion (both thread-local),
 so the process's settings are left alone.
@@ -29,7 +31,14 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
-__all__ = ["FitResult", "cross_validate", "fit", "nelder_mead_baseline", "predict"]
+__all__ = [
+    "FitResult",
+    "cross_validate",
+    "cross_validated_predictions",
+    "fit",
+    "nelder_mead_baseline",
+    "predict",
+]
 
 
 class FitResult(NamedTuple):
@@ -181,19 +190,48 @@ def predict(model, params: dict, table):
         return np.asarray(axial), np.asarray(radial)
 
 
-def cross_validate(model, table, **fit_options) -> dict:
+def cross_validated_predictions(model, table, groups=None, **fit_options):
+    """(Δσ_a/σc, Δσ_r/σc) of every row, each predicted by a fit that left the row's group out.
+
+    Args:
+      model: a :class:`calibrate.models.CorrectionModel`.
+      table: a :class:`calibrate.datasets.FittingTable`.
+      groups: the label of each row's group (default ``table.case``: leave-one-case-out).
+      **fit_options: passed to :func:`fit`.
+
+    Returns:
+      two float64 arrays over the rows (NaN where a row's inputs are).
+    """
+    groups = table.case if groups is None else np.asarray(groups)
+    axial = np.full(table.num_rows, np.nan)
+    radial = np.full(table.num_rows, np.nan)
+    for group in np.unique(groups):
+        held = groups == group
+        result = fit(model, table.select(~held), **fit_options)
+        axial[held], radial[held] = predict(model, result.params, table.select(held))
+    return axial, radial
+
+
+def cross_validate(model, table, predictions=None, **fit_options) -> dict:
     """Leave-one-case-out: for each case, the RMS error in Δσ/σc (axial and radial) of a fit without it.
+
+    Args:
+      model: a :class:`calibrate.models.CorrectionModel`.
+      table: a :class:`calibrate.datasets.FittingTable`.
+      predictions: :func:`cross_validated_predictions` of ``model`` on ``table`` when already computed.
+      **fit_options: passed to :func:`fit`.
 
     Returns:
       {case: {"axial": rms, "radial": rms}}.
     """
+    if predictions is None:
+        predictions = cross_validated_predictions(model, table, **fit_options)
+    axial, radial = predictions
     scores = {}
     for case in np.unique(table.case):
         held = table.case == case
-        result = fit(model, table.select(~held), **fit_options)
-        axial, radial = predict(model, result.params, table.select(held))
-        axial_error = axial - table.axial_target[held]
-        radial_error = radial - table.radial_target[held]
+        axial_error = axial[held] - table.axial_target[held]
+        radial_error = radial[held] - table.radial_target[held]
         scores[int(case)] = {
             "axial": float(np.sqrt(np.nanmean(axial_error**2))),
             "radial": float(np.sqrt(np.nanmean(radial_error**2))),

@@ -23,7 +23,14 @@ paper-size member costs about 2.5 min on 2 cores. FCC: 6, 8 and 10 spheres acros
 and 1/10 (D_s = √(4A/π) of the platen area), heights H/D_s ≈ 1.25; its held-out members (σc 25 and 70 kPa,
 t_m 2 and 4 mm, E_m 1000 and 2000 kPa) are 7 spheres across (D/D_s = 1/7).
 
-Run: ``python -m calibrate.grid OUT [--design random|random_held_out|protocol_check|fcc|fcc_held_out]``
+At a laboratory's geometry. :data:`LAB_CALIBRATION` (``--design lab``) is the next training set: moulds of
+H/D 2 and 2.5, 150–300 mm, the paper's protocol, dense, medium and loose states, equal, ballast and narrow
+gradings, two seeds per group (150 members); :data:`LAB_HELD_OUT` (``--design lab_held_out``, 18 members)
+its held-out members, off its σc and t_m grid lines and seeds. Run it as a campaign (``--scheduler local``):
+it is resumable, group by group and member by member.
+
+Run: ``python -m calibrate.grid OUT [--design random|random_held_out|protocol_check|fcc|fcc_held_out|lab|
+lab_held_out]``
 (one JAX CPU device per core, as ``membrax sweep``), or ``python -m calibrate.grid OUT --scheduler
 local|ADDRESS`` to send every group's members to Dask workers at once (:mod:`membrax.campaign`).
 """
@@ -42,7 +49,11 @@ __all__ = [
     "RANDOM_CALIBRATION",
     "RANDOM_HELD_OUT",
     "PROTOCOL_CHECK",
+    "LAB_CALIBRATION",
+    "LAB_HELD_OUT",
+    "LAB_SEEDS",
     "DESIGNS",
+    "mould_aspect_ratios",
     "run_grid",
     "sweep_commands",
 ]
@@ -210,6 +221,92 @@ PROTOCOL_CHECK = {
     ),
 }
 
+#: The training seeds of :data:`LAB_CALIBRATION` (its held-out members use others: 1 and 3).
+LAB_SEEDS = (0, 2)
+
+
+def _lab_group(mould, grid, seeds=LAB_SEEDS, **specimen):
+    """One group per seed: ``{name_s<seed>: ({mould, protocol paper, seed, ...}, grid)}``."""
+    return {seed: ({"mould": mould, "protocol": "paper", "seed": seed, **specimen}, grid) for seed in seeds}
+
+
+#: Two membranes per group and two moduli on the reference one: the Table 1 pressures.
+_LAB_GRID = {
+    "cell_pressure_kpa": _PRESSURES,
+    "membrane_thickness_mm": (2.0, 5.0),
+    "membrane_modulus_kpa": (1400.0,),
+}
+
+#: group → (specimen fields, sweep grid) at a laboratory's geometry and the paper's protocol (I = 1e-3,
+#: membrane edge D/5): moulds of H/D = 2 (one group at 2.5), 150–300 mm across (D/D_s = 1/6–1/12 for equal
+#: 25 mm spheres; ASTM D7181 and BS 1377-8 test at H/D 2–2.5), dense, medium (compaction friction 10°) and
+#: loose, equal spheres, railway ballast and a uniform narrow grading (:data:`membrax.reproduce.
+#: RANDOM_GRADINGS`, largest sieve D_s/6), seeds :data:`LAB_SEEDS`. The cost grows with the mould: a 300 ×
+#: 600 mm member has about 3,000 spheres, a graded one a smaller time step.
+LAB_CALIBRATION = {
+    f"{name}_s{seed}": item
+    for name, groups in {
+        "e6": _lab_group(
+            (150.0, 300.0),
+            {**_LAB_GRID, "membrane_thickness_mm": (2.0, 3.0, 5.0), "membrane_modulus_kpa": (1400.0, 2800.0)},
+        ),
+        # 1 mm of 2800 kPa: E_m t_m as 2 mm of 1400, half as thick (0.30 of the inflation limit at 100 kPa).
+        "e6_thin": _lab_group(
+            (150.0, 300.0), {**_LAB_GRID, "membrane_thickness_mm": (1.0,), "membrane_modulus_kpa": (2800.0,)}
+        ),
+        "e6_h25": _lab_group((150.0, 375.0), _LAB_GRID),
+        "e6_medium": _lab_group((150.0, 300.0), _LAB_GRID, state="medium"),
+        "e6_loose": _lab_group((150.0, 300.0), _LAB_GRID, state=_LOOSE),
+        "e8": _lab_group((200.0, 400.0), _LAB_GRID),
+        "e10": _lab_group((250.0, 500.0), _LAB_GRID),
+        "e12": _lab_group((300.0, 600.0), _LAB_GRID),
+        "n6": _lab_group((150.0, 300.0), _LAB_GRID, grading="narrow"),
+        "n6_loose": _lab_group((150.0, 300.0), _LAB_GRID, grading="narrow", state=_LOOSE),
+        "g6": _lab_group(
+            (150.0, 300.0), {**_LAB_GRID, "membrane_thickness_mm": (2.5, 5.0)}, grading="ballast"
+        ),
+    }.items()
+    for seed, item in groups.items()
+}
+
+#: Members off every grid line of :data:`LAB_CALIBRATION`: seeds 1 and 3 (never trained on), σc 15–80 kPa,
+#: thin (1.5 mm) and thick (4 mm) membranes, E_m 1000–2000 kPa, the medium state, H/D 2, D/D_s 1/7 and
+#: 1/10, the narrow and the ballast gradings; scored through ``membrax correct`` as a user would.
+LAB_HELD_OUT = {
+    "e7_medium_held": (
+        {"mould": (175.0, 350.0), "protocol": "paper", "seed": 1, "state": "medium"},
+        {
+            "cell_pressure_kpa": (15.0, 50.0, 80.0),
+            "membrane_thickness_mm": (1.5, 4.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+    "e10_held": (
+        {"mould": (250.0, 500.0), "protocol": "paper", "seed": 3},
+        {
+            "cell_pressure_kpa": (25.0, 70.0),
+            "membrane_thickness_mm": (1.5, 4.0),
+            "membrane_modulus_kpa": (2000.0,),
+        },
+    ),
+    "n7_loose_held": (
+        {"mould": (175.0, 350.0), "protocol": "paper", "seed": 1, "grading": "narrow", "state": _LOOSE},
+        {
+            "cell_pressure_kpa": (15.0, 50.0),
+            "membrane_thickness_mm": (1.5, 4.0),
+            "membrane_modulus_kpa": (1000.0,),
+        },
+    ),
+    "g6_medium_held": (
+        {"mould": (150.0, 300.0), "protocol": "paper", "seed": 1, "grading": "ballast", "state": "medium"},
+        {
+            "cell_pressure_kpa": (25.0, 70.0),
+            "membrane_thickness_mm": (1.5, 4.0),
+            "membrane_modulus_kpa": (1400.0,),
+        },
+    ),
+}
+
 #: ``python -m calibrate.grid --design NAME``'s designs.
 DESIGNS = {
     "fcc": CALIBRATION,
@@ -217,7 +314,23 @@ DESIGNS = {
     "random": RANDOM_CALIBRATION,
     "random_held_out": RANDOM_HELD_OUT,
     "protocol_check": PROTOCOL_CHECK,
+    "lab": LAB_CALIBRATION,
+    "lab_held_out": LAB_HELD_OUT,
 }
+
+
+def mould_aspect_ratios(groups) -> dict:
+    """{group: its mould's height over diameter} for the random groups of ``groups`` (FCC ones have none).
+
+    The nominal H/D_s of a design's specimens, for a correction fitted before the sweeps' heights were
+    read (:func:`calibrate.datasets.aspect_ratios` reads them from ``sweep.nc``): a compacted specimen
+    comes out within a few per cent of its mould.
+    """
+    return {
+        name: specimen["mould"][1] / specimen["mould"][0]
+        for name, (specimen, _) in groups.items()
+        if "mould" in specimen
+    }
 
 
 def specimen_fields(specimen: dict) -> dict:
@@ -332,8 +445,9 @@ def main(argv=None) -> int:
         choices=sorted(DESIGNS),
         default="fcc",
         help="fcc: the FCC calibration grid (the first shipped correction's); random: the random-specimen "
-        "grid the shipped correction is fitted on; *_held_out: their held-out members; protocol_check: "
-        "random members at the paper's rate and membrane resolution",
+        "grid the shipped correction is fitted on; lab: random members at a laboratory's H/D and the paper's "
+        "protocol; *_held_out: their held-out members; protocol_check: random members at the paper's rate "
+        "and membrane resolution",
     )
     parser.add_argument(
         "--held-out", action="store_true", help="the FCC held-out members (--design fcc_held_out)"

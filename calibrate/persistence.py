@@ -11,7 +11,15 @@ Contract. :func:`save_corrections` writes one JSON object:
   ``base_config`` and ``grid`` attributes of ``sweep.nc``, canonical JSON), and the number of cases and rows;
 - ``packing_family``: what the specimens were (:func:`calibrate.datasets.packing_family`: FCC or random,
   compaction states, gradings, the random members' solid-fraction range), which ``membrax correct`` checks
-  a laboratory specimen against. Files written before it existed load with an empty family.
+  a laboratory specimen against. Files written before it existed load with an empty family;
+- ``input_ranges["aspect_ratio"]`` (when known): the specimens' height over diameter H/D_s
+  (:func:`calibrate.datasets.aspect_ratios`), which no model reads but ``membrax correct
+  --specimen-height-mm`` checks a record against;
+- ``abstention``: the rule of when the correction abstains (:func:`calibrate.abstention.fit_rule`), fitted
+  on the cross-validated predictions. Files written before it existed load with none (never abstain).
+
+:func:`amend_corrections` adds an aspect-ratio range or a rule to a file already written, the rest kept as
+it is (how the shipped correction got them without being refitted).
 
 :func:`load_corrections` reads it back into a :class:`Corrections` (the model looked up by name), refusing a
 file that is not JSON, names an unknown model, or lacks a field, with a message naming the field and the
@@ -30,7 +38,7 @@ import numpy as np
 
 from calibrate.models import MODELS
 
-__all__ = ["Corrections", "load_corrections", "save_corrections", "sweep_hash"]
+__all__ = ["Corrections", "amend_corrections", "load_corrections", "save_corrections", "sweep_hash"]
 
 FORMAT = "membrax-corrections"
 #: Inputs whose fitted range is saved besides the model's own: the dimensionless groups and strains a
@@ -44,6 +52,8 @@ RANGE_INPUTS = (
     "hoop_ratio",
     "strain_ratio_change",
 )
+#: The key of the specimens' H/D_s range in ``input_ranges`` (not a column of the fitting table).
+ASPECT_RATIO = "aspect_ratio"
 FIELDS = ("format", "model", "params", "std", "names", "covariance", "rms", "input_ranges", "provenance")
 
 
@@ -59,6 +69,7 @@ class Corrections(NamedTuple):
     input_ranges: dict
     provenance: dict
     packing_family: dict | None = None
+    abstention: dict | None = None
 
 
 def sweep_hash(dataset) -> str:
@@ -71,7 +82,14 @@ def sweep_hash(dataset) -> str:
 
 
 def save_corrections(
-    path, model, result, table, provenance: dict | None = None, packing_family: dict | None = None
+    path,
+    model,
+    result,
+    table,
+    provenance: dict | None = None,
+    packing_family: dict | None = None,
+    aspect_ratio=None,
+    abstention: dict | None = None,
 ) -> Path:
     """Write a fitted correction to ``path`` (module docstring).
 
@@ -82,6 +100,8 @@ def save_corrections(
       table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges).
       provenance: further provenance (e.g. ``{"sweep_sha256": sweep_hash(dataset)}``).
       packing_family: :func:`calibrate.datasets.packing_family` of the sweeps (None: not recorded).
+      aspect_ratio: (lowest, highest) H/D_s of the specimens (None: not known).
+      abstention: :func:`calibrate.abstention.fit_rule`'s rule (None: not fitted, never abstain).
     """
     from membrax import __version__
 
@@ -90,6 +110,8 @@ def save_corrections(
         values = np.asarray(table.inputs[name], dtype=np.float64)
         values = values[np.isfinite(values)]
         ranges[name] = [float(values.min()), float(values.max())] if values.size else [None, None]
+    if aspect_ratio is not None:
+        ranges[ASPECT_RATIO] = [float(aspect_ratio[0]), float(aspect_ratio[1])]
     content = {
         "format": FORMAT,
         "model": model.name,
@@ -108,12 +130,35 @@ def save_corrections(
         },
         "packing_family": packing_family or {},
     }
+    if abstention is not None:
+        content["abstention"] = abstention
+    return _write(path, content)
+
+
+def _write(path, content: dict) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.with_name(f".{path.name}.tmp")
     partial.write_text(json.dumps(content, indent=2, sort_keys=True) + "\n")
     os.replace(partial, path)
     return path
+
+
+def amend_corrections(path, aspect_ratio=None, abstention: dict | None = None) -> Path:
+    """Add an H/D_s range and/or an abstention rule to a corrections file, leaving the rest as written.
+
+    Args:
+      path: a file written by :func:`save_corrections` (checked by :func:`load_corrections` first).
+      aspect_ratio: (lowest, highest) H/D_s of the specimens it was fitted on, or None to leave it.
+      abstention: :func:`calibrate.abstention.fit_rule`'s rule, or None to leave it.
+    """
+    load_corrections(path)
+    content = json.loads(Path(path).read_text())
+    if aspect_ratio is not None:
+        content["input_ranges"][ASPECT_RATIO] = [float(aspect_ratio[0]), float(aspect_ratio[1])]
+    if abstention is not None:
+        content["abstention"] = abstention
+    return _write(path, content)
 
 
 def load_corrections(path) -> Corrections:
@@ -150,4 +195,5 @@ def load_corrections(path) -> Corrections:
         {name: tuple(value) for name, value in content["input_ranges"].items()},
         dict(content["provenance"]),
         dict(content.get("packing_family") or {}),
+        content.get("abstention") or None,
     )

@@ -2,10 +2,11 @@
 
 Contract. :func:`fit_sweeps` reads one or more ``sweep.nc`` files (:mod:`membrax.sweep`), joins their
 fitting tables (:func:`calibrate.datasets.concatenate`), fits a model (:func:`calibrate.fit.fit`), scores it
-by leave-one-case-out cross-validation when there are at least three cases, and writes the correction with
+by leave-one-case-out cross-validation when there are at least three cases (whose predictions also fit the
+rule of when the correction abstains, :func:`calibrate.abstention.fit_rule`), and writes the correction with
 its provenance (:func:`calibrate.persistence.save_corrections`: the membrax version, each sweep's
-SHA-256 and the specimens' packing family, :func:`calibrate.datasets.packing_family`). It returns the
-report that ``membrax fit`` prints.
+SHA-256, the specimens' packing family, :func:`calibrate.datasets.packing_family`, and their H/D_s range,
+:func:`calibrate.datasets.aspect_ratios`). It returns the report that ``membrax fit`` prints.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate import datasets, fit, models, persistence
+from calibrate import abstention, datasets, fit, models, persistence
 
 __all__ = ["fit_sweeps"]
 
@@ -62,8 +63,11 @@ def fit_sweeps(
         f"{result.evaluations['lbfgs']} L-BFGS loss evaluations",
     ]
     provenance = {"sweeps": [str(p) for p in paths], "sweep_sha256": hashes}
+    rule = None
     if cross_validation and table.num_cases >= 3:
-        scores = fit.cross_validate(chosen, table)
+        predictions = fit.cross_validated_predictions(chosen, table)
+        scores = fit.cross_validate(chosen, table, predictions)
+        rule = abstention.fit_rule(table, *predictions)
         axial = np.array([s["axial"] for s in scores.values()])
         radial = np.array([s["radial"] for s in scores.values()])
         provenance["cross_validation"] = {"axial_rms": axial.tolist(), "radial_rms": radial.tolist()}
@@ -72,6 +76,7 @@ def fit_sweeps(
             f"axial mean {axial.mean():.3g} (worst {axial.max():.3g}), "
             f"radial mean {radial.mean():.3g} (worst {radial.max():.3g})"
         )
+        lines += abstention.rule_lines(rule)
     family = datasets.packing_family(sweeps)
     lines.append(
         f"packing family: {', '.join(family['packings'])}"
@@ -82,7 +87,13 @@ def fit_sweeps(
             else ""
         )
     )
-    written = persistence.save_corrections(out, chosen, result, table, provenance, packing_family=family)
+    ratios = datasets.aspect_ratios(sweeps)
+    aspect = (min(ratios), max(ratios)) if ratios else None
+    if aspect is not None:
+        lines.append(f"specimens' height / diameter H/D_s {aspect[0]:.3g}–{aspect[1]:.3g}")
+    written = persistence.save_corrections(
+        out, chosen, result, table, provenance, packing_family=family, aspect_ratio=aspect, abstention=rule
+    )
     lines.append(f"written to {written}")
     if table_out is not None:
         datasets.save_table(table, table_out)

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from calibrate import datasets, fit, models, persistence
+from calibrate import abstention, datasets, fit, models, persistence
 from membrax import theory
 
 TRUE = {"k_r": 0.8, "r0": 0.05, "r1": -0.2, "k_a": 0.3, "a0": 0.4, "a1": -1.1}
@@ -259,6 +259,14 @@ def test_membrax_fit_writes_the_fit_of_the_sweep_files_and_names_a_bad_file(tmp_
         [datasets.fitting_table(io.read_results(first)), datasets.fitting_table(io.read_results(second))]
     )
     assert sorted(set(table.case.tolist())) == [0, 1, 2]
+    # the abstention rule is stored, fitted on the leave-one-case-out predictions: one case per octave of
+    # E_m t_m/(σc D) = 1400·2.5/(10·25) = 14, 1400·5/(40·25) = 7 and 1400·2.5/(100·25) = 1.4
+    assert "when the correction abstains" in report
+    assert [(r["low"], r["cases"]) for r in loaded.abstention["regions"]] == [(1.0, 1), (4.0, 1), (8.0, 1)]
+    assert loaded.abstention == abstention.fit_rule(
+        table, *fit.cross_validated_predictions(models.PAPER, table)
+    )
+    assert persistence.ASPECT_RATIO not in loaded.input_ranges  # FCC sweeps without a height record
     expected = fit.fit(models.PAPER, table)
     for name, value in expected.params.items():
         assert loaded.params[name] == pytest.approx(value, abs=1e-9)
@@ -269,6 +277,37 @@ def test_membrax_fit_writes_the_fit_of_the_sweep_files_and_names_a_bad_file(tmp_
     error = capsys.readouterr().err
     assert "other.nc" in error and "base_config" in error
     assert not (tmp_path / "x.json").exists()
+
+
+def test_the_specimens_h_d_is_read_from_the_sweeps_height_record_or_a_random_mould(tmp_path):
+    with_height = _sweep_like()
+    strain = np.linspace(0.0, 0.04, 5)
+    height = np.full(with_height["axial_strain"].shape, np.nan)
+    height[..., :] = 0.5 * (1.0 - strain)  # 0.5 m at the start of shearing, over D_s = 2·0.125 m
+    with_height["height"] = (with_height["axial_strain"].dims, height)
+    assert datasets.aspect_ratios([with_height]) == [pytest.approx(2.0, rel=1e-12)] * 2
+    # no height record: a random specimen's mould (250/150), an FCC one nothing
+    random = _sweep_like()
+    base = json.loads(random.attrs["base_config"])
+    base.update(packing="random", specimen_diameter_mm=150.0, specimen_height_mm=250.0)
+    random.attrs["base_config"] = json.dumps(base)
+    assert datasets.aspect_ratios([random, _sweep_like()]) == [pytest.approx(5.0 / 3.0, rel=1e-12)] * 2
+    # saved as a range in the JSON, or added with a rule to one written without them, the rest untouched
+    table = _synthetic_table(cases=3, rows=30)
+    result = fit.fit(models.PAPER, table, adam_steps=50)
+    path = persistence.save_corrections(
+        tmp_path / "c.json", models.PAPER, result, table, aspect_ratio=(1.5, 2)
+    )
+    assert persistence.load_corrections(path).input_ranges[persistence.ASPECT_RATIO] == (1.5, 2.0)
+    old = persistence.save_corrections(tmp_path / "old.json", models.PAPER, result, table)
+    before = json.loads(old.read_text())
+    assert persistence.load_corrections(old).abstention is None
+    rule = {"quantity": "stiffness_ratio", "regions": []}
+    persistence.amend_corrections(old, aspect_ratio=(1.28, 5 / 3), abstention=rule)
+    after = json.loads(old.read_text())
+    assert after.pop("abstention") == rule
+    assert after["input_ranges"].pop(persistence.ASPECT_RATIO) == [1.28, 5 / 3]
+    assert after == before
 
 
 def test_the_packing_family_is_read_from_the_sweeps_and_kept_in_the_json(tmp_path):

@@ -26,7 +26,7 @@ def _record(rows=41, ratio=-0.4, cell=20e3):
     return lab.LabRecord(axial, volumetric, radial, axial_stress, np.full(rows, cell), ())
 
 
-def _corrections(ranges=None, covariance=None):
+def _corrections(ranges=None, covariance=None, rule=None):
     names = tuple(sorted(PARAMS))
     return persistence.Corrections(
         models.PAPER,
@@ -37,6 +37,8 @@ def _corrections(ranges=None, covariance=None):
         CV_RMS,
         ranges or {},
         {"cross_validation": {"axial_rms": [CV_RMS, CV_RMS], "radial_rms": [CV_RMS, CV_RMS]}},
+        None,
+        rule,
     )
 
 
@@ -173,7 +175,7 @@ def test_a_standard_small_sand_test_is_told_the_shipped_correction_does_not_cove
 
 
 def test_specimen_units_are_converted_once_and_bad_values_refused():
-    assert SPECIMEN == (0.15, 0.02, 0.002, 1.4e6, None)
+    assert SPECIMEN == (0.15, 0.02, 0.002, 1.4e6, None, None)
     with pytest.raises(
         ValueError, match=r"membrane_thickness_mm = -2.*positive.*--membrane-thickness-mm 2\)"
     ):
@@ -188,6 +190,266 @@ def test_specimen_units_are_converted_once_and_bad_values_refused():
         ValueError, match=r"membrane_modulus_kpa = 1.4: no membrane is that soft; is it in MPa"
     ):
         correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1.4)
+
+
+def test_the_specimen_height_is_read_in_mm_once_and_implausible_heights_refused():
+    tall = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=300.0)
+    assert tall.height == pytest.approx(0.3, rel=1e-15) and tall.specimen_diameter == 0.15
+    assert correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0).height is None
+    for bad in (-300.0, 0.0, math.nan):
+        with pytest.raises(ValueError, match=r"specimen_height_mm = .*positive.*--specimen-height-mm 300\)"):
+            correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
+    # 30 mm is 0.2 diameters (a radius, or cm?), 1000 mm 6.67: refused, the fix 2 × 150 mm
+    for bad, ratio in ((30.0, "0.2"), (1000.0, "6.67")):
+        with pytest.raises(
+            ValueError,
+            match=rf"specimen_height_mm = {bad:g} is {ratio} × specimen_diameter_mm = 150.*0.5 to 5 "
+            r"diameters tall.*--specimen-height-mm 300\)",
+        ):
+            correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
+
+
+#: The shipped correction's moulds: 250/150, 270/200, 320/250 mm (calibrate.grid.RANDOM_CALIBRATION).
+MOULDS = {persistence.ASPECT_RATIO: (1.28, 250.0 / 150.0)}
+
+
+def test_the_specimen_height_is_warned_about_when_absent_or_outside_the_fitted_h_d_and_not_inside():
+    record = _record()
+    ranges = {"stiffness_ratio": (1.0, 10.0), **MOULDS}
+    # absent: the fitted H/D_s and the standards' 2-2.5 named; the band as without heights
+    with pytest.warns(UserWarning, match="specimen height not given"):
+        absent = correct.correct_record(record, SPECIMEN, _corrections(ranges))
+    assert absent.warnings == (
+        "specimen height not given (--specimen-height-mm): the correction was fitted on specimens of "
+        "height / diameter H/D_s = 1.28 to 1.67, and laboratories test at H/D 2 to 2.5 (ASTM D7181, "
+        "BS 1377-8), outside it. Give the height after consolidation to have it checked and the band "
+        "widened for it.",
+    )
+    # inside (225/150 = 1.5): no warning, the same numbers
+    inside = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=225.0)
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("error")
+        within = correct.correct_record(record, inside, _corrections(ranges))
+    assert within.warnings == ()
+    np.testing.assert_array_equal(within.std["sigma_1"], absent.std["sigma_1"])
+    # outside (300/150 = 2): warned like every range, δ = ln(2/1.667)/ln(1.667/1.28) = 0.69 in logarithms,
+    # the band widened by 1 + δ and the fitted column kept
+    delta = math.log(2.0 / (250.0 / 150.0)) / math.log((250.0 / 150.0) / 1.28)
+    tall = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=300.0)
+    with pytest.warns(UserWarning, match="specimen height / diameter"):
+        outside = correct.correct_record(record, tall, _corrections(ranges))
+    assert outside.warnings[0] == (
+        "specimen height / diameter, H/D_s, = 2; the correction was fitted on 1.28 to 1.67 (41 of 41 rows "
+        f"outside it, by up to {delta:.2g} of that range's width in logarithms)."
+    )
+    assert "H/D_s, which no model reads: it only widens the band" in outside.warnings[1]
+    np.testing.assert_allclose(outside.extrapolation, delta, rtol=1e-9)
+    np.testing.assert_allclose(outside.std["sigma_1"], (1.0 + delta) * within.std["sigma_1"], rtol=1e-9)
+    np.testing.assert_array_equal(outside.sigma_1["fitted"], within.sigma_1["fitted"])
+    # far outside (H/D_s = 5: δ = 4.2 widths) the band widens 5.2 times, and still nothing is withheld
+    squat = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=750.0)
+    with pytest.warns(UserWarning):
+        far = correct.correct_record(record, squat, _corrections(ranges))
+    far_delta = math.log(5.0 / (250.0 / 150.0)) / math.log((250.0 / 150.0) / 1.28)
+    assert far_delta > correct.MAX_EXTRAPOLATION
+    np.testing.assert_allclose(far.std["sigma_3"], (1.0 + far_delta) * within.std["sigma_3"], rtol=1e-9)
+    assert np.all(np.isfinite(far.friction_angle["fitted"]))
+    # a correction that records no heights (written before them) says nothing of a height, given or not
+    no_heights = {"stiffness_ratio": (1.0, 10.0)}
+    assert correct.correct_record(record, tall, _corrections(no_heights)).warnings == ()
+
+
+def test_membrax_correct_reads_checks_and_reports_the_specimen_height(tmp_path, capsys):
+    from membrax import cli
+
+    with correct.example_record_path() as shipped:
+        argv = _argv(shipped, "--out", str(tmp_path / "a.csv"), "--no-plot")
+        # refused through the command line, the flag and the fix named; nothing written
+        for bad, words in (("-250", "positive"), ("nan", "positive"), ("25", "0.17 × specimen_diameter")):
+            assert cli.main([*argv, "--specimen-height-mm", bad]) == 2
+            error = capsys.readouterr().err
+            assert words in error and "--specimen-height-mm" in error, error
+        assert not (tmp_path / "a.csv").exists()
+        # absent: warned with the fitted range; 294 mm (2 × 147): outside it, named
+        assert cli.main(argv) == 0
+        assert "membrax: warning: specimen height not given (--specimen-height-mm)" in capsys.readouterr().err
+        assert cli.main([*argv, "--specimen-height-mm", "294"]) == 0
+        captured = capsys.readouterr()
+    assert "specimen height / diameter, H/D_s, = 2; the correction was fitted on 1.28 to 1.67" in captured.err
+    assert "specimen height not given" not in captured.err
+    assert "specimen height 294 mm" in (tmp_path / "a.csv").read_text()  # read in mm, reported in mm
+
+
+def _rule(weights, cases=3):
+    """A rule by hand: [4, 8) with ``weights`` (σ1, σ3) and stated errors; [16, 32) keeps both.
+
+    σ1: none (0.05) erred least there, then w* = 0.1 (0.06), then the correction (0.08); σ3: w* = 0.5
+    (0.025), then the correction (0.03), then none (0.04). ``rms`` is the chosen factor's error.
+    """
+    scores = (
+        {"shrinkage": 0.1, "none_rms": 0.05, "fitted_rms": 0.08, "shrunk_rms": 0.05, "held_out_rms": 0.06},
+        {"shrinkage": 0.5, "none_rms": 0.04, "fitted_rms": 0.03, "shrunk_rms": 0.02, "held_out_rms": 0.025},
+    )
+    errors = {0.0: "none_rms", 0.1: "held_out_rms", 0.5: "held_out_rms", 1.0: "fitted_rms"}
+    kept = {"weight": 1.0, "shrinkage": 1.0, "rms": 0.1, "none_rms": 0.3, "fitted_rms": 0.1}
+    kept |= {"shrunk_rms": 0.1, "held_out_rms": 0.1}
+    return {
+        "quantity": "stiffness_ratio",
+        "regions": [
+            {
+                "low": 4.0,
+                "high": 8.0,
+                "cases": cases,
+                "axial": {"weight": weights[0], "rms": scores[0][errors[weights[0]]], **scores[0]},
+                "radial": {"weight": weights[1], "rms": scores[1][errors[weights[1]]], **scores[1]},
+            },
+            {"low": 16.0, "high": 32.0, "cases": cases, "axial": dict(kept), "radial": dict(kept)},
+        ],
+    }
+
+
+def test_the_rule_shrinks_the_fitted_correction_of_a_record_in_its_region_with_the_shrunk_band(tmp_path):
+    record = _record()  # E_m t_m/(σc D) = 1.4e6 · 2e-3/(2e4 · 0.02) = 7: region [4, 8)
+    plain = correct.correct_record(record, SPECIMEN, _corrections())
+    with pytest.warns(UserWarning, match="abstains in part"):
+        shrunk = correct.correct_record(record, SPECIMEN, _corrections(rule=_rule((0.0, 0.5))))
+    cell = record.cell_pressure
+    # σ1's correction withdrawn: the measured σ1; σ3's halved: σc + ½ (σ3_fitted − σc)
+    assert shrunk.shrink == (0.0, 0.5)
+    np.testing.assert_array_equal(shrunk.sigma_1["fitted"], record.axial_stress)
+    np.testing.assert_allclose(
+        shrunk.sigma_3["fitted"], cell + 0.5 * (plain.sigma_3["fitted"] - cell), rtol=1e-12
+    )
+    # exact parameters: the band is the chosen factor's error on unseen cases, none's σc·0.05 for σ1 and
+    # the shrunk correction's σc·0.025 for σ3
+    np.testing.assert_allclose(shrunk.std["sigma_1"], cell * 0.05, rtol=1e-12)
+    np.testing.assert_allclose(shrunk.std["sigma_3"], cell * 0.025, rtol=1e-12)
+    (message,) = shrunk.warnings
+    assert message.startswith("the fitted correction abstains in part: E_m t_m/(σc D) = 7 lies in 4 to 8")
+    assert "its σ1 correction is withdrawn (×0)" in message
+    assert (
+        "0.080 RMS, against 0.050 for no correction and 0.060 shrunk by the least-squares factor 0.10"
+        in message
+    )
+    assert "its σ3 correction is scaled by 0.50" in message and "the error of what is given, 0.025" in message
+    # a parameter variance var(a0) = v is scaled by w² (here 0: gone) with the prediction
+    covariance = np.zeros((6, 6))
+    covariance[list(sorted(PARAMS)).index("a0"), list(sorted(PARAMS)).index("a0")] = 0.03**2
+    with pytest.warns(UserWarning):
+        varied = correct.correct_record(
+            record, SPECIMEN, _corrections(covariance=covariance, rule=_rule((0.0, 0.5)))
+        )
+    np.testing.assert_allclose(varied.std["sigma_1"], cell * 0.05, rtol=1e-12)
+    # the CSV carries the factors on every row, the header the warning
+    correct.write_correction(shrunk, tmp_path / "s.csv", header_lines=[f"warning: {message}"])
+    header, table = _table(tmp_path / "s.csv")
+    names = header.split(",")
+    np.testing.assert_array_equal(table[:, names.index("fitted_shrink_axial [-]")], 0.0)
+    np.testing.assert_array_equal(table[:, names.index("fitted_shrink_radial [-]")], 0.5)
+    # a record in a region that keeps the correction (7 kPa: E_m t_m/(σc D) = 20), and a rule that keeps
+    # both in [4, 8), change nothing and say nothing
+    for cell_kpa, weights in ((7.0, (0.0, 0.5)), (20.0, (1.0, 1.0))):
+        other = _record(cell=1e3 * cell_kpa)
+        kept = correct.correct_record(other, SPECIMEN, _corrections(rule=_rule(weights)))
+        unruled = correct.correct_record(other, SPECIMEN, _corrections())
+        assert kept.warnings == () and kept.shrink == (1.0, 1.0)
+        np.testing.assert_array_equal(kept.sigma_1["fitted"], unruled.sigma_1["fitted"])
+        np.testing.assert_array_equal(kept.std["sigma_1"], unruled.std["sigma_1"])
+
+
+def test_an_old_corrections_file_without_a_rule_or_heights_loads_and_corrects_unshrunk():
+    from importlib import resources
+
+    with resources.as_file(resources.files("calibrate") / "data" / "fcc_corrections.json") as path:
+        old = persistence.load_corrections(path)
+    assert old.abstention is None and persistence.ASPECT_RATIO not in old.input_ranges
+    record, specimen = _example()[:2]
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore")
+        result = correct.correct_record(record, specimen, old)
+    assert result.shrink == (1.0, 1.0)
+    assert not any("abstains" in m or "specimen height" in m for m in result.warnings)
+    # the fitted σ1 is the measured one plus σc times the model on the record's inputs, unscaled
+    with __import__("jax").enable_x64(True):
+        axial, _ = old.model.predict(old.params, {n: np.asarray(result.inputs[n]) for n in old.model.inputs})
+    finite = np.isfinite(result.sigma_1["fitted"])
+    assert finite.sum() > 0.9 * finite.size
+    np.testing.assert_allclose(
+        result.sigma_1["fitted"][finite],
+        (record.axial_stress + record.cell_pressure * np.asarray(axial))[finite],
+        rtol=1e-12,
+    )
+
+
+def test_the_shipped_correction_carries_its_moulds_h_d_and_an_abstention_rule_that_never_loses_to_none():
+    from calibrate import abstention, grid
+
+    shipped = correct.default_corrections()
+    # H/D_s of the random grid's moulds: 320/250 = 1.28 to 250/150 = 1.667
+    ratios = grid.mould_aspect_ratios(grid.RANDOM_CALIBRATION).values()
+    assert shipped.input_ranges[persistence.ASPECT_RATIO] == (min(ratios), max(ratios))
+    assert (min(ratios), max(ratios)) == (1.28, 250.0 / 150.0)
+    rule = shipped.abstention
+    regions = rule["regions"]
+    # octaves covering the fitted E_m t_m/(σc D), 0.84-56, holding all 63 cases
+    low, high = shipped.input_ranges["stiffness_ratio"]
+    assert regions[0]["low"] <= low and regions[-1]["high"] > high
+    assert sum(region["cases"] for region in regions) == shipped.provenance["cases"]
+    for region in regions:
+        for target in abstention.TARGETS:
+            scores = region[target]
+            # the chosen factor errs least on unseen cases, so no more than no correction
+            assert scores["rms"] == min(scores["none_rms"], scores["fitted_rms"], scores["held_out_rms"])
+            assert scores["weight"] in (0.0, 1.0, scores["shrinkage"])
+    # what it found (docs/calibration.md): σ1 shrunk below E_m t_m/(σc D) = 8, σ3 kept everywhere
+    shrunk = [(r["low"], t) for r in regions for t in abstention.TARGETS if r[t]["weight"] < 1.0]
+    assert shrunk == [(1.0, "axial"), (2.0, "axial"), (4.0, "axial")]
+    # a 100 kPa test in a 2.5 mm latex membrane on 25 mm particles: 1.4e6·2.5e-3/(1e5·0.025) = 1.4, in
+    # 1-2: σ1's correction scaled by that region's factor, σ3's kept
+    record = _record(cell=100e3)
+    specimen = correct.Specimen.from_mm_kpa(150.0, 25.0, 2.5, 1400.0, specimen_height_mm=300.0)
+    with pytest.warns(UserWarning, match="E_m t_m/\\(σc D\\) = 1.4 lies in 1 to 2"):
+        ruled = correct.correct_record(record, specimen, shipped)
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore")
+        unruled = correct.correct_record(record, specimen, shipped._replace(abstention=None))
+    weight = regions[1]["axial"]["weight"]
+    assert ruled.shrink == (weight, 1.0) and 0.0 < weight < 1.0
+    np.testing.assert_allclose(
+        ruled.sigma_1["fitted"] - record.axial_stress,
+        weight * (unruled.sigma_1["fitted"] - record.axial_stress),
+        rtol=1e-10,
+        atol=1e-9,
+    )
+    np.testing.assert_array_equal(ruled.sigma_3["fitted"], unruled.sigma_3["fitted"])
+    # the shipped example (2000·4/(25·16.14) = 19.8, in 16-32) is not shrunk
+    example, example_specimen = _example()[:2]
+    with __import__("warnings").catch_warnings():
+        __import__("warnings").simplefilter("ignore")
+        result = correct.correct_record(example, example_specimen, shipped)
+    assert np.median(result.inputs["stiffness_ratio"]) == pytest.approx(2000 * 4 / (25 * 16.14), rel=1e-9)
+    assert result.shrink == (1.0, 1.0) and not any("abstains" in m for m in result.warnings)
+
+
+@pytest.mark.slow
+def test_the_shipped_rule_is_the_rule_of_the_shipped_table_s_cross_validation():
+    """About 5 min on 2 cores: the 63 leave-one-case-out refits."""
+    from importlib import resources
+
+    from calibrate import abstention, fit
+
+    table = datasets.load_table(resources.files("calibrate") / "data" / "calibration_table.npz")
+    shipped = correct.default_corrections()
+    predictions = fit.cross_validated_predictions(shipped.model, table)
+    scores = fit.cross_validate(shipped.model, table, predictions)
+    stored = shipped.provenance["cross_validation"]
+    np.testing.assert_allclose([s["axial"] for s in scores.values()], stored["axial_rms"], rtol=1e-6)
+    rule = abstention.fit_rule(table, *predictions)
+    for mine, theirs in zip(rule["regions"], shipped.abstention["regions"], strict=True):
+        assert (mine["low"], mine["cases"]) == (theirs["low"], theirs["cases"])
+        for target in abstention.TARGETS:
+            for key, value in theirs[target].items():
+                assert mine[target][key] == pytest.approx(value, rel=1e-6, abs=1e-9), (mine["low"], key)
 
 
 CLASSICAL = ("uncorrected", "astm", "henkel_gilbert", "kuerbis_vaid")
@@ -498,3 +760,49 @@ def test_the_grid_s_sweep_commands_rebuild_its_configurations():
         sets = [words[i + 1] for i, word in enumerate(words) if word == "--set"]
         rebuilt = TriaxialConfig(**parse_overrides(sets))
         assert rebuilt == TriaxialConfig(**grid.specimen_fields(grid.RANDOM_CALIBRATION[name][0])), name
+
+
+def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_members_lie_off_it():
+    """LAB_CALIBRATION (issue 60): every member in a mould of H/D 2 or 2.5, 150–300 mm (D/D_s 1/6–1/12 for
+    equal 25 mm spheres), the paper's protocol (I = 1e-3, membrane edge D/5), two seeds per group, dense,
+    medium and loose, equal, ballast and narrow gradings; each configuration valid (none refused for its
+    inflation limit). LAB_HELD_OUT: seeds, cell pressures and thicknesses no training member has."""
+    from calibrate import grid
+    from membrax.config import TriaxialConfig, characteristic_size_mm, config_to_dict
+
+    seen = {"cell_pressure_kpa": set(), "membrane_thickness_mm": set(), "packing_seed": set()}
+    aspects, ratios, states, gradings, seeds_by_group = set(), [], set(), set(), {}
+    for name, (specimen, design) in grid.LAB_CALIBRATION.items():
+        config = config_to_dict(TriaxialConfig(**grid.specimen_fields(specimen)))
+        assert (config["inertial_number"], config["membrane_edges_per_diameter"]) == (1e-3, 5.0)
+        aspects.add(config["specimen_height_mm"] / config["specimen_diameter_mm"])
+        ratios.append(25.0 / config["specimen_diameter_mm"])
+        states.add(config["compaction_friction_deg"])
+        gradings.add(config["grading"][0][0] / config["grading"][-1][0] if config["grading"] else 1.0)
+        seeds_by_group.setdefault(name.rsplit("_s", 1)[0], set()).add(config["packing_seed"])
+        seen["packing_seed"].add(config["packing_seed"])
+        for field in ("cell_pressure_kpa", "membrane_thickness_mm"):
+            seen[field] |= set(design[field])
+        for pressure in design["cell_pressure_kpa"]:
+            for thickness in design["membrane_thickness_mm"]:
+                for modulus in design.get("membrane_modulus_kpa", (config["membrane_modulus_kpa"],)):
+                    TriaxialConfig(
+                        **grid.specimen_fields(specimen),
+                        cell_pressure_kpa=pressure,
+                        membrane_thickness_mm=thickness,
+                        membrane_modulus_kpa=modulus,
+                    )
+    assert aspects == {2.0, 2.5}
+    assert (max(ratios), min(ratios)) == (pytest.approx(1 / 6), pytest.approx(1 / 12))
+    assert sorted(states) == pytest.approx([0.0, 10.0, math.degrees(math.atan(0.5))])
+    # smallest over largest sieve: ballast 22.4/63, narrow 0.8, equal 1
+    assert sorted(gradings) == pytest.approx([22.4 / 63.0, 0.8, 1.0])
+    assert all(seeds == set(grid.LAB_SEEDS) for seeds in seeds_by_group.values()), seeds_by_group
+    for specimen, design in grid.LAB_HELD_OUT.values():
+        config = config_to_dict(TriaxialConfig(**grid.specimen_fields(specimen)))
+        assert config["packing_seed"] not in seen["packing_seed"]
+        assert config["specimen_height_mm"] == 2.0 * config["specimen_diameter_mm"]
+        for field in ("cell_pressure_kpa", "membrane_thickness_mm"):
+            assert not set(design[field]) & seen[field], (field, design[field])
+        assert 15.0 <= min(design["cell_pressure_kpa"]) and max(design["cell_pressure_kpa"]) <= 80.0
+        assert characteristic_size_mm(config) > 0.0
