@@ -22,7 +22,8 @@ Sub-commands:
   fit      ``membrax fit sweep.nc [more.nc] [--out corrections.json] [--model paper|rich]``: a membrane
            correction fitted on sweeps (:mod:`calibrate.workflow`)
   correct  ``membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20
-           --membrane-thickness-mm 2 --membrane-modulus-kpa 1400 [--model corrections.json] [--out X.csv]``:
+           --membrane-thickness-mm 2 --membrane-modulus-kpa 1400 [--specimen-height-mm 300]
+           [--model corrections.json] [--out X.csv]``:
            a laboratory record corrected by none, the classical three and the fitted correction, as a CSV
            and a plot (:mod:`calibrate.correct`)
 
@@ -353,6 +354,7 @@ def _correct(args: argparse.Namespace) -> int:
             args.membrane_thickness_mm,
             args.membrane_modulus_kpa,
             void_ratio=args.void_ratio,
+            specimen_height_mm=args.specimen_height_mm,
         )
         result, paths = correct_file(
             args.record, specimen, args.model, args.out, not args.no_plot, args.dilation_positive
@@ -466,12 +468,17 @@ SUBCOMMAND_HELP = {
         "whose volumetric or radial strain is written dilation positive. Readings repeating the axial\n"
         "strain before them are averaged. Outside the range the correction was fitted on, each quantity\n"
         "is warned about with its value and the range, the fitted band widens by 1 + (distance outside,\n"
-        "in range widths), and beyond one width the fitted column is withheld.",
+        "in range widths), and beyond one width the fitted column is withheld. --specimen-height-mm has\n"
+        "H/D checked too (outside its fitted range it widens the band, never withholds). Where shrinking\n"
+        "the fitted correction toward none lowered its cross-validated error (by E_m t_m/(sigma_c D)),\n"
+        "it is shrunk, said in a warning and in the CSV's fitted_shrink_* columns.",
         "examples:\n"
         "  membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20 \\\n"
         "      --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
         "  membrax correct lab.xlsx --specimen-diameter-mm 300 --particle-size-mm 40 \\\n"
         "      --membrane-thickness-mm 4 --membrane-modulus-kpa 1400 --dilation-positive --out test7.csv\n"
+        "  membrax correct lab.csv --specimen-diameter-mm 150 --specimen-height-mm 300 \\\n"
+        "      --particle-size-mm 20 --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
         "where the record's header gives each column's unit, e.g.\n"
         "  axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]",
     ),
@@ -549,16 +556,18 @@ def build_parser() -> argparse.ArgumentParser:
     reproduce.add_argument("--seeds", type=int, default=3, help="with --packing random: seeds per case")
     reproduce.add_argument(
         "--grading",
-        choices=("equal", "ballast"),
+        choices=("equal", "ballast", "narrow"),
         default="equal",
-        help="with --packing random: equal 25 mm spheres, or railway ballast's grading scaled so that its "
-        "largest sieve is 1/6 of the specimen's diameter (25 mm small, 41.7 mm paper)",
+        help="with --packing random: equal 25 mm spheres, railway ballast's grading scaled so that its "
+        "largest sieve is 1/6 of the specimen's diameter (25 mm small, 41.7 mm paper), or a uniform narrow "
+        "grading (0.8–1 of that sieve)",
     )
     reproduce.add_argument(
         "--state",
-        choices=("dense", "loose"),
+        choices=("dense", "medium", "loose"),
         default="dense",
-        help="with --packing random: compacted without friction (dense) or with tan⁻¹ 0.5 (loose)",
+        help="with --packing random: compacted without friction (dense), with 10° (medium) or with tan⁻¹ 0.5 "
+        "(loose)",
     )
     reproduce.add_argument(
         "--reference",
@@ -651,6 +660,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="the specimen's void ratio e after consolidation (optional): checked against the densities "
         "the correction was fitted on",
+    )
+    correct.add_argument(
+        "--specimen-height-mm",
+        type=float,
+        default=None,
+        help="specimen height after consolidation (mm, optional): H/D_s is checked against the heights the "
+        "correction was fitted on (laboratories test at H/D 2-2.5)",
     )
     correct.add_argument("--model", default=None, help="corrections.json of membrax fit (default: shipped)")
     correct.add_argument(

@@ -13,6 +13,8 @@ from __future__ import annotations
 
 __all__ = [
     "CONSOLIDATION_TOLERANCE",
+    "DAMPING_FRAME",
+    "DAMPING_FRAMES",
     "FRICTION_ANGLE_DEG",
     "LAYERS",
     "MEMBRANE_MODULUS",
@@ -46,6 +48,26 @@ MEMBRANE_MODULUS = 1.4e6
 #: strain by ε_ramp/ε̇ (1 % of strain's worth of steps).
 SHEAR_RAMP_STRAIN = 1.0e-2
 
+#: The velocities Cundall's local damping (and the viscous term) act on, spheres and membrane nodes alike
+#: (:class:`membrax.spheres.integrate.DampingParams`): ``"affine"``, the velocity relative to the affine
+#: field of the strain-controlled walls, v_ref = (0, 0, v_b + (v_t − v_b)(z − z_b)/(z_t − z_b)) between
+#: the platens while they shear the specimen (:func:`membrax.spheres.walls.affine_velocity`; servo-held
+#: walls count as at rest), or ``"absolute"``, the velocity itself (the paper's and PFC's practice). The two
+#: are the same law while the platens stand still or are servo-held (consolidation: the same bits). While
+#: the platens close, absolute damping drags every sphere against the affine motion and the platens carry the
+#: drag. Measured (``examples/damping_artefact.py``, float32, 10 kPa, I = 1e-3, records over 1–2 % axial
+#: strain): in a rigid box, both platens closing, the platens' stress ran 1.82 % above the Love–Weber stress
+#: at paper size (10 × 25 spheres) and 0.67 % on 6 × 10, against 0.64 % and 0.34 % with the affine frame
+#: (what is left is the damping of the non-affine motion); the top platen alone closing, the top platen's
+#: stress 4.60 % and 1.44 % above, against 0.66 % and 0.38 %. In a membrane cell the membrane's nodes carried
+#: 0.61 % of σc onto the ram, against 0.15 %. Issue 60 had 3.6–5.1 % (both platens closing) worth 0.6–1.0°
+#: of wall-based φ', from membrax and an independent DEM code; a membrane calibration learning from the ram
+#: would count it as membrane. Periodic codes damp the fluctuation about the cell's homogeneous deformation
+#: for the same reason (YADE's ``NewtonIntegrator``), hence the default.
+DAMPING_FRAME = "affine"
+#: The accepted values of :data:`DAMPING_FRAME`.
+DAMPING_FRAMES = ("affine", "absolute")
+
 #: The mean stress a random specimen is compacted to in its mould, Pa (:mod:`membrax.spheres.compaction`):
 #: the paper's lowest cell pressure, and about the 15–20 kPa suction under which a laboratory prepares a
 #: specimen in its mould. Fixed, not the test's cell pressure, so that every member of a sweep over cell
@@ -55,8 +77,9 @@ COMPACTION_STRESS = 1.0e4
 #: Interparticle friction during a random specimen's compaction, degrees, by packing state: none gives the
 #: densest packing (solid fraction ≈ 0.639 for equal spheres, Agnolin & Roux 2007); tan⁻¹ 0.5 a loose one
 #: (whole-specimen solid fraction 0.518 against 0.569 dense in the 150 × 250 mm demo mould,
-#: docs/validation.md). The test's own friction is set after compaction (YADE's and PFC's practice).
-COMPACTION_FRICTION_DEG = {"dense": 0.0, "loose": 26.565051177077994}
+#: docs/validation.md); 10° (μ = 0.18) a medium-dense one between them, the laboratory's usual state. The
+#: test's own friction is set after compaction (YADE's and PFC's practice).
+COMPACTION_FRICTION_DEG = {"dense": 0.0, "medium": 10.0, "loose": 26.565051177077994}
 
 #: The unbalanced-force ratio that ends consolidation when none is given, by cell (``"rigid"`` walls or a
 #: ``"membrane"``) and precision (float64 or not): the one rule of ``RigidWallTest.consolidate``,

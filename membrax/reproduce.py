@@ -22,9 +22,9 @@ coarse phase (``overrides={"coarse_inertial_number": 5e-3}``) leaves Tables 2–
 Random specimens (``packing="random"``, ``membrax reproduce --packing random``; the paper's open
 question, its §6). Every case of Table 1 on ``seeds`` random packings (:data:`RANDOM_SIZES`: ``small`` in
 a 150 × 250 mm mould, ``paper`` in 250 × 500 mm), the packing seed a third grid axis: equal 25 mm spheres
-or railway ballast's grading scaled to a largest sieve of D_s/6 (``grading``, :func:`random_fields`),
-compacted without friction or loose (``state``). Written into ``results_reproduce_{size}_random[_ballast]
-[_loose]``: the sweep's files,
+or railway ballast's grading or a uniform narrow one scaled to a largest sieve of D_s/6 (``grading``,
+:func:`random_fields`), compacted without friction, medium or loose (``state``). Written into
+``results_reproduce_{size}_random[_ballast|_narrow][_medium|_loose]``: the sweep's files,
 ``random_table2``/``random_table3`` (``.csv``/``.md``; :func:`membrax.paper.write_spread_tables`: per case
 mean ± s.d. (min…max) over the seeds beside the FCC reproduction of the same size, read from
 ``reference_folder``'s ``sweep.nc`` when it exists, and the paper's), Figs 5–8 of the 10 kPa / 5 mm case
@@ -65,6 +65,7 @@ from membrax.sweep import member_records, run_sweep
 
 __all__ = [
     "BALLAST_LARGEST_FRACTION",
+    "NARROW_GRADING",
     "RANDOM_GRADINGS",
     "RANDOM_SIZES",
     "SIZES",
@@ -110,10 +111,15 @@ RANDOM_SIZES = {
 BALLAST_LARGEST_FRACTION = 1.0 / 6.0
 
 #: The gradings of ``membrax reproduce --packing random --grading``: ``equal`` spheres of the particle
-#: diameter, or railway ``ballast`` (:data:`membrax.config.BALLAST_GRADING_MM`) scaled parallel so that its
+#: diameter; railway ``ballast`` (:data:`membrax.config.BALLAST_GRADING_MM`) scaled parallel so that its
 #: largest sieve is :data:`BALLAST_LARGEST_FRACTION` of the mould's diameter (25 mm in the small mould,
-#: 41.7 mm in the paper's).
-RANDOM_GRADINGS = ("equal", "ballast")
+#: 41.7 mm in the paper's); or a uniform ``narrow`` one (:data:`NARROW_GRADING`), scaled the same way.
+RANDOM_GRADINGS = ("equal", "ballast", "narrow")
+
+#: ``grading="narrow"``: a uniformly graded material between 0.8 and 1 of its largest sieve, straight in
+#: mass between them (a single-sized aggregate's sieve band, e.g. 20–25 mm; coefficient of uniformity
+#: d60/d10 = 1.14), the second grading shape of the calibration besides ballast's wide one (1.43).
+NARROW_GRADING = ((0.8, 0.0), (1.0, 100.0))
 
 
 def random_fields(
@@ -124,7 +130,8 @@ def random_fields(
     Args:
       size: ``"small"`` or ``"paper"``.
       grading: one of :data:`RANDOM_GRADINGS`.
-      state: a key of :data:`membrax.defaults.COMPACTION_FRICTION_DEG` (``"dense"``, ``"loose"``).
+      state: a key of :data:`membrax.defaults.COMPACTION_FRICTION_DEG` (``"dense"``, ``"medium"``,
+        ``"loose"``).
       mould_mm: (diameter, height) mm of another mould than the size's (a ballast grading is scaled to it).
 
     Raises:
@@ -139,9 +146,10 @@ def random_fields(
     fields = {**SIZES[size], **RANDOM_SIZES[size], "compaction_friction_deg": COMPACTION_FRICTION_DEG[state]}
     if mould_mm is not None:
         fields.update(specimen_diameter_mm=float(mould_mm[0]), specimen_height_mm=float(mould_mm[1]))
-    if grading == "ballast":
+    if grading != "equal":
         largest_mm = BALLAST_LARGEST_FRACTION * fields["specimen_diameter_mm"]
-        fields["grading"] = scaled_grading(BALLAST_GRADING_MM, largest_mm)
+        shape = BALLAST_GRADING_MM if grading == "ballast" else NARROW_GRADING
+        fields["grading"] = scaled_grading(shape, largest_mm)
     return fields
 
 
@@ -198,7 +206,7 @@ def reproduce(
     random = packing == "random"
     suffix = "_random" if random else ""
     if random:
-        suffix += ("_ballast" if grading == "ballast" else "") + ("_loose" if state == "loose" else "")
+        suffix += ("" if grading == "equal" else f"_{grading}") + ("" if state == "dense" else f"_{state}")
     folder = Path(folder if folder is not None else f"results_reproduce_{size}{suffix}")
     fields = random_fields(size, grading, state) if random else SIZES[size]
     base = with_overrides(TriaxialConfig(name=f"reproduce_{size}{suffix}", **fields), **(overrides or {}))

@@ -88,6 +88,7 @@ __all__ = [
     "build_batch",
     "build_test",
     "consolidation_tolerance",
+    "damping_params",
     "loading",
     "join_records",
     "member_chunk_records",
@@ -164,10 +165,6 @@ def build_test(
         tangential_stiffness=0.5 * config.particle_stiffness_n_m,
     )
     membrane_contact = MembraneContactParams.default(friction_angle_deg=config.membrane_friction_angle_deg)
-    damping = None  # the paper's Cundall local damping
-    if config.viscous_damping:
-        mass = float(particle_mass(config.particle_radius, config.particle_density_kg_m3))
-        damping = DampingParams.equivalent_viscous(config.particle_stiffness_n_m, mass)
     return membrane_test(
         specimen,
         cell_pressure=config.cell_pressure,
@@ -175,7 +172,7 @@ def build_test(
         membrane_modulus=config.membrane_modulus,
         contact_params=contact,
         membrane_contact=membrane_contact,
-        damping=damping,
+        damping=damping_params(config),
         density=config.particle_density_kg_m3,
         edges_per_diameter=config.membrane_edges_per_diameter,
         dt_safety=config.dt_safety,
@@ -184,6 +181,27 @@ def build_test(
         nodes_around=nodes_around,
         contact_offset_factor=config.membrane_contact_offset_factor,
     )
+
+
+def damping_params(config: TriaxialConfig) -> DampingParams:
+    """The damping of a configuration, for spheres and membrane nodes alike.
+
+    Cundall local damping α = 0.3 (the paper's), or with ``viscous_damping`` the viscous rate that removes
+    as much per cycle of a contact oscillator (:meth:`DampingParams.equivalent_viscous`), on the velocities
+    ``damping_frame`` names (:data:`membrax.defaults.DAMPING_FRAME`).
+
+    Args:
+      config: the configuration.
+
+    Returns:
+      its :class:`~membrax.spheres.integrate.DampingParams`.
+    """
+    if config.viscous_damping:
+        mass = float(particle_mass(config.particle_radius, config.particle_density_kg_m3))
+        return DampingParams.equivalent_viscous(
+            config.particle_stiffness_n_m, mass, frame=config.damping_frame
+        )
+    return DampingParams.local(0.3, config.damping_frame)
 
 
 def inflation_warning(config: TriaxialConfig) -> str | None:
@@ -252,6 +270,17 @@ def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
             density=config.particle_density_kg_m3,
         )
         _RANDOM_SPECIMENS[key] = compaction.specimen(grading)
+        if compaction.stress_jump is not None:
+            jump = compaction.stress_jump
+            warnings.warn(
+                f"The random specimen (seed {config.packing_seed}) was compacted to "
+                f"{1e-3 * compaction.stress:.3g} kPa instead of {1e-3 * COMPACTION_STRESS:.3g} kPa ± 2 %: "
+                f"its relaxed stress jumps from {1e-3 * jump['stress_below']:.3g} to "
+                f"{1e-3 * jump['stress_above']:.3g} kPa between neighbouring growths, and the state at rest "
+                "nearest the target was kept (membrax.spheres.compaction, 'Stress jumps'). Consolidation "
+                "brings it to the cell pressure; another packing_seed gives another packing.",
+                stacklevel=2,
+            )
         cached.parent.mkdir(parents=True, exist_ok=True)
         partial = cached.with_suffix(f".{os.getpid()}.npz")
         compaction.save(partial)
@@ -1240,6 +1269,11 @@ def specimen_metadata(specimen) -> dict:
         "height_mm": 1e3 * specimen.height,
         "solid_fraction": solid / (specimen.cross_section_area * specimen.height),
     }
+    # A compacted packing's stress, and the jump that kept it out of the compaction's window, if any.
+    measures = dict(getattr(specimen, "packing_measures", ()))
+    for name in ("compaction_stress", "compaction_stress_below", "compaction_stress_above"):
+        if name in measures:
+            record[f"{name}_kpa"] = 1e-3 * float(measures[name])
     if specimen.cross_section == "circle" and specimen.grading:
         sizes, passing = specimen.grading
         sampled = np.concatenate([[0.0], np.cumsum(mass_fractions(2.0 * radius, sizes))])

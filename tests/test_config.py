@@ -135,6 +135,7 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         specimen_height_mm=301.0,
         grading=((9.5, 0.0), (12.5, 37.5), (19.0, 100.0)),
         compaction_friction_deg=26.5,
+        damping_frame="absolute",
     )
     text = dump_config_toml(cfg, table=table)
     assert text.count("[triaxial]") == int(table)
@@ -155,7 +156,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 39
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 40
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 

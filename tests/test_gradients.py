@@ -34,11 +34,12 @@ def test_viscous_damping_removes_what_local_damping_does_per_cycle_and_is_off_by
     # off: the paper's Cundall local damping α = 0.3 and no viscous term, as before the option existed
     paper = build_test(dataclasses.replace(SMOOTH, viscous_damping=False)).params.dem.damping
     assert float(paper.local_coefficient) == pytest.approx(0.3) and float(paper.viscous_rate) == 0.0
+    assert paper.frame == "affine"  # relative to the platens' affine field (membrax.defaults.DAMPING_FRAME)
     # on: equal energy loss per cycle of a contact oscillator (k_n, m): 2αkA² = 4πζ·½kA², γ = 2ζω = 2αω/π
     smooth = build_test(SMOOTH).params.dem.damping
     mass = float(particle_mass(SMOOTH.particle_radius, SMOOTH.particle_density_kg_m3))
     omega = math.sqrt(SMOOTH.particle_stiffness_n_m / mass)
-    assert float(smooth.local_coefficient) == 0.0
+    assert float(smooth.local_coefficient) == 0.0 and smooth.frame == "affine"
     assert float(smooth.viscous_rate) == pytest.approx(2 * 0.3 * omega / math.pi, rel=1e-6)
     # the derivation, checked on one oscillator (k, m) integrated over one period from x = A at rest, for a
     # light α = 0.01 where the per-cycle losses are linear in the damping: the two lose the same energy

@@ -394,7 +394,8 @@ def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
 
 
 def _node_update_case():
-    """advance_nodes' arguments: two forces, 500 nodes (the first 40 clamped, some at rest), Δt, damping."""
+    """advance_nodes' arguments: two forces, 500 nodes (the first 40 clamped, some at rest, some moving at
+    their reference velocity, the damping's affine field), Δt, damping."""
     from membrax.membrane import coupled
     from membrax.spheres import integrate
 
@@ -404,12 +405,15 @@ def _node_update_case():
     free[:40] = False  # clamped ring nodes
     membrane_force = jnp.asarray(rng.normal(0.0, 1.0, (n, 3)))
     contact_force = jnp.asarray(rng.normal(0.0, 0.5, (n, 3)))
+    velocity = rng.normal(0.0, 0.01, (n, 3)) * (rng.random((n, 3)) > 0.1)  # some v = 0
+    reference = np.where(rng.random((n, 3)) > 0.1, rng.normal(0.0, 0.01, (n, 3)), velocity)  # some u = 0
     nodes = coupled.MembraneNodes(
         position=jnp.asarray(rng.uniform(-0.2, 0.2, (n, 3))),
         position_compensation=jnp.asarray(rng.normal(0.0, 1e-18, (n, 3))),
-        velocity=jnp.asarray(rng.normal(0.0, 0.01, (n, 3)) * (rng.random((n, 3)) > 0.1)),  # some v = 0
+        velocity=jnp.asarray(velocity),
         mass=jnp.asarray(rng.uniform(5e-5, 1.5e-4, n)),
         free=jnp.asarray(free),
+        reference_velocity=jnp.asarray(reference),
     )
     damping = integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0))
     return membrane_force, contact_force, nodes, 2e-6, damping
@@ -619,6 +623,7 @@ def _node_step_case(seed=5, num_spheres=30, capacity=3):
         velocity=node_velocity,
         mass=jnp.asarray(rng.uniform(5e-4, 1.5e-3, num_nodes)),
         free=jnp.asarray(free_node_mask(mesh)),
+        reference_velocity=jnp.asarray(rng.normal(0.0, 0.05, (num_nodes, 3))),  # the damping's affine field
     )
     params = coupled.MembraneParams(
         modulus=jnp.asarray(1.4e6),

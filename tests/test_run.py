@@ -123,7 +123,8 @@ def test_a_vanishing_membrane_passes_the_cell_pressure_through_unchanged():
     - Axial: the ram is the platen–sphere force plus the membrane's pull, so internal σ1 / external σ1 =
       1 − pull / ram. Tolerance 2 % at 87.5 kPa; the pull must fall at least 3-fold from 1400 kPa.
     - Radial: the spheres and the clamps together receive the cell pressure's radial resultant within 5 %
-      at 87.5 kPa, and closer than at 1400 kPa. The clamps' share (the membrane strip between a clamped
+      at 87.5 kPa, and closer than at 1400 kPa; ``received_radial_stress`` is σc times
+      that share. The clamps' share (the membrane strip between a clamped
       ring and the first sphere row, about R/H of the lateral area) is geometry, not stiffness: the paper's
       internal radial stress counts only the spheres, so it stays below σc by that share however soft the
       membrane.
@@ -137,6 +138,10 @@ def test_a_vanishing_membrane_passes_the_cell_pressure_through_unchanged():
         assert stress_ratio == pytest.approx(1.0 - pull, rel=1e-9)
         spheres, clamps, pressure = _radial_balance(test, state, records)
         shares[modulus] = (abs(pull), (spheres + clamps) / pressure, clamps / pressure)
+        # The received σ3 divides the same load by the area the pressure's radial resultant is σc times, so
+        # it is σc times the share of that resultant the membrane passes on, to round-off.
+        received = float(records.received_radial_stress[-1, 0]) / test.cell_pressure
+        assert received == pytest.approx((spheres + clamps) / pressure, rel=1e-9)
     soft_pull, soft_radial, soft_clamps = shares[87.5]
     stiff_pull, stiff_radial, _ = shares[1400.0]
     assert soft_pull < 0.02 and stiff_pull > 3.0 * soft_pull, shares
@@ -382,7 +387,8 @@ def test_float32_shearing_keeps_the_float64_consolidation_and_resumes_in_float32
 
 
 def test_the_random_reproduction_s_gradings_and_states():
-    """Ballast scaled to a largest sieve of D_s/6; loose compacted at tan⁻¹ 0.5; unknown names refused."""
+    """Ballast and the narrow grading scaled to a largest sieve of D_s/6; loose compacted at tan⁻¹ 0.5,
+    medium at 10°; unknown names refused."""
     import math
 
     from membrax.reproduce import random_fields, reproduce
@@ -393,7 +399,15 @@ def test_the_random_reproduction_s_gradings_and_states():
         assert fields["grading"][-1][0] == pytest.approx(diameter / 6.0, rel=1e-12)
         assert math.tan(math.radians(fields["compaction_friction_deg"])) == pytest.approx(0.5, rel=1e-12)
         assert random_fields(size)["compaction_friction_deg"] == 0.0 and "grading" not in random_fields(size)
-    with pytest.raises(ValueError, match="'equal', 'ballast'"):
+    # The narrow grading: 0.8–1 of the same largest sieve, straight in mass, so d50 = 0.9 of it (20–25 mm
+    # in the 150 mm mould: 22.5 mm); the medium state compacts at 10°.
+    from membrax.config import characteristic_size_mm
+
+    narrow = random_fields("small", "narrow", "medium", mould_mm=(150.0, 300.0))
+    assert narrow["grading"] == ((20.0, 0.0), (25.0, 100.0))
+    assert characteristic_size_mm(narrow) == pytest.approx(22.5, rel=1e-9)
+    assert narrow["compaction_friction_deg"] == 10.0 and narrow["specimen_height_mm"] == 300.0
+    with pytest.raises(ValueError, match="'equal', 'ballast', 'narrow'"):
         reproduce(packing="random", grading="sand")
-    with pytest.raises(ValueError, match="'dense', 'loose'"):
-        reproduce(packing="random", state="medium")
+    with pytest.raises(ValueError, match="'dense', 'medium', 'loose'"):
+        reproduce(packing="random", state="medium-loose")

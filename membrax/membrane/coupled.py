@@ -18,8 +18,16 @@ One step (explicit central differences, as the DEM; velocities at half steps):
 2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.mesh.nodal_forces`);
 3. the DEM step with the contacts' reactions added to the spheres (forces and torques);
 4. free nodes: damped leapfrog with the lumped masses (area × t_m × ρ_latex / 3 per triangle corner) and
-   the DEM's damping law (:func:`membrax.spheres.integrate.apply_damping`); clamped nodes (the two end rings,
-   the O-rings) follow their platen rigidly: y = y_clamp + (z_platen − z_platen,0) e_z;
+   the DEM's damping law (:func:`membrax.spheres.integrate.apply_damping`), in the DEM's frame: with
+   ``DampingParams.frame = "affine"`` (the default) on the velocity relative to the platens' affine field
+   v_ref = (0, 0, v_b + (v_t − v_b)(z − z_b)/(z_t − z_b)) while they shear the specimen
+   (:func:`membrax.spheres.walls.affine_velocity`), so that the membrane's share of the drag does not load
+   the platens either (absolute damping of the nodes carried 0.4–0.6 % of σc onto the ram in shearing at
+   10 kPa and I = 1e-3, the affine frame 0.07–0.15 %, ``examples/damping_artefact.py``). No radial term:
+   the membrane's radial motion is free, and a reference taken from it would leave its slowest mode, the
+   specimen's radial breathing, undamped (the nodes' radial drag adds ~0.3–0.5 % of σc to the internal σ3).
+   Clamped nodes (the two end rings, the O-rings) follow their platen rigidly:
+   y = y_clamp + (z_platen − z_platen,0) e_z;
 5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
    (:func:`membrax.membrane.contact.update_candidates`); an overflow sets
    ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) in the DEM state's error bitmask,
@@ -91,7 +99,7 @@ from membrax.spheres.integrate import (
     sphere_dem,
 )
 from membrax.spheres.neighbors import PairNeighborFn
-from membrax.spheres.walls import BOTTOM, TOP, compensated_add
+from membrax.spheres.walls import BOTTOM, TOP, affine_velocity, compensated_add
 from membrax.validation import check_range
 
 __all__ = [
@@ -314,6 +322,8 @@ class MembraneNodes:
       velocity: (n, 3) node velocities at the previous half step, m/s.
       mass: (n,) lumped masses, kg.
       free: (n,) bool, the nodes that move (False on the clamped rings).
+      reference_velocity: (n, 3) the velocity field the damping is relative to, m/s (the platens' affine
+        field, :func:`membrax.spheres.walls.affine_velocity`); None for 0, the absolute law.
     """
 
     position: jnp.ndarray
@@ -321,6 +331,7 @@ class MembraneNodes:
     velocity: jnp.ndarray
     mass: jnp.ndarray
     free: jnp.ndarray
+    reference_velocity: jnp.ndarray | None = None
 
     def for_contact(self) -> ContactNodes:
         """The positions and velocities, as the node–sphere law reads them."""
@@ -330,10 +341,10 @@ class MembraneNodes:
 def advance_nodes(membrane_force, contact_force, nodes: MembraneNodes, dt, damping: DampingParams):
     """Step 4 of the module docstring for every node: (total force, velocity, position, compensation).
 
-    F = F_membrane + F_contact; F_d = F − α|F| sign(v) − γ m v
-    (:func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and 0 on the
-    others (``nodes.free``); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`). On
-    the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
+    F = F_membrane + F_contact; F_d = F − α|F| sign(u) − γ m u, u = v − v_ref (``nodes.reference_velocity``,
+    0 when None; :func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and
+    0 on the others (``nodes.free``); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`).
+    On the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
     ``membrane_nodes.cc``) does it, and reverse mode a compiled backward kernel
     (``membrane_nodes_backward``) that gives this JAX code's derivatives to round-off. The damping
     coefficients are one specimen's (scalars, or arrays of one member).
@@ -347,25 +358,29 @@ def advance_nodes(membrane_force, contact_force, nodes: MembraneNodes, dt, dampi
 def _advance_nodes_reference(membrane_force, contact_force, nodes: MembraneNodes, dt, damping):
     force = membrane_force + contact_force
     member = jnp.zeros(nodes.position.shape[0], dtype=jnp.int32)
-    damped = apply_damping(force, nodes.velocity, nodes.mass, damping, member)
+    damped = apply_damping(force, nodes.velocity, nodes.mass, damping, member, nodes.reference_velocity)
     velocity = jnp.where(nodes.free[:, None], nodes.velocity + dt * damped / nodes.mass[:, None], 0.0)
     position, compensation = compensated_add(nodes.position, nodes.position_compensation, dt * velocity)
     return force, velocity, position, compensation
 
 
 def _node_update_inputs(nodes: MembraneNodes, dt, damping):
-    """The node update kernels' inputs after the two forces: x, c, v, m and the scalars Δt, α, γ stacked."""
+    """The node update kernels' inputs after the two forces: x, c, v, v_ref, m and Δt, α, γ stacked."""
     dtype = nodes.position.dtype
     # One specimen's damping: the first entry of a per-member array.
     damping_law = (jnp.ravel(damping.local_coefficient)[0], jnp.ravel(damping.viscous_rate)[0])
+    reference = nodes.reference_velocity
+    reference = jnp.zeros_like(nodes.velocity) if reference is None else reference  # 0: the absolute law
     return (
-        *native.in_dtype(dtype, nodes.position, nodes.position_compensation, nodes.velocity, nodes.mass),
+        *native.in_dtype(
+            dtype, nodes.position, nodes.position_compensation, nodes.velocity, reference, nodes.mass
+        ),
         native.stack_scalars(dtype, dt, *damping_law),
     )
 
 
 def _advance_nodes_inputs(membrane_force, contact_force, nodes: MembraneNodes, dt, damping):
-    """The kernels' differentiable inputs, flat (all but ``nodes.free``): F_m, F_c, x, c, v, m, (Δt, α, γ)."""
+    """The kernels' differentiable inputs, flat (not ``nodes.free``): F_m, F_c, x, c, v, v_ref, m, Δt/α/γ."""
     forces = native.in_dtype(nodes.position.dtype, membrane_force, contact_force)
     return (*forces, *_node_update_inputs(nodes, dt, damping))
 
@@ -408,20 +423,20 @@ def _advance_nodes_backward(args, perturbed, cotangents):
     total_kept = isinstance(args[1], native.Absent)  # the first slot then holds F itself
     # Zeros stand in for what was not kept: only their shapes and dtypes reach the cotangents' packing.
     args = native.zeros_for_absent(args)
-    force, position, velocity, mass_bar, scalars_bar = _advance_nodes_backward_kernel(
+    force, position, velocity, reference_bar, mass_bar, scalars_bar = _advance_nodes_backward_kernel(
         args, cotangents, total_kept
     )
     # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
-    flat = (force, force, position, position, velocity, mass_bar, scalars_bar)
+    flat = (force, force, position, position, velocity, reference_bar, mass_bar, scalars_bar)
     return native.pack_cotangents(_advance_nodes_inputs, args, flat)
 
 
 def _advance_nodes_backward_kernel(args, cotangents, total_kept):
-    """``membrane_nodes_backward`` on :func:`advance_nodes`' arguments: (F̄, x̄, v̄, m̄, (Δt, α, γ)̄).
+    """``membrane_nodes_backward`` on :func:`advance_nodes`' arguments: (F̄, x̄, v̄, v̄_ref, m̄, (Δt, α, γ)̄).
 
     ``total_kept``: the first argument is F itself (else the two forces, summed here as the forward kernel
     sums them). The kernel never reads the compensation's cotangent (x' and c' share the position's), so
-    its buffer takes the positions' cotangent (argument 8 to result 1), a copy into a loop's carry saved.
+    its buffer takes the positions' cotangent (argument 9 to result 1), a copy into a loop's carry saved.
     """
     *vectors, mass, scalars = _advance_nodes_inputs(*args)
     dtype = mass.dtype
@@ -429,14 +444,15 @@ def _advance_nodes_backward_kernel(args, cotangents, total_kept):
     return native.call(
         "membrane_nodes_backward",
         dtype,
-        (rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
+        (rows, rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
         vectors[0] if total_kept else vectors[0] + vectors[1],
         vectors[4],
+        vectors[5],
         mass,
         args[2].free.astype(dtype),
         scalars,
         *(jnp.asarray(c, dtype) for c in cotangents),
-        input_output_aliases={8: 1},
+        input_output_aliases={9: 1},
     )
 
 
@@ -533,8 +549,15 @@ def _node_step_kernel_inputs(*args):
     """
     contact, membrane, update = _node_step_parts(*args)
     _, membrane_scalars = energies.nodal_forces_kernel_inputs(*membrane)
-    _, compensation, _, mass, update_scalars = _node_update_inputs(*update)
-    return (*node_sphere_kernel_inputs(*contact), membrane_scalars, compensation, mass, update_scalars)
+    _, compensation, _, reference, mass, update_scalars = _node_update_inputs(*update)
+    return (
+        *node_sphere_kernel_inputs(*contact),
+        membrane_scalars,
+        compensation,
+        reference,
+        mass,
+        update_scalars,
+    )
 
 
 def _node_step_residuals(args, outputs, perturbed):
@@ -568,7 +591,7 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
     ) = (jnp.asarray(c, dtype) for c in cotangents)
     # 4. The node update: F stands in for its two forces (its backward kernel reads only their sum).
     update_args = (total_force, jnp.zeros_like(total_force), nodes, dt, damping)
-    force_bar, update_position_bar, update_velocity_bar, mass_bar, update_scalars_bar = (
+    force_bar, update_position_bar, update_velocity_bar, reference_bar, mass_bar, update_scalars_bar = (
         _advance_nodes_backward_kernel(
             update_args, (total_bar, velocity_bar, position_bar, compensation_bar), total_kept=True
         )
@@ -586,8 +609,16 @@ def _node_step_backward(residuals, perturbed, cotangents, model):
         update_velocity_bar,
     )
     # The node positions' and velocities' cotangents are whole in the contact's; the membrane's and the
-    # update's scalars, the compensations' and the masses' are packed beside them (Δt is shared).
-    flat = (*contact_flat, membrane_scalars_bar, update_position_bar, mass_bar, update_scalars_bar)
+    # update's scalars, the compensations', the reference velocities' and the masses' are packed beside
+    # them (Δt is shared).
+    flat = (
+        *contact_flat,
+        membrane_scalars_bar,
+        update_position_bar,
+        reference_bar,
+        mass_bar,
+        update_scalars_bar,
+    )
     return native.pack_cotangents(_node_step_kernel_inputs, args, flat)
 
 
@@ -664,6 +695,8 @@ def membrane_dem(
     # Mass per unit thickness: lumped_mass is linear in t_m, which stays a traced parameter.
     mass_per_thickness = energies.lumped_mass(mesh, 1.0, latex_density)
     free = jnp.asarray(free_node_mask(mesh))
+    # One specimen: every node reads member 0's walls.
+    node_member = jnp.zeros(mesh.num_nodes, dtype=jnp.int32)
     rings = jnp.stack([mesh.bottom_ring, mesh.top_ring])  # (2, n_θ)
     # The rings are set with unique_indices (checked here unless the mesh is traced, as in a vmapped rollout).
     if not isinstance(rings, jax.core.Tracer) and np.unique(np.asarray(rings)).size != rings.size:
@@ -700,12 +733,16 @@ def membrane_dem(
     def step_fn(state: CoupledState, params: CoupledParams) -> CoupledState:
         spheres, nodes = state.dem, state.membrane
         mp = params.membrane
+        reference = None  # the absolute law
+        if params.dem.damping.frame == "affine":  # static: the nodes damped as the spheres are
+            reference = affine_velocity(nodes.position, spheres.walls, node_member)
         moving = MembraneNodes(
             position=nodes.position,
             position_compensation=nodes.position_compensation,
             velocity=nodes.velocity,
             mass=mp.thickness * mass_per_thickness,
             free=free,
+            reference_velocity=reference,
         )
         if native.enabled_for(nodes.position.dtype):  # steps 1, 2 and 4 in one reverse-mode rule
             (

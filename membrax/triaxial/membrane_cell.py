@@ -247,7 +247,8 @@ def membrane_test(
       membrane_modulus: E_m, Pa, > 0 (paper: 1.4e6, :data:`membrax.defaults.MEMBRANE_MODULUS`).
       contact_params: sphere contact law (default :meth:`ContactParams.paper`).
       membrane_contact: node–sphere law (default :meth:`MembraneContactParams.default`).
-      damping: default Cundall local 0.3 (paper), applied to spheres and membrane nodes alike.
+      damping: default Cundall local 0.3 (paper), applied to spheres and membrane nodes alike, on their
+        velocities relative to the platens' affine field (:data:`membrax.defaults.DAMPING_FRAME`).
       density: particle density, kg/m³.
       latex_density: membrane density, kg/m³.
       edges_per_diameter: mesh resolution, particle diameter / target edge length (5: ~34,000 triangles at

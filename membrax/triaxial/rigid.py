@@ -8,8 +8,9 @@ whose methods run the two stages with the chunk driver and return the state and 
 1. :meth:`RigidWallTest.consolidate`: every wall servo-controlled to the cell pressure σc until the
    unbalanced-force ratio falls below ``tolerance`` and every wall stress is within ``stress_tolerance``
    of σc;
-2. :meth:`RigidWallTest.shear`: the top platen moves down at constant velocity (drained, strain
-   controlled), lateral walls held at σc by their servos, to a target axial strain. The strain rate comes
+2. :meth:`RigidWallTest.shear`: the top platen moves down at constant velocity (or both platens close,
+   ``symmetric=True``, as in the membrane cell; drained, strain controlled), lateral walls held at σc by
+   their servos, to a target axial strain. The strain rate comes
    from an inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004, with the axial strain rate for the shear rate
    and the cell pressure for the confining stress). Records every ``record_every_fine`` steps below
    ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 % strain), coarser after.
@@ -40,7 +41,7 @@ from membrax.spheres.integrate import (
 from membrax.spheres.measure import measure
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.packing import GRANITE_DENSITY, Specimen
-from membrax.spheres.walls import TOP, ramp_acceleration, set_control, triaxial_walls
+from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
 from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
@@ -114,18 +115,28 @@ class RigidWallTest(StagedTest):
         )
 
     def start_shear(
-        self, state: DEMState, inertial_number: float = 1e-3, ramp_strain: float = 0.0
+        self,
+        state: DEMState,
+        inertial_number: float = 1e-3,
+        ramp_strain: float = 0.0,
+        symmetric: bool = False,
     ) -> DEMState:
         """Switch ``state`` to stage 2: the top platen closes at ε̇ H, the lateral walls servo-held at σc.
 
         ``ramp_strain`` > 0 ramps the platen up from rest, reaching full speed at that axial strain
         (:func:`membrax.spheres.walls.set_control`'s acceleration; the rigid-wall default is a step change).
+        ``symmetric``: both platens close, each at ε̇ H/2, as the membrane cell's default loading
+        (:meth:`membrax.triaxial.membrane_cell.MembraneTest.start_shear`); the rigid-wall default moves the
+        top one alone.
         """
         check_range("ramp_strain", ramp_strain, lower=0.0, upper=1.0, upper_open=True)
         rate = self.shear_rate(inertial_number)
-        heights = np.asarray(state.walls.position[:, TOP] + state.walls.position[:, 0])
+        heights = np.asarray(state.walls.position[:, TOP] + state.walls.position[:, BOTTOM])
         velocity = np.zeros(state.walls.velocity.shape)
-        velocity[:, TOP] = -rate * heights
+        if symmetric:
+            velocity[:, [BOTTOM, TOP]] = -0.5 * rate * heights[:, None]
+        else:
+            velocity[:, TOP] = -rate * heights
         servo = np.ones(state.walls.servo.shape, dtype=bool)
         servo[:, :2] = False
         acceleration = ramp_acceleration(velocity, rate, ramp_strain)
@@ -152,7 +163,8 @@ def rigid_wall_test(
         the specimen into one system (:mod:`membrax.batch`).
       contact_params: contact law (default: the paper's, :meth:`ContactParams.paper`); fields may be
         arrays over members.
-      damping: default Cundall local 0.3 (the paper's); fields may be arrays over members.
+      damping: default Cundall local 0.3 (the paper's) on the velocities relative to the walls' affine
+        field (:data:`membrax.defaults.DAMPING_FRAME`); fields may be arrays over members.
       density: particle density, kg/m³ (granite by default; the paper gives none).
       dt_safety: Δt = dt_safety × Δt_crit.
       skin_fraction: neighbour skin as a fraction of the particle diameter.
