@@ -84,8 +84,9 @@ def test_the_field_interpolates_the_platen_velocities_and_is_clipped_outside():
     np.testing.assert_allclose(np.asarray(damped[0]), hand, rtol=1e-12)
 
 
-def test_the_lateral_field_of_servo_walls_is_their_area_rate_about_each_members_centroid():
-    # Two members' square cells of half-width a = 0.1 m, member 1 shifted by (0.5, 0, 0) (a folded batch).
+def test_the_lateral_field_of_strain_controlled_walls_is_their_area_rate_about_each_centroid():
+    # Two members' square cells of half-width a = 0.1 m, member 1 shifted by (0.5, 0, 0) (a folded batch),
+    # their lateral walls moved at imposed velocities (servo off, triaxial_walls' default).
     # Member 0's four walls move out at u = 2 mm/s: ε̇_r = (dA/dt)/(2A) = 8a u/(8a²) = u/a; member 1's first
     # wall moves at 2u, the others at u: Σ L_k v_k/(2A) = 2a·5u/(8a²) = 1.25 u/a.
     a, u = 0.1, 0.002
@@ -237,9 +238,8 @@ def test_absolute_viscous_damping_loads_the_platens_of_a_compressed_chain_and_th
     rtol = {np.dtype(np.float64): 5e-3, np.dtype(np.float32): 2e-2}[precision]
     assert excess == pytest.approx(hand, rel=rtol)
     affine, _, _, _ = chain_excess("affine")
-    assert affine == pytest.approx(
-        -hand / num, rel=8 * rtol
-    )  # the same absolute error on an 8× smaller value
+    # The same absolute error on an 8× smaller value.
+    assert affine == pytest.approx(-hand / num, rel=8 * rtol)
 
 
 @pytest.mark.slow
@@ -250,8 +250,8 @@ def test_local_damping_drag_on_the_platens_of_a_rigid_box_is_what_the_affine_fra
     # (1/V) Σ D_z (z − z_mid), D = F_d − F (inertia at I = 1e-3 is I² σ ~ 1e-6 of it): checked in both
     # frames within 10 % (the records sample a fluctuating drag every 50 steps). Absolute local damping
     # drags the spheres against the platens' motion; the affine frame removes that part, leaving the
-    # damping of the non-affine motion (measured 0.34 % against 0.67 % of σ1 at this size, float32): the
-    # platen stress within the issue's 0.5 % of the contact stress.
+    # damping of the non-affine motion (measured here 0.34 % of σ1 against 0.68 %): the platen stress within
+    # the issue's 0.5 % of the contact stress.
     test = rigid.rigid_wall_test(packing.fcc_specimen(D, 6, 10), 1e4)
     state, _ = test.consolidate()
     member = test.particles.member
