@@ -506,4 +506,5 @@ def test_a_compaction_friction_names_its_packing_state():
 
     assert compaction_state(0.0) == "dense"
     assert compaction_state(m.degrees(m.atan(0.5))) == "loose"  # tan⁻¹ 0.5, as COMPACTION_FRICTION_DEG
-    assert compaction_state(10.0) == "compaction friction 10°"
+    assert compaction_state(10.0) == "medium"
+    assert compaction_state(15.0) == "compaction friction 15°"
