@@ -345,7 +345,11 @@ def test_a_faster_coarse_phase_keeps_the_fine_records_and_reaches_the_target_str
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="Under affine damping the float32-vs-float64 external φ' gap after the peak measured 0.303° against the 0.3° bound (0.195° under absolute damping); peaks agree to 0.0002°. Seeds with a 1e-3 imperfection scatter 0.04–0.30° in both frames: chaotic, to be bounded properly.", strict=False)
+@pytest.mark.xfail(
+    reason="affine damping: float32-vs-float64 external phi' gap after the peak 0.303 deg against the "
+    "0.3 deg bound (0.195 absolute); peaks agree to 0.0002 deg; seeds scatter 0.04-0.30 deg in both frames",
+    strict=False,
+)
 def test_float32_shearing_keeps_the_float64_consolidation_and_resumes_in_float32(tmp_path):
     """``float32_shearing``: consolidation is the float64 run's bit for bit (Table 3's stresses at the start
     of shearing), the shearing runs in float32, balances the ram to float32 round-off and stays within
