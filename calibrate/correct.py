@@ -57,6 +57,14 @@ error in the band is the region's error of the chosen factor on unseen cases (it
 so, and the CSV carries the factors (``fitted_shrink_axial``, ``fitted_shrink_radial``). A correction
 without a rule never abstains.
 
+Radial target. The fitted σ3 reproduces the correction's ``radial_target``
+(:data:`calibrate.datasets.RADIAL_TARGETS`, docs/model.md): the received stress (the radial load the
+spheres and clamps receive over the membrane's radially projected area, equal to σc when the membrane
+carries nothing) for a correction fitted since that choice, the paper's §4.3 stress for the shipped one and
+for files written before. A correction with an ``alternate`` (the same fit with the other target) gives
+that one's fitted σ1, σ3, φ' and φ' band beside, in the columns ``*_fitted_<target>``; the CSV's header
+says which is which (:func:`target_words`).
+
 :func:`write_correction` writes the CSV and the plot (σ1, σ3, φ' side by side) atomically: a failure
 leaves no file half-written. ``membrax correct`` is :func:`correct_file`: it never writes over the record
 it reads, and writes into the working folder by default, never beside a record inside the package.
@@ -258,6 +266,10 @@ class CorrectedRecord(NamedTuple):
         (NaN) where δ > :data:`MAX_EXTRAPOLATION` (H/D_s aside: it widens, never withholds).
       shrink: (w for σ1, w for σ3), the factors the abstention rule scaled the fitted correction by
         (:mod:`calibrate.abstention`; 1 without a rule).
+      radial_target: the internal radial stress the fitted σ3 reproduces
+        (:data:`calibrate.datasets.RADIAL_TARGETS`).
+      alternate: the record corrected by the correction's ``alternate`` (the other radial target), or
+        None when it has none.
     """
 
     record: object
@@ -269,6 +281,8 @@ class CorrectedRecord(NamedTuple):
     warnings: tuple
     extrapolation: np.ndarray
     shrink: tuple = (1.0, 1.0)
+    radial_target: str = datasets.LEGACY_RADIAL_TARGET
+    alternate: CorrectedRecord | None = None
 
 
 def default_corrections() -> persistence.Corrections:
@@ -574,6 +588,11 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
         messages.append(abstention_warning(value, region, (shrink_axial, shrink_radial)))
     for message in messages:
         warnings.warn(message, stacklevel=2)
+    alternate = None
+    if corrections.alternate is not None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the same inputs: the chosen correction's warnings cover it
+            alternate = correct_record(record, specimen, corrections.alternate)
     return CorrectedRecord(
         record,
         sigma_1,
@@ -584,6 +603,8 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
         tuple(messages),
         extrapolation,
         (shrink_axial, shrink_radial),
+        corrections.radial_target,
+        alternate,
     )
 
 
@@ -616,6 +637,19 @@ def extrapolation_summary(extrapolation, undefined, model_extrapolation=None) ->
     )
 
 
+def target_words(result: CorrectedRecord) -> str:
+    """Which internal stresses the fitted columns reproduce, in a laboratory's words (a CSV header line)."""
+    words = {
+        "received": "the radial load the specimen receives over the membrane's projected area",
+        "section_4_3": "the paper's 4.3 internal radial stress",
+    }
+    line = f"fitted: sigma_1 the paper's 4.3 internal axial stress, sigma_3 {words[result.radial_target]}"
+    if result.alternate is not None:
+        name = result.alternate.radial_target
+        line += f"; the *_fitted_{name} columns: sigma_3 {words[name]} (docs/model.md)"
+    return line
+
+
 def _csv_text(result: CorrectedRecord, header_lines) -> str:
     record = result.record
     columns = {
@@ -635,6 +669,13 @@ def _csv_text(result: CorrectedRecord, header_lines) -> str:
     # Per record, repeated on each row so that every reading carries what was done to it.
     columns["fitted_shrink_axial [-]"] = np.full(record.axial_strain.shape, result.shrink[0])
     columns["fitted_shrink_radial [-]"] = np.full(record.axial_strain.shape, result.shrink[1])
+    other = result.alternate
+    if other is not None:  # the fitted method with the other radial target, beside (module docstring)
+        suffix = f"fitted_{other.radial_target}"
+        columns[f"sigma_1_{suffix} [kPa]"] = 1e-3 * other.sigma_1["fitted"]
+        columns[f"sigma_3_{suffix} [kPa]"] = 1e-3 * other.sigma_3["fitted"]
+        columns[f"friction_angle_{suffix} [deg]"] = other.friction_angle["fitted"]
+        columns[f"friction_angle_{suffix}_std [deg]"] = other.std["friction_angle"]
     out = io.StringIO()
     for line in header_lines:
         out.write(f"# {line}\n")
@@ -804,6 +845,7 @@ def correct_file(
         f"(membrax {corrections.provenance.get('membrax_version', '?')}); std: one standard deviation, "
         "widened by 1 + fitted_extrapolation outside the fitted range; fitted_shrink_axial/_radial: the "
         "factors the abstention rule scaled the fitted sigma_1/sigma_3 corrections by (1: kept)",
+        target_words(result),
         "conventions: compression positive; strains in %, stresses in kPa",
         *(f"source: {line}" for line in record.comments),
         *(f"read: {line}" for line in record.notes),

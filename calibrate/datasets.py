@@ -28,10 +28,16 @@ and the dimensionless groups the models use:
 :func:`measured_inputs` computes these columns from one test's strains and properties; the fitting table
 of a sweep and the correction of a laboratory record (:mod:`calibrate.correct`) both use it.
 
-Targets: ``axial_target`` Δσ_a/σc and ``radial_target`` Δσ_r/σc, internal − external (the paper's §4.3
-stresses; Δσ > 0 when the specimen carries more than the cell and ram apply). ``case`` numbers the
-members (for leave-one-case-out cross-validation) and ``initial`` marks each member's first record (the
-end of consolidation: Table 3, Fig. 9).
+Targets: ``axial_target`` Δσ_a/σc and ``radial_target`` Δσ_r/σc, internal − external (Δσ > 0 when the
+specimen carries more than the cell and ram apply). The axial internal stress is the paper's §4.3 one. The
+radial one is the table's ``radial_target_name``, one of :data:`RADIAL_TARGETS` (docs/model.md, "Which
+internal stress a correction reproduces"): ``"received"`` (the default, :data:`DEFAULT_RADIAL_TARGET`), the
+radial load the spheres and clamps receive over the membrane's radially projected area, σc exactly when
+the membrane carries nothing; or ``"section_4_3"``, the paper's, which is the received one times R̄/R_A (the
+indented surface's mean radius over the platen's) and so moves with the packing's roughness. Sweeps written
+before membrax recorded ``received_radial_stress`` have only the second. ``case`` numbers the members (for
+leave-one-case-out cross-validation) and ``initial`` marks each member's first record (the end of
+consolidation: Table 3, Fig. 9).
 """
 
 from __future__ import annotations
@@ -47,7 +53,10 @@ from membrax import theory
 from membrax.config import characteristic_size_mm, compaction_state
 
 __all__ = [
+    "DEFAULT_RADIAL_TARGET",
     "INPUTS",
+    "LEGACY_RADIAL_TARGET",
+    "RADIAL_TARGETS",
     "FittingTable",
     "aspect_ratios",
     "concatenate",
@@ -79,6 +88,13 @@ INPUTS = (
     "tape_hoop_ratio",
 )
 
+#: The radial internal stresses a correction can reproduce: name → the record holding it (module docstring).
+RADIAL_TARGETS = {"received": "received_radial_stress", "section_4_3": "internal_radial_stress"}
+#: The radial target a new correction reproduces (docs/model.md gives the evidence).
+DEFAULT_RADIAL_TARGET = "received"
+#: What a table written before it carried a target's name holds.
+LEGACY_RADIAL_TARGET = "section_4_3"
+
 
 class FittingTable(NamedTuple):
     """Rows of (inputs, targets) for fitting; every field a float64 array of one length (module docstring).
@@ -89,6 +105,8 @@ class FittingTable(NamedTuple):
       radial_target: Δσ_r/σc, dimensionless.
       case: the member each row comes from (integer labels).
       initial: whether the row is a member's start of shearing (bool).
+      radial_target_name: which internal radial stress ``radial_target`` is, a key of
+        :data:`RADIAL_TARGETS`.
     """
 
     inputs: dict
@@ -96,6 +114,7 @@ class FittingTable(NamedTuple):
     radial_target: np.ndarray
     case: np.ndarray
     initial: np.ndarray
+    radial_target_name: str = LEGACY_RADIAL_TARGET
 
     @property
     def num_rows(self) -> int:
@@ -115,6 +134,7 @@ class FittingTable(NamedTuple):
             self.radial_target[rows],
             self.case[rows],
             self.initial[rows],
+            self.radial_target_name,
         )
 
 
@@ -284,16 +304,20 @@ def aspect_ratios(sweeps) -> list[float]:
     return ratios
 
 
-def fitting_table(dataset) -> FittingTable:
+def fitting_table(dataset, radial_target: str = DEFAULT_RADIAL_TARGET) -> FittingTable:
     """The fitting table of a sweep dataset (module docstring).
 
     Args:
       dataset: an :class:`xarray.Dataset` of :func:`membrax.sweep.run_sweep` (``sweep.nc``).
+      radial_target: the internal radial stress Δσ_r is counted from, a key of :data:`RADIAL_TARGETS`.
 
     Raises:
       ValueError: a dataset that is not a sweep's (no ``base_config``/``grid_fields`` attributes or no
-        records), naming what is missing.
+        records), an unknown ``radial_target``, or a sweep that does not record it, naming what is missing
+        and the fix.
     """
+    if radial_target not in RADIAL_TARGETS:
+        raise ValueError(f"radial_target = {radial_target!r}; choose one of {sorted(RADIAL_TARGETS)}.")
     columns = {name: [] for name in INPUTS}
     axial, radial, cases, initial = [], [], [], []
     for config, rows in sweep_members(dataset):
@@ -313,7 +337,7 @@ def fitting_table(dataset) -> FittingTable:
         for name in INPUTS:
             columns[name].append(values[name])
         axial.append(np.asarray(rows["additional_axial_stress"], dtype=np.float64) / cell_pressure)
-        radial.append(np.asarray(rows["additional_radial_stress"], dtype=np.float64) / cell_pressure)
+        radial.append(_radial_difference(rows, radial_target) / cell_pressure)
         cases.append(np.full(count, len(cases), dtype=np.int64))  # members with records, 0, 1, ...
         first = np.zeros(count, dtype=bool)
         first[0] = True
@@ -326,7 +350,23 @@ def fitting_table(dataset) -> FittingTable:
         np.concatenate(radial),
         np.concatenate(cases),
         np.concatenate(initial),
+        radial_target,
     )
+
+
+def _radial_difference(rows, radial_target: str) -> np.ndarray:
+    """Δσ_r = σ_r,internal − σ_r,external (Pa) of one member's records, the internal one ``radial_target``."""
+    if radial_target == "section_4_3":
+        return np.asarray(rows["additional_radial_stress"], dtype=np.float64)
+    name = RADIAL_TARGETS[radial_target]
+    if name not in rows or "external_radial_stress" not in rows:
+        raise ValueError(
+            f"the sweep records no {name!r} (it was written before membrax recorded it): run the sweep "
+            "again with this membrax, or fit the paper's §4.3 stress with radial_target='section_4_3' "
+            "(`membrax fit --radial-target section_4_3`)."
+        )
+    internal = np.asarray(rows[name], dtype=np.float64)
+    return internal - np.asarray(rows["external_radial_stress"], dtype=np.float64)
 
 
 def concatenate(tables) -> FittingTable:
@@ -334,6 +374,9 @@ def concatenate(tables) -> FittingTable:
     tables = list(tables)
     if not tables:
         raise ValueError("no tables to join; give at least one sweep.")
+    names = sorted({t.radial_target_name for t in tables})
+    if len(names) > 1:
+        raise ValueError(f"the tables count Δσ_r from different internal stresses ({names}); join like ones.")
     offsets = np.cumsum([0] + [int(t.case.max()) + 1 for t in tables[:-1]])
     return FittingTable(
         {name: np.concatenate([t.inputs[name] for t in tables]) for name in INPUTS},
@@ -341,6 +384,7 @@ def concatenate(tables) -> FittingTable:
         np.concatenate([t.radial_target for t in tables]),
         np.concatenate([t.case + offset for t, offset in zip(tables, offsets, strict=True)]),
         np.concatenate([t.initial for t in tables]),
+        names[0],
     )
 
 
@@ -358,6 +402,7 @@ def save_table(table: FittingTable, path) -> None:
         radial_target=table.radial_target,
         case=table.case,
         initial=table.initial,
+        radial_target_name=np.asarray(table.radial_target_name),
     )
     atomic_write_bytes(Path(path), buffer.getvalue())
 
@@ -372,4 +417,5 @@ def load_table(path) -> FittingTable:
             np.asarray(content["radial_target"]),
             np.asarray(content["case"]),
             np.asarray(content["initial"]),
+            str(content["radial_target_name"]) if "radial_target_name" in content else LEGACY_RADIAL_TARGET,
         )

@@ -3,12 +3,16 @@
 Contract. :func:`lab_record_of` turns one member of a sweep (``sweep.nc``) into what a laboratory would
 have measured, a :class:`calibrate.lab.LabRecord` (external stresses: the ram's σ1 and the cell pressure;
 ε_a and ε_v from the start of shearing), together with its :class:`calibrate.correct.Specimen` and the
-internal stresses the specimen carried (the paper's §4.3), which a laboratory cannot measure.
+internal stresses the specimen carried, which a laboratory cannot measure: σ1 the paper's §4.3, σ3 the
+radial target asked for (:data:`calibrate.datasets.RADIAL_TARGETS`; a correction is scored against the one
+it reproduces, its ``radial_target``).
 :func:`friction_angle_errors` corrects it by every method (:func:`calibrate.correct.correct_record`) and
 returns, per method, the mean and the worst |φ'_method − φ'_internal| over the records with
 0 < ε_a ≤ 10 % (``max_strain``). :func:`held_out_errors` does this for every member of a sweep and pools
 them. :func:`write_example_record` writes a member as the shipped example record (CSV, labelled synthetic,
-the internal stresses in columns ``membrax correct`` does not read).
+the internal stresses in columns ``membrax correct`` does not read; :func:`write_member_record` any member),
+and :func:`corrected_csv_errors` scores ``membrax correct``'s output for such a record against both internal
+σ3, as a user would meet the correction.
 """
 
 from __future__ import annotations
@@ -25,8 +29,12 @@ from membrax.config import characteristic_size_mm, compaction_state
 __all__ = [
     "EXAMPLE_ARGUMENTS_PREFIX",
     "SPECIMEN_FLAGS",
+    "INTERNAL_COLUMNS",
     "VOID_RATIO_FLAG",
+    "HEIGHT_FLAG",
+    "corrected_csv_errors",
     "example_arguments",
+    "example_argv",
     "example_void_ratio",
     "read_example_record",
     "friction_angle_errors",
@@ -34,6 +42,7 @@ __all__ = [
     "held_out_errors",
     "lab_record_of",
     "write_example_record",
+    "write_member_record",
 ]
 
 #: The comment of the example record that carries its ``membrax correct`` arguments.
@@ -47,6 +56,14 @@ SPECIMEN_FLAGS = (
 )
 #: The optional flag of the specimen's void ratio (:meth:`calibrate.correct.Specimen.from_mm_kpa`).
 VOID_RATIO_FLAG = "--void-ratio"
+#: The optional flag of the specimen's height after consolidation.
+HEIGHT_FLAG = "--specimen-height-mm"
+#: A member record's internal-stress columns (:func:`write_member_record`): σ1, and σ3 per radial target.
+INTERNAL_COLUMNS = {
+    "sigma_1": "internal_sigma_1",
+    "section_4_3": "internal_sigma_3",
+    "received": "internal_sigma_3_received",
+}
 
 
 def read_example_record():
@@ -60,8 +77,8 @@ def read_example_record():
     specimen = correct.Specimen.from_mm_kpa(
         *example_arguments(record.comments), void_ratio=example_void_ratio(record.comments)
     )
-    internal_1 = 1e3 * table[:, names.index("internal_sigma_1")]
-    internal_3 = 1e3 * table[:, names.index("internal_sigma_3")]
+    internal_1 = 1e3 * table[:, names.index(INTERNAL_COLUMNS["sigma_1"])]
+    internal_3 = 1e3 * table[:, names.index(INTERNAL_COLUMNS["section_4_3"])]
     return record, specimen, internal_1, internal_3
 
 
@@ -79,6 +96,18 @@ def example_arguments(comments) -> tuple[float, float, float, float]:
     raise ValueError(f"no '# {EXAMPLE_ARGUMENTS_PREFIX} ...' comment in the record.")
 
 
+def example_argv(comments) -> list[str]:
+    """The ``membrax correct`` options of a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, as argv words.
+
+    Raises:
+      ValueError: no such comment.
+    """
+    for line in comments:
+        if line.startswith(EXAMPLE_ARGUMENTS_PREFIX):
+            return line[len(EXAMPLE_ARGUMENTS_PREFIX) :].split()
+    raise ValueError(f"no '# {EXAMPLE_ARGUMENTS_PREFIX} ...' comment in the record.")
+
+
 def example_void_ratio(comments) -> float | None:
     """The void ratio in a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, or None when it has none."""
     for line in comments:
@@ -89,7 +118,7 @@ def example_void_ratio(comments) -> float | None:
     return None
 
 
-def lab_record_of(config: dict, rows):
+def lab_record_of(config: dict, rows, radial_target: str = datasets.LEGACY_RADIAL_TARGET):
     """(LabRecord, Specimen, internal σ1, internal σ3) of one sweep member (module docstring).
 
     Records whose axial strain does not exceed the previous one's (the platens start from rest) are
@@ -100,6 +129,7 @@ def lab_record_of(config: dict, rows):
         ``grading`` and ``membrane_thickness_mm`` mm, ``membrane_modulus_kpa`` kPa); the particle size is
         :func:`membrax.config.characteristic_size_mm` (d50 of a grading).
       rows: its shearing records (stresses in Pa, strains dimensionless, ``platen_area`` m²).
+      radial_target: the internal σ3 returned, a key of :data:`calibrate.datasets.RADIAL_TARGETS`.
 
     Returns:
       the record (SI: Pa, strains), the specimen (m, Pa) and the internal σ1 and σ3 (Pa) of the kept rows.
@@ -121,15 +151,26 @@ def lab_record_of(config: dict, rows):
     )
     # A random member's solid fraction is a laboratory's void ratio (FCC members carry none: NaN).
     fraction = float(rows["solid_fraction"]) if "solid_fraction" in rows else math.nan
+    # The height after consolidation, as a laboratory measures it (the first record is a step into shearing).
+    height = None
+    if "height" in rows:
+        height = float(rows["height"][0]) / (1.0 - float(rows["axial_strain"][0]))
     specimen = correct.Specimen(
         math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi),
         1e-3 * characteristic_size_mm(config),
         1e-3 * config["membrane_thickness_mm"],
         1e3 * config["membrane_modulus_kpa"],
         fraction if math.isfinite(fraction) else None,
+        height if height is not None and math.isfinite(height) else None,
     )
     internal_1 = np.asarray(rows["internal_axial_stress"], dtype=np.float64)[keep]
-    internal_3 = np.asarray(rows["internal_radial_stress"], dtype=np.float64)[keep]
+    name = datasets.RADIAL_TARGETS[radial_target]
+    if name not in rows:
+        raise ValueError(
+            f"the sweep records no {name!r}: score a correction whose radial_target is 'section_4_3', or run "
+            "the sweep again with this membrax."
+        )
+    internal_3 = np.asarray(rows[name], dtype=np.float64)[keep]
     return record, specimen, internal_1, internal_3
 
 
@@ -190,12 +231,15 @@ def friction_angle_errors(record, specimen, internal_1, internal_3, corrections=
 def held_out_errors(dataset, corrections=None, max_strain=0.10) -> dict:
     """Per member and pooled, the φ' errors of :func:`friction_angle_errors` for every member of a sweep.
 
+    Each member's internal φ' is that of the correction's own radial target (its ``radial_target``).
+
     Returns:
       {"members": [(config fields, errors)], "pooled": {method: (mean of means, worst of worsts)}}.
     """
+    corrections = correct.default_corrections() if corrections is None else corrections
     members = []
     for config, rows in datasets.sweep_members(dataset):
-        record, specimen, internal_1, internal_3 = lab_record_of(config, rows)
+        record, specimen, internal_1, internal_3 = lab_record_of(config, rows, corrections.radial_target)
         errors = friction_angle_errors(record, specimen, internal_1, internal_3, corrections, max_strain)
         fields = {
             k: config[k] for k in ("cell_pressure_kpa", "membrane_thickness_mm", "membrane_modulus_kpa")
@@ -231,8 +275,6 @@ def write_example_record(
 
     ``source`` names the design the member comes from (e.g. ``calibrate.grid.RANDOM_HELD_OUT``).
     """
-    from membrax.io.files import atomic_write_bytes
-
     chosen = [
         (config, rows)
         for config, rows in datasets.sweep_members(dataset)
@@ -240,8 +282,22 @@ def write_example_record(
     ]
     if not chosen:
         raise ValueError(f"no member of the sweep at {coordinates}.")
-    config, rows = chosen[0]
+    return write_member_record(*chosen[0], path, version, source)
+
+
+def write_member_record(config: dict, rows, path, version: str, source: str) -> Path:
+    """Write one sweep member (:func:`datasets.sweep_members`) as a laboratory-style CSV (module docstring).
+
+    Columns: what ``membrax correct`` reads (ε_a, ε_v in %, q and σc in kPa) and, which it does not read,
+    the internal σ1 and the §4.3 σ3 (``internal_sigma_1``, ``internal_sigma_3``) and, where the sweep
+    records it, the received σ3 (``internal_sigma_3_received``), in kPa.
+    """
+    from membrax.io.files import atomic_write_bytes
+
     record, specimen, internal_1, internal_3 = lab_record_of(config, rows)
+    received = None
+    if datasets.RADIAL_TARGETS["received"] in rows:
+        received = lab_record_of(config, rows, "received")[3]
     particle = round(characteristic_size_mm(config), 2)
     arguments = (
         round(1e3 * specimen.specimen_diameter, 1),
@@ -256,7 +312,8 @@ def write_example_record(
         f"particle size {particle:g} mm; membrane {config['membrane_thickness_mm']:g} mm of "
         f"{config['membrane_modulus_kpa']:g} kPa; cell pressure {config['cell_pressure_kpa']:g} kPa\n"
         "# internal_sigma_1/internal_sigma_3: the stresses the specimen carried (membrax's internal stresses,"
-        " the paper's 4.3); membrax correct does not read them\n"
+        " the paper's 4.3); internal_sigma_3_received (where given): the radial load the specimen received"
+        " over the membrane's projected area; membrax correct does not read them\n"
         f"# {EXAMPLE_ARGUMENTS_PREFIX} "
         + " ".join(f"{flag} {value:g}" for flag, value in zip(SPECIMEN_FLAGS, arguments, strict=True))
         + (
@@ -264,25 +321,87 @@ def write_example_record(
             if specimen.solid_fraction is None
             else f" {VOID_RATIO_FLAG} {round(1.0 / specimen.solid_fraction - 1.0, 3):g}"
         )
+        + ("" if specimen.height is None else f" {HEIGHT_FLAG} {round(1e3 * specimen.height, 1):g}")
         + "\n"
     )
-    out.write(
-        "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa],"
-        "internal_sigma_1 [kPa],internal_sigma_3 [kPa]\n"
-    )
-    table = np.stack(
-        [
-            100.0 * record.axial_strain,
-            100.0 * record.volumetric_strain,
-            1e-3 * (record.axial_stress - record.cell_pressure),
-            1e-3 * record.cell_pressure,
-            1e-3 * internal_1,
-            1e-3 * internal_3,
-        ],
-        axis=1,
-    )
+    columns = {
+        "axial_strain [%]": 100.0 * record.axial_strain,
+        "volumetric_strain [%]": 100.0 * record.volumetric_strain,
+        "deviator_stress [kPa]": 1e-3 * (record.axial_stress - record.cell_pressure),
+        "cell_pressure [kPa]": 1e-3 * record.cell_pressure,
+        f"{INTERNAL_COLUMNS['sigma_1']} [kPa]": 1e-3 * internal_1,
+        f"{INTERNAL_COLUMNS['section_4_3']} [kPa]": 1e-3 * internal_3,
+    }
+    if received is not None:
+        columns[f"{INTERNAL_COLUMNS['received']} [kPa]"] = 1e-3 * received
+    out.write(",".join(columns) + "\n")
+    table = np.stack(list(columns.values()), axis=1)
     np.savetxt(out, table, delimiter=",", fmt="%.7g")
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(path, out.getvalue().encode())
     return path
+
+
+def corrected_csv_errors(record_path, corrected_path, radial_target: str, max_strain: float = 0.10) -> dict:
+    """φ' errors of a ``membrax correct`` output against a member record's internal φ', per radial target.
+
+    The user's route: :func:`write_member_record` wrote the record, ``membrax correct`` corrected it from
+    its external columns alone; here each method's φ' (the output's ``friction_angle_<method>``) is compared
+    with φ'_internal = arcsin((σ1 − σ3)/(σ1 + σ3)) of the record's internal columns, for each radial target
+    the record has. The ``fitted`` method is the correction's own for its ``radial_target`` and its
+    alternate's (``friction_angle_fitted_<target>``) for the other, where the output has it. Rows scored:
+    0 < ε_a ≤ ``max_strain`` where that target's fitted φ' is defined.
+
+    Args:
+      record_path: the member record (CSV of :func:`write_member_record`).
+      corrected_path: ``membrax correct``'s CSV for it.
+      radial_target: the correction's radial target (:data:`calibrate.datasets.RADIAL_TARGETS`).
+      max_strain: the largest axial strain scored, dimensionless.
+
+    Returns:
+      {target: {method: (mean, worst) |φ' − φ'_internal| in degrees}} for each target the record and the
+      output both carry.
+
+    Raises:
+      ValueError: the two files have different numbers of readings or axial strains.
+    """
+    from membrax.triaxial.analysis import friction_angle_deg
+
+    record = _csv_columns(record_path)
+    corrected = _csv_columns(corrected_path)
+    strain = 1e-2 * corrected["axial_strain"]
+    if strain.shape != record["axial_strain"].shape or not np.allclose(
+        strain, 1e-2 * record["axial_strain"], rtol=1e-6, atol=1e-12
+    ):
+        raise ValueError(
+            f"{corrected_path} does not have the readings of {record_path} (rows or axial strains differ)."
+        )
+    sigma_1 = record[INTERNAL_COLUMNS["sigma_1"]]
+    errors = {}
+    for target in datasets.RADIAL_TARGETS:
+        fitted = "friction_angle_fitted" + ("" if target == radial_target else f"_{target}")
+        if INTERNAL_COLUMNS[target] not in record or fitted not in corrected:
+            continue
+        internal = friction_angle_deg(sigma_1, record[INTERNAL_COLUMNS[target]])
+        angles = {m: corrected[f"friction_angle_{m}"] for m in correct.METHODS if m != "fitted"}
+        angles["fitted"] = corrected[fitted]
+        rows = (strain > 0.0) & (strain <= max_strain + 1e-12) & np.isfinite(angles["fitted"])
+        if not np.any(rows):
+            continue
+        errors[target] = {
+            m: (
+                float(np.mean(np.abs(a[rows] - internal[rows]))),
+                float(np.max(np.abs(a[rows] - internal[rows]))),
+            )
+            for m, a in angles.items()
+        }
+    return errors
+
+
+def _csv_columns(path) -> dict:
+    """{name without its [unit]: column} of a comma-separated table with ``#`` comment lines."""
+    lines = [line for line in Path(path).read_text().splitlines() if line and not line.startswith("#")]
+    names = [cell.split("[")[0].strip() for cell in lines[0].split(",")]
+    table = np.loadtxt(lines[1:], delimiter=",", ndmin=2)
+    return {name: table[:, i] for i, name in enumerate(names)}

@@ -16,7 +16,13 @@ Contract. :func:`save_corrections` writes one JSON object:
   (:func:`calibrate.datasets.aspect_ratios`), which no model reads but ``membrax correct
   --specimen-height-mm`` checks a record against;
 - ``abstention``: the rule of when the correction abstains (:func:`calibrate.abstention.fit_rule`), fitted
-  on the cross-validated predictions. Files written before it existed load with none (never abstain).
+  on the cross-validated predictions. Files written before it existed load with none (never abstain);
+- ``radial_target``: the internal radial stress the correction reproduces (a key of
+  :data:`calibrate.datasets.RADIAL_TARGETS`). Files written before it existed reproduce the paper's §4.3
+  (``"section_4_3"``);
+- ``alternate`` (optional): the same fit on the same sweeps with the other radial target, a whole
+  correction object of this format without its own ``alternate``, which ``membrax correct`` reports
+  beside the chosen one.
 
 :func:`amend_corrections` adds an aspect-ratio range or a rule to a file already written, the rest kept as
 it is (how the shipped correction got them without being refitted).
@@ -36,9 +42,17 @@ from typing import NamedTuple
 
 import numpy as np
 
+from calibrate.datasets import LEGACY_RADIAL_TARGET, RADIAL_TARGETS
 from calibrate.models import MODELS
 
-__all__ = ["Corrections", "amend_corrections", "load_corrections", "save_corrections", "sweep_hash"]
+__all__ = [
+    "Corrections",
+    "amend_corrections",
+    "corrections_content",
+    "load_corrections",
+    "save_corrections",
+    "sweep_hash",
+]
 
 FORMAT = "membrax-corrections"
 #: Inputs whose fitted range is saved besides the model's own: the dimensionless groups and strains a
@@ -70,6 +84,8 @@ class Corrections(NamedTuple):
     provenance: dict
     packing_family: dict | None = None
     abstention: dict | None = None
+    radial_target: str = LEGACY_RADIAL_TARGET
+    alternate: Corrections | None = None
 
 
 def sweep_hash(dataset) -> str:
@@ -90,6 +106,7 @@ def save_corrections(
     packing_family: dict | None = None,
     aspect_ratio=None,
     abstention: dict | None = None,
+    alternate: dict | None = None,
 ) -> Path:
     """Write a fitted correction to ``path`` (module docstring).
 
@@ -97,12 +114,32 @@ def save_corrections(
       path: the JSON file to write.
       model: the :class:`calibrate.models.CorrectionModel` fitted.
       result: its :class:`calibrate.fit.FitResult`.
-      table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges).
+      table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges and the
+        radial target).
       provenance: further provenance (e.g. ``{"sweep_sha256": sweep_hash(dataset)}``).
       packing_family: :func:`calibrate.datasets.packing_family` of the sweeps (None: not recorded).
       aspect_ratio: (lowest, highest) H/D_s of the specimens (None: not known).
       abstention: :func:`calibrate.abstention.fit_rule`'s rule (None: not fitted, never abstain).
+      alternate: :func:`corrections_content` of the fit with the other radial target (None: none).
     """
+    content = corrections_content(model, result, table, provenance, packing_family, aspect_ratio, abstention)
+    if alternate is not None:
+        if alternate.get("radial_target") == content["radial_target"] or "alternate" in alternate:
+            raise ValueError("the alternate correction must have the other radial target and no alternate.")
+        content["alternate"] = alternate
+    return _write(path, content)
+
+
+def corrections_content(
+    model,
+    result,
+    table,
+    provenance: dict | None = None,
+    packing_family: dict | None = None,
+    aspect_ratio=None,
+    abstention: dict | None = None,
+) -> dict:
+    """The JSON object :func:`save_corrections` writes, without ``alternate`` (arguments as there)."""
     from membrax import __version__
 
     ranges = {}
@@ -129,10 +166,11 @@ def save_corrections(
             **(provenance or {}),
         },
         "packing_family": packing_family or {},
+        "radial_target": table.radial_target_name,
     }
     if abstention is not None:
         content["abstention"] = abstention
-    return _write(path, content)
+    return content
 
 
 def _write(path, content: dict) -> Path:
@@ -178,13 +216,28 @@ def load_corrections(path) -> Corrections:
             f"'{path}' is not JSON (line {error.lineno}, column {error.colno}: {error.msg}); give a file "
             "written by `membrax fit`."
         ) from error
+    return _corrections_of(content, f"'{path}'")
+
+
+def _corrections_of(content: dict, where: str) -> Corrections:
+    """The :class:`Corrections` of a JSON object; ``where`` names it in errors (a file, or its alternate)."""
     missing = [name for name in FIELDS if name not in content]
     if missing:
-        raise ValueError(f"'{path}' lacks {missing}: it was not written by `membrax fit`; fit again.")
+        raise ValueError(f"{where} lacks {missing}: it was not written by `membrax fit`; fit again.")
     if content["format"] != FORMAT:
-        raise ValueError(f"'{path}' has format {content['format']!r}, not {FORMAT!r}.")
+        raise ValueError(f"{where} has format {content['format']!r}, not {FORMAT!r}.")
     if content["model"] not in MODELS:
-        raise ValueError(f"'{path}' names model {content['model']!r}; known models: {sorted(MODELS)}.")
+        raise ValueError(f"{where} names model {content['model']!r}; known models: {sorted(MODELS)}.")
+    radial_target = content.get("radial_target", LEGACY_RADIAL_TARGET)
+    if radial_target not in RADIAL_TARGETS:
+        raise ValueError(
+            f"{where} names radial_target {radial_target!r}; known targets: {sorted(RADIAL_TARGETS)}."
+        )
+    alternate = content.get("alternate")
+    if alternate is not None:
+        alternate = _corrections_of(alternate, f"{where}'s alternate")
+        if alternate.radial_target == radial_target or alternate.alternate is not None:
+            raise ValueError(f"{where}'s alternate must have the other radial target and no alternate.")
     return Corrections(
         MODELS[content["model"]],
         {name: float(value) for name, value in content["params"].items()},
@@ -196,4 +249,6 @@ def load_corrections(path) -> Corrections:
         dict(content["provenance"]),
         dict(content.get("packing_family") or {}),
         content.get("abstention") or None,
+        radial_target,
+        alternate,
     )

@@ -68,7 +68,7 @@ def main() -> None:
         raise SystemExit(f"--train-seeds {args.train_seeds} leaves no seed of {args.random_folder} held out.")
     train, held = random.sel(packing_seed=train_seeds), random.sel(packing_seed=held_seeds)
     train.attrs, held.attrs = dict(random.attrs), dict(random.attrs)
-    table = datasets.fitting_table(train)
+    table = datasets.fitting_table(train, "section_4_3")  # as the FCC-fitted correction it is compared with
     model = models.MODELS[args.model]
     result = fit.fit(model, table)
     path = persistence.save_corrections(

@@ -138,8 +138,11 @@ def test_models_work_under_jit_vmap_and_grad():
         )
 
 
-def _sweep_like(tmp_cases=((10.0, 2.5), (40.0, 5.0))):
-    """A two-member dataset shaped like sweep.nc, with hand-made records."""
+def _sweep_like(tmp_cases=((10.0, 2.5), (40.0, 5.0)), received=True):
+    """A two-member dataset shaped like sweep.nc, with hand-made records (``received``: with the received σ3).
+
+    Δσ_a/σc = 0.2 − ε_a; Δσ_r/σc = 0.1 + ε_a counted from the §4.3 σ3 and 0.05 + ε_a/2 from the received one.
+    """
     records = 5
     pressures = sorted({p for p, _ in tmp_cases})
     thicknesses = sorted({t for _, t in tmp_cases})
@@ -154,6 +157,8 @@ def _sweep_like(tmp_cases=((10.0, 2.5), (40.0, 5.0))):
         "platen_area",
         "additional_axial_stress",
         "additional_radial_stress",
+        "external_radial_stress",
+        "received_radial_stress",
     ):
         variables[name] = np.full(shape, np.nan)
     counts = np.zeros(shape[:2], dtype=np.int32)
@@ -167,6 +172,10 @@ def _sweep_like(tmp_cases=((10.0, 2.5), (40.0, 5.0))):
         variables["platen_area"][i, j] = math.pi * 0.125**2
         variables["additional_axial_stress"][i, j] = 1e3 * p * (0.2 - strain)
         variables["additional_radial_stress"][i, j] = 1e3 * p * (0.1 + strain)
+        variables["external_radial_stress"][i, j] = 1e3 * p
+        variables["received_radial_stress"][i, j] = 1e3 * p * (1.05 + 0.5 * strain)
+    if not received:  # a sweep written before membrax recorded the received σ3
+        del variables["received_radial_stress"]
     dims = ("cell_pressure_kpa", "membrane_thickness_mm", "record")
     dataset = xr.Dataset(
         {name: (dims, value) for name, value in variables.items()} | {"num_records": (dims[:2], counts)},
@@ -213,10 +222,35 @@ def test_a_sweep_becomes_a_fitting_table_of_dimensionless_groups():
         rows.inputs["hoop_ratio"], 2 * 1.4e6 * 2.5e-3 * 0.3 * strain / (0.25 * 1e4), atol=1e-12
     )
     np.testing.assert_allclose(rows.axial_target, 0.2 - strain, rtol=1e-12)
-    np.testing.assert_allclose(rows.radial_target, 0.1 + strain, rtol=1e-12)
+    # Δσ_r from the received σ3 (the default) and from the paper's §4.3 one
+    assert table.radial_target_name == rows.radial_target_name == "received"
+    np.testing.assert_allclose(rows.radial_target, 0.05 + 0.5 * strain, rtol=1e-12)
+    paper = datasets.fitting_table(_sweep_like(), "section_4_3")
+    assert paper.radial_target_name == "section_4_3"
+    np.testing.assert_allclose(paper.select(first).radial_target, 0.1 + strain, rtol=1e-12)
+    np.testing.assert_array_equal(paper.axial_target, table.axial_target)
     assert rows.initial.tolist() == [True, False, False, False, False]
     with pytest.raises(ValueError, match="base_config"):
         datasets.fitting_table(xr.Dataset())
+    with pytest.raises(ValueError, match=r"received_radial_stress.*radial-target section_4_3"):
+        datasets.fitting_table(_sweep_like(received=False))
+    with pytest.raises(ValueError, match="radial_target = 'love_weber'"):
+        datasets.fitting_table(_sweep_like(), "love_weber")
+    with pytest.raises(ValueError, match="different internal stresses"):
+        datasets.concatenate([table, paper])
+
+
+def test_a_fitting_table_keeps_its_radial_target_through_a_file(tmp_path):
+    paper = datasets.fitting_table(_sweep_like(), "section_4_3")
+    datasets.save_table(paper, tmp_path / "t.npz")
+    loaded = datasets.load_table(tmp_path / "t.npz")
+    assert loaded.radial_target_name == "section_4_3"
+    np.testing.assert_array_equal(loaded.radial_target, paper.radial_target)
+    # a table written before tables named their target held the §4.3 one
+    with np.load(tmp_path / "t.npz") as content:
+        old = {k: content[k] for k in content.files if k != "radial_target_name"}
+    np.savez(tmp_path / "old.npz", **old)
+    assert datasets.load_table(tmp_path / "old.npz").radial_target_name == "section_4_3"
 
 
 def test_corrections_round_trip_through_json_with_provenance(tmp_path):
@@ -271,6 +305,31 @@ def test_membrax_fit_writes_the_fit_of_the_sweep_files_and_names_a_bad_file(tmp_
     for name, value in expected.params.items():
         assert loaded.params[name] == pytest.approx(value, abs=1e-9)
     assert len(loaded.provenance["sweep_sha256"]) == 2
+    # the received σ3 is the target; the §4.3 one is fitted the same way beside it, as the alternate
+    assert loaded.radial_target == "received" and loaded.alternate.radial_target == "section_4_3"
+    assert loaded.alternate.alternate is None
+    paper = datasets.concatenate(
+        [datasets.fitting_table(io.read_results(path), "section_4_3") for path in (first, second)]
+    )
+    for name, value in fit.fit(models.PAPER, paper).params.items():
+        assert loaded.alternate.params[name] == pytest.approx(value, abs=1e-9)
+    assert loaded.alternate.abstention == abstention.fit_rule(
+        paper, *fit.cross_validated_predictions(models.PAPER, paper)
+    )
+    # sweeps without the received σ3: refused by default, fitted on §4.3 when asked, with no alternate
+    old = io.write_netcdf(_sweep_like(received=False), tmp_path / "old.nc")
+    assert cli.main(["fit", str(old), "--out", str(tmp_path / "old.json"), "--model", "paper"]) == 2
+    assert "received_radial_stress" in capsys.readouterr().err
+    argv = ["fit", str(old), "--out", str(tmp_path / "old.json"), "--model", "paper"]
+    assert cli.main([*argv, "--radial-target", "section_4_3", "--no-cross-validation"]) == 0
+    assert "no alternate correction" in capsys.readouterr().out
+    legacy = persistence.load_corrections(tmp_path / "old.json")
+    assert legacy.radial_target == "section_4_3" and legacy.alternate is None
+    # a file written before corrections named their target reproduces §4.3
+    content = json.loads((tmp_path / "old.json").read_text())
+    del content["radial_target"]
+    (tmp_path / "older.json").write_text(json.dumps(content))
+    assert persistence.load_corrections(tmp_path / "older.json").radial_target == "section_4_3"
     # a file that is not a sweep's: exit 2, the file named
     other = io.write_netcdf(xr.Dataset({"x": ("record", np.arange(3.0))}), tmp_path / "other.nc")
     assert cli.main(["fit", str(other), "--out", str(tmp_path / "x.json")]) == 2

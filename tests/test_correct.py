@@ -6,6 +6,7 @@ right-cylinder identity, and the fitted model's parameters chosen by hand, so it
 """
 
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -806,3 +807,92 @@ def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_memb
             assert not set(design[field]) & seen[field], (field, design[field])
         assert 15.0 <= min(design["cell_pressure_kpa"]) and max(design["cell_pressure_kpa"]) <= 80.0
         assert characteristic_size_mm(config) > 0.0
+
+
+def test_a_correction_with_an_alternate_reports_the_other_radial_target_beside_it(tmp_path):
+    """The alternate's σ3 column against the alternate applied alone, and against a hand shift of r0."""
+    record, specimen, _, _ = _example()
+    shipped = correct.default_corrections()
+    assert shipped.radial_target == "section_4_3" and shipped.alternate is None  # fitted before the choice
+    # the chosen correction: the shipped one with Δσ_r/σc raised by 0.05 everywhere (r0 is additive), as if
+    # it counted from the received σ3; the shipped one as its §4.3 alternate
+    chosen = shipped._replace(
+        params={**shipped.params, "r0": shipped.params["r0"] + 0.05},
+        radial_target="received",
+        alternate=shipped,
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = correct.correct_record(record, specimen, chosen)
+        alone = correct.correct_record(record, specimen, shipped)
+    assert result.radial_target == "received" and result.alternate.radial_target == "section_4_3"
+    np.testing.assert_array_equal(result.alternate.sigma_3["fitted"], alone.sigma_3["fitted"])
+    shift = 0.05 * result.shrink[1] * record.cell_pressure  # the abstention factor scales it too
+    kept = np.isfinite(alone.sigma_3["fitted"])  # rows withheld (NaN) are withheld by both
+    assert kept.sum() > 10 and np.array_equal(kept, np.isfinite(result.sigma_3["fitted"]))
+    np.testing.assert_allclose(
+        (result.sigma_3["fitted"] - alone.sigma_3["fitted"])[kept], shift[kept], rtol=1e-9
+    )
+    (path,) = correct.write_correction(
+        result, tmp_path / "c.csv", header_lines=[correct.target_words(result)]
+    )
+    lines = path.read_text().splitlines()
+    assert "sigma_3 the radial load the specimen receives" in lines[0] and "fitted_section_4_3" in lines[0]
+    header = next(line for line in lines if not line.startswith("#")).split(",")
+    table = np.loadtxt([line for line in lines if not line.startswith("#")][1:], delimiter=",")
+    column = {name: table[:, i] for i, name in enumerate(header)}
+    np.testing.assert_allclose(
+        column["sigma_3_fitted_section_4_3 [kPa]"], 1e-3 * alone.sigma_3["fitted"], rtol=1e-7, equal_nan=True
+    )
+    np.testing.assert_allclose(
+        column["friction_angle_fitted_section_4_3 [deg]"],
+        alone.friction_angle["fitted"],
+        rtol=1e-6,
+        equal_nan=True,
+    )
+
+
+def test_the_held_out_scorer_reads_phi_internal_by_hand_on_three_rows(tmp_path):
+    """φ'_int = arcsin((σ1 − σ3)/(σ1 + σ3)) per target, on a record and a corrected CSV written by hand."""
+    from calibrate import evaluate
+
+    record = tmp_path / "member.csv"
+    record.write_text(
+        "# synthetic\n"
+        "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa],"
+        "internal_sigma_1 [kPa],internal_sigma_3 [kPa],internal_sigma_3_received [kPa]\n"
+        "0,0,0,10,10,10,10\n"
+        "1,0.5,20,10,30,10,12\n"
+        "2,0.8,30,10,40,10,8\n"
+        "12,1.0,30,10,40,10,8\n"  # beyond 10 %: not scored
+    )
+    # hand values: φ'(30, 10) = 30°, φ'(40, 10) = arcsin(0.6) = 36.870°; received: φ'(30, 12) = arcsin(18/42),
+    # φ'(40, 8) = arcsin(32/48)
+    internal = {"section_4_3": [30.0, 36.86989765], "received": [25.37693353, 41.81031490]}
+    fitted = {"received": [26.0, 41.0], "section_4_3": [29.0, 38.0]}
+    corrected = tmp_path / "member_corrected.csv"
+    names = [f"friction_angle_{m} [deg]" for m in correct.METHODS]
+    names += ["friction_angle_fitted_section_4_3 [deg]"]
+    rows = [
+        [0.0] + [0.0] * 6,
+        [1.0, 31.0, 31.0, 31.0, 31.0, 26.0, 29.0],
+        [2.0, 35.0, 35.0, 35.0, 35.0, 41.0, 38.0],
+    ]
+    rows.append([12.0, *rows[-1][1:]])
+    corrected.write_text(
+        "# membrax correct\naxial_strain [%],"
+        + ",".join(names)
+        + "\n"
+        + "\n".join(",".join(f"{v:g}" for v in row) for row in rows)
+        + "\n"
+    )
+    errors = evaluate.corrected_csv_errors(record, corrected, "received")
+    for target in ("received", "section_4_3"):
+        none = np.abs(np.array([31.0, 35.0]) - internal[target])
+        mine = np.abs(np.array(fitted[target]) - internal[target])
+        assert errors[target]["uncorrected"] == pytest.approx((none.mean(), none.max()), abs=1e-7)
+        assert errors[target]["fitted"] == pytest.approx((mine.mean(), mine.max()), abs=1e-7)
+    # a corrected file of other readings is refused
+    corrected.write_text("axial_strain [%]," + ",".join(names) + "\n" + ",".join(["0"] * 7) + "\n")
+    with pytest.raises(ValueError, match="does not have the readings"):
+        evaluate.corrected_csv_errors(record, corrected, "received")

@@ -598,45 +598,65 @@ class _FireRelaxer:
                     # answer. Only a jump gets here: one spacing of s (1.2e-7 in float32) moves a smooth
                     # branch's stress by ~1.2 k_n/d̄ × 1.2e-7 ≈ 60 Pa at k_n/d̄ = 4e8 Pa, under the window's
                     # 2 × 2 % of 10 kPa, so a bisection lands in the window before the bracket closes.
-                    # An end left short of rest (its relaxation stopped once its stress settled, far from the
-                    # target) is relaxed to rest first: it may be the nearer state.
-                    for end in ("below", "above"):
-                        end_position, end_growth, end_stress, end_ratio = end_states[end]
-                        if end_ratio < 10.0 * tolerance or end_stress < 1e-2 * target or steps >= max_steps:
-                            continue
-                        end_position, end_stress, end_ratio, used = self.relax(
-                            end_position, end_growth, target, tolerance, max_steps - steps, settle=False
-                        )
-                        steps += used
-                        calls += 1
-                        if end == "below":
-                            low_end = (end_growth, end_stress)
-                        else:
-                            high_end = (end_growth, end_stress)
-                        if end_ratio < 10.0 * tolerance and end_stress >= 1e-2 * target:
-                            nearer = closest is None or abs(math.log(end_stress / target)) < abs(
-                                math.log(closest[2] / target)
-                            )
-                            if nearer:
-                                closest = (end_position, end_growth, end_stress, end_ratio)
-                    if closest is None:
-                        raise SimulationError(
-                            "compaction: the stress jumps over the window between neighbouring growths "
-                            f"and no jammed state was at rest to accept: {_describe_search(*where)}. Lower "
-                            "fire_tolerance or raise max_steps so that each relaxation reaches rest."
-                        )
-                    jump = {
-                        "stress_below": low_end[1],
-                        "stress_above": high_end[1],
-                        "growth_below": low_end[0],
-                        "growth_above": high_end[0],
-                        "stress_accepted": closest[2],
-                    }
-                    return *closest, steps, True, jump
+                    closest, jump, used = self._accept_jump(
+                        end_states, closest, target, tolerance, max_steps - steps, where
+                    )
+                    return *closest, steps + used, True, jump
             if not below < step_to < above:
                 step_to = 0.5 * (below + above)
             growth = math.exp(step_to)
         return position, growth, stress, ratio, steps, False, None
+
+    def _accept_jump(self, end_states, closest, target, tolerance, max_steps, where):
+        """The jammed state at rest nearest the target once the bracket closed on a jump (module docstring).
+
+        An end left short of rest (its relaxation stopped once its stress settled, far from the target) is
+        relaxed to rest first: it may be the nearer state.
+
+        Args:
+          end_states: {"below", "above"}: (positions, s, σ, ratio) at the bracket's ends.
+          closest: the nearest state at rest so far, (positions, s, σ, ratio), or None.
+          target: the target stress, Pa.
+          tolerance: the FIRE tolerance (at rest below 10×).
+          max_steps: FIRE steps left.
+          where: the search's state for :func:`_describe_search`.
+
+        Returns:
+          (closest state, the :attr:`Compaction.stress_jump` dict, FIRE steps used).
+
+        Raises:
+          SimulationError: no jammed state at rest to accept.
+        """
+        steps = 0
+        ends = {}
+        for end in ("below", "above"):
+            end_position, end_growth, end_stress, end_ratio = end_states[end]
+            if end_ratio >= 10.0 * tolerance and end_stress >= 1e-2 * target and steps < max_steps:
+                end_position, end_stress, end_ratio, used = self.relax(
+                    end_position, end_growth, target, tolerance, max_steps - steps, settle=False
+                )
+                steps += used
+                if end_ratio < 10.0 * tolerance and end_stress >= 1e-2 * target:
+                    nearer = closest is None or abs(math.log(end_stress / target)) < abs(
+                        math.log(closest[2] / target)
+                    )
+                    if nearer:
+                        closest = (end_position, end_growth, end_stress, end_ratio)
+            ends[end] = (end_growth, end_stress)
+        if closest is None:
+            raise SimulationError(
+                "compaction: the stress jumps over the window between neighbouring growths and no jammed "
+                f"state was at rest to accept: {_describe_search(*where)}. Lower fire_tolerance or raise "
+                "max_steps so that each relaxation reaches rest."
+            )
+        jump = {
+            "stress_below": ends["below"][1],
+            "stress_above": ends["above"][1],
+            "growth_below": ends["below"][0],
+            "growth_above": ends["above"][0],
+            "stress_accepted": closest[2],
+        }
+        return closest, jump, steps
 
 
 def _describe_search(growth, stress, ratio, steps, calls, ends, window) -> str:
