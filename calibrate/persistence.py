@@ -97,32 +97,19 @@ def sweep_hash(dataset) -> str:
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def save_corrections(
-    path,
-    model,
-    result,
-    table,
-    provenance: dict | None = None,
-    packing_family: dict | None = None,
-    aspect_ratio=None,
-    abstention: dict | None = None,
-    alternate: dict | None = None,
-) -> Path:
+def save_corrections(path, model, result, table, provenance=None, alternate=None, **details) -> Path:
     """Write a fitted correction to ``path`` (module docstring).
 
     Args:
       path: the JSON file to write.
-      model: the :class:`calibrate.models.CorrectionModel` fitted.
-      result: its :class:`calibrate.fit.FitResult`.
-      table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges and the
-        radial target).
-      provenance: further provenance (e.g. ``{"sweep_sha256": sweep_hash(dataset)}``).
-      packing_family: :func:`calibrate.datasets.packing_family` of the sweeps (None: not recorded).
-      aspect_ratio: (lowest, highest) H/D_s of the specimens (None: not known).
-      abstention: :func:`calibrate.abstention.fit_rule`'s rule (None: not fitted, never abstain).
+      model: the model fitted (:func:`corrections_content`).
+      result: its fit.
+      table: the table it was fitted on.
+      provenance: further provenance.
       alternate: :func:`corrections_content` of the fit with the other radial target (None: none).
+      **details: ``packing_family``, ``aspect_ratio``, ``abstention`` of :func:`corrections_content`.
     """
-    content = corrections_content(model, result, table, provenance, packing_family, aspect_ratio, abstention)
+    content = corrections_content(model, result, table, provenance, **details)
     if alternate is not None:
         if alternate.get("radial_target") == content["radial_target"] or "alternate" in alternate:
             raise ValueError("the alternate correction must have the other radial target and no alternate.")
@@ -139,7 +126,18 @@ def corrections_content(
     aspect_ratio=None,
     abstention: dict | None = None,
 ) -> dict:
-    """The JSON object :func:`save_corrections` writes, without ``alternate`` (arguments as there)."""
+    """The JSON object :func:`save_corrections` writes, without ``alternate``.
+
+    Args:
+      model: the :class:`calibrate.models.CorrectionModel` fitted.
+      result: its :class:`calibrate.fit.FitResult`.
+      table: the :class:`calibrate.datasets.FittingTable` it was fitted on (for the input ranges and the
+        radial target).
+      provenance: further provenance (e.g. ``{"sweep_sha256": sweep_hash(dataset)}``).
+      packing_family: :func:`calibrate.datasets.packing_family` of the sweeps (None: not recorded).
+      aspect_ratio: (lowest, highest) H/D_s of the specimens (None: not known).
+      abstention: :func:`calibrate.abstention.fit_rule`'s rule (None: not fitted, never abstain).
+    """
     from membrax import __version__
 
     ranges = {}
