@@ -10,7 +10,9 @@ call; there is no float32 path), with:
 - ``nm evals`` / ``optax evals``: loss evaluations of scipy's Nelder–Mead and of Adam + L-BFGS;
 - ``correct (s)``: ``calibrate.correct.correct_file`` on a 1,000-row record (the shipped example record
   interpolated), CSV and plot written, in-process and first call; ``command (s)``: the whole
-  ``membrax correct`` command in a fresh process (interpreter, imports, compilation, files).
+  ``membrax correct`` command in a fresh process (interpreter, imports, compilation, files);
+  ``1e6 rows (s)``: the same command on the record interpolated onto 1,000,000 readings (a logger at
+  high rate), CSV and plot written.
 
 Run: ``python benchmarks/bench_calibrate.py``.
 """
@@ -34,18 +36,18 @@ SPECIMEN_ARGS = (
 )
 
 
-def _thousand_rows(folder: Path) -> tuple[Path, list[str]]:
-    """The example record interpolated onto 1,000 axial strains, and its specimen's arguments."""
+def _thousand_rows(folder: Path, rows: int = 1000) -> tuple[Path, list[str]]:
+    """The example record interpolated onto ``rows`` axial strains, and its specimen's arguments."""
     with correct.example_record_path() as source:
         record = lab.read_lab_record(source)
-    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], 1000)
+    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], rows)
     columns = [
         100 * strain,
         100 * np.interp(strain, record.axial_strain, record.volumetric_strain),
         1e-3 * np.interp(strain, record.axial_strain, record.axial_stress - record.cell_pressure),
         1e-3 * np.interp(strain, record.axial_strain, record.cell_pressure),
     ]
-    path = folder / "thousand.csv"
+    path = folder / f"rows_{rows}.csv"
     header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
     np.savetxt(path, np.stack(columns, axis=1), delimiter=",", header=header, comments="", fmt="%.8g")
     values = evaluate.example_arguments(record.comments)
@@ -82,16 +84,26 @@ def main() -> None:
             [sys.executable, "-m", "membrax.cli", "correct", str(record_path), *specimen_args],
             check=True,
             capture_output=True,
+            cwd=folder,
         )
         command_s = time.perf_counter() - start
+        long_path, _ = _thousand_rows(Path(folder), 1_000_000)
+        start = time.perf_counter()
+        subprocess.run(
+            [sys.executable, "-m", "membrax.cli", "correct", str(long_path), *specimen_args],
+            check=True,
+            capture_output=True,
+            cwd=folder,
+        )
+        million_s = time.perf_counter() - start
     print(f"calibration benchmark: {table.num_cases} cases, {table.num_rows} records; correct on 1,000 rows")
     print(
         f"{'dtype':<8}{'fit (s)':>9}{'warm (s)':>10}{'loo (s)':>9}{'nm evals':>10}{'optax evals':>13}"
-        f"{'correct (s)':>13}{'command (s)':>13}"
+        f"{'correct (s)':>13}{'command (s)':>13}{'1e6 rows (s)':>14}"
     )
     print(
         f"{'float64':<8}{fit_s:>9.2f}{warm_s:>10.2f}{loo_s:>9.1f}{baseline['evaluations']:>10d}{optax_evals:>13d}"
-        f"{correct_s:>13.2f}{command_s:>13.2f}"
+        f"{correct_s:>13.2f}{command_s:>13.2f}{million_s:>14.1f}"
     )
 
 

@@ -798,6 +798,10 @@ def output_paths(record_path, out=None, plot: bool = True) -> tuple[Path, Path |
     return csv_path, plot_path
 
 
+#: Records longer than this many readings get a line per stage from :func:`correct_file`'s ``progress``.
+PROGRESS_ROWS = 100_000
+
+
 def correct_file(
     record_path,
     specimen: Specimen,
@@ -805,6 +809,7 @@ def correct_file(
     out=None,
     plot: bool = True,
     dilation_positive: bool = False,
+    progress=None,
 ):
     """``membrax correct``: read ``record_path``, correct it, write ``out`` (CSV) and its plot.
 
@@ -816,6 +821,8 @@ def correct_file(
         name with ``.png``. Never the record itself (:func:`output_paths`).
       plot: write the plot.
       dilation_positive: the record's volumetric or radial strain is written dilation positive.
+      progress: called with a line of text before each stage (reading, correcting, writing) of a record
+        longer than :data:`PROGRESS_ROWS` readings, e.g. ``print``; None says nothing.
 
     Returns:
       (the :class:`CorrectedRecord`, the paths written).
@@ -825,8 +832,14 @@ def correct_file(
         or an output that would overwrite the record, named with the fix; nothing is written.
     """
     csv_path, plot_path = output_paths(record_path, out, plot)
+    size = Path(record_path).stat().st_size if Path(record_path).is_file() else 0
+    if progress is not None and size > 40 * PROGRESS_ROWS:  # ~40 bytes a reading
+        progress(f"reading {Path(record_path).name} ({size / 1e6:.0f} MB)")
     record = lab.read_lab_record(record_path, dilation_positive=dilation_positive)
     corrections = default_corrections() if model_path is None else persistence.load_corrections(model_path)
+    rows = record.axial_strain.size
+    say = progress if progress is not None and rows > PROGRESS_ROWS else (lambda text: None)
+    say(f"correcting {rows:,} readings of {Path(record_path).name} by five methods")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # returned in the result; the caller reports them once
         result = correct_record(record, specimen, corrections)
@@ -851,5 +864,6 @@ def correct_file(
         *(f"read: {line}" for line in record.notes),
         *(f"warning: {message}" for message in result.warnings),
     ]
+    say(f"writing {csv_path}" + ("" if plot_path is None else f" and {plot_path.name}"))
     paths = write_correction(result, csv_path, plot_path, header)
     return result, paths

@@ -359,7 +359,13 @@ def _correct(args: argparse.Namespace) -> int:
             specimen_height_mm=args.specimen_height_mm,
         )
         result, paths = correct_file(
-            args.record, specimen, args.model, args.out, not args.no_plot, args.dilation_positive
+            args.record,
+            specimen,
+            args.model,
+            args.out,
+            not args.no_plot,
+            args.dilation_positive,
+            progress=lambda text: print(f"membrax: {text}", file=sys.stderr, flush=True),
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"membrax: {error}", file=sys.stderr)

@@ -896,3 +896,39 @@ def test_the_held_out_scorer_reads_phi_internal_by_hand_on_three_rows(tmp_path):
     corrected.write_text("axial_strain [%]," + ",".join(names) + "\n" + ",".join(["0"] * 7) + "\n")
     with pytest.raises(ValueError, match="does not have the readings"):
         evaluate.corrected_csv_errors(record, corrected, "received")
+
+
+def test_a_long_record_is_corrected_with_a_line_per_stage(tmp_path):
+    """150,000 readings (the example interpolated): one line per stage naming the count, and the fitted φ'
+    at 5 % within its band of the example's own (the same test, read 550 times more densely)."""
+    record, specimen, _, _ = _example()
+    rows = 150_000
+    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], rows)
+    columns = [
+        100 * strain,
+        100 * np.interp(strain, record.axial_strain, record.volumetric_strain),
+        1e-3 * np.interp(strain, record.axial_strain, record.axial_stress - record.cell_pressure),
+        1e-3 * np.interp(strain, record.axial_strain, record.cell_pressure),
+    ]
+    path = tmp_path / "long.csv"
+    header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
+    np.savetxt(path, np.stack(columns, axis=1), delimiter=",", header=header, comments="", fmt="%.8g")
+    lines = []
+    result, _ = correct.correct_file(
+        path, specimen, out=tmp_path / "out.csv", plot=False, progress=lines.append
+    )
+    assert lines[-2:] == [
+        f"correcting {rows:,} readings of long.csv by five methods",
+        f"writing {tmp_path / 'out.csv'}",
+    ]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        short = correct.correct_record(record, specimen)
+    dense = int(np.argmin(np.abs(result.record.axial_strain - 0.05)))
+    sparse = int(np.argmin(np.abs(record.axial_strain - 0.05)))
+    band = short.std["friction_angle"][sparse]
+    assert abs(result.friction_angle["fitted"][dense] - short.friction_angle["fitted"][sparse]) < band
+    quiet = []
+    with correct.example_record_path() as example:
+        correct.correct_file(example, specimen, out=tmp_path / "e.csv", plot=False, progress=quiet.append)
+    assert quiet == []  # a short record says nothing

@@ -174,15 +174,56 @@ def strain_ratio_change(axial_strain, radial_strain, window: float = STRAIN_RATI
     y_sorted = radial[order]
     starts = np.searchsorted(x_sorted, x_sorted - half, side="left")
     stops = np.searchsorted(x_sorted, x_sorted + half, side="right")
-    for k, (start, stop) in enumerate(zip(starts, stops, strict=True)):
-        if stop - start < 3:
-            continue
-        x = x_sorted[start:stop]
-        if x[0] == x[-1]:  # sorted, so no spread in ε_a
-            continue
-        y = y_sorted[start:stop]
-        dx = x - x.mean()
-        slope[order[k]] = np.dot(dx, y - y.mean()) / np.dot(dx, dx)
+    slope[order] = _window_slopes(x_sorted, y_sorted, starts, stops)
+    return slope
+
+
+def _window_slopes(x, y, starts, stops) -> np.ndarray:
+    """Least-squares slopes of y on x over the windows [starts[k], stops[k]) of sorted x, in O(records).
+
+    Both ends only move forward as k grows, so the window slides: each record enters and leaves once, and
+    the window's means and central (co)moments are updated as it does (Welford's update and its inverse;
+    Welford 1962, Technometrics 4(3), 419–420), which keeps deviations from the window's own mean and so
+    avoids the cancellation of running sums of x² over a whole record. They are summed afresh, two-pass,
+    whenever the window has been replaced entirely since the last fresh sum, which bounds the updates'
+    round-off to one window's worth. NaN where a window holds fewer than 3 records or no spread in x.
+    """
+    count = len(x)
+    slope = np.full(count, np.nan)
+    xs, ys = x.tolist(), y.tolist()
+    starts, stops = starts.tolist(), stops.tolist()
+    low = high = fresh_until = 0  # the window [low, high); summed afresh up to fresh_until
+    members, mean_x, mean_y, sxx, sxy = 0, 0.0, 0.0, 0.0, 0.0
+    for k in range(count):
+        start, stop = starts[k], stops[k]
+        if start >= fresh_until:
+            low, high = start, stop
+            fresh_until = stop
+            members = stop - start
+            window_x, window_y = x[start:stop], y[start:stop]
+            mean_x, mean_y = float(window_x.mean()), float(window_y.mean())
+            dx = window_x - mean_x
+            sxx, sxy = float(np.dot(dx, dx)), float(np.dot(dx, window_y - mean_y))
+        else:
+            while high < stop:  # enter: C_n = C_(n−1) + (x − x̄_(n−1))(y − ȳ_n)
+                members += 1
+                dx = xs[high] - mean_x
+                mean_x += dx / members
+                mean_y += (ys[high] - mean_y) / members
+                sxx += dx * (xs[high] - mean_x)
+                sxy += dx * (ys[high] - mean_y)
+                high += 1
+            while low < start:  # leave: the inverse, C_(n−1) = C_n − (x − x̄_(n−1))(y − ȳ_n)
+                members -= 1  # at least stop − start >= 1 remain
+                old_x, old_y = mean_x, mean_y
+                mean_x -= (xs[low] - old_x) / members
+                mean_y -= (ys[low] - old_y) / members
+                dx = xs[low] - mean_x
+                sxx -= dx * (xs[low] - old_x)
+                sxy -= dx * (ys[low] - old_y)
+                low += 1
+        if members >= 3 and xs[start] != xs[stop - 1]:  # sorted, so no spread when the ends are equal
+            slope[k] = sxy / sxx
     return slope
 
 
