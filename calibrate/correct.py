@@ -810,6 +810,7 @@ def correct_file(
     plot: bool = True,
     dilation_positive: bool = False,
     progress=None,
+    sheet=None,
 ):
     """``membrax correct``: read ``record_path``, correct it, write ``out`` (CSV) and its plot.
 
@@ -823,6 +824,7 @@ def correct_file(
       dilation_positive: the record's volumetric or radial strain is written dilation positive.
       progress: called with a line of text before each stage (reading, correcting, writing) of a record
         longer than :data:`PROGRESS_ROWS` readings, e.g. ``print``; None says nothing.
+      sheet: a workbook's sheet, by name or number from 1 (:func:`calibrate.lab.read_lab_record`).
 
     Returns:
       (the :class:`CorrectedRecord`, the paths written).
@@ -835,7 +837,7 @@ def correct_file(
     size = Path(record_path).stat().st_size if Path(record_path).is_file() else 0
     if progress is not None and size > 40 * PROGRESS_ROWS:  # ~40 bytes a reading
         progress(f"reading {Path(record_path).name} ({size / 1e6:.0f} MB)")
-    record = lab.read_lab_record(record_path, dilation_positive=dilation_positive)
+    record = lab.read_lab_record(record_path, dilation_positive=dilation_positive, sheet=sheet)
     corrections = default_corrections() if model_path is None else persistence.load_corrections(model_path)
     rows = record.axial_strain.size
     say = progress if progress is not None and rows > PROGRESS_ROWS else (lambda text: None)

@@ -9,12 +9,16 @@ The file:
 
 - a text CSV, UTF-8 with or without a byte-order mark (a spreadsheet's "CSV UTF-8"), or UTF-16 with one;
   columns separated by commas, or by semicolons or tabs, which may then carry decimal commas
-  (``0,25``); or an Excel workbook (``.xlsx``, its first sheet, read with openpyxl);
+  (``0,25``); or an Excel workbook (``.xlsx``, read with openpyxl: its first sheet, or the one ``sheet``
+  names or numbers; a workbook whose sheet lacks the columns is told which sheets have them);
 - may start with comment lines beginning with ``#`` (e.g. ``# synthetic: produced by membrax``);
-- has one header line of columns, each ``name [unit]``;
+- has one header line of columns, each a name and its unit in brackets or parentheses, the name's case,
+  spaces and hyphens aside (``Axial strain (%)`` is ``axial_strain [%]``, :func:`column_key`), the unit's
+  case aside (``KPA`` is ``kPa``); every problem of the header is reported at once;
 - then one row per reading, in loading order.
 
-Columns (other columns are ignored, so true internal stresses may sit beside them):
+Columns (other columns are ignored whatever their form, so true internal stresses, times or remarks may
+sit beside them):
 
 - ``axial_strain``: unit ``-`` (a fraction) or ``%``;
 - ``volumetric_strain`` or ``radial_strain``: ``-`` or ``%`` (one of the two; ε_r = 1 − √((1 − ε_v)/(1 −
@@ -50,11 +54,19 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["LabRecord", "LabRecordError", "read_lab_record"]
+__all__ = ["LabRecord", "LabRecordError", "column_key", "read_lab_record"]
 
 _STRESS_UNITS = {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6}
 _STRAIN_UNITS = {"-": 1.0, "%": 1e-2}
-_HEADER = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(?:\[\s*([^\]]*?)\s*\])?\s*$")
+# A header cell: a name, then optionally its unit in brackets or parentheses ("Axial strain (%)").
+_HEADER = re.compile(r"^\s*([^\[\]()]*?)\s*(?:[\[(]\s*([^\])]*?)\s*[\])])?\s*$")
+#: The columns read, each with its units (other columns are ignored): one of each group is needed.
+_COLUMN_GROUPS = (
+    ("axial_strain",),
+    ("volumetric_strain", "radial_strain"),
+    ("deviator_stress", "axial_stress"),
+    ("cell_pressure",),
+)
 #: An axial strain under a ``[%]`` header that never exceeds this many percent is taken for a fraction: a
 #: triaxial test to failure runs to several percent.
 SMALLEST_PERCENT_STRAIN = 0.2
@@ -97,6 +109,7 @@ class _Table(NamedTuple):
     place: str
     decimal_comma: bool
     notes: list
+    sheets: tuple = ()  # a workbook's sheet names, in order
 
 
 def _where(path, place, line, column=None, name=None) -> str:
@@ -160,7 +173,7 @@ def _cell_text(value) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
-def _xlsx_table(path: Path, data: bytes) -> _Table:
+def _workbook(path: Path, data: bytes):
     try:
         import openpyxl
     except ImportError:  # pragma: no cover - a dependency of membrax
@@ -169,13 +182,15 @@ def _xlsx_table(path: Path, data: bytes) -> _Table:
         ) from None
     try:
         # From bytes: openpyxl refuses a path by its suffix, and a workbook may be named anything.
-        workbook = openpyxl.load_workbook(io.BytesIO(data), read_only=True, data_only=True)
+        return openpyxl.load_workbook(io.BytesIO(data), read_only=True, data_only=True)
     except Exception as error:  # openpyxl raises several kinds for a damaged or foreign zip
         raise LabRecordError(
             f"{path} is a zip file but not a readable .xlsx workbook ({type(error).__name__}: {error}); "
             f"{SAVE_AS}."
         ) from None
-    sheet = workbook.worksheets[0]
+
+
+def _sheet_rows(sheet) -> list:
     rows = []
     for number, values in enumerate(sheet.iter_rows(values_only=True), start=1):
         cells = [_cell_text(value) for value in values]
@@ -183,25 +198,70 @@ def _xlsx_table(path: Path, data: bytes) -> _Table:
             cells.pop()
         if cells:
             rows.append((number, cells))
+    return rows
+
+
+def _choose_sheet(path: Path, names: list, sheet) -> int:
+    """The index of ``sheet`` (a name, or a number counted from 1) among ``names``."""
+    if sheet is None:
+        return 0
+    text = str(sheet).strip()
+    if text in names:
+        return names.index(text)
+    if text.isdigit() and 1 <= int(text) <= len(names):
+        return int(text) - 1
+    listed = ", ".join(f"{i} '{name}'" for i, name in enumerate(names, start=1))
+    raise LabRecordError(
+        f"{path}: no sheet {text!r}; the workbook's sheets are {listed} (--sheet NAME or NUMBER)."
+    )
+
+
+def _xlsx_table(path: Path, data: bytes, sheet=None) -> _Table:
+    workbook = _workbook(path, data)
+    names = [worksheet.title for worksheet in workbook.worksheets]
+    index = _choose_sheet(path, names, sheet)
+    chosen = workbook.worksheets[index]
+    rows = _sheet_rows(chosen)
     workbook.close()
-    notes = [f"read the first sheet, '{sheet.title}', of the workbook"]
-    return _Table(rows, f"sheet '{sheet.title}', row", False, notes)
+    which = "the first sheet" if index == 0 else f"sheet {index + 1}"
+    notes = [f"read {which}, '{chosen.title}', of the workbook"]
+    return _Table(rows, f"sheet '{chosen.title}', row", False, notes, tuple(names))
 
 
-def _table(path: Path) -> _Table:
+def _sheets_with_columns(path: Path, names) -> list:
+    """The sheets of a workbook whose header has every needed column (for a message naming them)."""
+    data = path.read_bytes()
+    fitting = []
+    for name in names:
+        rows = _xlsx_table(path, data, name).rows
+        header = next((cells for _, cells in rows if not cells[0].lstrip().startswith("#")), None)
+        if header is None:
+            continue
+        try:
+            _header_columns(path, "row", 0, header)
+        except LabRecordError:
+            continue
+        fitting.append(name)
+    return fitting
+
+
+def _table(path: Path, sheet=None) -> _Table:
     data = path.read_bytes()
     if data.startswith(_ZIP_MAGIC):
-        return _xlsx_table(path, data)
+        return _xlsx_table(path, data, sheet)
+    if sheet is not None:
+        raise LabRecordError(f"{path} is a text file, not a workbook: leave out --sheet {sheet}.")
     return _csv_table(path, _text_of(path, data))
 
 
-def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
+def read_lab_record(path, dilation_positive: bool = False, sheet=None) -> LabRecord:
     """Read and check a laboratory record (module docstring).
 
     Args:
       path: the record: a CSV or an ``.xlsx`` workbook.
       dilation_positive: the volumetric (or radial) strain is written dilation (extension) positive; it is
         negated to membrax's compression-positive convention.
+      sheet: a workbook's sheet to read, by name or by number counted from 1 (default the first).
 
     Raises:
       FileNotFoundError: no such file. LabRecordError: the file breaks a rule of the module docstring.
@@ -209,7 +269,7 @@ def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no laboratory record at '{path}'.")
-    table = _table(path)
+    table = _table(path, sheet)
     place = table.place
     comments = []
     position = 0
@@ -219,44 +279,22 @@ def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
     if position >= len(table.rows):
         raise LabRecordError(f"{path}: no header line; write one such as 'axial_strain [-],...'.")
     header_line, header = table.rows[position]
-    columns = {}
-    for index, cell in enumerate(header, start=1):
-        match = _HEADER.match(cell)
-        if not match:
-            raise LabRecordError(
-                f"{_where(path, place, header_line, index)}: {cell!r} is not 'name [unit]'; "
-                "e.g. 'cell_pressure [kPa]'."
-            )
-        columns[match.group(1)] = (index, match.group(2))
-
-    def unit_of(name, units):
-        index, unit = columns[name]
-        if unit is None or unit not in units:
-            raise LabRecordError(
-                f"{_where(path, place, header_line, index, name)}: unknown unit {unit!r}; write one of "
-                f"{', '.join(units)} in brackets, e.g. '{name} [{next(iter(units))}]'."
-            )
-        return index, units[unit], unit
-
-    def need(*names):
-        found = [name for name in names if name in columns]
-        if not found:
-            choices = " or ".join(f"'{name}'" for name in names)
-            raise LabRecordError(
-                f"{_where(path, place, header_line)} (header): no column {choices}; add it with its unit."
-            )
-        return found[0]
-
-    strain_name = need("volumetric_strain", "radial_strain")
-    stress_name = need("deviator_stress", "axial_stress")
-    need("axial_strain")
-    need("cell_pressure")
-    wanted = {
-        "axial_strain": unit_of("axial_strain", _STRAIN_UNITS),
-        strain_name: unit_of(strain_name, _STRAIN_UNITS),
-        stress_name: unit_of(stress_name, _STRESS_UNITS),
-        "cell_pressure": unit_of("cell_pressure", _STRESS_UNITS),
-    }
+    try:
+        wanted, strain_name, stress_name = _header_columns(path, place, header_line, header)
+    except LabRecordError as error:
+        if len(table.sheets) < 2:
+            raise
+        listed = ", ".join(f"'{name}'" for name in table.sheets)
+        fitting = _sheets_with_columns(
+            path, [name for name in table.sheets if place != f"sheet '{name}', row"]
+        )
+        hint = (
+            f" Sheet {', '.join(repr(name) for name in fitting)} has them: pass --sheet {fitting[0]!r} "
+            f"(sheet={fitting[0]!r})."
+            if fitting
+            else " No other sheet has them either."
+        )
+        raise LabRecordError(f"{error} The workbook's sheets: {listed}.{hint}") from None
     values = {name: [] for name in wanted}
     for line_number, row in table.rows[position + 1 :]:
         if row[0].lstrip().startswith("#"):
@@ -313,6 +351,70 @@ def read_lab_record(path, dilation_positive: bool = False) -> LabRecord:
         volumetric = 1.0 - (1.0 - axial) * (1.0 - radial) ** 2
     axial_stress = data[stress_name] + (cell if stress_name == "deviator_stress" else 0.0)
     return LabRecord(axial, volumetric, radial, axial_stress, cell, tuple(comments), tuple(notes))
+
+
+def column_key(name: str) -> str:
+    """A header name as a column name, case, spaces and hyphens aside ("Axial strain": axial_strain)."""
+    return re.sub(r"[\s\-_]+", "_", name.strip().lower()).strip("_")
+
+
+def _units_of(name: str) -> dict:
+    return _STRAIN_UNITS if name.endswith("strain") else _STRESS_UNITS
+
+
+def _header_columns(path, place, header_line, header):
+    """The needed columns of a header: ({name: (column, scale, unit)}, strain name, stress name).
+
+    Names match case- and space-insensitively (:func:`column_key`), the unit in brackets or parentheses
+    (its case aside); columns of other names are ignored whatever their form. Every problem of the header
+    is reported at once.
+
+    Raises:
+      LabRecordError: naming each missing column, unknown unit and repeated column, with the fix.
+    """
+    columns, problems = {}, []
+    known = {name for group in _COLUMN_GROUPS for name in group}
+    for index, cell in enumerate(header, start=1):
+        match = _HEADER.match(cell)
+        name = column_key(match.group(1)) if match else ""
+        if name not in known:
+            continue
+        if name in columns:
+            first = columns[name][0]
+            problems.append(f"column {index} ({cell.strip()!r}) repeats column {first}; keep one '{name}'")
+            continue
+        columns[name] = (index, match.group(2), cell.strip())
+    chosen = []
+    for group in _COLUMN_GROUPS:
+        found = [name for name in group if name in columns]
+        if not found:
+            choices = " or ".join(f"'{name}'" for name in group)
+            example = f"{group[0]} [{next(iter(_units_of(group[0])))}]"
+            problems.append(f"no column {choices}; add it with its unit, e.g. '{example}'")
+            continue
+        chosen.append(found[0])
+    wanted = {}
+    for name in chosen:
+        index, unit, cell = columns[name]
+        units = _units_of(name)
+        lookup = {key.lower(): (key, scale) for key, scale in units.items()}
+        if unit is None or unit.lower() not in lookup:
+            problems.append(
+                f"column {index} ({cell!r}): "
+                + ("no unit" if unit is None else f"unknown unit {unit!r}")
+                + f"; write one of {', '.join(units)} in brackets, e.g. '{name} [{next(iter(units))}]'"
+            )
+            continue
+        key, scale = lookup[unit.lower()]
+        wanted[name] = (index, scale, key)
+    if problems:
+        header_text = ", ".join(repr(cell.strip()) for cell in header)
+        raise LabRecordError(
+            f"{_where(path, place, header_line)} (header {header_text}): "
+            + "; ".join(problems)
+            + ". Other columns are ignored."
+        )
+    return wanted, chosen[1], chosen[2]
 
 
 def _average_repeats(data: dict, notes: list):

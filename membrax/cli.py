@@ -366,6 +366,7 @@ def _correct(args: argparse.Namespace) -> int:
             not args.no_plot,
             args.dilation_positive,
             progress=lambda text: print(f"membrax: {text}", file=sys.stderr, flush=True),
+            sheet=args.sheet,
         )
     except (FileNotFoundError, ValueError) as error:
         print(f"membrax: {error}", file=sys.stderr)
@@ -703,6 +704,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="the record's volumetric or radial strain is written dilation positive (membrax negates it)",
     )
     correct.add_argument("--no-plot", action="store_true", help="write the CSV only")
+    correct.add_argument(
+        "--sheet", default=None, metavar="NAME|NUMBER", help="a workbook's sheet to read (default the first)"
+    )
     correct.set_defaults(func=_correct)
     demo.set_defaults(func=_demo)
     run.set_defaults(func=_run)
