@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -218,6 +219,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
     out = args.out if args.out is not None else f"results_{config.name}"
+    args.folder_in_use = out  # for main's word on an interrupted run
     return _run_config(config, out, args.resume, not args.no_progress)
 
 
@@ -242,10 +244,11 @@ def _sweep(args: argparse.Namespace) -> int:
     try:
         config = _load_config(args)
         grid = parse_grid(args.grid) if args.grid else None
+        args.folder_in_use = args.out if args.out is not None else f"results_{config.name}_sweep"
         result = run_sweep(
             config,
             grid,
-            args.out if args.out is not None else f"results_{config.name}_sweep",
+            args.folder_in_use,
             resume=args.resume,
             progress=not args.no_progress,
             num_devices=args.devices,
@@ -270,8 +273,9 @@ def _reproduce(args: argparse.Namespace) -> int:
         return 2
     from membrax.config import parse_overrides
     from membrax.errors import ConfigError, RunError
-    from membrax.reproduce import reproduce
+    from membrax.reproduce import default_folder, reproduce
 
+    args.folder_in_use = args.out or default_folder(args.size, args.packing, args.grading, args.state)
     try:
         done = reproduce(
             args.size,
@@ -401,6 +405,7 @@ def _demo(args: argparse.Namespace) -> int:
     print(theory_report())
     preset = dict(DEMO_CONFIG, **DEMO_RANDOM_CONFIG) if args.packing == "random" else DEMO_CONFIG
     out = args.out if args.out is not None else f"results_{preset['name']}"
+    args.folder_in_use = out
     return _run_config(TriaxialConfig(**preset), out, args.resume, not args.no_progress)
 
 
@@ -720,9 +725,47 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``membrax`` console script."""
+    """Entry point of the ``membrax`` console script.
+
+    Ctrl-C ends any command in one line and exit status 130, saying whether a checkpoint lets ``--resume``
+    continue; a file or folder that cannot be read or written (permissions, a full disk, a file that
+    vanished) in one line and exit status 1.
+    """
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
-    return args.func(args)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print(f"membrax: interrupted{_resume_words(getattr(args, 'folder_in_use', None))}", file=sys.stderr)
+        return 130
+    except OSError as error:
+        print(f"membrax: {_os_error_words(error)}", file=sys.stderr)
+        return 1
+
+
+def _resume_words(folder) -> str:
+    """What an interrupted command left to resume from, for its one line."""
+    if folder is None:
+        return ""
+    from membrax.runner import CHECKPOINT_NAME
+
+    folder = Path(folder)
+    if folder.is_dir() and any(folder.rglob(CHECKPOINT_NAME)):
+        return f"; the checkpoint in {folder} is kept: run the same command with --resume to continue"
+    return f"; no checkpoint was written to {folder} yet, so it starts afresh next time"
+
+
+def _os_error_words(error: OSError) -> str:
+    """An operating-system error in a line: what could not be done, to which file, and the fix."""
+    import errno
+
+    where = error.filename if error.filename is not None else "a file"
+    if isinstance(error, PermissionError):
+        return f"{where}: permission denied; choose a folder you can write (--out) or change its permissions."
+    if error.errno == errno.ENOSPC:
+        return f"{where}: no space left on the device; free some space or write elsewhere (--out)."
+    if isinstance(error, FileNotFoundError):
+        return f"{where}: no such file or folder (moved or deleted while membrax ran?)."
+    return f"{where}: {error.strerror or error}."
 
 
 if __name__ == "__main__":  # pragma: no cover

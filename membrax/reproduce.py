@@ -70,6 +70,7 @@ __all__ = [
     "RANDOM_SIZES",
     "SIZES",
     "TABLE_3_PRECISION",
+    "default_folder",
     "fcc_cases",
     "fcc_dataset",
     "random_cases",
@@ -153,6 +154,22 @@ def random_fields(
     return fields
 
 
+def default_folder(size: str, packing: str = "fcc", grading: str = "equal", state: str = "dense") -> Path:
+    """Where a reproduction writes: ``results_reproduce_{size}``, suffixed for a random packing.
+
+    The suffix: ``_random``, then ``_ballast`` or ``_narrow`` for a grading, ``_medium`` or ``_loose`` for a
+    state.
+    """
+    suffix = ""
+    if packing == "random":
+        suffix = (
+            "_random"
+            + ("" if grading == "equal" else f"_{grading}")
+            + ("" if state == "dense" else f"_{state}")
+        )
+    return Path(f"results_reproduce_{size}{suffix}")
+
+
 def reproduce(
     size: str = "small",
     folder=None,
@@ -204,10 +221,8 @@ def reproduce(
         raise ValueError(f"seeds = {seeds!r}; give the number of random specimens per case, at least 1.")
     started = time.perf_counter()
     random = packing == "random"
-    suffix = "_random" if random else ""
-    if random:
-        suffix += ("" if grading == "equal" else f"_{grading}") + ("" if state == "dense" else f"_{state}")
-    folder = Path(folder if folder is not None else f"results_reproduce_{size}{suffix}")
+    suffix = default_folder(size, packing, grading, state).name[len(f"results_reproduce_{size}") :]
+    folder = Path(folder) if folder is not None else default_folder(size, packing, grading, state)
     fields = random_fields(size, grading, state) if random else SIZES[size]
     base = with_overrides(TriaxialConfig(name=f"reproduce_{size}{suffix}", **fields), **(overrides or {}))
     result = run_sweep(

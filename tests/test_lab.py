@@ -290,7 +290,9 @@ def test_a_workbook_s_sheet_is_chosen_by_name_or_number_and_named_when_missing(t
         record = read_lab_record(tmp_path / "two.xlsx", sheet=sheet)
         np.testing.assert_array_equal(_rows(record), _rows(clean))
         assert "read sheet 2, 'Data', of the workbook" in record.notes
-    with pytest.raises(LabRecordError, match=r"no sheet 'Raw'; the workbook's sheets are 1 'Notes', 2 'Data'"):
+    with pytest.raises(
+        LabRecordError, match=r"no sheet 'Raw'; the workbook's sheets are 1 'Notes', 2 'Data'"
+    ):
         read_lab_record(tmp_path / "two.xlsx", sheet="Raw")
     with pytest.raises(LabRecordError, match="is a text file, not a workbook: leave out --sheet 2"):
         read_lab_record(_write(tmp_path, GOOD), sheet=2)
