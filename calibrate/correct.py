@@ -35,7 +35,9 @@ multiplied by 1 + δ (it doubles one range's width outside), and beyond δ = :da
 fitted method is withheld (NaN): a linear model carried further than the span it was fitted on is a guess.
 The specimen is also checked against the packing family the correction was fitted on (its JSON's
 ``packing_family``, :func:`family_warnings`): a correction fitted on FCC lattices alone is warned about, and
-so is a void ratio (``Specimen.solid_fraction``) outside the fitted members' range.
+so is a void ratio (``Specimen.solid_fraction``) outside the fitted members' range, which also widens the
+band and withholds like the inputs above, its distance in units of the fitted span of void ratios
+(:func:`void_ratio_distance`).
 
 Specimen height. The correction records the H/D_s of the specimens it was fitted on (1.28–1.67 for the
 shipped one, its moulds), below the 2–2.5 laboratories test at (ASTM D7181, BS 1377-8). A record whose
@@ -74,6 +76,7 @@ from __future__ import annotations
 
 import functools
 import io
+import math
 import numbers
 import warnings
 from importlib import resources
@@ -401,6 +404,23 @@ def family_warnings(specimen: Specimen, packing_family: dict | None) -> list[str
     return messages
 
 
+def void_ratio_distance(specimen: Specimen, packing_family: dict | None) -> float:
+    """The specimen's void ratio's distance outside the fitted members', in units of their span (0 inside).
+
+    δ = max(0, e_low − e, e − e_high)/(e_high − e_low), e = 1/φ − 1 from the solid fraction φ; 0 when the
+    void ratio or the fitted span is not known. It widens the band and withholds the fitted correction like
+    the model's inputs (:func:`extrapolation_distances`).
+    """
+    span = (packing_family or {}).get("solid_fraction")
+    if specimen.solid_fraction is None or not span:
+        return 0.0
+    void_ratio = 1.0 / specimen.solid_fraction - 1.0
+    low, high = 1.0 / span[1] - 1.0, 1.0 / span[0] - 1.0
+    if high <= low:
+        return math.inf if not math.isclose(void_ratio, low) else 0.0
+    return max(0.0, low - void_ratio, void_ratio - high) / (high - low)
+
+
 def aspect_ratio_warnings(specimen: Specimen, input_ranges: dict) -> list[str]:
     """A message when the specimen's height is not given though the correction records its fitted H/D_s.
 
@@ -571,18 +591,23 @@ def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRec
     if specimen.height is not None:
         checked[ASPECT_RATIO] = np.full(cell.shape, specimen.height / specimen.specimen_diameter)
     distances = extrapolation_distances(checked, corrections.input_ranges)
+    # The void ratio, outside the fitted members' span, widens and withholds like the model's inputs: the
+    # extra stresses depend on how deep the membrane sinks into the voids.
+    void_distance = void_ratio_distance(specimen, corrections.packing_family)
     zero = np.zeros(cell.shape)
-    extrapolation = np.max([zero, *distances.values()], axis=0)
-    model_extrapolation = np.max([zero, *(d for n, d in distances.items() if n != ASPECT_RATIO)], axis=0)
+    extrapolation = np.max([zero + void_distance, *distances.values()], axis=0)
+    model_extrapolation = np.max(
+        [zero + void_distance, *(d for n, d in distances.items() if n != ASPECT_RATIO)], axis=0
+    )
     withheld = undefined | (model_extrapolation > MAX_EXTRAPOLATION)
     for values in (sigma_1, sigma_3, friction):
         values["fitted"] = np.where(withheld, np.nan, values["fitted"])
     std = {name: np.where(withheld, np.nan, value * (1.0 + extrapolation)) for name, value in std.items()}
     messages = range_warnings(checked, corrections.input_ranges, distances)
-    if messages:
+    messages += family_warnings(specimen, corrections.packing_family)
+    if np.any(extrapolation > 0.0):
         messages.append(extrapolation_summary(extrapolation, undefined, model_extrapolation))
     messages += aspect_ratio_warnings(specimen, corrections.input_ranges)
-    messages += family_warnings(specimen, corrections.packing_family)
     if region is not None and np.any(shrink < 1.0) and not np.all(withheld):
         value = float(np.median(inputs["stiffness_ratio"][np.isfinite(inputs["stiffness_ratio"])]))
         messages.append(abstention_warning(value, region, (shrink_axial, shrink_radial)))

@@ -684,7 +684,7 @@ def test_the_report_marks_a_withheld_fitted_correction(tmp_path, capsys):
     assert np.all(table[1:, column] > correct.MAX_EXTRAPOLATION)
 
 
-def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about():
+def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about_and_widened_or_withheld():
     # solid fractions 0.55–0.60 are void ratios 1/0.60 − 1 = 0.667 to 1/0.55 − 1 = 0.818, by hand
     family = {
         "packings": ["random"],
@@ -698,8 +698,35 @@ def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about():
     denser = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.5)
     (message,) = correct.family_warnings(denser, family)
     assert "e = 0.5" in message and "0.667 to 0.818" in message and "a denser specimen" in message
+    # e = 0.5 lies (0.667 − 0.5)/(0.818 − 0.667) = 1.10 spans below: band widened, beyond one span withheld
+    assert correct.void_ratio_distance(denser, family) == pytest.approx((2 / 3 - 0.5) / (1 / 0.55 - 1 / 0.6))
+    assert correct.void_ratio_distance(inside, family) == 0.0
+    slightly = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.85)
+    delta = (0.85 - (1 / 0.55 - 1)) / (1 / 0.55 - 1 / 0.6)
+    assert correct.void_ratio_distance(slightly, family) == pytest.approx(delta, rel=1e-12)
+    record, example = _example()[:2]
+    shipped = correct.default_corrections()._replace(packing_family=family)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        base = correct.correct_record(record, example._replace(solid_fraction=1 / 1.75), shipped)
+        wide = correct.correct_record(
+            record, example._replace(solid_fraction=slightly.solid_fraction), shipped
+        )
+        gone = correct.correct_record(record, example._replace(solid_fraction=denser.solid_fraction), shipped)
+    kept = np.isfinite(base.std["friction_angle"])
+    np.testing.assert_allclose(
+        wide.std["friction_angle"][kept],
+        base.std["friction_angle"][kept]
+        * (1 + np.maximum(base.extrapolation[kept], delta))
+        / (1 + base.extrapolation[kept]),
+        rtol=1e-12,
+    )
+    assert np.all(np.isnan(gone.friction_angle["fitted"]))
+    assert any("a denser specimen" in m for m in gone.warnings)
+    assert any("withheld" in m for m in gone.warnings)
     unknown = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0)
     assert correct.family_warnings(unknown, family) == []
+    assert correct.void_ratio_distance(unknown, family) == 0.0
     (fcc_only,) = correct.family_warnings(unknown, {"packings": ["fcc"], "solid_fraction": None})
     assert "FCC lattices only" in fcc_only
     assert correct.family_warnings(unknown, {}) == []  # a file written before families were recorded
