@@ -34,8 +34,10 @@ the volumetric or radial strain.
 Checks, each with the line and column: a missing column; an unknown or missing unit; a value that is not a
 finite number; a strain in ``-`` whose magnitude exceeds 1 (percent written as a fraction); an axial strain
 that falls from row to row (unsorted, or an unloading branch) or below zero (extension positive); a
-negative cell pressure. Of the whole record: an axial strain under ``[%]`` that never exceeds
-:data:`SMALLEST_PERCENT_STRAIN` % (a fraction under a percent header), or under ``[-]`` that exceeds
+negative cell pressure, or one that moves from its first reading by more than
+:data:`CELL_PRESSURE_TOLERANCE` of it (or :data:`CELL_PRESSURE_FLOOR_PA`). Of the whole record: an axial
+strain under ``[%]`` that never exceeds :data:`SMALLEST_PERCENT_STRAIN` % (a fraction under a percent
+header), or under ``[-]`` that exceeds
 :data:`LARGEST_FRACTION_STRAIN` (percent under a fraction header); a volumetric strain that falls, or a
 radial strain that grows, over the first :data:`EARLY_READINGS` readings (a record written dilation
 positive: drained loading from an isotropic state starts by contracting, dε_v/dε_a = 1 − 2ν > 0).
@@ -72,6 +74,11 @@ _COLUMN_GROUPS = (
 SMALLEST_PERCENT_STRAIN = 0.2
 #: An axial strain under a ``[-]`` header above this (50 %) is taken for percent.
 LARGEST_FRACTION_STRAIN = 0.5
+#: How far the cell pressure may move from its first reading during a record: 5 % of it, or 1 kPa at the
+#: lowest pressures (a pressure controller holds its set point to about 1 kPa; a larger change is a new
+#: stage of a multistage test, whose membrane correction is another test's).
+CELL_PRESSURE_TOLERANCE = 0.05
+CELL_PRESSURE_FLOOR_PA = 1e3
 #: The readings, the first of them the start, over which the sign of dε_v/dε_a (or dε_r/dε_a) is checked:
 #: the contraction at the start of a dense specimen can be short (0.02 % of axial strain in an FCC
 #: packing), so the check looks at the first readings rather than a strain window.
@@ -319,6 +326,17 @@ def read_lab_record(path, dilation_positive: bool = False, sheet=None) -> LabRec
                 raise LabRecordError(
                     f"{where}: {value:g} {unit}; a cell pressure is >= 0 (compression positive)."
                 )
+            if name == "cell_pressure" and values[name]:
+                first = values[name][0]
+                allowed = max(CELL_PRESSURE_TOLERANCE * first, CELL_PRESSURE_FLOOR_PA)
+                if abs(value * scale - first) > allowed:
+                    raise LabRecordError(
+                        f"{where}: {value:g} {unit} against {first / scale:g} {unit} at the first reading; "
+                        f"the cell pressure changes by more than {100 * CELL_PRESSURE_TOLERANCE:g} % (or "
+                        f"{CELL_PRESSURE_FLOOR_PA / 1e3:g} kPa) during the record. membrax corrects a test "
+                        "sheared at one cell pressure: split the record where the pressure changes and "
+                        "correct each stage as its own test."
+                    )
             if name == "axial_strain" and values[name] and value * scale < values[name][-1]:
                 if value < 0.0 and max(values[name]) <= 0.0:
                     raise LabRecordError(

@@ -296,3 +296,19 @@ def test_a_workbook_s_sheet_is_chosen_by_name_or_number_and_named_when_missing(t
         read_lab_record(tmp_path / "two.xlsx", sheet="Raw")
     with pytest.raises(LabRecordError, match="is a text file, not a workbook: leave out --sheet 2"):
         read_lab_record(_write(tmp_path, GOOD), sheet=2)
+
+
+def test_a_cell_pressure_that_changes_during_the_record_is_refused_at_its_line(tmp_path):
+    """25 → 60 kPa (a second stage) refused at the row it changes; 25 ± 1 kPa and 100 ± 5 kPa read."""
+    rows = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]\n"
+    staged = rows + "0,0,0,25\n0.5,0.1,20,25\n1,0.2,30,60\n"
+    with pytest.raises(LabRecordError, match=r"line 4, column 4 \(cell_pressure\): 60 kPa against 25 kPa"):
+        read_lab_record(_write(tmp_path, staged))
+    held = rows + "0,0,0,25\n0.5,0.1,20,26\n1,0.2,30,24\n"
+    np.testing.assert_allclose(
+        read_lab_record(_write(tmp_path, held, "h.csv")).cell_pressure, [25e3, 26e3, 24e3]
+    )
+    high = rows + "0,0,0,100\n0.5,0.1,20,105\n1,0.2,30,95\n"
+    assert read_lab_record(_write(tmp_path, high, "g.csv")).cell_pressure.max() == pytest.approx(105e3)
+    with pytest.raises(LabRecordError, match="more than 5 %"):
+        read_lab_record(_write(tmp_path, high.replace("95\n", "94\n"), "x.csv"))
