@@ -508,3 +508,23 @@ def test_a_compaction_friction_names_its_packing_state():
     assert compaction_state(m.degrees(m.atan(0.5))) == "loose"  # tan⁻¹ 0.5, as COMPACTION_FRICTION_DEG
     assert compaction_state(10.0) == "medium"
     assert compaction_state(15.0) == "compaction friction 15°"
+
+
+def test_the_shipped_configuration_files_are_the_presets_they_name():
+    """examples/configs/*.toml, which the README's commands use, load to the demo, random-demo and paper
+    configurations (the presets are the one source; the files must not drift from them)."""
+    from pathlib import Path
+
+    from membrax.config import DEMO_CONFIG, DEMO_RANDOM_CONFIG, TriaxialConfig, load_config
+    from membrax.reproduce import SIZES
+
+    folder = Path(__file__).resolve().parents[1] / "examples" / "configs"
+    expected = {
+        "demo.toml": TriaxialConfig(**DEMO_CONFIG),
+        "demo_random.toml": TriaxialConfig(**DEMO_RANDOM_CONFIG),
+        "paper.toml": TriaxialConfig(name="paper", **SIZES["paper"]),
+    }
+    assert sorted(p.name for p in folder.glob("*.toml")) == sorted(expected)
+    for name, config in expected.items():
+        assert load_config(folder / name) == config, name
+    assert expected["paper.toml"].particles_across == 10 and expected["paper.toml"].layers == 25  # Table 1

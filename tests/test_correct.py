@@ -959,3 +959,17 @@ def test_a_long_record_is_corrected_with_a_line_per_stage(tmp_path):
     with correct.example_record_path() as example:
         correct.correct_file(example, specimen, out=tmp_path / "e.csv", plot=False, progress=quiet.append)
     assert quiet == []  # a short record says nothing
+
+
+def test_the_readme_s_example_command_is_the_example_record_s_own():
+    """The README's `membrax correct calibrate/data/example_record.csv ...` carries the arguments written in
+    the record's comment (the specimen it was simulated with), so the two cannot drift apart."""
+    from pathlib import Path
+
+    from calibrate import evaluate
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    start = text.index("membrax correct calibrate/data/example_record.csv")
+    command = text[start : text.index("```", start)].replace("\\\n", " ").split()
+    record = _example()[0]
+    assert command[3:] == evaluate.example_argv(record.comments)
