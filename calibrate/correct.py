@@ -772,6 +772,20 @@ def plot_correction(result: CorrectedRecord, title: str = "", reference=None):
     return figure
 
 
+def correction_title(result: CorrectedRecord, name: str) -> str:
+    """A plot's title: the test's name, its cell pressure, membrane and specimen, in a laboratory's units."""
+    inputs = result.inputs
+
+    def first(key):
+        return float(np.ravel(inputs[key])[0])
+
+    return (
+        f"{name}: σc {1e-3 * float(np.median(result.record.cell_pressure)):.3g} kPa, membrane "
+        f"{1e3 * first('membrane_thickness'):.3g} mm of {1e-3 * first('membrane_modulus'):.4g} kPa, specimen "
+        f"{1e3 * first('specimen_diameter'):.4g} mm across, d50 {1e3 * first('particle_diameter'):.3g} mm"
+    )
+
+
 def write_correction(result: CorrectedRecord, csv_path, plot_path=None, header_lines=()) -> list[Path]:
     """Write the CSV (and the plot, PNG) of a corrected record atomically; return the paths written."""
     from membrax.io.files import atomic_write_bytes
@@ -781,7 +795,7 @@ def write_correction(result: CorrectedRecord, csv_path, plot_path=None, header_l
     text = _csv_text(result, header_lines)  # built first: nothing is written if this fails
     figure = None
     if plot_path is not None:
-        figure = plot_correction(result, title=str(csv_path.stem))
+        figure = plot_correction(result, title=correction_title(result, csv_path.stem))
         image = io.BytesIO()
         figure.savefig(image, format="png", dpi=120)
         import matplotlib.pyplot as plt

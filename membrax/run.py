@@ -239,6 +239,11 @@ def _finish(
         + f" ({metadata['dtype']}, {metadata['jax_backend']}).\n\n"
     )
     summary = header + summary
+    if paper is not None and config.packing != "fcc":
+        summary += (
+            "\nThe Paper column is the reference study's FCC lattice (10 × 25 uniform spheres), another "
+            f"packing than this {config.packing} one: compare the trends, not the values.\n"
+        )
     (folder / "summary.md").write_text(summary + "\n")
     files["summary"] = folder / "summary.md"
     return RunResult(folder, shear, consolidation, summary, files, metadata)

@@ -973,3 +973,13 @@ def test_the_readme_s_example_command_is_the_example_record_s_own():
     command = text[start : text.index("```", start)].replace("\\\n", " ").split()
     record = _example()[0]
     assert command[3:] == evaluate.example_argv(record.comments)
+
+
+def test_the_plot_s_title_names_the_test_s_pressure_membrane_and_specimen():
+    record, specimen, _, _ = _example()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = correct.correct_record(record, specimen)
+    title = correct.correction_title(result, "test7")
+    # the example's comment: 25 kPa, 4 mm of 2000 kPa, 147.0 mm across, d50 16.14 mm
+    assert title == "test7: σc 25 kPa, membrane 4 mm of 2000 kPa, specimen 147 mm across, d50 16.1 mm"

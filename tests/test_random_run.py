@@ -62,6 +62,9 @@ def test_a_graded_random_specimen_runs_and_its_grading_reaches_the_results(tmp_p
     np.testing.assert_allclose(radial, config.cell_pressure, rtol=1e-6)
     angle = analysis.record(result.results, "love_weber_friction_angle")
     assert np.nanmax(angle) < theory.rowe_peak_friction_angle_deg(config.friction_angle_deg, theory.FCC)
+    # At 10 kPa in 5 mm the summary sets the paper's numbers beside, saying they are of its FCC lattice.
+    assert (config.cell_pressure_kpa, config.membrane_thickness_mm) == (10.0, 5.0)
+    assert "FCC lattice (10 × 25 uniform spheres), another packing than this random one" in result.summary
 
 
 @pytest.mark.slow
