@@ -455,7 +455,7 @@ TEST_FIGURES = (
 )
 
 
-def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> list[Path]:
+def save_test_figures(records, folder, stem="fig", derived=None, dpi=120, title=None) -> list[Path]:
     """Write the paper's Figs 5–8 for one test as PNG files.
 
     Files ``{stem}5_friction.png``, ``{stem}6_additional_stress.png``, ``{stem}7_axial_ratio.png`` and
@@ -471,6 +471,7 @@ def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> lis
       derived: :func:`membrax.triaxial.analysis.derived_quantities` of the records, computed once when
         not given.
       dpi: resolution of the PNG files.
+      title: a line set above every figure (e.g. the test's cell pressure, membrane and packing).
 
     Returns:
       The paths written, in figure order.
@@ -481,6 +482,8 @@ def save_test_figures(records, folder, stem="fig", derived=None, dpi=120) -> lis
     paths = []
     for suffix, draw in TEST_FIGURES:
         figure = draw(records, derived)
+        if title:
+            figure.suptitle(title, fontsize=9)
         path = folder / f"{stem}{suffix}"
         figure.savefig(path, dpi=dpi)
         figure.clear()

@@ -65,6 +65,7 @@ __all__ = [
     "build_test",
     "consolidation_tolerance",
     "run_test",
+    "figure_title",
 ]
 
 
@@ -210,6 +211,19 @@ def _write_partial(folder, records, config) -> None:
         write_results(records_to_dataset(shear, attrs=metadata), folder, "results_partial")
 
 
+def figure_title(config, metadata: dict) -> str:
+    """A figure's line saying which test it is: the name, cell pressure, membrane and packing."""
+    if config.packing == "fcc":
+        packing = f"FCC {config.particles_across} × {config.layers}"
+    else:
+        mould = f"{config.specimen_diameter_mm:g} × {config.specimen_height_mm:g} mm"
+        packing = f"random {mould}, seed {config.packing_seed}"
+    return (
+        f"{config.name}: σc {config.cell_pressure_kpa:g} kPa, membrane {config.membrane_thickness_mm:g} mm "
+        f"of {config.membrane_modulus_kpa:g} kPa, {packing} ({metadata['num_particles']} spheres)"
+    )
+
+
 def _finish(
     folder, config, test, records, shear_start, build_seconds, elapsed, tolerance, resumed=None
 ) -> RunResult:
@@ -218,7 +232,7 @@ def _finish(
     shear, consolidation = results_datasets(records, shear_start, metadata)
     files = {"consolidation": write_results(consolidation, folder, "consolidation")}
     files["results"] = write_results(shear, folder, "results")
-    files["figures"] = plots.save_test_figures(shear, folder)
+    files["figures"] = plots.save_test_figures(shear, folder, title=figure_title(config, metadata))
     paper = (
         PAPER_10KPA_5MM
         if paper_key(config.cell_pressure_kpa, config.membrane_thickness_mm) == (10.0, 5.0)

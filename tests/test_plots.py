@@ -286,3 +286,17 @@ def test_fig9_of_random_specimens_is_the_mean_over_seeds_beside_fcc():
     labels = [line.get_label() for line in figure.axes[1].lines]
     assert labels[0].endswith("random") and labels[1].endswith("FCC")
     np.testing.assert_allclose(figure.axes[1].lines[0].get_ydata(), [-0.3, -0.2], rtol=1e-12)
+
+
+def test_a_run_s_figures_say_which_test_they_are():
+    from membrax.config import DEMO_CONFIG, DEMO_RANDOM_CONFIG, TriaxialConfig
+    from membrax.run import figure_title
+
+    assert (
+        figure_title(TriaxialConfig(**DEMO_CONFIG), {"num_particles": 390})
+        == "demo: σc 10 kPa, membrane 5 mm of 1400 kPa, FCC 6 × 10 (390 spheres)"
+    )
+    assert (
+        figure_title(TriaxialConfig(**DEMO_RANDOM_CONFIG), {"num_particles": 333})
+        == "demo_random: σc 10 kPa, membrane 5 mm of 1400 kPa, random 150 × 250 mm, seed 0 (333 spheres)"
+    )
