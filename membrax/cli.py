@@ -353,6 +353,29 @@ CORRECT_REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
 def _correct(args: argparse.Namespace) -> int:
     from calibrate.correct import METHODS, Specimen, correct_file
 
+    series = args.series is not None or len(args.record) > 1 or any(Path(r).is_dir() for r in args.record)
+    if not args.record and args.series is None:
+        print("membrax: give a record (or several, or --series SHEET.toml) to correct.", file=sys.stderr)
+        return 2
+    if args.series is not None and args.record:
+        print("membrax: give either records or --series, not both.", file=sys.stderr)
+        return 2
+    missing = [
+        f"--{name.replace('_', '-')}"
+        for name in (
+            "specimen_diameter_mm",
+            "particle_size_mm",
+            "membrane_thickness_mm",
+            "membrane_modulus_kpa",
+        )
+        if getattr(args, name) is None
+    ]
+    if missing and args.series is None:
+        print(f"membrax: correct needs {', '.join(missing)} (the specimen; see --help).", file=sys.stderr)
+        return 2
+    if series:
+        return _correct_series(args)
+    (args.record,) = args.record
     try:
         specimen = Specimen.from_mm_kpa(
             args.specimen_diameter_mm,
@@ -395,6 +418,57 @@ def _correct(args: argparse.Namespace) -> int:
             cells.append(f"{value:9.2f} ±{spread:4.2f}" if np.isfinite(value) else f"{'withheld':>15}")
         lines.append(f"{100 * strain[i]:6.2f} " + " ".join(cells))
     lines.append("written: " + ", ".join(str(p) for p in paths))
+    print("\n".join(lines))
+    return 0
+
+
+def _correct_series(args: argparse.Namespace) -> int:
+    """``membrax correct a.csv b.csv ...`` or ``--series SHEET``: every test, then the envelopes by method."""
+    from calibrate import series
+    from calibrate.correct import LABELS, METHODS, Specimen
+    from calibrate.persistence import load_corrections
+
+    say = lambda text: print(f"membrax: {text}", file=sys.stderr, flush=True)  # noqa: E731
+    try:
+        if args.series is not None:
+            tests = series.read_series_sheet(args.series)
+        else:
+            specimen = Specimen.from_mm_kpa(
+                args.specimen_diameter_mm,
+                args.particle_size_mm,
+                args.membrane_thickness_mm,
+                args.membrane_modulus_kpa,
+                void_ratio=args.void_ratio,
+                specimen_height_mm=args.specimen_height_mm,
+            )
+            tests = series.series_of_files(args.record, specimen, args.dilation_positive)
+        corrections = None if args.model is None else load_corrections(args.model)
+        result = series.correct_series(tests, corrections, progress=say)
+        out = Path(args.out) if args.out is not None else Path.cwd() / "series_corrected"
+        written = series.write_series(result, out)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"membrax: {error}", file=sys.stderr)
+        return 2
+    for test, corrected in zip(result.tests, result.corrected, strict=True):
+        for message in corrected.warnings:
+            print(f"membrax: warning: {test.name}: {message}", file=sys.stderr)
+    lines = [
+        f"{len(result.tests)} tests; peak φ' (°) by method",
+        f"{'test':>24} " + " ".join(f"{m:>15}" for m in METHODS),
+    ]
+    for index, test in enumerate(result.tests):
+        lines.append(f"{test.name:>24} " + " ".join(f"{result.peaks[m][index, 2]:15.2f}" for m in METHODS))
+    lines.append("envelopes (Mohr–Coulomb on the peaks; curved φ'_s = φ0 − Δφ log10(σ'3/p_a)):")
+    for method in METHODS:
+        line, curve = result.envelopes[method], result.curved[method]
+        lines.append(
+            f"  {LABELS[method]:>24}: c' {1e-3 * line.cohesion:.1f} kPa, φ' {line.friction_angle:.2f}°"
+            f"; φ0 {curve.phi0:.2f}°, Δφ {curve.delta_phi:.2f}°"
+        )
+    lines.append(
+        f"written to {written['report'].parent}: series.html (the report), series.csv, envelopes.csv, "
+        "series.png and each test's corrected CSV"
+    )
     print("\n".join(lines))
     return 0
 
@@ -675,8 +749,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     correct.add_argument(
         "record",
+        nargs="*",
         help="CSV or .xlsx: axial_strain, volumetric_ or radial_strain, deviator_ or "
-        "axial_stress, cell_pressure, each 'name [unit]' in the header; compression positive",
+        "axial_stress, cell_pressure, each 'name [unit]' in the header; compression positive. Several "
+        "records (or a folder of them) are a series sharing the specimen options: their envelopes too",
+    )
+    correct.add_argument(
+        "--series",
+        default=None,
+        metavar="SHEET.toml",
+        help="a series sheet listing the tests and their specimens (calibrate.series; README)",
     )
     for name, unit, what in (
         ("specimen-diameter-mm", "mm", "specimen diameter after consolidation"),
@@ -684,7 +766,7 @@ def build_parser() -> argparse.ArgumentParser:
         ("membrane-thickness-mm", "mm", "membrane thickness"),
         ("membrane-modulus-kpa", "kPa", "membrane Young's modulus (latex ≈ 1400 kPa)"),
     ):
-        correct.add_argument(f"--{name}", type=float, required=True, help=f"{what} ({unit})")
+        correct.add_argument(f"--{name}", type=float, default=None, help=f"{what} ({unit}); required")
     correct.add_argument(
         "--void-ratio",
         type=float,
@@ -701,7 +783,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     correct.add_argument("--model", default=None, help="corrections.json of membrax fit (default: shipped)")
     correct.add_argument(
-        "--out", default=None, help="CSV to write (default <record>_corrected.csv in the working folder)"
+        "--out",
+        default=None,
+        help="CSV to write (default <record>_corrected.csv in the working folder); for a series, the folder "
+        "(default series_corrected)",
     )
     correct.add_argument(
         "--dilation-positive",
