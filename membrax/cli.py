@@ -473,6 +473,13 @@ def _correct_series(args: argparse.Namespace) -> int:
     return 0
 
 
+def _serve(args: argparse.Namespace) -> int:
+    from calibrate.web import serve
+
+    serve(args.port, open_browser=not args.no_browser)
+    return 0
+
+
 def _demo(args: argparse.Namespace) -> int:
     from membrax.config import DEMO_RANDOM_CONFIG, TriaxialConfig
 
@@ -798,6 +805,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--sheet", default=None, metavar="NAME|NUMBER", help="a workbook's sheet to read (default the first)"
     )
     correct.set_defaults(func=_correct)
+    serve = commands.add_parser("serve", help="a local web page for correcting records (localhost only)")
+    serve.add_argument("--port", type=int, default=8765, help="the port on 127.0.0.1 (default 8765)")
+    serve.add_argument("--no-browser", action="store_true", help="do not open a browser")
+    serve.set_defaults(func=_serve)
     demo.set_defaults(func=_demo)
     run.set_defaults(func=_run)
     sweep.set_defaults(func=_sweep)
