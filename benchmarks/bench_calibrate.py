@@ -54,6 +54,14 @@ def _thousand_rows(folder: Path, rows: int = 1000) -> tuple[Path, list[str]]:
     return path, values
 
 
+def _command_seconds(record_path, specimen_args, folder) -> float:
+    """Wall-clock seconds of the whole ``membrax correct`` command in a fresh process."""
+    start = time.perf_counter()
+    command = [sys.executable, "-m", "membrax.cli", "correct", str(record_path), *specimen_args]
+    subprocess.run(command, check=True, capture_output=True, cwd=folder)
+    return time.perf_counter() - start
+
+
 def main() -> None:
     table = datasets.load_table(resources.files("calibrate") / "data" / "calibration_table.npz")
     start = time.perf_counter()
@@ -79,23 +87,8 @@ def main() -> None:
         start = time.perf_counter()
         correct.correct_file(record_path, specimen, out=Path(folder) / "out.csv")
         correct_s = time.perf_counter() - start
-        start = time.perf_counter()
-        subprocess.run(
-            [sys.executable, "-m", "membrax.cli", "correct", str(record_path), *specimen_args],
-            check=True,
-            capture_output=True,
-            cwd=folder,
-        )
-        command_s = time.perf_counter() - start
-        long_path, _ = _thousand_rows(Path(folder), 1_000_000)
-        start = time.perf_counter()
-        subprocess.run(
-            [sys.executable, "-m", "membrax.cli", "correct", str(long_path), *specimen_args],
-            check=True,
-            capture_output=True,
-            cwd=folder,
-        )
-        million_s = time.perf_counter() - start
+        command_s = _command_seconds(record_path, specimen_args, folder)
+        million_s = _command_seconds(_thousand_rows(Path(folder), 1_000_000)[0], specimen_args, folder)
     print(f"calibration benchmark: {table.num_cases} cases, {table.num_rows} records; correct on 1,000 rows")
     print(
         f"{'dtype':<8}{'fit (s)':>9}{'warm (s)':>10}{'loo (s)':>9}{'nm evals':>10}{'optax evals':>13}"

@@ -350,8 +350,22 @@ def _sensitivity(args: argparse.Namespace) -> int:
 CORRECT_REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
 
 
+def _specimen_of(args: argparse.Namespace):
+    """The specimen of `membrax correct`'s options, checked by `calibrate.correct.Specimen.from_mm_kpa`."""
+    from calibrate.correct import Specimen
+
+    return Specimen.from_mm_kpa(
+        args.specimen_diameter_mm,
+        args.particle_size_mm,
+        args.membrane_thickness_mm,
+        args.membrane_modulus_kpa,
+        void_ratio=args.void_ratio,
+        specimen_height_mm=args.specimen_height_mm,
+    )
+
+
 def _correct(args: argparse.Namespace) -> int:
-    from calibrate.correct import METHODS, Specimen, correct_file
+    from calibrate.correct import METHODS, correct_file
 
     series = args.series is not None or len(args.record) > 1 or any(Path(r).is_dir() for r in args.record)
     if not args.record and args.series is None:
@@ -377,14 +391,7 @@ def _correct(args: argparse.Namespace) -> int:
         return _correct_series(args)
     (args.record,) = args.record
     try:
-        specimen = Specimen.from_mm_kpa(
-            args.specimen_diameter_mm,
-            args.particle_size_mm,
-            args.membrane_thickness_mm,
-            args.membrane_modulus_kpa,
-            void_ratio=args.void_ratio,
-            specimen_height_mm=args.specimen_height_mm,
-        )
+        specimen = _specimen_of(args)
         result, paths = correct_file(
             args.record,
             specimen,
@@ -425,7 +432,7 @@ def _correct(args: argparse.Namespace) -> int:
 def _correct_series(args: argparse.Namespace) -> int:
     """``membrax correct a.csv b.csv ...`` or ``--series SHEET``: every test, then the envelopes by method."""
     from calibrate import series
-    from calibrate.correct import LABELS, METHODS, Specimen
+    from calibrate.correct import LABELS, METHODS
     from calibrate.persistence import load_corrections
 
     say = lambda text: print(f"membrax: {text}", file=sys.stderr, flush=True)  # noqa: E731
@@ -433,14 +440,7 @@ def _correct_series(args: argparse.Namespace) -> int:
         if args.series is not None:
             tests = series.read_series_sheet(args.series)
         else:
-            specimen = Specimen.from_mm_kpa(
-                args.specimen_diameter_mm,
-                args.particle_size_mm,
-                args.membrane_thickness_mm,
-                args.membrane_modulus_kpa,
-                void_ratio=args.void_ratio,
-                specimen_height_mm=args.specimen_height_mm,
-            )
+            specimen = _specimen_of(args)
             tests = series.series_of_files(args.record, specimen, args.dilation_positive)
         corrections = None if args.model is None else load_corrections(args.model)
         result = series.correct_series(tests, corrections, progress=say)
