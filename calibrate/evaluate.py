@@ -33,6 +33,7 @@ __all__ = [
     "VOID_RATIO_FLAG",
     "HEIGHT_FLAG",
     "corrected_csv_errors",
+    "csv_columns",
     "example_arguments",
     "example_argv",
     "example_void_ratio",
@@ -368,8 +369,8 @@ def corrected_csv_errors(record_path, corrected_path, radial_target: str, max_st
     """
     from membrax.triaxial.analysis import friction_angle_deg
 
-    record = _csv_columns(record_path)
-    corrected = _csv_columns(corrected_path)
+    record = csv_columns(record_path)
+    corrected = csv_columns(corrected_path)
     strain = 1e-2 * corrected["axial_strain"]
     if strain.shape != record["axial_strain"].shape or not np.allclose(
         strain, 1e-2 * record["axial_strain"], rtol=1e-6, atol=1e-12
@@ -399,7 +400,7 @@ def corrected_csv_errors(record_path, corrected_path, radial_target: str, max_st
     return errors
 
 
-def _csv_columns(path) -> dict:
+def csv_columns(path) -> dict:
     """{name without its [unit]: column} of a comma-separated table with ``#`` comment lines."""
     lines = [line for line in Path(path).read_text().splitlines() if line and not line.startswith("#")]
     names = [cell.split("[")[0].strip() for cell in lines[0].split(",")]

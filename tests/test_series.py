@@ -168,3 +168,26 @@ def test_membrax_correct_writes_a_series_report_whose_numbers_are_the_series(tmp
     assert cli.main([*argv, "--membrane-modulus-kpa", "2000"]) == 0
     capsys.readouterr()
     assert (tmp_path / "files" / "envelopes.csv").read_text() == (out / "envelopes.csv").read_text()
+
+
+def test_on_the_shipped_example_series_the_membrane_s_apparent_cohesion_is_removed_in_part():
+    """The example series' internal stresses (the records' extra columns) carry c' ≈ 0.9 kPa; the external
+    ones, uncorrected, 7.9 kPa. Every correction brings c' below the uncorrected, toward the internal."""
+    from importlib import resources
+    from pathlib import Path
+
+    from calibrate import evaluate
+
+    folder = Path(str(resources.files("calibrate") / "data" / "example_series"))
+    result = series.correct_series(series.read_series_sheet(folder / "series.toml"))
+    peaks = []
+    for test in result.tests:
+        columns = evaluate.csv_columns(test.record)
+        sigma_1, sigma_3 = 1e3 * columns["internal_sigma_1"], 1e3 * columns["internal_sigma_3"]
+        best = int(np.nanargmax((sigma_1 - sigma_3) / (sigma_1 + sigma_3)))
+        peaks.append((sigma_1[best], sigma_3[best]))
+    internal = series.mohr_coulomb_envelope(*np.array(peaks).T)
+    uncorrected = result.envelopes["uncorrected"].cohesion
+    assert uncorrected - internal.cohesion > 5e3  # the membrane's apparent cohesion
+    for method in ("astm", "henkel_gilbert", "kuerbis_vaid", "fitted"):
+        assert result.envelopes[method].cohesion < 0.5 * uncorrected, method
