@@ -572,7 +572,13 @@ SUBCOMMAND_HELP = {
         "in range widths), and beyond one width the fitted column is withheld. --specimen-height-mm has\n"
         "H/D checked too (outside its fitted range it widens the band, never withholds). Where shrinking\n"
         "the fitted correction toward none lowered its cross-validated error (by E_m t_m/(sigma_c D)),\n"
-        "it is shrunk, said in a warning and in the CSV's fitted_shrink_* columns.",
+        "it is shrunk, said in a warning and in the CSV's fitted_shrink_* columns.\n"
+        "\n"
+        "A series: several records (or a folder of them) sharing the specimen options, or --series with a\n"
+        "TOML sheet listing each test's record and specimen. Each test is corrected, and each method's\n"
+        "Mohr-Coulomb envelope (c', phi' through the peaks) and curved envelope (phi'_s = phi0 - dphi\n"
+        "log10(sigma'3/p_a)) are fitted; --out is then a folder (series.html, envelopes.csv, series.csv,\n"
+        "series.png and each test's corrected CSV).",
         "examples:\n"
         "  membrax correct lab.csv --specimen-diameter-mm 150 --particle-size-mm 20 \\\n"
         "      --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
@@ -580,6 +586,9 @@ SUBCOMMAND_HELP = {
         "      --membrane-thickness-mm 4 --membrane-modulus-kpa 1400 --dilation-positive --out test7.csv\n"
         "  membrax correct lab.csv --specimen-diameter-mm 150 --specimen-height-mm 300 \\\n"
         "      --particle-size-mm 20 --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
+        "  membrax correct --series calibrate/data/example_series/series.toml --out series_corrected\n"
+        "  membrax correct t25.csv t50.csv t80.csv --specimen-diameter-mm 150 --particle-size-mm 20 \\\n"
+        "      --membrane-thickness-mm 2 --membrane-modulus-kpa 1400\n"
         "where the record's header gives each column's unit, e.g.\n"
         "  axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]",
     ),
