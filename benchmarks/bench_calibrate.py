@@ -8,7 +8,7 @@ call; there is no float32 path), with:
   ``calibrate.grid.RANDOM_CALIBRATION``), first call including compilation; ``warm (s)``, the second call;
 - ``loo (s)``: the leave-one-case-out cross-validation (one fit per case);
 - ``nm evals`` / ``optax evals``: loss evaluations of scipy's Nelder–Mead and of Adam + L-BFGS;
-- ``correct (s)``: ``calibrate.correct.correct_file`` on a 1,000-row record (the shipped example record
+- ``correct (s)``: ``calibrate.report.correct_file`` on a 1,000-row record (the shipped example record
   interpolated), CSV and plot written, in-process and first call; ``command (s)``: the whole
   ``membrax correct`` command in a fresh process (interpreter, imports, compilation, files);
   ``1e6 rows (s)``: the same command on the record interpolated onto 1,000,000 readings (a logger at
@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate import correct, datasets, evaluate, fit, lab
+from calibrate import correct, datasets, evaluate, fit, lab, report
 
 SPECIMEN_ARGS = (
     "--specimen-diameter-mm",
@@ -85,7 +85,7 @@ def main() -> None:
             for item in (name, f"{value:g}")
         ]
         start = time.perf_counter()
-        correct.correct_file(record_path, specimen, out=Path(folder) / "out.csv")
+        report.correct_file(record_path, specimen, out=Path(folder) / "out.csv")
         correct_s = time.perf_counter() - start
         command_s = _command_seconds(record_path, specimen_args, folder)
         million_s = _command_seconds(_thousand_rows(Path(folder), 1_000_000)[0], specimen_args, folder)

@@ -48,7 +48,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from calibrate import correct, lab
+from calibrate import correct, lab, report
 
 __all__ = [
     "ATMOSPHERIC_PRESSURE",
@@ -482,6 +482,6 @@ def write_series(result: SeriesResult, folder, title: str = "membrane correction
     records = []
     for test, corrected in zip(result.tests, result.corrected, strict=True):
         name = "".join(c if c.isalnum() or c in "-_." else "_" for c in test.name)
-        records += correct.write_correction(corrected, folder / f"{name}_corrected.csv", None, [test.name])
+        records += report.write_correction(corrected, folder / f"{name}_corrected.csv", None, [test.name])
     written["records"] = records
     return written

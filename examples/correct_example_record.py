@@ -13,7 +13,7 @@ import sys
 
 import matplotlib.pyplot as plt
 
-from calibrate import correct, evaluate
+from calibrate import correct, evaluate, report
 
 record, specimen, internal_1, internal_3 = evaluate.read_example_record()
 result = correct.correct_record(record, specimen)
@@ -29,7 +29,7 @@ title = (
     f"{1e3 * specimen.membrane_thickness:g} mm membrane of {specimen.membrane_modulus / 1e3:g} kPa, "
     f"D/D_s = 1/{specimen.specimen_diameter / specimen.particle_diameter:.1f}"
 )
-figure = correct.plot_correction(result, title, (internal_1, internal_3))
+figure = report.plot_correction(result, title, (internal_1, internal_3))
 figure.savefig(out, dpi=110)
 plt.close(figure)
 print(f"plot written to {out}")

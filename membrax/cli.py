@@ -365,7 +365,8 @@ def _specimen_of(args: argparse.Namespace):
 
 
 def _correct(args: argparse.Namespace) -> int:
-    from calibrate.correct import METHODS, correct_file
+    from calibrate.correct import METHODS
+    from calibrate.report import correct_file
 
     series = args.series is not None or len(args.record) > 1 or any(Path(r).is_dir() for r in args.record)
     if not args.record and args.series is None:

@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from calibrate import correct, datasets, evaluate, fit, models, persistence
+from calibrate import correct, datasets, evaluate, fit, models, persistence, report
 
 SMOKE = os.environ.get("MEMBRAX_SMOKE") == "1"
 OUT = Path(tempfile.mkdtemp(prefix="membrax_05_"))
@@ -135,7 +135,7 @@ print("range warnings:", [str(w.message) for w in caught] or "none")
 print(evaluate.friction_angle_table(record, result, internal_1, internal_3))
 
 # %%
-figure = correct.plot_correction(
+figure = report.plot_correction(
     result, "synthetic example: " + record.comments[1].split(":")[0], (internal_1, internal_3)
 )
 figure

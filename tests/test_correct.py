@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from calibrate import correct, datasets, lab, models, persistence
+from calibrate import correct, datasets, lab, models, persistence, report
 from membrax import theory
 
 SPECIMEN = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0)
@@ -342,7 +342,7 @@ def test_the_rule_shrinks_the_fitted_correction_of_a_record_in_its_region_with_t
         )
     np.testing.assert_allclose(varied.std["sigma_1"], cell * 0.05, rtol=1e-12)
     # the CSV carries the factors on every row, the header the warning
-    correct.write_correction(shrunk, tmp_path / "s.csv", header_lines=[f"warning: {message}"])
+    report.write_correction(shrunk, tmp_path / "s.csv", header_lines=[f"warning: {message}"])
     header, table = _table(tmp_path / "s.csv")
     names = header.split(",")
     np.testing.assert_array_equal(table[:, names.index("fitted_shrink_axial [-]")], 0.0)
@@ -860,8 +860,8 @@ def test_a_correction_with_an_alternate_reports_the_other_radial_target_beside_i
     np.testing.assert_allclose(
         (result.sigma_3["fitted"] - alone.sigma_3["fitted"])[kept], shift[kept], rtol=1e-9
     )
-    (path,) = correct.write_correction(
-        result, tmp_path / "c.csv", header_lines=[correct.target_words(result)]
+    (path,) = report.write_correction(
+        result, tmp_path / "c.csv", header_lines=[report.target_words(result)]
     )
     lines = path.read_text().splitlines()
     assert "sigma_3 the radial load the specimen receives" in lines[0] and "fitted_section_4_3" in lines[0]
@@ -941,7 +941,7 @@ def test_a_long_record_is_corrected_with_a_line_per_stage(tmp_path):
     header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
     np.savetxt(path, np.stack(columns, axis=1), delimiter=",", header=header, comments="", fmt="%.8g")
     lines = []
-    result, _ = correct.correct_file(
+    result, _ = report.correct_file(
         path, specimen, out=tmp_path / "out.csv", plot=False, progress=lines.append
     )
     assert lines[-2:] == [
@@ -957,7 +957,7 @@ def test_a_long_record_is_corrected_with_a_line_per_stage(tmp_path):
     assert abs(result.friction_angle["fitted"][dense] - short.friction_angle["fitted"][sparse]) < band
     quiet = []
     with correct.example_record_path() as example:
-        correct.correct_file(example, specimen, out=tmp_path / "e.csv", plot=False, progress=quiet.append)
+        report.correct_file(example, specimen, out=tmp_path / "e.csv", plot=False, progress=quiet.append)
     assert quiet == []  # a short record says nothing
 
 
@@ -980,6 +980,6 @@ def test_the_plot_s_title_names_the_test_s_pressure_membrane_and_specimen():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = correct.correct_record(record, specimen)
-    title = correct.correction_title(result, "test7")
+    title = report.correction_title(result, "test7")
     # the example's comment: 25 kPa, 4 mm of 2000 kPa, 147.0 mm across, d50 16.14 mm
     assert title == "test7: σc 25 kPa, membrane 4 mm of 2000 kPa, specimen 147 mm across, d50 16.1 mm"
