@@ -751,6 +751,7 @@ def compact(
       ValueError: an argument out of range, named with its accepted range.
       SimulationError: the frictionless search stalled (module docstring, "Budgets"); the message names
         the growth factor, stress, unbalanced-force ratio, steps, calls and bracket, and what to change.
+        Also an error bit of the growth phase (non-finite positions, an overflowing neighbour list), named.
     """
     diameters = np.asarray(diameters, dtype=float)
     check_range("diameters", diameters, lower=0.0, lower_open=True)
@@ -845,7 +846,10 @@ def compact(
         state, growth, stress = carry
         steps += chunk_steps
         if int(state.error):
-            raise FloatingPointError(f"compaction failed at step {steps}: {describe(int(state.error))}")
+            raise SimulationError(
+                f"compaction failed at step {steps}: {describe(int(state.error))}; report the seed and the "
+                "arguments of compact."
+            )
         stress = float(stress)
         ratio = float(unbalanced(state, growth))
         if on_chunk is not None:
