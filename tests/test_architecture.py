@@ -215,3 +215,18 @@ def test_no_module_renames_a_membrax_module_on_import():
                     if alias.asname and alias.asname != alias.name and module in LAYER:
                         renamed.append(f"membrax.{name}: {module} as {alias.asname}")
     assert not renamed, renamed
+
+
+def test_every_runaway_of_a_host_loop_is_a_simulation_error():
+    """No module raises FloatingPointError: a loop that cannot go on raises membrax.errors.SimulationError,
+    which names the state, and the CLI reports it in one line (RuntimeError is left to the build of the
+    kernels, a missing compiler, not a simulation)."""
+    offenders = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Raise) and node.exc is not None:
+                call = node.exc.func if isinstance(node.exc, ast.Call) else node.exc
+                name = getattr(call, "id", getattr(call, "attr", ""))
+                if name == "FloatingPointError":
+                    offenders.append(f"{path.relative_to(PACKAGE)}:{node.lineno} raises {name}")
+    assert offenders == []
