@@ -78,7 +78,7 @@ def main() -> None:
     optax_evals = result.evaluations["adam"] + result.evaluations["lbfgs"]
     with tempfile.TemporaryDirectory() as folder:
         record_path, values = _thousand_rows(Path(folder))
-        specimen = correct.Specimen.from_mm_kpa(*values)
+        specimen = correct.LabSpecimen.from_mm_kpa(*values)
         specimen_args = [
             item
             for name, value in zip(evaluate.SPECIMEN_FLAGS, values, strict=True)

@@ -1,6 +1,6 @@
 """Membrane corrections applied to a laboratory record: none, the classical three and the fitted one.
 
-Contract. :func:`correct_record` takes a :class:`calibrate.lab.LabRecord` (SI), the :class:`Specimen`
+Contract. :func:`correct_record` takes a :class:`calibrate.lab.LabRecord` (SI), the :class:`LabSpecimen`
 (diameter after consolidation D_s, particle size D, membrane thickness t_m and modulus E_m; optionally
 the void ratio and the height H after consolidation) and a fitted
 correction (:class:`calibrate.persistence.Corrections`; default :func:`default_corrections`, shipped with
@@ -35,11 +35,11 @@ multiplied by 1 + δ (it doubles one range's width outside), and beyond δ = :da
 fitted method is withheld (NaN): a linear model carried further than the span it was fitted on is a guess.
 The specimen is also checked against the packing family the correction was fitted on (its JSON's
 ``packing_family``, :func:`family_warnings`): a correction fitted on FCC lattices alone is warned about, and
-so is a void ratio (``Specimen.solid_fraction``) outside the fitted members' range, which also widens the
+so is a void ratio (``LabSpecimen.solid_fraction``) outside the fitted members' range, which also widens the
 band and withholds like the inputs above, its distance in units of the fitted span of void ratios
 (:func:`void_ratio_distance`).
 
-Specimen height. The correction records the H/D_s of the specimens it was fitted on (1.28–1.67 for the
+LabSpecimen height. The correction records the H/D_s of the specimens it was fitted on (1.28–1.67 for the
 shipped one, its moulds), below the 2–2.5 laboratories test at (ASTM D7181, BS 1377-8). A record whose
 height is not given is warned about (:func:`aspect_ratio_warnings`); one whose H/D_s lies outside is
 warned about like the other quantities and its band widened by the same 1 + δ (in logarithms), but the
@@ -90,7 +90,7 @@ __all__ = [
     "abstention_warning",
     "aspect_ratio_warnings",
     "CorrectedRecord",
-    "Specimen",
+    "LabSpecimen",
     "correct_record",
     "default_corrections",
     "family_warnings",
@@ -148,7 +148,7 @@ LOG_DISTANCE = ("thickness_ratio", "stiffness_ratio", "size_ratio", "indentation
 MAX_EXTRAPOLATION = 1.0
 
 
-class Specimen(NamedTuple):
+class LabSpecimen(NamedTuple):
     """What a laboratory knows of its test, in SI units (m, Pa).
 
     Attributes:
@@ -368,7 +368,7 @@ def range_warnings(inputs: dict, input_ranges: dict, distances: dict | None = No
     return messages
 
 
-def family_warnings(specimen: Specimen, packing_family: dict | None) -> list[str]:
+def family_warnings(specimen: LabSpecimen, packing_family: dict | None) -> list[str]:
     """Messages for a specimen outside the packing family a correction was fitted on (module docstring).
 
     A correction fitted on FCC lattices only is warned about for every laboratory specimen (a random
@@ -397,7 +397,7 @@ def family_warnings(specimen: Specimen, packing_family: dict | None) -> list[str
     return messages
 
 
-def void_ratio_distance(specimen: Specimen, packing_family: dict | None) -> float:
+def void_ratio_distance(specimen: LabSpecimen, packing_family: dict | None) -> float:
     """The specimen's void ratio's distance outside the fitted members', in units of their span (0 inside).
 
     δ = max(0, e_low − e, e − e_high)/(e_high − e_low), e = 1/φ − 1 from the solid fraction φ; 0 when the
@@ -414,7 +414,7 @@ def void_ratio_distance(specimen: Specimen, packing_family: dict | None) -> floa
     return max(0.0, low - void_ratio, void_ratio - high) / (high - low)
 
 
-def aspect_ratio_warnings(specimen: Specimen, input_ranges: dict) -> list[str]:
+def aspect_ratio_warnings(specimen: LabSpecimen, input_ranges: dict) -> list[str]:
     """A message when the specimen's height is not given though the correction records its fitted H/D_s.
 
     A height that is given is checked like the other quantities (:func:`range_warnings`); a correction
@@ -520,12 +520,12 @@ def _corrections_fn(model_name: str, names: tuple):
     return jax.jit(corrections)
 
 
-def correct_record(record, specimen: Specimen, corrections=None) -> CorrectedRecord:
+def correct_record(record, specimen: LabSpecimen, corrections=None) -> CorrectedRecord:
     """Apply every method of :data:`METHODS` to ``record`` (module docstring).
 
     Args:
       record: a :class:`calibrate.lab.LabRecord`.
-      specimen: the :class:`Specimen`.
+      specimen: the :class:`LabSpecimen`.
       corrections: a :class:`calibrate.persistence.Corrections` (default :func:`default_corrections`).
 
     Returns:

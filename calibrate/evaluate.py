@@ -2,7 +2,7 @@
 
 Contract. :func:`lab_record_of` turns one member of a sweep (``sweep.nc``) into what a laboratory would
 have measured, a :class:`calibrate.lab.LabRecord` (external stresses: the ram's σ1 and the cell pressure;
-ε_a and ε_v from the start of shearing), together with its :class:`calibrate.correct.Specimen` and the
+ε_a and ε_v from the start of shearing), together with its :class:`calibrate.correct.LabSpecimen` and the
 internal stresses the specimen carried, which a laboratory cannot measure: σ1 the paper's §4.3, σ3 the
 radial target asked for (:data:`calibrate.datasets.RADIAL_TARGETS`; a correction is scored against the one
 it reproduces, its ``radial_target``).
@@ -48,14 +48,14 @@ __all__ = [
 
 #: The comment of the example record that carries its ``membrax correct`` arguments.
 EXAMPLE_ARGUMENTS_PREFIX = "membrax correct arguments:"
-#: Those arguments' flags, in the order of :meth:`calibrate.correct.Specimen.from_mm_kpa`.
+#: Those arguments' flags, in the order of :meth:`calibrate.correct.LabSpecimen.from_mm_kpa`.
 SPECIMEN_FLAGS = (
     "--specimen-diameter-mm",
     "--particle-size-mm",
     "--membrane-thickness-mm",
     "--membrane-modulus-kpa",
 )
-#: The optional flag of the specimen's void ratio (:meth:`calibrate.correct.Specimen.from_mm_kpa`).
+#: The optional flag of the specimen's void ratio (:meth:`calibrate.correct.LabSpecimen.from_mm_kpa`).
 VOID_RATIO_FLAG = "--void-ratio"
 #: The optional flag of the specimen's height after consolidation.
 HEIGHT_FLAG = "--specimen-height-mm"
@@ -68,14 +68,14 @@ INTERNAL_COLUMNS = {
 
 
 def read_example_record():
-    """The shipped example record: (LabRecord, Specimen, internal σ1, internal σ3), stresses in Pa."""
+    """The shipped example record: (LabRecord, LabSpecimen, internal σ1, internal σ3), stresses in Pa."""
     with correct.example_record_path() as path:
         record = lab.read_lab_record(path)
         lines = path.read_text().splitlines()
     header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
     names = [cell.split("[")[0].strip() for cell in lines[header].split(",")]
     table = np.loadtxt(lines[header + 1 :], delimiter=",", ndmin=2)
-    specimen = correct.Specimen.from_mm_kpa(
+    specimen = correct.LabSpecimen.from_mm_kpa(
         *example_arguments(record.comments), void_ratio=example_void_ratio(record.comments)
     )
     internal_1 = 1e3 * table[:, names.index(INTERNAL_COLUMNS["sigma_1"])]
@@ -120,7 +120,7 @@ def example_void_ratio(comments) -> float | None:
 
 
 def lab_record_of(config: dict, rows, radial_target: str = datasets.LEGACY_RADIAL_TARGET):
-    """(LabRecord, Specimen, internal σ1, internal σ3) of one sweep member (module docstring).
+    """(LabRecord, LabSpecimen, internal σ1, internal σ3) of one sweep member (module docstring).
 
     Records whose axial strain does not exceed the previous one's (the platens start from rest) are
     dropped, as a laboratory's logger would.
@@ -156,7 +156,7 @@ def lab_record_of(config: dict, rows, radial_target: str = datasets.LEGACY_RADIA
     height = None
     if "height" in rows:
         height = float(rows["height"][0]) / (1.0 - float(rows["axial_strain"][0]))
-    specimen = correct.Specimen(
+    specimen = correct.LabSpecimen(
         math.sqrt(4.0 * float(rows["platen_area"][0]) / math.pi),
         1e-3 * characteristic_size_mm(config),
         1e-3 * config["membrane_thickness_mm"],
@@ -206,7 +206,7 @@ def friction_angle_errors(record, specimen, internal_1, internal_3, corrections=
 
     Args:
       record: a :class:`calibrate.lab.LabRecord` (Pa, strains).
-      specimen: its :class:`calibrate.correct.Specimen` (m, Pa).
+      specimen: its :class:`calibrate.correct.LabSpecimen` (m, Pa).
       internal_1: the internal σ1 of each record, Pa.
       internal_3: the internal σ3 of each record, Pa.
       corrections: the fitted correction (default the shipped one).

@@ -19,7 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from calibrate import lab, persistence
-from calibrate.correct import LABELS, METHODS, CorrectedRecord, Specimen, correct_record, default_corrections
+from calibrate.correct import (
+    LABELS,
+    METHODS,
+    CorrectedRecord,
+    LabSpecimen,
+    correct_record,
+    default_corrections,
+)
 
 __all__ = [
     "PROGRESS_ROWS",
@@ -213,7 +220,7 @@ PROGRESS_ROWS = 100_000
 
 def correct_file(
     record_path,
-    specimen: Specimen,
+    specimen: LabSpecimen,
     model_path=None,
     out=None,
     plot: bool = True,
@@ -225,7 +232,7 @@ def correct_file(
 
     Args:
       record_path: the laboratory record, CSV or .xlsx (:func:`calibrate.lab.read_lab_record`).
-      specimen: the :class:`Specimen`.
+      specimen: the :class:`LabSpecimen`.
       model_path: a ``corrections.json`` of ``membrax fit`` (default the shipped correction).
       out: the CSV to write (default ``<record>_corrected.csv`` in the working folder); the plot is the same
         name with ``.png``. Never the record itself (:func:`output_paths`).

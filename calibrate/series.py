@@ -70,7 +70,7 @@ __all__ = [
 ATMOSPHERIC_PRESSURE = 101_325.0
 #: The axial strains φ' is reported at besides the peak (fractions).
 REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
-#: The specimen's fields of a series sheet, in :meth:`calibrate.correct.Specimen.from_mm_kpa`'s order.
+#: The specimen's fields of a series sheet, in :meth:`calibrate.correct.LabSpecimen.from_mm_kpa`'s order.
 SPECIMEN_FIELDS = (
     "specimen_diameter_mm",
     "particle_size_mm",
@@ -89,7 +89,7 @@ class SeriesTest(NamedTuple):
     """One test of a series: its record, the sheet of a workbook (or None), its specimen and its name."""
 
     record: Path
-    specimen: correct.Specimen
+    specimen: correct.LabSpecimen
     name: str
     sheet: str | None = None
     dilation_positive: bool = False
@@ -136,12 +136,12 @@ class SeriesResult(NamedTuple):
     curved: dict
 
 
-def _specimen(fields: dict, where: str) -> correct.Specimen:
+def _specimen(fields: dict, where: str) -> correct.LabSpecimen:
     missing = [name for name in _REQUIRED if fields.get(name) is None]
     if missing:
         raise ValueError(f"{where}: no {', '.join(missing)}; give it for the test or for the whole sheet.")
     try:
-        return correct.Specimen.from_mm_kpa(*(fields.get(name) for name in SPECIMEN_FIELDS))
+        return correct.LabSpecimen.from_mm_kpa(*(fields.get(name) for name in SPECIMEN_FIELDS))
     except ValueError as error:
         raise ValueError(f"{where}: {error}") from None
 
@@ -193,7 +193,9 @@ def read_series_sheet(path) -> list[SeriesTest]:
     return tests
 
 
-def series_of_files(paths, specimen: correct.Specimen, dilation_positive: bool = False) -> list[SeriesTest]:
+def series_of_files(
+    paths, specimen: correct.LabSpecimen, dilation_positive: bool = False
+) -> list[SeriesTest]:
     """The tests of record files (a folder stands for its :data:`RECORD_SUFFIXES` files) sharing a specimen.
 
     Raises:

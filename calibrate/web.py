@@ -5,8 +5,9 @@ HTML and JavaScript (no script or style from elsewhere), and ``POST /correct`` t
 records (``records``, CSV or .xlsx) and the specimen's fields in the CLI's units and names
 (``specimen_diameter_mm``, ``particle_size_mm``, ``membrane_thickness_mm``, ``membrane_modulus_kpa``,
 optional ``void_ratio`` and ``specimen_height_mm``), checked by the same code as ``membrax correct``
-(:meth:`calibrate.correct.Specimen.from_mm_kpa`, :func:`calibrate.lab.read_lab_record`). It corrects them as
-a series (:func:`calibrate.series.correct_series`; one record is a series of one) and answers JSON: the
+(:meth:`calibrate.correct.LabSpecimen.from_mm_kpa`, :func:`calibrate.lab.read_lab_record`). It corrects
+them as a series (:func:`calibrate.series.correct_series`; one record is a series of one) and answers JSON:
+the
 envelopes' and tests' tables (the CSVs of :func:`calibrate.series.write_series`), the warnings, the figure
 (PNG, base64), the report (HTML) and a zip of every file written, for the page to offer as downloads. A
 bad file or field answers status 400 with the CLI's message (``{"error": ...}``), never a traceback.
@@ -31,12 +32,12 @@ __all__ = ["PAGE", "app", "serve"]
 
 #: The form's specimen fields: (name, label, required).
 FIELDS = (
-    ("specimen_diameter_mm", "Specimen diameter after consolidation (mm)", True),
+    ("specimen_diameter_mm", "LabSpecimen diameter after consolidation (mm)", True),
     ("particle_size_mm", "Particle size d50 (mm)", True),
     ("membrane_thickness_mm", "Membrane thickness (mm)", True),
     ("membrane_modulus_kpa", "Membrane Young's modulus (kPa; latex ≈ 1400)", True),
     ("void_ratio", "Void ratio e (optional)", False),
-    ("specimen_height_mm", "Specimen height after consolidation (mm, optional)", False),
+    ("specimen_height_mm", "LabSpecimen height after consolidation (mm, optional)", False),
 )
 
 _INPUTS = "\n".join(
@@ -146,7 +147,9 @@ async def _answer(form, uploads, records: Path, out: Path) -> dict:
     if not uploads:
         raise ValueError("no record: choose one or more CSV or .xlsx files.")
     values = [_number(form, name, needed) for name, _, needed in FIELDS]
-    specimen = correct.Specimen.from_mm_kpa(*values[:4], void_ratio=values[4], specimen_height_mm=values[5])
+    specimen = correct.LabSpecimen.from_mm_kpa(
+        *values[:4], void_ratio=values[4], specimen_height_mm=values[5]
+    )
     records.mkdir()
     paths = []
     for upload in uploads:

@@ -351,10 +351,10 @@ CORRECT_REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
 
 
 def _specimen_of(args: argparse.Namespace):
-    """The specimen of `membrax correct`'s options, checked by `calibrate.correct.Specimen.from_mm_kpa`."""
-    from calibrate.correct import Specimen
+    """The specimen of `membrax correct`'s options, checked by `calibrate.correct.LabSpecimen.from_mm_kpa`."""
+    from calibrate.correct import LabSpecimen
 
-    return Specimen.from_mm_kpa(
+    return LabSpecimen.from_mm_kpa(
         args.specimen_diameter_mm,
         args.particle_size_mm,
         args.membrane_thickness_mm,

@@ -51,7 +51,7 @@ def test_an_unwritable_or_full_folder_ends_in_one_line(tmp_path, capsys, monkeyp
     ignores permissions, so the operating system's errors are raised where membrax writes)."""
     import errno
 
-    from calibrate import correct, evaluate
+    from calibrate import correct, evaluate, lab
     from membrax.io import files
 
     with correct.example_record_path() as record:
@@ -60,7 +60,7 @@ def test_an_unwritable_or_full_folder_ends_in_one_line(tmp_path, capsys, monkeyp
             item
             for flag, value in zip(
                 evaluate.SPECIMEN_FLAGS,
-                evaluate.example_arguments(correct.lab.read_lab_record(record).comments),
+                evaluate.example_arguments(lab.read_lab_record(record).comments),
                 strict=True,
             )
             for item in (flag, repr(value))

@@ -14,7 +14,7 @@ import pytest
 from calibrate import correct, datasets, lab, models, persistence, report
 from membrax import theory
 
-SPECIMEN = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0)
+SPECIMEN = correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0)
 PARAMS = {"k_r": 0.6, "r0": 0.05, "r1": -0.2, "k_a": 0.1, "a0": 0.3, "a1": -1.0}
 CV_RMS = 0.02
 
@@ -158,7 +158,7 @@ def test_outside_the_fitted_range_the_band_widens_by_the_stated_rule_and_far_out
 def test_a_standard_small_sand_test_is_told_the_shipped_correction_does_not_cover_it():
     """38 mm specimen, 1 mm sand, 0.3 mm membrane, 100 kPa: D/D_s = 1/38, far from ballast's 1/6–1/10."""
     record = _record(cell=100e3)
-    sand = correct.Specimen.from_mm_kpa(38.0, 1.0, 0.3, 1400.0)
+    sand = correct.LabSpecimen.from_mm_kpa(38.0, 1.0, 0.3, 1400.0)
     with pytest.warns(UserWarning):
         result = correct.correct_record(record, sand)
     text = "\n".join(result.warnings)
@@ -180,26 +180,26 @@ def test_specimen_units_are_converted_once_and_bad_values_refused():
     with pytest.raises(
         ValueError, match=r"membrane_thickness_mm = -2.*positive.*--membrane-thickness-mm 2\)"
     ):
-        correct.Specimen.from_mm_kpa(150.0, 20.0, -2.0, 1400.0)
+        correct.LabSpecimen.from_mm_kpa(150.0, 20.0, -2.0, 1400.0)
     with pytest.raises(ValueError, match=r"specimen_diameter_mm = nan.*--specimen-diameter-mm 150\)"):
-        correct.Specimen.from_mm_kpa(math.nan, 20.0, 2.0, 1400.0)
+        correct.LabSpecimen.from_mm_kpa(math.nan, 20.0, 2.0, 1400.0)
     with pytest.raises(ValueError, match=r"particle_size_mm = 200 is not below specimen_diameter_mm = 150"):
-        correct.Specimen.from_mm_kpa(150.0, 200.0, 2.0, 1400.0)
+        correct.LabSpecimen.from_mm_kpa(150.0, 200.0, 2.0, 1400.0)
     with pytest.raises(ValueError, match=r"membrane_thickness_mm = 40 is a quarter or more"):
-        correct.Specimen.from_mm_kpa(150.0, 20.0, 40.0, 1400.0)
+        correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 40.0, 1400.0)
     with pytest.raises(
         ValueError, match=r"membrane_modulus_kpa = 1.4: no membrane is that soft; is it in MPa"
     ):
-        correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1.4)
+        correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1.4)
 
 
 def test_the_specimen_height_is_read_in_mm_once_and_implausible_heights_refused():
-    tall = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=300.0)
+    tall = correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=300.0)
     assert tall.height == pytest.approx(0.3, rel=1e-15) and tall.specimen_diameter == 0.15
-    assert correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0).height is None
+    assert correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0).height is None
     for bad in (-300.0, 0.0, math.nan):
         with pytest.raises(ValueError, match=r"specimen_height_mm = .*positive.*--specimen-height-mm 300\)"):
-            correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
+            correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
     # 30 mm is 0.2 diameters (a radius, or cm?), 1000 mm 6.67: refused, the fix 2 × 150 mm
     for bad, ratio in ((30.0, "0.2"), (1000.0, "6.67")):
         with pytest.raises(
@@ -207,7 +207,7 @@ def test_the_specimen_height_is_read_in_mm_once_and_implausible_heights_refused(
             match=rf"specimen_height_mm = {bad:g} is {ratio} × specimen_diameter_mm = 150.*0.5 to 5 "
             r"diameters tall.*--specimen-height-mm 300\)",
         ):
-            correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
+            correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
 
 
 #: The shipped correction's moulds: 250/150, 270/200, 320/250 mm (calibrate.grid.RANDOM_CALIBRATION).
@@ -227,7 +227,7 @@ def test_the_specimen_height_is_warned_about_when_absent_or_outside_the_fitted_h
         "widened for it.",
     )
     # inside (225/150 = 1.5): no warning, the same numbers
-    inside = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=225.0)
+    inside = correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=225.0)
     with __import__("warnings").catch_warnings():
         __import__("warnings").simplefilter("error")
         within = correct.correct_record(record, inside, _corrections(ranges))
@@ -236,7 +236,7 @@ def test_the_specimen_height_is_warned_about_when_absent_or_outside_the_fitted_h
     # outside (300/150 = 2): warned like every range, δ = ln(2/1.667)/ln(1.667/1.28) = 0.69 in logarithms,
     # the band widened by 1 + δ and the fitted column kept
     delta = math.log(2.0 / (250.0 / 150.0)) / math.log((250.0 / 150.0) / 1.28)
-    tall = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=300.0)
+    tall = correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=300.0)
     with pytest.warns(UserWarning, match="specimen height / diameter"):
         outside = correct.correct_record(record, tall, _corrections(ranges))
     assert outside.warnings[0] == (
@@ -248,7 +248,7 @@ def test_the_specimen_height_is_warned_about_when_absent_or_outside_the_fitted_h
     np.testing.assert_allclose(outside.std["sigma_1"], (1.0 + delta) * within.std["sigma_1"], rtol=1e-9)
     np.testing.assert_array_equal(outside.sigma_1["fitted"], within.sigma_1["fitted"])
     # far outside (H/D_s = 5: δ = 4.2 widths) the band widens 5.2 times, and still nothing is withheld
-    squat = correct.Specimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=750.0)
+    squat = correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=750.0)
     with pytest.warns(UserWarning):
         far = correct.correct_record(record, squat, _corrections(ranges))
     far_delta = math.log(5.0 / (250.0 / 150.0)) / math.log((250.0 / 150.0) / 1.28)
@@ -408,7 +408,7 @@ def test_the_shipped_correction_carries_its_moulds_h_d_and_an_abstention_rule_th
     # a 100 kPa test in a 2.5 mm latex membrane on 25 mm particles: 1.4e6·2.5e-3/(1e5·0.025) = 1.4, in
     # 1-2: σ1's correction scaled by that region's factor, σ3's kept
     record = _record(cell=100e3)
-    specimen = correct.Specimen.from_mm_kpa(150.0, 25.0, 2.5, 1400.0, specimen_height_mm=300.0)
+    specimen = correct.LabSpecimen.from_mm_kpa(150.0, 25.0, 2.5, 1400.0, specimen_height_mm=300.0)
     with pytest.warns(UserWarning, match="E_m t_m/\\(σc D\\) = 1.4 lies in 1 to 2"):
         ruled = correct.correct_record(record, specimen, shipped)
     with __import__("warnings").catch_warnings():
@@ -692,16 +692,16 @@ def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about_and_
         "gradings": [],
         "solid_fraction": [0.55, 0.6],
     }
-    inside = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.75)
+    inside = correct.LabSpecimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.75)
     assert inside.solid_fraction == pytest.approx(1.0 / 1.75, rel=1e-12)
     assert correct.family_warnings(inside, family) == []
-    denser = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.5)
+    denser = correct.LabSpecimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.5)
     (message,) = correct.family_warnings(denser, family)
     assert "e = 0.5" in message and "0.667 to 0.818" in message and "a denser specimen" in message
     # e = 0.5 lies (0.667 − 0.5)/(0.818 − 0.667) = 1.10 spans below: band widened, beyond one span withheld
     assert correct.void_ratio_distance(denser, family) == pytest.approx((2 / 3 - 0.5) / (1 / 0.55 - 1 / 0.6))
     assert correct.void_ratio_distance(inside, family) == 0.0
-    slightly = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.85)
+    slightly = correct.LabSpecimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=0.85)
     delta = (0.85 - (1 / 0.55 - 1)) / (1 / 0.55 - 1 / 0.6)
     assert correct.void_ratio_distance(slightly, family) == pytest.approx(delta, rel=1e-12)
     record, example = _example()[:2]
@@ -724,7 +724,7 @@ def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about_and_
     assert np.all(np.isnan(gone.friction_angle["fitted"]))
     assert any("a denser specimen" in m for m in gone.warnings)
     assert any("withheld" in m for m in gone.warnings)
-    unknown = correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0)
+    unknown = correct.LabSpecimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0)
     assert correct.family_warnings(unknown, family) == []
     assert correct.void_ratio_distance(unknown, family) == 0.0
     (fcc_only,) = correct.family_warnings(unknown, {"packings": ["fcc"], "solid_fraction": None})
@@ -732,7 +732,7 @@ def test_a_specimen_outside_the_correction_s_packing_family_is_warned_about_and_
     assert correct.family_warnings(unknown, {}) == []  # a file written before families were recorded
     for bad in (0.0, 45.0, float("nan")):
         with pytest.raises(ValueError, match="void_ratio"):
-            correct.Specimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=bad)
+            correct.LabSpecimen.from_mm_kpa(150.0, 16.0, 2.0, 1400.0, void_ratio=bad)
 
 
 def test_the_shipped_correction_records_a_random_family_that_holds_the_example_specimen():
@@ -860,9 +860,7 @@ def test_a_correction_with_an_alternate_reports_the_other_radial_target_beside_i
     np.testing.assert_allclose(
         (result.sigma_3["fitted"] - alone.sigma_3["fitted"])[kept], shift[kept], rtol=1e-9
     )
-    (path,) = report.write_correction(
-        result, tmp_path / "c.csv", header_lines=[report.target_words(result)]
-    )
+    (path,) = report.write_correction(result, tmp_path / "c.csv", header_lines=[report.target_words(result)])
     lines = path.read_text().splitlines()
     assert "sigma_3 the radial load the specimen receives" in lines[0] and "fitted_section_4_3" in lines[0]
     header = next(line for line in lines if not line.startswith("#")).split(",")
