@@ -3,7 +3,7 @@
 Answers whether one process per core (``--scheduler local``, :mod:`membrax.campaign`) should replace the
 split CPU devices (one process, one JAX device per core, :func:`membrax.devices.split_cpu_devices`) as the
 default on a CPU. The grid is the paper's Table 1 (``--grid table1``, 9 members) or a group of the
-calibration grid (``--grid d6``: 18 members; :data:`calibrate.grid.CALIBRATION`), on the small preset of
+calibration grid (``--grid d6``: 18 members; :data:`calibrate.designs.CALIBRATION`), on the small preset of
 ``membrax reproduce`` (6 × 10, edge D/3, I = 5e-3, float64). Each mode runs in a fresh process, one
 after another:
 
@@ -47,7 +47,7 @@ def main():
     if grid_name == "table1":
         grid = None
     else:
-        from calibrate.grid import CALIBRATION
+        from calibrate.designs import CALIBRATION
         specimen, grid = CALIBRATION[grid_name]
         fields.update(specimen)
     base = TriaxialConfig(**{**fields, "float64": dtype == "float64"})
@@ -96,7 +96,7 @@ def main() -> int:
     parser.add_argument(
         "--grid",
         default="table1",
-        help="table1 (the paper's 9 cases) or a group of calibrate.grid.CALIBRATION (d6: 18 members)",
+        help="table1 (the paper's 9 cases) or a group of calibrate.designs.CALIBRATION (d6: 18 members)",
     )
     parser.add_argument("--dtypes", default="float64", help="comma-separated (the presets run float64)")
     parser.add_argument("--strain", type=float, default=0.1, help="target axial strain of every member")

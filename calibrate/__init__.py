@@ -17,11 +17,12 @@ package but its command line (``membrax fit``, ``membrax correct``).
   :mod:`calibrate.workflow`: ``membrax fit``.
 - :mod:`calibrate.lab`: a laboratory record (CSV, units in the header) read into SI units. Every bad file
   is refused with its line, column and fix.
-- :mod:`calibrate.correct`: ``membrax correct``, a record corrected by none, the ASTM, Henkel & Gilbert
-  and Kuerbis & Vaid corrections and the fitted one (with its uncertainty band), as a CSV and a plot;
-  the shipped default correction (``data/default_corrections.json``).
-- :mod:`calibrate.grid`: the calibration and held-out sweeps on random packings (the shipped correction's)
-  and FCC lattices (``python -m calibrate.grid OUT --design random``);
-  :mod:`calibrate.evaluate`: simulated tests as laboratory records, and each correction's φ' error
-  against the internal φ'.
+- :mod:`calibrate.correct`: a record corrected by none, the ASTM, Henkel & Gilbert and Kuerbis & Vaid
+  corrections and the fitted one (with its uncertainty band); the shipped default correction
+  (``data/default_corrections.json``). :mod:`calibrate.report`: ``membrax correct``'s CSV and plot;
+  :mod:`calibrate.series`: a test series and its envelopes; :mod:`calibrate.web`: ``membrax serve``.
+- :mod:`calibrate.designs`: the calibration and held-out sweeps on random packings (the shipped
+  correction's, and the laboratory-geometry set) and FCC lattices; :mod:`calibrate.grid` runs them
+  (``python -m calibrate.grid OUT --design random``); :mod:`calibrate.evaluate`: simulated tests as
+  laboratory records, and each correction's φ' error against the internal φ'.
 """

@@ -227,20 +227,22 @@ def main(argv=None) -> int:
     Refits leave-one-case-out on the fitting table (``membrax fit --table``), checks that the predictions
     reproduce the per-case errors stored in the correction (the same fit, so the same rule ``membrax fit``
     would have stored), fits the rule and writes it into the JSON, with the specimens' H/D_s range from
-    the sweeps' groups in the design (:func:`calibrate.grid.mould_aspect_ratios`) when the file has none.
+    the sweeps' groups in the design (:func:`calibrate.designs.mould_aspect_ratios`) when the file has none.
 
     Returns the exit status: 0, or 2 for predictions that do not reproduce the stored errors.
     """
     from pathlib import Path
 
-    from calibrate import datasets, fit, grid, persistence
+    from calibrate import datasets, designs, fit, persistence
 
     parser = argparse.ArgumentParser(
         prog="python -m calibrate.abstention", description=main.__doc__.split("\n")[0]
     )
     parser.add_argument("table", help="the fitting table (.npz) the correction was fitted on")
     parser.add_argument("corrections", help="the corrections JSON to amend")
-    parser.add_argument("--design", choices=sorted(grid.DESIGNS), default="random", help="the sweeps' design")
+    parser.add_argument(
+        "--design", choices=sorted(designs.DESIGNS), default="random", help="the sweeps' design"
+    )
     args = parser.parse_args(argv)
     table = datasets.load_table(args.table)
     corrections = persistence.load_corrections(args.corrections)
@@ -263,7 +265,7 @@ def main(argv=None) -> int:
     rule = fit_rule(table, *predictions)
     aspect = None
     if persistence.ASPECT_RATIO not in corrections.input_ranges:
-        ratios = grid.mould_aspect_ratios(grid.DESIGNS[args.design])
+        ratios = designs.mould_aspect_ratios(designs.DESIGNS[args.design])
         groups = [Path(sweep).parent.name for sweep in corrections.provenance.get("sweeps", ())]
         found = [ratios[group] for group in groups if group in ratios]
         aspect = (min(found), max(found)) if found else None

@@ -282,7 +282,7 @@ class CorrectedRecord(NamedTuple):
 
 
 def default_corrections() -> persistence.Corrections:
-    """The correction shipped with the package (fitted on :data:`calibrate.grid.RANDOM_CALIBRATION`)."""
+    """The correction shipped with the package (fitted on :data:`calibrate.designs.RANDOM_CALIBRATION`)."""
     with resources.as_file(resources.files("calibrate") / "data" / DEFAULT_MODEL_FILE) as path:
         return persistence.load_corrections(path)
 

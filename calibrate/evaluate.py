@@ -270,11 +270,11 @@ def specimen_words(config: dict, rows=None) -> str:
 
 
 def write_example_record(
-    dataset, path, version: str, source: str = "calibrate.grid.RANDOM_HELD_OUT", **coordinates
+    dataset, path, version: str, source: str = "calibrate.designs.RANDOM_HELD_OUT", **coordinates
 ) -> Path:
     """Write the member of ``dataset`` at ``coordinates`` as a laboratory-style CSV (module docstring).
 
-    ``source`` names the design the member comes from (e.g. ``calibrate.grid.RANDOM_HELD_OUT``).
+    ``source`` names the design the member comes from (e.g. ``calibrate.designs.RANDOM_HELD_OUT``).
     """
     chosen = [
         (config, rows)

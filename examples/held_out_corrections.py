@@ -30,7 +30,7 @@ split_cpu_devices()
 
 import numpy as np  # noqa: E402
 
-from calibrate import correct, datasets, evaluate, grid, lab, persistence  # noqa: E402
+from calibrate import correct, datasets, designs, evaluate, grid, lab, persistence  # noqa: E402
 from membrax import __version__, cli  # noqa: E402
 from membrax.io import read_results  # noqa: E402
 
@@ -44,7 +44,7 @@ args = parser.parse_args()
 corrections = (
     correct.default_corrections() if args.model is None else persistence.load_corrections(args.model)
 )
-groups = grid.DESIGNS[args.design]
+groups = designs.DESIGNS[args.design]
 paths = grid.run_grid(args.folder, groups)
 records = Path(args.folder) / "records"
 members = []  # (group, fields, {target: {method: (mean, worst)}})

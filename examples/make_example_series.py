@@ -17,7 +17,7 @@ from membrax.devices import split_cpu_devices
 
 split_cpu_devices()
 
-from calibrate import datasets, evaluate, grid  # noqa: E402
+from calibrate import datasets, designs, evaluate  # noqa: E402
 from membrax import __version__  # noqa: E402
 from membrax.config import TriaxialConfig  # noqa: E402
 from membrax.io import read_results  # noqa: E402
@@ -33,7 +33,7 @@ out = (
     else Path(__file__).resolve().parents[1] / "calibrate/data/example_series"
 )
 sweep = Path("results_example_series")
-base = TriaxialConfig(name="example_series", **grid.specimen_fields(SPECIMEN), **MEMBRANE)
+base = TriaxialConfig(name="example_series", **designs.specimen_fields(SPECIMEN), **MEMBRANE)
 run_sweep(base, {"cell_pressure_kpa": list(PRESSURES_KPA)}, sweep, resume=sweep.exists())
 lines = [
     "# The shipped example series: synthetic tests (membrax simulations), not a laboratory's.",

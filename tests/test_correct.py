@@ -210,7 +210,7 @@ def test_the_specimen_height_is_read_in_mm_once_and_implausible_heights_refused(
             correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0, specimen_height_mm=bad)
 
 
-#: The shipped correction's moulds: 250/150, 270/200, 320/250 mm (calibrate.grid.RANDOM_CALIBRATION).
+#: The shipped correction's moulds: 250/150, 270/200, 320/250 mm (calibrate.designs.RANDOM_CALIBRATION).
 MOULDS = {persistence.ASPECT_RATIO: (1.28, 250.0 / 150.0)}
 
 
@@ -383,11 +383,11 @@ def test_an_old_corrections_file_without_a_rule_or_heights_loads_and_corrects_un
 
 
 def test_the_shipped_correction_carries_its_moulds_h_d_and_an_abstention_rule_that_never_loses_to_none():
-    from calibrate import abstention, grid
+    from calibrate import abstention, designs
 
     shipped = correct.default_corrections()
     # H/D_s of the random grid's moulds: 320/250 = 1.28 to 250/150 = 1.667
-    ratios = grid.mould_aspect_ratios(grid.RANDOM_CALIBRATION).values()
+    ratios = designs.mould_aspect_ratios(designs.RANDOM_CALIBRATION).values()
     assert shipped.input_ranges[persistence.ASPECT_RATIO] == (min(ratios), max(ratios))
     assert (min(ratios), max(ratios)) == (1.28, 250.0 / 150.0)
     rule = shipped.abstention
@@ -538,16 +538,16 @@ def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_
     tmp_path,
 ):
     """A random packing no fit has seen (seed 2), off every grid line (55 kPa, 4 mm, 1800 kPa), run here."""
-    from calibrate import evaluate, grid
+    from calibrate import designs, evaluate
     from membrax.config import TriaxialConfig
     from membrax.io import read_results
     from membrax.sweep import run_sweep
 
     specimen = {"mould": (150.0, 250.0), "seed": 2}
-    base = TriaxialConfig(name="held_out", **grid.specimen_fields(specimen))
+    base = TriaxialConfig(name="held_out", **designs.specimen_fields(specimen))
     held = {"cell_pressure_kpa": [55.0], "membrane_thickness_mm": [4.0], "membrane_modulus_kpa": [1800.0]}
     for field, values in held.items():
-        for _, design in grid.RANDOM_CALIBRATION.values():
+        for _, design in designs.RANDOM_CALIBRATION.values():
             assert values[0] not in design.get(field, ())  # off the grid
     run_sweep(base, held, tmp_path, progress=False)
     errors = evaluate.held_out_errors(read_results(tmp_path / "sweep.nc"))["pooled"]
@@ -557,12 +557,12 @@ def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_
 
 def test_the_calibration_grid_spans_the_ranges_the_correction_is_for():
     """σc 10–100 kPa, t_m 1–5 mm, E_m 700–2800 kPa, D/D_s 1/6 to 1/10 (D_s from the FCC platen area)."""
-    from calibrate import grid
+    from calibrate import designs
     from membrax.spheres import packing
 
     values = {"cell_pressure_kpa": set(), "membrane_thickness_mm": set(), "membrane_modulus_kpa": set()}
     ratios = []
-    for specimen, design in grid.CALIBRATION.values():
+    for specimen, design in designs.CALIBRATION.values():
         for field, chosen in design.items():
             values[field] |= set(chosen)
         fcc = packing.fcc_specimen(
@@ -752,13 +752,13 @@ def test_the_shipped_correction_records_a_random_family_that_holds_the_example_s
 
 def test_the_random_grid_spans_the_issue_s_ranges_and_the_held_out_members_lie_off_it():
     """σc 10–100 kPa, t_m 1–5 mm, E_m 700–2800 kPa, D/D_s 1/6–1/10, dense and loose, equal and graded."""
-    from calibrate import grid
+    from calibrate import designs
     from membrax.config import TriaxialConfig, characteristic_size_mm, config_to_dict
 
     values = {"cell_pressure_kpa": set(), "membrane_thickness_mm": set(), "membrane_modulus_kpa": set()}
     ratios, states, gradings = [], set(), set()
-    for specimen, design in grid.RANDOM_CALIBRATION.values():
-        config = config_to_dict(TriaxialConfig(**grid.specimen_fields(specimen)))
+    for specimen, design in designs.RANDOM_CALIBRATION.values():
+        config = config_to_dict(TriaxialConfig(**designs.specimen_fields(specimen)))
         for field in values:
             values[field] |= set(design.get(field, (config[field],)))
         ratios.append(characteristic_size_mm(config) / config["specimen_diameter_mm"])
@@ -771,8 +771,8 @@ def test_the_random_grid_spans_the_issue_s_ranges_and_the_held_out_members_lie_o
     # D = d50 for the ballast grading (16.1 mm in 150 mm, 1/9.3); its largest sieve is D_s/6
     assert max(ratios) == pytest.approx(1 / 6) and min(ratios) == pytest.approx(1 / 10)
     assert len(states) == 2 and gradings == {False, True}
-    for specimen, design in grid.RANDOM_HELD_OUT.values():
-        assert grid.specimen_fields(specimen)["packing_seed"] == 1  # packings no fit has seen
+    for specimen, design in designs.RANDOM_HELD_OUT.values():
+        assert designs.specimen_fields(specimen)["packing_seed"] == 1  # packings no fit has seen
         for field, chosen in design.items():
             assert not set(chosen) & values[field], (field, chosen)  # off every grid line
 
@@ -780,14 +780,16 @@ def test_the_random_grid_spans_the_issue_s_ranges_and_the_held_out_members_lie_o
 def test_the_grid_s_sweep_commands_rebuild_its_configurations():
     import shlex
 
-    from calibrate import grid
+    from calibrate import designs, grid
     from membrax.config import TriaxialConfig, parse_overrides
 
-    for name, line in zip(grid.RANDOM_CALIBRATION, grid.sweep_commands(grid.RANDOM_CALIBRATION), strict=True):
+    for name, line in zip(
+        designs.RANDOM_CALIBRATION, grid.sweep_commands(designs.RANDOM_CALIBRATION), strict=True
+    ):
         words = shlex.split(line)
         sets = [words[i + 1] for i, word in enumerate(words) if word == "--set"]
         rebuilt = TriaxialConfig(**parse_overrides(sets))
-        assert rebuilt == TriaxialConfig(**grid.specimen_fields(grid.RANDOM_CALIBRATION[name][0])), name
+        assert rebuilt == TriaxialConfig(**designs.specimen_fields(designs.RANDOM_CALIBRATION[name][0])), name
 
 
 def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_members_lie_off_it():
@@ -795,13 +797,13 @@ def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_memb
     equal 25 mm spheres), the paper's protocol (I = 1e-3, membrane edge D/5), two seeds per group, dense,
     medium and loose, equal, ballast and narrow gradings; each configuration valid (none refused for its
     inflation limit). LAB_HELD_OUT: seeds, cell pressures and thicknesses no training member has."""
-    from calibrate import grid
+    from calibrate import designs
     from membrax.config import TriaxialConfig, characteristic_size_mm, config_to_dict
 
     seen = {"cell_pressure_kpa": set(), "membrane_thickness_mm": set(), "packing_seed": set()}
     aspects, ratios, states, gradings, seeds_by_group = set(), [], set(), set(), {}
-    for name, (specimen, design) in grid.LAB_CALIBRATION.items():
-        config = config_to_dict(TriaxialConfig(**grid.specimen_fields(specimen)))
+    for name, (specimen, design) in designs.LAB_CALIBRATION.items():
+        config = config_to_dict(TriaxialConfig(**designs.specimen_fields(specimen)))
         assert (config["inertial_number"], config["membrane_edges_per_diameter"]) == (1e-3, 5.0)
         aspects.add(config["specimen_height_mm"] / config["specimen_diameter_mm"])
         ratios.append(25.0 / config["specimen_diameter_mm"])
@@ -815,7 +817,7 @@ def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_memb
             for thickness in design["membrane_thickness_mm"]:
                 for modulus in design.get("membrane_modulus_kpa", (config["membrane_modulus_kpa"],)):
                     TriaxialConfig(
-                        **grid.specimen_fields(specimen),
+                        **designs.specimen_fields(specimen),
                         cell_pressure_kpa=pressure,
                         membrane_thickness_mm=thickness,
                         membrane_modulus_kpa=modulus,
@@ -825,9 +827,9 @@ def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_memb
     assert sorted(states) == pytest.approx([0.0, 10.0, math.degrees(math.atan(0.5))])
     # smallest over largest sieve: ballast 22.4/63, narrow 0.8, equal 1
     assert sorted(gradings) == pytest.approx([22.4 / 63.0, 0.8, 1.0])
-    assert all(seeds == set(grid.LAB_SEEDS) for seeds in seeds_by_group.values()), seeds_by_group
-    for specimen, design in grid.LAB_HELD_OUT.values():
-        config = config_to_dict(TriaxialConfig(**grid.specimen_fields(specimen)))
+    assert all(seeds == set(designs.LAB_SEEDS) for seeds in seeds_by_group.values()), seeds_by_group
+    for specimen, design in designs.LAB_HELD_OUT.values():
+        config = config_to_dict(TriaxialConfig(**designs.specimen_fields(specimen)))
         assert config["packing_seed"] not in seen["packing_seed"]
         assert config["specimen_height_mm"] == 2.0 * config["specimen_diameter_mm"]
         for field in ("cell_pressure_kpa", "membrane_thickness_mm"):
