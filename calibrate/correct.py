@@ -87,6 +87,7 @@ from calibrate import abstention, datasets, models, persistence
 
 __all__ = [
     "METHODS",
+    "REPORT_STRAINS",
     "abstention_warning",
     "aspect_ratio_warnings",
     "CorrectedRecord",
@@ -99,6 +100,8 @@ __all__ = [
     "range_warnings",
 ]
 
+#: The axial strains (fractions) φ' is reported at: the terminal, a series' table, the scorer's table.
+REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
 #: The methods, in the order of the CSV's columns and the plot's legend.
 METHODS = ("uncorrected", "astm", "henkel_gilbert", "kuerbis_vaid", "fitted")
 LABELS = {

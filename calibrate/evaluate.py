@@ -175,7 +175,7 @@ def lab_record_of(config: dict, rows, radial_target: str = datasets.LEGACY_RADIA
     return record, specimen, internal_1, internal_3
 
 
-def friction_angle_table(record, result, internal_1, internal_3, strains=(0.01, 0.02, 0.05, 0.10)) -> str:
+def friction_angle_table(record, result, internal_1, internal_3, strains=correct.REPORT_STRAINS) -> str:
     """φ' (degrees) by method at the records nearest ``strains``, beside the internal φ', as a text table.
 
     Args:

@@ -69,7 +69,7 @@ __all__ = [
 #: p_a of the curved envelope, Pa.
 ATMOSPHERIC_PRESSURE = 101_325.0
 #: The axial strains φ' is reported at besides the peak (fractions).
-REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
+REPORT_STRAINS = correct.REPORT_STRAINS
 #: The specimen's fields of a series sheet, in :meth:`calibrate.correct.LabSpecimen.from_mm_kpa`'s order.
 SPECIMEN_FIELDS = (
     "specimen_diameter_mm",

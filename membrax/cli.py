@@ -346,10 +346,6 @@ def _sensitivity(args: argparse.Namespace) -> int:
     return 0
 
 
-#: Axial strains (fractions) at which ``membrax correct`` prints φ' by method.
-CORRECT_REPORT_STRAINS = (0.01, 0.02, 0.05, 0.10)
-
-
 def _specimen_of(args: argparse.Namespace):
     """The specimen of `membrax correct`'s options, checked by `calibrate.correct.LabSpecimen.from_mm_kpa`."""
     from calibrate.correct import LabSpecimen
@@ -365,7 +361,7 @@ def _specimen_of(args: argparse.Namespace):
 
 
 def _correct(args: argparse.Namespace) -> int:
-    from calibrate.correct import METHODS
+    from calibrate.correct import METHODS, REPORT_STRAINS
     from calibrate.report import correct_file
 
     series = args.series is not None or len(args.record) > 1 or any(Path(r).is_dir() for r in args.record)
@@ -416,7 +412,7 @@ def _correct(args: argparse.Namespace) -> int:
         fitted.append((f"σ3 {result.alternate.radial_target}", result.alternate))
     names = [*METHODS[:-1], *(name for name, _ in fitted)]
     lines += ["mobilised φ' (°) by method", f"{'ε_a %':>6} " + " ".join(f"{m:>15}" for m in names)]
-    for target in CORRECT_REPORT_STRAINS:
+    for target in REPORT_STRAINS:
         if target > strain[-1] + 1e-12:
             continue
         i = int(np.argmin(np.abs(strain - target)))
