@@ -233,6 +233,40 @@ def test_a_search_that_can_make_no_progress_ends_naming_its_state():
         assert part in message, message
 
 
+class _SettledShortRelaxer(_JumpRelaxer):
+    """Spheres that jam at s*: at rest their stress rises from 2 kPa at s* with slope k_n/D = 4e8 Pa per
+    unit ln s; below s* they are unjammed. Grown from an unjammed state, a relaxation that may stop once its
+    stress settles (``settle``) stops on a dense fluid's 30 kPa (ratio 0.03, short of rest); one that must
+    reach rest, or starts from a jammed state at rest, finds the stress at rest. Positions carry a flag
+    (``position[0][0]`` 1: relaxed from a jammed state at rest) and the growth (the compensation)."""
+
+    def relax(self, position, growth, target, tolerance, max_steps, on_chunk=None, settle=True):
+        self.growths.append(growth)
+        kind = self.dtype.type
+        if kind(growth) < kind(JUMP_AT):
+            return (np.zeros(3, self.dtype), np.full(3, growth)), 0.0, 5e-4, 1000
+        if settle and position[0][0] == 0.0:
+            return (np.zeros(3, self.dtype), np.full(3, growth)), 30e3, 0.03, 1000
+        at_rest = 2e3 + 1e7 / DIAMETER * math.log(float(growth) / JUMP_AT)
+        return (np.ones(3, self.dtype), np.full(3, growth)), at_rest, 5e-4, 1000
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_a_bracket_closed_on_a_state_short_of_rest_reopens_and_reaches_the_window(dtype):
+    """The calibration grid's 300 × 600 mm seed-0 specimen (float64): its first jammed state settled at
+    32.7 kPa short of rest, every lower growth was unjammed, and the bracket closed on them; relaxed on, that
+    state was at 2.0 kPa. The search relaxes the end, finds it under the target, drops it from the bracket
+    and goes on: the stress at rest reaches 10 kPa at ln(s/s*) = 8 kPa / 4e8 Pa = 2e-5, in the window, with
+    no jump recorded."""
+    relaxer = _SettledShortRelaxer(dtype)
+    position, growth, stress, ratio, _, converged, jump = relaxer.search()
+    assert converged and jump is None
+    assert abs(stress / 1e4 - 1.0) < 0.02 and ratio == 5e-4
+    assert position[0][0] == 1.0  # a state relaxed to rest
+    expected = JUMP_AT * math.exp((1e4 - 2e3) / (1e7 / DIAMETER))
+    assert abs(growth / expected - 1.0) < 0.02 * 1e4 / (1e7 / DIAMETER)  # the window, in s
+
+
 class _OverflowingRelaxer(_FireRelaxer):
     """A relaxer whose neighbour list overflows at every measure, even right after it is allocated."""
 
