@@ -74,9 +74,9 @@ def rollout_functions(
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
+    from membrax.assemble import build_test
     from membrax.config import TriaxialConfig
     from membrax.gradients import UNROLL, checkpoint_window
-    from membrax.runner import build_test
     from membrax.sensitivities import apply_parameters
 
     config = TriaxialConfig(**SIZES[size], cell_pressure_kpa=10.0, membrane_thickness_mm=5.0)

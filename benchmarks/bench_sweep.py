@@ -4,7 +4,7 @@ For each dtype, in a fresh process split into one CPU device per core
 (:func:`membrax.devices.split_cpu_devices`, as ``membrax sweep`` does; ``--cpu-devices``), builds the 9
 members (10, 40, 100 kPa × 2.5, 3.33, 5 mm) on the specimen of ``--size`` (``small``: 6 × 10, membrane
 edge D/3, the reproduction's; ``paper``: 10 × 25, edge D/5) with one Δt and one mesh topology
-(:func:`membrax.runner.build_batch`), then times consolidation steps:
+(:func:`membrax.executor.build_batch`), then times consolidation steps:
 
 - batched: one chunk call advancing all 9 members, sharded over the devices (``lax.map`` over each
   device's members on a CPU, ``vmap`` on a GPU, or ``--mode``; padding members have no steps to do, as in a
@@ -44,14 +44,14 @@ def measure(
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from membrax import runner, sweep
+    from membrax import executor, sweep
     from membrax.config import TriaxialConfig
     from membrax.reproduce import SIZES
 
     base = TriaxialConfig(**{**SIZES[size], "float64": dtype == "float64"})
     _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
-    batch = runner.build_batch([config for _, config in members], mode=mode or None)
+    batch = executor.build_batch([config for _, config in members], mode=mode or None)
     build = time.perf_counter() - start
     record_every = 100
     count = max(1, steps // record_every)

@@ -31,7 +31,7 @@ def main() -> None:
     import jax
     import numpy as np
 
-    from membrax import runner, sweep
+    from membrax import executor, runner, sweep
     from membrax.config import TriaxialConfig
     from membrax.reproduce import SIZES
 
@@ -40,7 +40,7 @@ def main() -> None:
         jax.config.update("jax_enable_x64", True)
     _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
-    batch = runner.build_batch([config for _, config in members])
+    batch = executor.build_batch([config for _, config in members])
     print(
         f"{batch.num_members} members ({batch.mode}, {jax.devices()[0].device_kind}), "
         f"{'float64' if base.float64 else 'float32'}, chunk {base.chunk_steps} steps; build "

@@ -1,7 +1,7 @@
 """Where the batched step's time goes: kernels (or CPU thunks) per step and time per kernel, from a trace.
 
 Builds Table 1's nine members on the specimen of ``--size`` (as ``bench_sweep.py`` does, one Δt and one
-mesh topology, :func:`membrax.runner.build_batch`; ``vmap`` on a GPU, ``lax.map`` on a CPU unless
+mesh topology, :func:`membrax.executor.build_batch`; ``vmap`` on a GPU, ``lax.map`` on a CPU unless
 ``--mode``), then for two stages runs one chunk of ``--steps`` steps under ``jax.profiler.trace`` and reads
 the trace back (``jax.profiler.ProfileData``, no other tool):
 
@@ -163,7 +163,7 @@ def main() -> None:
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from membrax import runner, sweep
+    from membrax import assemble, executor, sweep
     from membrax.config import TriaxialConfig
     from membrax.reproduce import SIZES
 
@@ -172,9 +172,9 @@ def main() -> None:
     base = TriaxialConfig(**{**SIZES[args.size], "float64": args.dtype == "float64"})
     _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
-    batch = runner.build_batch([config for _, config in members], mode=args.mode or None)
+    batch = executor.build_batch([config for _, config in members], mode=args.mode or None)
     build = time.perf_counter() - start
-    plans = [t.phase_plan(runner.loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
+    plans = [t.phase_plan(assemble.loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
     consolidation_every = args.record_every or plans[0]["consolidation"][1]
     left = jnp.asarray([10**9] * batch.num_padded)
 

@@ -64,7 +64,7 @@ def main() -> None:
     import jax.numpy as jnp
     import numpy as np
 
-    from membrax import runner as run_lib
+    from membrax import assemble
     from membrax.config import TriaxialConfig
     from membrax.defaults import DAMPING_FRAMES, SHEAR_RAMP_STRAIN
     from membrax.driver import ChunkRunner
@@ -197,7 +197,7 @@ def main() -> None:
             membrane_modulus_kpa=40.0,
             float64=args.x64,
         )
-        base = run_lib.build_test(config)
+        base = assemble.build_test(config)
         consolidated, _ = base.consolidate()
         free = jnp.asarray(free_node_mask(base.mesh))
         node_mass_per_thickness = energies.lumped_mass(base.mesh, 1.0, LATEX_DENSITY)

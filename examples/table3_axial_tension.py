@@ -29,8 +29,8 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np  # noqa: E402
 
+from membrax.assemble import build_test  # noqa: E402
 from membrax.config import TriaxialConfig  # noqa: E402
-from membrax.runner import build_test  # noqa: E402
 
 
 def meridional_strain(position, rest, nodes_around):

@@ -72,7 +72,7 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
     import jax
     import numpy as np
 
-    from membrax import runner
+    from membrax import assemble, executor, runner
     from membrax.config import ConfigError, TriaxialConfig
     from membrax.errors import RunError, SimulationError
     from membrax.reproduce import SIZES
@@ -104,7 +104,7 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
             "deepest_inner_reach_mm": float("nan"),
         }
     jax.config.update("jax_enable_x64", True)
-    batch = runner.build_batch([config])
+    batch = executor.build_batch([config])
     test = batch.tests[0]
     start = time.perf_counter()
     deepest = [np.inf]
@@ -125,7 +125,7 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
             batch, Path(tempfile.mkdtemp(prefix=f"corner_{name}_")), progress=False, after_chunk=after_chunk
         )
         mine = runner.member_chunk_records(records, 0)
-        metadata = runner.run_metadata(config, test, mine, 0.0, 0.0, runner.consolidation_tolerance(config))
+        metadata = runner.run_metadata(config, test, mine, 0.0, 0.0, assemble.consolidation_tolerance(config))
         shear, _ = runner.results_datasets(mine, shear_start[0], metadata)
         peak = analysis.peak(shear)
         angles = {key: float(value) for key, value in peak.items() if "index" not in key}
@@ -143,7 +143,7 @@ def ramp_case(across: int, ramp_steps: int, law: str) -> None:
     import jax
     import numpy as np
 
-    from membrax import runner, theory
+    from membrax import assemble, theory
     from membrax.config import TriaxialConfig
     from membrax.errors import SimulationError
     from membrax.membrane import coupled
@@ -156,7 +156,7 @@ def ramp_case(across: int, ramp_steps: int, law: str) -> None:
     layers = {6: 10, 8: 13}[across]
     fields = {**SIZES["small"], "particles_across": across, "layers": layers, "membrane_thickness_mm": 1.0}
     config = TriaxialConfig(**fields, cell_pressure_kpa=50.0, membrane_modulus_kpa=700.0)
-    test = runner.build_test(config)
+    test = assemble.build_test(config)
     window = theory.SQUARE_WINDOW_RATIO * config.particle_radius
     limit = float(theory.membrane_limit_pressure(config.membrane_modulus, config.membrane_thickness, window))
     print(

@@ -52,7 +52,7 @@ _API = {
     "fcc_specimen": "membrax.spheres.packing",
     "random_packing": "membrax.spheres.compaction",
     "Grading": "membrax.spheres.random_packing",
-    "build_specimen": "membrax.runner",
+    "build_specimen": "membrax.assemble",
     "rigid_wall_test": "membrax.triaxial.rigid",
     "membrane_test": "membrax.triaxial.membrane_cell",
     "sphere_dem": "membrax.spheres.integrate",

@@ -1,7 +1,7 @@
 """CPU devices for batched sweeps: one JAX device per core.
 
 Contract. :func:`split_cpu_devices` sets ``jax_num_cpu_devices`` so the host CPU appears as several JAX
-devices; :class:`membrax.runner.BatchedTest` then shards a batch's member axis over them and each core
+devices; :class:`membrax.executor.BatchedTest` then shards a batch's member axis over them and each core
 advances its own members. It must run before JAX starts its backend, i.e. before the first JAX operation
 and before importing :mod:`membrax.spheres.neighbors` (it imports ``jax_md``, which builds arrays on import),
 so this module imports nothing but ``jax``. A GPU backend keeps its own devices; only the CPU platform is

@@ -14,7 +14,7 @@ the host:
   budgets early (a consolidation stop test).
 
 Its users: :class:`ChunkRunner` (one state: the stages of :class:`membrax.triaxial.protocol.StagedTest`,
-interactive use) and :class:`membrax.runner.BatchedTest` (stacked members: every run of
+interactive use) and :class:`membrax.executor.BatchedTest` (stacked members: every run of
 :mod:`membrax.run` and :mod:`membrax.sweep`).
 
 The compiled chunk body is written once, here, and every loop over time steps in membrax is one of its

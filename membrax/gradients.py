@@ -1,7 +1,7 @@
 """Gradients through a rollout of the simulator: reverse mode over ``jax.checkpoint`` windows, vmapped.
 
 Contract. :func:`consolidation_rollout` builds, for a list of configurations that may differ in the
-batched fields (σc, t_m, E_m, …: :data:`membrax.runner.BATCHED_FIELDS`), one :class:`Rollout`:
+batched fields (σc, t_m, E_m, …: :data:`membrax.assemble.BATCHED_FIELDS`), one :class:`Rollout`:
 ``rollout.outputs(theta)`` runs every member from the start of consolidation (as-built specimen and
 membrane, both platens servo-controlled to σc A₀) for ``steps`` time steps and returns the §4.3 stresses
 of :data:`membrax.sensitivities.OUTPUTS` at the end (areas from the end, as Table 3's from the start of
@@ -52,7 +52,7 @@ from membrax import native
 from membrax.config import TriaxialConfig
 from membrax.driver import advance, record_blocks
 from membrax.errors import OVERFLOWS, describe
-from membrax.runner import GEOMETRY_FIELDS, BatchedTest, build_batch
+from membrax.executor import GEOMETRY_FIELDS, BatchedTest, build_batch
 from membrax.sensitivities import (
     _check_wrt,
     _geometry_derivative,
@@ -136,7 +136,7 @@ class Rollout:
     """A batch's rollout as a function of its parameters (module docstring).
 
     Attributes:
-      batch: the members (:class:`membrax.runner.BatchedTest`, in the configurations' order).
+      batch: the members (:class:`membrax.executor.BatchedTest`, in the configurations' order).
       wrt: parameter names (:data:`membrax.sensitivities.PARAMETERS`).
       steps: consolidation time steps, a multiple of ``window``.
       window: steps per ``jax.checkpoint`` window.

@@ -40,16 +40,15 @@ import jax
 import numpy as np
 
 from membrax import __version__, plots
+from membrax.assemble import build_test, consolidation_tolerance
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
 from membrax.errors import RunError
+from membrax.executor import build_batch
 from membrax.io import VTKSeries, read_checkpoint_host, records_to_dataset, write_results
 from membrax.membrane.measure import triangle_stretches
 from membrax.paper import PAPER_10KPA_5MM, paper_key
 from membrax.runner import (
     CHECKPOINT_NAME,
-    build_batch,
-    build_test,
-    consolidation_tolerance,
     join_records,
     member_chunk_records,
     results_datasets,

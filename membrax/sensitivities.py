@@ -30,7 +30,8 @@ limits this to small specimens (:data:`MAX_DENSE_UNKNOWNS`).
 Parameters (θ): σc (cell pressure and the servo target), E_m, t_m (with the membrane's rest geometry,
 which is built t_m/2 off the spheres, and the clamp rings, both linearised by central differences of the
 mesh construction), the membrane–particle and interparticle friction angles (through tan φ) and the
-particle stiffness k_n (with k_t = k_n/2 and the platens' stiffnesses, as :func:`membrax.runner.build_test`).
+particle stiffness k_n (with k_t = k_n/2 and the platens' stiffnesses, as
+:func:`membrax.assemble.build_test`).
 
 Finite differences by continuation (:func:`continuation_differences`): from the consolidated state, set
 θ ± h and let the simulator (its own damping) relax to equilibrium again, then measure. The two agree
@@ -50,13 +51,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from membrax.assemble import build_test
 from membrax.config import TriaxialConfig, to_si
 from membrax.driver import advance
+from membrax.executor import GEOMETRY_FIELDS
 from membrax.membrane import energies
 from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
 from membrax.membrane.measure import measure_coupled
 from membrax.membrane.mesh import free_node_mask, inner_volume
-from membrax.runner import GEOMETRY_FIELDS, build_test
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.walls import BOTTOM, TOP, platen_separation
 
@@ -174,7 +176,7 @@ def apply_parameters(
     the membrane's thickness and moves its rest geometry and clamp rings linearly from those at
     ``thickness_mm`` along ``geometry`` (d field/d t_m per mm, :func:`_geometry_derivative`), the clamp
     rings from ``clamp_position``; the friction angles set μ = tan φ; k_n sets k_t = k_n/2 and the
-    platens' k_n, k_t alike (as :func:`membrax.runner.build_test`).
+    platens' k_n, k_t alike (as :func:`membrax.assemble.build_test`).
     """
     membrane, dem_params = params.membrane, params.dem
     if "cell_pressure_kpa" in values:

@@ -13,7 +13,7 @@ member's test (:mod:`membrax.run`'s protocol: consolidation, then drained sheari
 - ``sweep_consolidation.nc``: the consolidation records, padded the same way;
 - ``summary.csv``: one row per member with those scalars; ``sweep.toml``: the base config and grid.
 
-Batching and stages. Members that differ only in :data:`membrax.runner.BATCHED_FIELDS` (traced
+Batching and stages. Members that differ only in :data:`membrax.assemble.BATCHED_FIELDS` (traced
 parameters: pressure, thickness, modulus, friction, stiffness, rate, strain targets) form one batch of
 :mod:`membrax.runner` (the loop every run shares; a single test is a batch of one): one compiled call per
 chunk for all of them, one time step (the smallest of the members' own) and one mesh topology (n_θ from
@@ -28,7 +28,7 @@ with frozen copies to a multiple of the device count). On a CPU this is the fast
 ``membrax reproduce`` do it) runs each core's members side by side, each member's arrays on one core, which
 beats both one device using the cores for every operation and the members run one after another
 (``benchmarks/bench_sweep.py``). No program a sweep compiles holds a cross-device collective (the driver
-splits stacked members on the host, :func:`membrax.runner.BatchedTest.unstack`), so a device busy
+splits stacked members on the host, :func:`membrax.executor.BatchedTest.unstack`), so a device busy
 with a long chunk never stalls another, which XLA would end after 40 s.
 
 Campaigns (``scheduler=``, ``membrax sweep --scheduler``). The members run as tasks on ``dask.distributed``
@@ -36,7 +36,7 @@ workers (:mod:`membrax.campaign`): a worker process per core or GPU on this mach
 workers of a running scheduler (workstations, a SLURM allocation). Each group is planned once on a worker
 (its Δt, n_θ and each member's expected steps, kept in ``groups/group_{g}/plan.json``) and split into tasks
 of ``members_per_task`` members (default: the group shared evenly over the workers, by
-:func:`membrax.runner.balanced_order`); a task is one batch on its worker's devices, with the group's Δt
+:func:`membrax.executor.balanced_order`); a task is one batch on its worker's devices, with the group's Δt
 and n_θ, so every member takes the steps it takes in-process. A task writes its results and checkpoints
 into ``groups/group_{g}/task_{t}`` (the folder must be on a filesystem every worker sees) and resumes from
 its checkpoint when its worker died and the scheduler ran it again; ``resume=True`` reuses the plans and
@@ -67,6 +67,7 @@ import numpy as np
 import xarray as xr
 
 from membrax import __version__, campaign, paper
+from membrax.assemble import BOOKKEEPING_FIELDS, consolidation_tolerance, structure_key
 from membrax.config import (
     ConfigError,
     TriaxialConfig,
@@ -77,21 +78,9 @@ from membrax.config import (
 )
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
+from membrax.executor import balanced_order, build_batch, describe_failure, plan_members
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
-from membrax.runner import (
-    BOOKKEEPING_FIELDS,
-    CHECKPOINT_NAME,
-    balanced_order,
-    build_batch,
-    consolidation_tolerance,
-    describe_failure,
-    member_chunk_records,
-    plan_members,
-    results_datasets,
-    run_group,
-    run_metadata,
-    structure_key,
-)
+from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata
 from membrax.triaxial import analysis
 
 __all__ = [

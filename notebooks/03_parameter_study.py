@@ -19,7 +19,7 @@
 # The paper varied the cell pressure and the membrane thickness at one latex (E_m = 1400 kPa) and one
 # membrane–particle friction. Here the grid is the membrane's Young's modulus E_m against its friction
 # angle φ_m, at 40 kPa in a 2.5 mm membrane: every member differs only in traced parameters
-# (`membrax.runner.BATCHED_FIELDS`), so the whole grid runs as **one** compiled batch (`lax.map` over each
+# (`membrax.assemble.BATCHED_FIELDS`), so the whole grid runs as **one** compiled batch (`lax.map` over each
 # CPU device's members, `vmap` on a GPU, sharded over the devices). `calibrate/designs.py` specifies the
 # calibration study the same way; `membrax sweep config.toml --grid membrane_modulus_kpa=700,1400,2800,5600
 # --grid membrane_friction_angle_deg=10,25,40` is the command-line equivalent.

@@ -50,7 +50,7 @@ def test_the_api_is_exactly_the_curated_names():
 
 
 def test_every_name_resolves_to_its_defining_module():
-    from membrax import config, devices, errors, io, run, runner, sensitivities, sweep
+    from membrax import assemble, config, devices, errors, io, run, sensitivities, sweep
     from membrax.membrane import mesh
     from membrax.spheres import compaction, integrate, packing, random_packing
     from membrax.triaxial import membrane_cell, rigid
@@ -67,7 +67,7 @@ def test_every_name_resolves_to_its_defining_module():
         "fcc_specimen": packing,
         "random_packing": compaction,
         "Grading": random_packing,
-        "build_specimen": runner,
+        "build_specimen": assemble,
         "rigid_wall_test": rigid,
         "membrane_test": membrane_cell,
         "sphere_dem": integrate,

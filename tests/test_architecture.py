@@ -40,7 +40,10 @@ LAYERS = (
     ("triaxial.analysis", "io.files", "io.vtk", "io.results", "io.checkpoint", "io", "plots", "paper"),
     # the configuration: laboratory units in, SI out; read by the runs only
     ("config",),
-    # runs: the stage loop every run and sweep shares, then one test, a grid, the paper
+    # runs: a configuration becomes a test, members become a batch, the stage loop every run and sweep
+    # shares, then one test, a grid, the paper
+    ("assemble",),
+    ("executor",),
     ("runner",),
     ("run", "sensitivities", "gradients"),
     ("campaign", "sweep"),

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from test_sweep import COMPARED, SHORT
 
-from membrax import campaign, runner, sweep
+from membrax import campaign, executor, sweep
 from membrax.config import ConfigError, TriaxialConfig, dump_config_toml
 from membrax.errors import RunError
 
@@ -168,11 +168,11 @@ def _sabotage(pressure_pa: float | None):
     """On a worker: raise the sphere stiffness of the member at ``pressure_pa`` 1e6-fold (its Δt then far
     past the stable step), as test_sweep's in-process sabotage; None restores the worker."""
     if pressure_pa is None:
-        sweep.build_batch = runner.build_batch
+        sweep.build_batch = executor.build_batch
         return
 
     def sabotaged(configs, *args, **kwargs):
-        batch = runner.build_batch(configs, *args, **kwargs)
+        batch = executor.build_batch(configs, *args, **kwargs)
         cell = [t.cell_pressure for t in batch.tests]
         if pressure_pa in cell:
             contact = batch.params.dem.contact

@@ -115,13 +115,13 @@ def test_friction_during_compaction_leaves_a_looser_packing(dense, loose):
 def test_a_compacted_specimen_is_kept_on_disk_and_a_later_process_loads_it_unchanged(tmp_path, monkeypatch):
     """build_specimen compacts a random specimen once: a second "process" (the in-process store emptied)
     loads the very same packing from the cache folder instead of compacting again."""
-    from membrax import runner
+    from membrax import assemble, runner
     from membrax.config import TriaxialConfig
 
     monkeypatch.setenv("MEMBRAX_CACHE_DIR", str(tmp_path))
     monkeypatch.setattr(runner, "_RANDOM_SPECIMENS", {})
     config = TriaxialConfig(packing="random", specimen_diameter_mm=100.0, specimen_height_mm=100.0)
-    first = runner.build_specimen(config)
+    first = assemble.build_specimen(config)
     (saved,) = (tmp_path / "specimens").glob("*.npz")
     monkeypatch.setattr(runner, "_RANDOM_SPECIMENS", {})
 
@@ -129,7 +129,7 @@ def test_a_compacted_specimen_is_kept_on_disk_and_a_later_process_loads_it_uncha
         raise AssertionError("the cached packing was compacted again")
 
     monkeypatch.setattr(runner, "random_packing", compact_again)
-    second = runner.build_specimen(config)
+    second = assemble.build_specimen(config)
     np.testing.assert_array_equal(np.asarray(second.position), np.asarray(first.position))
     np.testing.assert_array_equal(np.asarray(second.radius), np.asarray(first.radius))
     assert (second.diameter, second.height, second.seed) == (first.diameter, first.height, first.seed)
@@ -139,7 +139,7 @@ def test_a_compacted_specimen_is_kept_on_disk_and_a_later_process_loads_it_uncha
         packing="random", specimen_diameter_mm=100.0, specimen_height_mm=100.0, packing_seed=1
     )
     with pytest.raises(AssertionError, match="compacted again"):
-        runner.build_specimen(other)
+        assemble.build_specimen(other)
     assert saved.exists()
 
 

@@ -10,7 +10,7 @@ import math
 
 import pytest
 
-from membrax import runner
+from membrax import assemble
 from membrax.config import (
     ConfigError,
     TriaxialConfig,
@@ -466,10 +466,10 @@ def test_a_membrane_beyond_its_inflation_limit_is_refused_with_the_limit_and_the
     # 1 mm of 1400 kPa holds 165 kPa; 0.60 of it is quiet.
     config = TriaxialConfig(cell_pressure_kpa=100.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=1400.0)
     assert inflation_ratio(config_to_dict(config)) == pytest.approx(100.0 / 165.42, rel=1e-4)
-    assert runner.inflation_warning(config) is None
+    assert assemble.inflation_warning(config) is None
     # 60 kPa on 1 mm of 700 kPa: 0.725 of the limit, built with a warning.
     near = TriaxialConfig(cell_pressure_kpa=60.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=700.0)
-    assert "0.73 of the membrane's inflation limit" in runner.inflation_warning(near)
+    assert "0.73 of the membrane's inflation limit" in assemble.inflation_warning(near)
     # A grading's windows are partly filled by its smaller particles: warned on its largest size, not refused.
     graded = TriaxialConfig(
         packing="random",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from helpers import tolerance
 
-from membrax import batch, runner
+from membrax import assemble, batch
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.membrane import coupled
 from membrax.spheres import contact, integrate, neighbors, packing
@@ -334,8 +334,8 @@ def test_membrane_nodes_moving_with_the_reference_are_not_damped_and_none_is_the
 
 def test_the_frame_is_a_configuration_field_and_a_static_part_of_the_damping():
     assert TriaxialConfig().damping_frame == "affine"
-    assert runner.damping_params(TriaxialConfig()).frame == "affine"
-    absolute = runner.damping_params(TriaxialConfig(damping_frame="absolute", viscous_damping=True))
+    assert assemble.damping_params(TriaxialConfig()).frame == "affine"
+    absolute = assemble.damping_params(TriaxialConfig(damping_frame="absolute", viscous_damping=True))
     assert absolute.frame == "absolute" and float(absolute.viscous_rate) > 0.0
     with pytest.raises(ConfigError, match="damping_frame must be one of 'affine', 'absolute'"):
         TriaxialConfig(damping_frame="platens")

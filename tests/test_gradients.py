@@ -21,7 +21,7 @@ from helpers import SMALL_MEMBRANE_TEST
 
 from calibrate import inverse
 from membrax import gradients, sensitivities
-from membrax.runner import build_test
+from membrax.assemble import build_test
 from membrax.spheres.contact import tangential_spring_update
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.packing import particle_mass

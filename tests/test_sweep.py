@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from helpers import SMALL_SPECIMEN
 
-from membrax import paper, runner, sweep
+from membrax import executor, paper, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.errors import RunError
 from membrax.io import read_results
@@ -179,7 +179,7 @@ SHARDED = textwrap.dedent(
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
-    from membrax import paper, runner, sweep
+    from membrax import executor, paper, runner, sweep
     from membrax.config import TriaxialConfig
     base = TriaxialConfig(**json.loads(sys.argv[1]))
     grid = json.loads(sys.argv[2])
@@ -247,7 +247,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
     busiest device carries the least load any split into 5 + 4 members can (exhaustive search)."""
     steps_10, steps_40, steps_100 = 24150, 12200, 7775  # shear steps of the small reproduction
     work = [10000 + w for w in (steps_10,) * 3 + (steps_40,) * 3 + (steps_100,) * 3]
-    order = runner.balanced_order(work, 2)
+    order = executor.balanced_order(work, 2)
     assert sorted(order) == list(range(9))
     busiest = max(sum(work[i] for i in order[:5]), sum(work[i] for i in order[5:]))
     best = min(
@@ -256,7 +256,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
     )
     assert busiest == best == 112700  # 2 × 34150 + 2 × 22200 on the device with 4 members
     assert max(sum(work[:5]), sum(work[5:])) == 146850  # grid order: all three 10 kPa members on one device
-    assert runner.balanced_order(work, 1) == list(range(9))
+    assert executor.balanced_order(work, 1) == list(range(9))
 
 
 def test_grids_are_parsed_and_checked():
@@ -281,7 +281,7 @@ def test_grids_are_parsed_and_checked():
     with pytest.raises(ConfigError, match="repeats"):
         sweep.grid_members(TriaxialConfig(**BASE), sweep.parse_grid(["cell_pressure_kpa=10,10.0"]))
     with pytest.raises(ValueError, match="layers"):
-        runner.build_batch([TriaxialConfig(**BASE), TriaxialConfig(**dict(BASE, layers=6))])
+        executor.build_batch([TriaxialConfig(**BASE), TriaxialConfig(**dict(BASE, layers=6))])
 
 
 def test_the_sweep_command_reports_a_bad_grid(tmp_path, capsys):

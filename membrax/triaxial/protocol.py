@@ -44,7 +44,7 @@ CONSOLIDATION_RECORD_EVERY = 100
 class Loading:
     """The loading programme of a test: what the phases of :data:`PHASES` need to plan their steps.
 
-    No defaults of its own: a configuration gives them (:func:`membrax.runner.loading`), or a stage's
+    No defaults of its own: a configuration gives them (:func:`membrax.assemble.loading`), or a stage's
     arguments (:meth:`StagedTest.shear`).
 
     Attributes:

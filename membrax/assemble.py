@@ -1,0 +1,294 @@
+"""Assembly: where a configuration becomes a test.
+
+Contract. The configuration object (:class:`membrax.config.TriaxialConfig`) is read here, in
+:mod:`membrax.config` and in :mod:`membrax.run`, and nowhere below: :func:`build_test` turns it into a
+:class:`~membrax.triaxial.membrane_cell.MembraneTest` (specimen, membrane, platens; nothing compiled),
+:func:`build_specimen` into its specimen (the FCC lattice, or a random packing compacted once per set of
+the fields that make it and cached on disk), :func:`loading` into the protocol's loading programme,
+:func:`damping_params` and :func:`consolidation_tolerance` into the values the step and the stop test
+take. :data:`BATCHED_FIELDS` names the fields members of one compiled batch may differ in
+(:func:`structure_key` groups the rest), :func:`common_nodes_around` the one mesh topology of a batch.
+"""
+
+from __future__ import annotations
+
+import dataclasses as pydataclasses
+import hashlib
+import math
+import os
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from membrax import native
+from membrax.config import INFLATION_WARNING_RATIO, TriaxialConfig, config_to_dict, inflation_ratio
+from membrax.defaults import COMPACTION_STRESS, default_consolidation_tolerance
+from membrax.membrane.contact import MembraneContactParams
+from membrax.membrane.mesh import rounded_offset_path
+from membrax.spheres.compaction import Compaction, random_packing
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.integrate import DampingParams
+from membrax.spheres.packing import Specimen, fcc_specimen, particle_mass, with_imperfection
+from membrax.spheres.random_packing import RandomSpecimen
+from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
+from membrax.triaxial.protocol import Loading
+
+__all__ = [
+    "BATCHED_FIELDS",
+    "BOOKKEEPING_FIELDS",
+    "build_specimen",
+    "build_test",
+    "common_nodes_around",
+    "consolidation_tolerance",
+    "damping_params",
+    "inflation_warning",
+    "loading",
+    "structure_key",
+]
+
+
+#: Configuration fields that may differ between the members of one compiled batch (traced values or
+#: host-side budgets). Any other field in a grid splits it into groups run one after another.
+BATCHED_FIELDS = frozenset(
+    {
+        "cell_pressure_kpa",
+        "membrane_thickness_mm",
+        "membrane_modulus_kpa",
+        "membrane_friction_angle_deg",
+        "membrane_bending_factor",
+        "friction_angle_deg",
+        "particle_stiffness_n_m",
+        "inertial_number",
+        "coarse_inertial_number",
+        "target_axial_strain",
+        "fine_until_strain",
+        "shear_ramp_strain",
+        "symmetric_loading",
+        "membrane_contact_offset_factor",
+        "consolidation_tolerance",
+        "consolidation_max_steps",
+    }
+)
+
+
+#: Fields that do not enter the simulation (never split a batch, never gridded).
+BOOKKEEPING_FIELDS = frozenset({"name", "checkpoint_every_chunks", "vtk_every_steps"})
+
+
+def build_test(
+    config: TriaxialConfig, time_step: float | None = None, nodes_around: int | None = None
+) -> MembraneTest:
+    """The membrane test of a configuration (specimen, membrane, platens; nothing compiled yet).
+
+    ``time_step`` (s) and ``nodes_around`` (membrane nodes per ring) override the test's own choices, as a
+    batch does (:mod:`membrax.sweep`: one Δt and one mesh topology for all its members).
+    """
+    warning = inflation_warning(config)
+    if warning is not None:
+        warnings.warn(warning, stacklevel=2)
+    specimen = build_specimen(config)
+    contact = ContactParams.paper(
+        friction_angle_deg=config.friction_angle_deg,
+        normal_stiffness=config.particle_stiffness_n_m,
+        tangential_stiffness=0.5 * config.particle_stiffness_n_m,
+    )
+    membrane_contact = MembraneContactParams.default(friction_angle_deg=config.membrane_friction_angle_deg)
+    return membrane_test(
+        specimen,
+        cell_pressure=config.cell_pressure,
+        membrane_thickness=config.membrane_thickness,
+        membrane_modulus=config.membrane_modulus,
+        contact_params=contact,
+        membrane_contact=membrane_contact,
+        damping=damping_params(config),
+        density=config.particle_density_kg_m3,
+        edges_per_diameter=config.membrane_edges_per_diameter,
+        dt_safety=config.dt_safety,
+        bending_factor=config.membrane_bending_factor,
+        time_step=time_step,
+        nodes_around=nodes_around,
+        contact_offset_factor=config.membrane_contact_offset_factor,
+    )
+
+
+def damping_params(config: TriaxialConfig) -> DampingParams:
+    """The damping of a configuration, for spheres and membrane nodes alike.
+
+    Cundall local damping α = 0.3 (the paper's), or with ``viscous_damping`` the viscous rate that removes
+    as much per cycle of a contact oscillator (:meth:`DampingParams.equivalent_viscous`), on the velocities
+    ``damping_frame`` names (:data:`membrax.defaults.DAMPING_FRAME`).
+
+    Args:
+      config: the configuration.
+
+    Returns:
+      its :class:`~membrax.spheres.integrate.DampingParams`.
+    """
+    if config.viscous_damping:
+        mass = float(particle_mass(config.particle_radius, config.particle_density_kg_m3))
+        return DampingParams.equivalent_viscous(
+            config.particle_stiffness_n_m, mass, frame=config.damping_frame
+        )
+    return DampingParams.local(0.3, config.damping_frame)
+
+
+def inflation_warning(config: TriaxialConfig) -> str | None:
+    """The warning for a membrane near its inflation limit (:func:`membrax.config.inflation_ratio`), or None.
+
+    Configurations at or above the limit are refused when built; from
+    :data:`membrax.config.INFLATION_WARNING_RATIO` of it, FCC runs went non-finite, so the run is warned.
+    """
+    ratio = inflation_ratio(config_to_dict(config))
+    if ratio < INFLATION_WARNING_RATIO:
+        return None
+    return (
+        f"{config.name}: the cell pressure is {ratio:.2f} of the membrane's inflation limit over the windows "
+        f"between the particles (membrax.config.inflation_ratio); FCC runs went non-finite from "
+        f"{INFLATION_WARNING_RATIO:g}–1 of it, the membrane ballooning into the specimen. A thicker or "
+        "stiffer membrane or a lower cell pressure keeps away from it."
+    )
+
+
+def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
+    """The configuration's specimen: the FCC lattice, or a random packing compacted in its mould.
+
+    A random packing is compacted once for a given set of the fields that make it (a sweep's members share
+    it), to :data:`membrax.defaults.COMPACTION_STRESS`, and kept in this process and on disk
+    (:func:`_compaction_cache_path`): a later run of the same specimen loads it instead of compacting again.
+    """
+    if config.packing == "fcc":
+        specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
+        if config.imperfection_fraction > 0.0:
+            specimen = with_imperfection(specimen, config.imperfection_fraction, config.imperfection_seed)
+        return specimen
+    key = tuple(
+        getattr(config, name)
+        for name in (
+            "grading",
+            "particle_diameter_mm",
+            "specimen_diameter_mm",
+            "specimen_height_mm",
+            "packing_seed",
+            "compaction_friction_deg",
+            "particle_density_kg_m3",
+            "particle_stiffness_n_m",
+            "float64",
+        )
+    )
+    if key not in _RANDOM_SPECIMENS:
+        grading = config.particle_grading
+        cached = _compaction_cache_path(key)
+        if cached.exists():
+            try:
+                _RANDOM_SPECIMENS[key] = Compaction.load(cached).specimen(grading)
+                return _RANDOM_SPECIMENS[key]
+            except (OSError, ValueError, KeyError, TypeError):  # a partial or older file: compact afresh
+                pass
+        compaction = random_packing(
+            grading,
+            config.specimen_diameter,
+            config.specimen_height,
+            seed=config.packing_seed,
+            target_stress=COMPACTION_STRESS,
+            friction_coefficient=config.compaction_friction_coefficient,
+            contact_params=ContactParams.paper(
+                normal_stiffness=config.particle_stiffness_n_m,
+                tangential_stiffness=0.5 * config.particle_stiffness_n_m,
+            ),
+            density=config.particle_density_kg_m3,
+        )
+        _RANDOM_SPECIMENS[key] = compaction.specimen(grading)
+        if compaction.stress_jump is not None:
+            jump = compaction.stress_jump
+            warnings.warn(
+                f"The random specimen (seed {config.packing_seed}) was compacted to "
+                f"{1e-3 * compaction.stress:.3g} kPa instead of {1e-3 * COMPACTION_STRESS:.3g} kPa ± 2 %: "
+                f"its relaxed stress jumps from {1e-3 * jump['stress_below']:.3g} to "
+                f"{1e-3 * jump['stress_above']:.3g} kPa between neighbouring growths, and the state at rest "
+                "nearest the target was kept (membrax.spheres.compaction, 'Stress jumps'). Consolidation "
+                "brings it to the cell pressure; another packing_seed gives another packing.",
+                stacklevel=2,
+            )
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        partial = cached.with_suffix(f".{os.getpid()}.npz")
+        compaction.save(partial)
+        os.replace(partial, cached)  # atomic: a concurrent reader sees the whole file or none
+    return _RANDOM_SPECIMENS[key]
+
+
+#: Random specimens compacted in this process, by the fields that make them (:func:`build_specimen`).
+_RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
+
+
+#: The modules whose code makes a compacted packing (membrax/spheres/): their text is part of the cache key.
+_COMPACTION_SOURCES = ("compaction.py", "random_packing.py", "contact.py", "integrate.py")
+
+
+def _compaction_cache_path(key: tuple) -> Path:
+    """Where a compacted packing of ``key`` is kept between processes.
+
+    ``specimens/`` in the cache folder (``$MEMBRAX_CACHE_DIR`` or ``~/.cache/membrax``), named by a hash of
+    the key, the compaction stress and the sources of the compaction (changed code makes a new packing).
+    """
+    digest = hashlib.sha256(repr((key, COMPACTION_STRESS)).encode())
+    for name in _COMPACTION_SOURCES:
+        digest.update((Path(__file__).resolve().parent / "spheres" / name).read_bytes())
+    return native.cache_dir() / "specimens" / f"compaction_{digest.hexdigest()[:20]}.npz"
+
+
+def loading(config: TriaxialConfig) -> Loading:
+    """The loading programme of a configuration (:class:`membrax.triaxial.protocol.Loading`)."""
+    return Loading(
+        consolidation_max_steps=config.consolidation_max_steps,
+        target_axial_strain=config.target_axial_strain,
+        inertial_number=config.inertial_number,
+        fine_until_strain=config.fine_until_strain,
+        ramp_strain=config.shear_ramp_strain,
+        record_every_fine=config.record_every_fine,
+        record_every_coarse=config.record_every_coarse,
+        coarse_inertial_number=config.coarse_inertial_number or None,
+    )
+
+
+def consolidation_tolerance(config: TriaxialConfig) -> float:
+    """The unbalanced-force ratio that ends consolidation.
+
+    The configuration's, else the membrane cell's default for its precision
+    (:func:`membrax.defaults.default_consolidation_tolerance`).
+    """
+    tolerance = config.consolidation_tolerance_or_none
+    if tolerance is None:
+        tolerance = default_consolidation_tolerance("membrane", config.float64)
+    return tolerance
+
+
+def structure_key(config: TriaxialConfig) -> tuple:
+    """The fields that must agree within one batch (everything not batched and not bookkeeping)."""
+    return tuple(
+        (field.name, getattr(config, field.name))
+        for field in pydataclasses.fields(TriaxialConfig)
+        if field.name not in BATCHED_FIELDS and field.name not in BOOKKEEPING_FIELDS
+    )
+
+
+def common_nodes_around(configs: Sequence[TriaxialConfig]) -> int:
+    """n_θ for all members: round(mean membrane perimeter / edge length) over the members' thicknesses."""
+    config = configs[0]
+    if config.packing == "random":
+        diameter = build_specimen(config).diameter
+        perimeters = [
+            math.pi * (diameter + c.membrane_contact_offset_factor * c.membrane_thickness) for c in configs
+        ]
+        return max(3, round(float(np.mean(perimeters)) / config.membrane_edge_length))
+    specimen = fcc_specimen(config.particle_diameter, config.particles_across, config.layers)
+    perimeters = [
+        rounded_offset_path(
+            specimen.outline_vertices,
+            0.5 * c.membrane_contact_offset_factor * c.membrane_thickness,
+            config.particle_radius,
+        )[1]
+        for c in configs
+    ]
+    return max(3, round(float(np.mean(perimeters)) / config.membrane_edge_length))

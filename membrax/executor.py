@@ -1,0 +1,609 @@
+"""The batched executor: members of one compiled batch, stacked, with one Δt and one mesh topology.
+
+Contract. :func:`build_batch` builds the members of a group (:class:`BatchedTest`: states stacked on a
+member axis, one Δt, one mesh topology, per-member budgets) from their configurations through
+:mod:`membrax.assemble`; :func:`plan_members` chooses the shared Δt and mesh, :func:`balanced_order` spreads
+members over devices by their work; :func:`float32_batch` and :func:`cast_state` change a batch's precision
+for the shearing. It runs nothing: :func:`membrax.runner.run_group` drives a batch through the protocol.
+
+Batching. Members that differ only in :data:`membrax.assemble.BATCHED_FIELDS` (traced parameters) form one
+batch; each chunk of steps is **one** compiled call, ``lax.map`` over the members on a CPU (each member's
+arrays stay in cache; :mod:`membrax.batch`) or ``vmap`` on a GPU, sharded over devices with
+``jax.shard_map``. Each member carries a step budget for the current phase; a record block of a member whose
+budget is spent is skipped (``lax.cond``: no work on a CPU) and its state frozen, so every member takes
+exactly the steps it would take alone with the same Δt and mesh (tests/test_sweep.py checks batched =
+alone).
+"""
+
+from __future__ import annotations
+
+import dataclasses as pydataclasses
+import itertools
+import math
+import types
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax_md.partition import NeighborListFormat
+
+from membrax import native
+from membrax.assemble import BATCHED_FIELDS, build_test, common_nodes_around, loading, structure_key
+from membrax.batch import stack
+from membrax.config import TriaxialConfig
+from membrax.driver import advance, drive, record_blocks
+from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
+from membrax.membrane.coupled import (
+    CandidateCapacities,
+    candidate_capacities,
+    grow_candidates,
+    grown_candidate_capacities,
+)
+from membrax.spheres.neighbors import remap_pair_history
+from membrax.triaxial.protocol import PHASES
+
+__all__ = [
+    "GEOMETRY_FIELDS",
+    "BatchedTest",
+    "balanced_order",
+    "build_batch",
+    "cast_state",
+    "describe_failure",
+    "batch_template",
+    "float32_batch",
+    "plan_members",
+    "table_capacities",
+]
+
+
+#: Mesh arrays that depend on the thickness (the rest geometry); the rest of the mesh is shared.
+GEOMETRY_FIELDS = (
+    "reference_position",
+    "reference_inverse",
+    "reference_area",
+    "rest_dihedral",
+    "edge_weight",
+)
+
+
+def _members(tree, count: int) -> list:
+    """The first ``count`` members of a stacked pytree, as host (numpy) pytrees.
+
+    The stacked arrays are copied to the host first, shard by shard: indexing a member out of an array
+    sharded over devices would compile an SPMD gather with a cross-device all-reduce, which waits for every
+    device, so a device still busy with its part of a chunk (launched asynchronously) stalls it, and XLA ends
+    the process after 40 s (issue 46). Host copies need no collective.
+    """
+    host = jax.device_get(tree)
+    return [jax.tree_util.tree_map(lambda leaf, b=b: np.asarray(leaf)[b], host) for b in range(count)]
+
+
+def _shared_neighbors(frame, positions: Sequence, capacity: int = 0, cell_capacity: int = 0) -> list:
+    """One neighbour list per member with identical static structure (capacities), so they stack.
+
+    jax-md keeps the list's capacity and cell-list capacity as static fields (and a fresh cell-list
+    closure per allocation), so lists allocated separately do not stack. Every member's list is rebuilt
+    here from one template with the largest capacities needed (at least ``capacity``/``cell_capacity``):
+    the template's reference position is moved away, which makes ``update`` rebuild at the member's
+    positions. Real pairs come out in the same order as an allocation of their own; only the padding differs.
+    """
+    positions = [jnp.asarray(p) for p in positions]
+    while True:
+        allocated = [frame.allocate(p) for p in positions]
+        occupancy = max([capacity] + [int(nl.max_occupancy) for nl in allocated])
+        cells = max([cell_capacity] + [int(nl.cell_list_capacity or 0) for nl in allocated])
+        template = allocated[0]
+        if cells and template.format is not NeighborListFormat.Dense:
+            # A rebuild's table holds at most the cell list's candidates, N · 3^d · cell capacity
+            # (jax-md truncates to the smaller), so a larger capacity than that cannot be asked for.
+            count, dimension = positions[0].shape
+            occupancy = min(occupancy, count * 3**dimension * cells)
+        # The template's pair table must have the capacity it claims: update's rebuild and its no-rebuild
+        # branch return tables of those two sizes, which lax.cond needs equal.
+        padding = occupancy - template.idx.shape[-1]
+        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=positions[0].shape[0])
+        template = template.set(idx=idx, max_occupancy=occupancy, cell_list_capacity=cells or None)
+        away = jnp.full_like(template.reference_position, 1e6)
+        lists = [frame.update(p, template.set(reference_position=away)) for p in positions]
+        if not any(bool(nl.did_buffer_overflow) for nl in lists):
+            return lists
+        capacity, cell_capacity = math.ceil(1.5 * occupancy), math.ceil(1.5 * max(cells, 1))
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The batched test
+# ----------------------------------------------------------------------------------------------------------
+
+
+@pydataclasses.dataclass
+class BatchedTest:
+    """Members of one compiled batch (built by :func:`build_batch`); arrays stacked on a member axis.
+
+    Attributes:
+      configs: the members' configurations.
+      tests: the members' :class:`MembraneTest` (built with the common Δt and n_θ: each one alone runs the
+        same steps as its member of the batch).
+      dt: the common time step, s.
+      nodes_around: the common n_θ.
+      num_devices: devices the member axis is sharded over.
+      mode: ``"map"`` (``lax.map``, CPU) or ``"vmap"`` (GPU).
+      params: stacked :class:`membrax.membrane.coupled.CoupledParams`, padded to a multiple of
+      ``num_devices``. members: stacked per-member constants: the mesh's rest geometry and the initial inner
+      volume. initial_state: stacked states at the start of consolidation (servo on).
+      order: member b of the batch is ``configs[order[b]]`` of :func:`build_batch`'s argument.
+    """
+
+    configs: list
+    tests: list
+    dt: float
+    nodes_around: int
+    num_devices: int
+    mode: str
+    params: object
+    members: dict
+    initial_state: object
+    order: list = pydataclasses.field(default_factory=list)
+    reallocations: int = 0
+    #: member → {"error", "step", "phase"} of the members :func:`run_group` froze (``isolate_failures``).
+    failures: dict = pydataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        self._chunk = jax.jit(
+            self._chunk_impl,
+            static_argnames=("num_records", "record_every"),
+            compiler_options=native.compiler_options(),
+        )
+
+    @property
+    def num_members(self) -> int:
+        """B, the real members (padding excluded)."""
+        return len(self.tests)
+
+    @property
+    def num_padded(self) -> int:
+        """Members including the frozen padding copies."""
+        return int(np.asarray(self.params.membrane.thickness).shape[0])
+
+    def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
+        template = self.tests[0]
+        mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
+        step = template.make_step(mesh)
+        record = template.make_record(mesh, member["initial_volume"])
+
+        def block(carry):
+            s, budget = carry
+            active = budget > 0
+            # A spent budget freezes the member: lax.cond skips its work under lax.map.
+            s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
+            budget = jnp.where(active, budget - record_every, budget)
+            return (s, budget), (record(s, params), active)
+
+        (state, left), (records, valid) = record_blocks(block, (state, left), num_records)
+        return state, left, records, valid
+
+    def _chunk_impl(self, states, params, members, left, num_records: int, record_every: int):
+        def one(state, param, member, budget):
+            return self._member_chunk(state, param, member, budget, num_records, record_every)
+
+        if self.mode == "vmap":
+            batched = jax.vmap(one)
+        else:
+
+            def batched(*args):
+                return jax.lax.map(lambda xs: one(*xs), args)
+
+        if self.num_devices > 1:
+            devices = np.asarray(jax.local_devices()[: self.num_devices])
+            spec = jax.sharding.PartitionSpec("members")
+            batched = jax.shard_map(
+                batched,
+                mesh=jax.sharding.Mesh(devices, ("members",)),
+                in_specs=spec,
+                out_specs=spec,
+                check_vma=False,
+            )
+        return batched(states, params, members, left)
+
+    def restack(self, states: list):
+        """Stack per-member states (real members) back, padding with frozen copies of member 0."""
+        padded = list(states) + [states[0]] * (self.num_padded - len(states))
+        return stack(padded)
+
+    def unstack(self, states) -> list:
+        """The real members' states of a stacked state."""
+        return _members(states, self.num_members)
+
+    def _grow(self, states, error, overflowed):
+        """Reallocate every member's neighbour list and/or candidate table with one larger capacity."""
+        members = _members(states, self.num_padded)
+        frame = self.tests[0].runner.neighbor_frame
+        particles = self.tests[0].particles
+        if np.any(error & ErrorCode.NEIGHBOR_OVERFLOW):
+            old = states.dem.neighbors
+            lists = _shared_neighbors(
+                frame,
+                [m.dem.position for m in members],
+                capacity=math.ceil(1.5 * old.max_occupancy),
+                cell_capacity=int(old.cell_list_capacity or 0),
+            )
+            members = [
+                m.set(
+                    dem=m.dem.set(
+                        neighbors=nl,
+                        pair_spring=remap_pair_history(
+                            m.dem.neighbors.idx, nl.idx, m.dem.pair_spring, particles.num_particles
+                        ),
+                    )
+                )
+                for m, nl in zip(members, lists, strict=True)
+            ]
+        if np.any(error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW):
+            capacities = grown_candidate_capacities(states.membrane.candidates, overflowed)
+            thickness = np.asarray(self.params.membrane.contact_thickness)
+            members = [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
+        self.reallocations += 1
+        return stack(members)
+
+    def run_phase(
+        self,
+        states,
+        budgets,
+        chunk_steps: int,
+        record_every: int,
+        stop_fn: Callable | None = None,
+        on_chunk: Callable | None = None,
+        on_failure: Callable | None = None,
+    ):
+        """Advance every member until its step budget is spent (or ``stop_fn`` ends it).
+
+        Args:
+          states: stacked states (padded).
+          budgets: (B,) steps each real member still takes in this phase (rounded up to whole records).
+          chunk_steps: steps per compiled chunk (rounded to whole records).
+          record_every: steps between records.
+          stop_fn: ``stop_fn(member, records) -> bool`` after each chunk for each member that advanced in
+            it (``records``: that member's records of the chunk, a namespace of arrays); True spends its
+            budget (the consolidation stop test).
+          on_chunk: ``on_chunk(states, chunk, budgets)`` after each accepted chunk, ``chunk`` a dict of
+            stacked (B, T, …) arrays of the real members plus ``valid`` (B, T); it may return members to
+            stop now (their budgets end).
+          on_failure: failure isolation: ``on_failure(member, names, step)`` (the :class:`ErrorCode` names
+            joined by ``|``) for a member whose error
+            bits (other than an overflow) are set after a chunk (``step``: the chunk's end); its budget
+            ends and the chunk is run again without it, so it stays at its state and records before that
+            chunk, and the others go on. None: the first such member raises.
+
+        Returns:
+          (states, budgets).
+
+        Raises:
+          SimulationError: a member's error bits other than an overflow, naming the member.
+        """
+        padded = np.zeros(self.num_padded, dtype=np.int64)
+        padded[: self.num_members] = np.asarray(budgets)
+        num = self.num_members
+        # Every error bit of the real members; only the overflows of the padding copies (they grow too).
+        real_bits = np.where(np.arange(self.num_padded) < num, -1, int(OVERFLOWS))
+
+        def chunk(states, left, num_records):
+            return self._chunk(
+                states,
+                self.params,
+                self.members,
+                jnp.asarray(left),
+                num_records=num_records,
+                record_every=record_every,
+            )
+
+        def fail(error, new, states):
+            bad = int(np.flatnonzero(error[:num])[0])
+            return SimulationError(
+                f"member {bad} ({self.configs[bad].name}) stopped in the chunk ending at step "
+                f"{int(np.asarray(new.dem.step)[bad])}: " + "; ".join(describe(error[bad])),
+                state=states,
+            )
+
+        def accept(states, records, valid, left):
+            valid = np.array(valid)[:num]  # writable: a failed member's records are masked
+            chunk = {
+                field.name: np.asarray(getattr(records, field.name))[:num]
+                for field in pydataclasses.fields(records)
+            }
+            chunk["valid"] = valid
+            stopped = []
+            if stop_fn is not None:
+                for b in np.flatnonzero(valid.any(axis=1)):
+                    mine = types.SimpleNamespace(
+                        **{k: v[b][valid[b]] for k, v in chunk.items() if k != "valid"}
+                    )
+                    if left[b] > 0 and stop_fn(int(b), mine):
+                        stopped.append(int(b))
+            if on_chunk is not None:
+                remaining = left[:num].copy()
+                remaining[stopped] = 0
+                stopped.extend(int(b) for b in on_chunk(states, chunk, remaining) or ())
+            return stopped
+
+        def isolate(error, new, left):
+            steps = np.asarray(new.dem.step)
+            left = np.asarray(left).copy()
+            for b in np.flatnonzero(error[:num]):
+                left[b] = 0
+                names = [code.name for code in ErrorCode if int(error[b]) & code]
+                on_failure(int(b), "|".join(names), int(steps[b]))
+            return left
+
+        states, left = drive(
+            chunk,
+            states,
+            padded,
+            record_every,
+            chunk_steps,
+            # Overflows anywhere (padding included) grow every member's tables; other errors of real members.
+            errors=lambda s: np.asarray(s.dem.error) & real_bits,
+            grow=lambda s, error, overflowed: self._grow(s, error, overflowed.membrane.candidates),
+            fail=fail,
+            accept=accept,
+            isolate=None if on_failure is None else isolate,
+        )
+        return states, left[:num]
+
+
+def describe_failure(failure: dict) -> str:
+    """A failed member's record as one line: the error's name, the phase and the step."""
+    return f"{failure['error']} in {failure['phase']} (chunk ending at step {failure['step']})"
+
+
+def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
+    """An order of the members whose contiguous device shares carry about equal work.
+
+    ``shard_map`` gives device d the d-th contiguous block of the (padded) member axis, and a chunk lasts
+    as long as its busiest device. Low-pressure members shear for the most steps (ε̇ ∝ √σc at a fixed
+    inertial number), so grid order would load one device with them. Greedy longest-first (each member,
+    heaviest first, to the least-loaded block with a free slot; the last block holds the padding), then
+    swaps between the busiest block and another while they lower the busiest load.
+
+    Args:
+      work: each member's expected steps.
+      num_devices: devices the member axis is split over.
+
+    Returns:
+      Member indices in batch order (a permutation of ``range(len(work))``).
+    """
+    count = len(work)
+    per_device = math.ceil(count / num_devices)
+    free = [per_device] * num_devices
+    free[-1] -= per_device * num_devices - count
+    blocks: list[list[int]] = [[] for _ in range(num_devices)]
+
+    def load(block):
+        return sum(work[i] for i in block)
+
+    for b in sorted(range(count), key=lambda i: (-work[i], i)):
+        d = min((d for d in range(num_devices) if free[d] > 0), key=lambda d: (load(blocks[d]), d))
+        blocks[d].append(b)
+        free[d] -= 1
+    improved = True
+    while improved:
+        improved = False
+        busiest = max(range(num_devices), key=lambda d: load(blocks[d]))
+        for d in range(num_devices):
+            for i, j in itertools.product(range(len(blocks[busiest])), range(len(blocks[d]))):
+                a, b = blocks[busiest][i], blocks[d][j]
+                gain = work[a] - work[b]
+                if gain > 0 and load(blocks[d]) + gain < load(blocks[busiest]):
+                    blocks[busiest][i], blocks[d][j] = b, a
+                    improved = True
+                    break
+            if improved:
+                break
+    return [b for block in blocks for b in sorted(block)]
+
+
+def plan_members(
+    configs: Sequence[TriaxialConfig], time_step: float | None = None, nodes_around: int | None = None
+) -> tuple[list, float, int, list[int]]:
+    """The members' tests on a common Δt and n_θ, and each member's expected steps (its work).
+
+    Args:
+      configs: the members' configurations (one structure).
+      time_step: the common Δt, s (default: the smallest of the members' own).
+      nodes_around: the common n_θ (default: :func:`common_nodes_around`).
+
+    Returns:
+      (tests, Δt, n_θ, work): shear steps are planned; consolidation stops when its test holds (unknown
+      beforehand, about alike for all members), so every member is charged two chunks of it.
+    """
+    nodes_around = common_nodes_around(configs) if nodes_around is None else int(nodes_around)
+    tests = [build_test(c, time_step, nodes_around) for c in configs]
+    dt = min(t.dt for t in tests)
+    tests = [
+        t if t.dt == dt else build_test(c, time_step=dt, nodes_around=nodes_around)
+        for t, c in zip(tests, configs, strict=True)
+    ]
+    plans = [t.phase_plan(loading(c)) for c, t in zip(configs, tests, strict=True)]
+    work = [
+        min(c.consolidation_max_steps, 2 * c.chunk_steps) + sum(plan[phase][0] for phase in PHASES[1:])
+        for c, plan in zip(configs, plans, strict=True)
+    ]
+    return tests, float(dt), nodes_around, work
+
+
+def build_batch(
+    configs: Sequence[TriaxialConfig],
+    num_devices: int | None = None,
+    mode: str | None = None,
+    order: Sequence[int] | None = None,
+    time_step: float | None = None,
+    nodes_around: int | None = None,
+) -> BatchedTest:
+    """Build the members of one batch (same structure, :data:`BATCHED_FIELDS` may differ).
+
+    Args:
+      configs: the members' configurations.
+      num_devices: devices to shard the member axis over (default: every local device of the default
+        backend).
+      mode: ``"map"`` or ``"vmap"`` (default: ``"vmap"`` on a GPU, ``"map"`` otherwise).
+      order: the members' order on the batch axis, indices into ``configs`` (default
+        :func:`balanced_order` of each member's planned shear steps plus two chunks of consolidation).
+        The batch's ``configs`` and ``tests`` are in this order, and ``BatchedTest.order`` keeps it.
+      time_step: the common Δt, s (default: the smallest of the members' own).
+      nodes_around: the common n_θ (default: :func:`common_nodes_around`).
+
+    Raises:
+      ValueError: no members, members that differ in a field outside :data:`BATCHED_FIELDS`, a bad mode
+        or device count.
+    """
+    configs = list(configs)
+    if not configs:
+        raise ValueError("no members to batch; give at least one configuration.")
+    keys = {structure_key(c) for c in configs}
+    if len(keys) > 1:
+        first = dict(structure_key(configs[0]))
+        differing = sorted({name for key in keys for name, value in key if value != first[name]})
+        raise ValueError(
+            f"members differ in {differing}, which cannot vary within one batch; batch only members that "
+            f"differ in {sorted(BATCHED_FIELDS)} (run_sweep groups the rest)."
+        )
+    mode = mode or ("vmap" if jax.default_backend() == "gpu" else "map")
+    if mode not in ("map", "vmap"):
+        raise ValueError(f"mode = {mode!r}; give 'map' (CPU) or 'vmap' (GPU).")
+    available = jax.local_device_count()
+    num_devices = available if num_devices is None else int(num_devices)
+    if not 1 <= num_devices <= available:
+        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
+    num_devices = min(num_devices, len(configs))
+    tests, dt, nodes_around, work = plan_members(configs, time_step, nodes_around)
+    if order is None:
+        order = balanced_order(work, num_devices)
+    order = [int(i) for i in order]
+    if sorted(order) != list(range(len(configs))):
+        raise ValueError(f"order = {order}; give a permutation of range({len(configs)}).")
+    configs, tests = [configs[i] for i in order], [tests[i] for i in order]
+    states = [t.start_consolidation(t.initial_state) for t in tests]
+    lists = _shared_neighbors(tests[0].runner.neighbor_frame, [s.dem.position for s in states])
+    states = [s.set(dem=s.dem.set(neighbors=nl)) for s, nl in zip(states, lists, strict=True)]
+    num_padded = num_devices * math.ceil(len(tests) / num_devices)
+    slots = list(range(len(tests))) + [0] * (num_padded - len(tests))
+    members = [
+        {
+            **{name: getattr(tests[b].mesh, name) for name in GEOMETRY_FIELDS},
+            "initial_volume": jnp.asarray(tests[b].initial_volume, tests[b].mesh.reference_area.dtype),
+        }
+        for b in slots
+    ]
+    return BatchedTest(
+        configs=configs,
+        tests=tests,
+        dt=float(dt),
+        nodes_around=nodes_around,
+        num_devices=num_devices,
+        mode=mode,
+        params=stack([tests[b].params for b in slots]),
+        members=stack(members),
+        initial_state=stack([states[b] for b in slots]),
+        order=order,
+    )
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Tables and precision (what a checkpoint and the float32 shearing need)
+# ----------------------------------------------------------------------------------------------------------
+
+
+def table_capacities(states) -> dict:
+    """The capacities of a stacked state's tables (neighbour pairs, cells, node candidates), by name."""
+    nl = states.dem.neighbors
+    candidates = states.membrane.candidates
+    return {
+        "neighbor_pairs": int(nl.max_occupancy),
+        "cell_capacity": int(nl.cell_list_capacity or 0),
+        **dict(zip(_NODE_CAPACITY_KEYS, candidate_capacities(candidates), strict=True)),
+    }
+
+
+# The checkpoint's names of the node candidate table's capacities (K, M, C: CandidateCapacities).
+_NODE_CAPACITY_KEYS = ("node_candidates", "sphere_slots", "membrane_cell_spheres")
+
+
+def _node_capacities(capacities: dict) -> CandidateCapacities:
+    return CandidateCapacities(*(capacities[key] for key in _NODE_CAPACITY_KEYS))
+
+
+def batch_template(batch: BatchedTest, capacities: dict):
+    """The batch's initial state grown to a checkpoint's capacities (the loader's shape template)."""
+    states = batch.initial_state
+    if table_capacities(states) == capacities:
+        return states
+    members = _members(states, batch.num_padded)
+    thickness = np.asarray(batch.params.membrane.contact_thickness)
+    particles = batch.tests[0].particles
+    members = [
+        grow_candidates(m, particles, _node_capacities(capacities), thickness[b])
+        for b, m in enumerate(members)
+    ]
+    lists = _shared_neighbors(
+        batch.tests[0].runner.neighbor_frame,
+        [m.dem.position for m in members],
+        capacities["neighbor_pairs"],
+        capacities["cell_capacity"],
+    )
+    members = [
+        m.set(dem=m.dem.set(neighbors=nl, pair_spring=jnp.zeros((nl.idx.shape[1], 3), m.dem.position.dtype)))
+        for m, nl in zip(members, lists, strict=True)
+    ]
+    return stack(members)
+
+
+def float32_batch(batch: BatchedTest) -> BatchedTest:
+    """The batch rebuilt in float32 (call inside ``jax.enable_x64(False)``), for ``float32_shearing``.
+
+    Same configurations, order, Δt, n_θ, devices and mode: only the arrays' precision differs, so a state
+    of ``batch`` carried over by :func:`cast_state` goes on with the same steps.
+    """
+    shear = build_batch(
+        batch.configs,
+        batch.num_devices,
+        batch.mode,
+        order=list(range(batch.num_members)),
+        time_step=batch.dt,
+        nodes_around=batch.nodes_around,
+    )
+    shear.order = list(batch.order)
+    shear.failures = batch.failures
+    return shear
+
+
+def cast_state(state, like):
+    """``state``'s values in the dtypes (and static structure) of ``like``, a template of the same shapes.
+
+    Where a body keeps its position as a compensated pair (``position`` + ``position_compensation``:
+    spheres, walls, membrane nodes), the float64 sum is split anew into a float32 high part and the
+    rounding residual, so the narrower pair still carries the position to about float64 resolution.
+    """
+
+    def split(body, like_body):
+        dtype = np.dtype(like_body.position.dtype)
+        if np.dtype(body.position.dtype) == dtype:
+            return body
+        exact = np.asarray(body.position, np.float64) + np.asarray(body.position_compensation, np.float64)
+        high = exact.astype(dtype)
+        return body.set(position=high.astype(np.float64), position_compensation=exact - high)
+
+    walls = split(state.dem.walls, like.dem.walls)
+    dem = split(state.dem, like.dem).set(walls=walls)
+    state = state.set(dem=dem, membrane=split(state.membrane, like.membrane))
+    leaves = jax.tree_util.tree_leaves(state)
+    like_leaves, structure = jax.tree_util.tree_flatten(like)
+    if len(leaves) != len(like_leaves):
+        raise ValueError(f"cast_state: {len(leaves)} leaves against the template's {len(like_leaves)}.")
+    cast = []
+    for value, template in zip(leaves, like_leaves, strict=True):
+        if np.shape(value) != np.shape(template):
+            raise ValueError(
+                f"cast_state: shape {np.shape(value)} against the template's {np.shape(template)}."
+            )
+        dtype = getattr(template, "dtype", None)
+        cast.append(value if dtype is None else jnp.asarray(np.asarray(value).astype(dtype)))
+    return jax.tree_util.tree_unflatten(structure, cast)
