@@ -29,7 +29,7 @@ def measure(dtype: str, across: float, high: float, friction: float, max_steps: 
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
     from membrax.spheres.compaction import random_packing
-    from membrax.spheres.random_packing import Grading
+    from membrax.spheres.grading import Grading
 
     diameter = 0.025
     start = time.perf_counter()

@@ -55,7 +55,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
     if packing_kind == "random":  # paper-like: 250 × 500 mm, compacted without friction (not timed)
         from membrax.spheres.compaction import random_packing
-        from membrax.spheres.random_packing import Grading
+        from membrax.spheres.grading import Grading
 
         specimen = random_packing(Grading.equal(diameter), 0.25, 0.5).specimen()
     else:

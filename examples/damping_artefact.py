@@ -71,7 +71,7 @@ def main() -> None:
     from membrax.membrane import energies
     from membrax.membrane.coupled import LATEX_DENSITY, contact_forces
     from membrax.membrane.mesh import free_node_mask
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
     from membrax.spheres.integrate import DampingParams, apply_damping, compute_forces
     from membrax.spheres.walls import BOTTOM, TOP, affine_velocity
     from membrax.triaxial import rigid
@@ -136,7 +136,7 @@ def main() -> None:
 
     cells = args.cells.split(",")
     if "rigid" in cells:
-        specimen = packing.fcc_specimen(0.025, across, layers)
+        specimen = fcc.fcc_specimen(0.025, across, layers)
         base = rigid.rigid_wall_test(specimen, cell_pressure)
         consolidated, _ = base.consolidate()
 

@@ -39,13 +39,13 @@ import numpy as np  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from membrax import theory  # noqa: E402
-from membrax.spheres import packing  # noqa: E402
+from membrax.spheres import fcc  # noqa: E402
 from membrax.triaxial import rigid as triaxial  # noqa: E402
 
 out = pathlib.Path(args.out)
 out.mkdir(parents=True, exist_ok=True)
 cell_pressure = args.cell_pressure_kpa * 1e3
-specimen = packing.fcc_specimen(0.025, args.width, args.layers)
+specimen = fcc.fcc_specimen(0.025, args.width, args.layers)
 print(specimen.summary())
 start = time.perf_counter()
 test = triaxial.rigid_wall_test(specimen, cell_pressure)

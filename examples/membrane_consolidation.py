@@ -33,10 +33,10 @@ def render(state_file: pathlib.Path, out: pathlib.Path, thickness: float, cell_p
     from membrax import io, plots
     from membrax.membrane import measure as membrane_measure
     from membrax.membrane.mesh import prism_mesh
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
 
     data = np.load(state_file)
-    specimen = packing.fcc_specimen(0.025, 10, 25)
+    specimen = fcc.fcc_specimen(0.025, 10, 25)
     mesh = prism_mesh(
         np.asarray(specimen.outline_vertices),
         0.5 * thickness,
@@ -102,10 +102,10 @@ def main():
         from tqdm import tqdm
 
         from membrax.membrane import measure as membrane_measure
-        from membrax.spheres import packing
+        from membrax.spheres import fcc
         from membrax.triaxial import membrane_cell as membrane_triaxial
 
-        specimen = packing.fcc_specimen(0.025, 10, 25)
+        specimen = fcc.fcc_specimen(0.025, 10, 25)
         start = time.time()
         test = membrane_triaxial.membrane_test(
             specimen, cell_pressure=1e3 * args.cell_pressure_kpa, membrane_thickness=1e-3 * args.thickness_mm

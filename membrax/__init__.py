@@ -13,8 +13,8 @@ ballast, rockfill) at low cell pressures. ``import membrax`` gives what a user n
 - the factories under them: :func:`fcc_specimen`, :func:`random_packing` (a :class:`Grading` compacted
   in a mould), :func:`build_specimen` (a configuration's specimen), :func:`rigid_wall_test`,
   :func:`membrane_test`,
-  :func:`sphere_dem` (the sphere step, named like its folder ``spheres/``; the coupled one is
-  :func:`membrax.membrane.coupled.membrane_dem`),
+  the two step factories :func:`sphere_dem` (spheres alone) and :func:`membrane_dem` (spheres and
+  membrane coupled),
   :func:`prism_mesh`;
 - errors: :class:`ErrorCode` (a state's error bits), :class:`SimulationError`, :class:`RunError`;
 - modules: :mod:`~membrax.theory` (closed forms), :mod:`~membrax.paper` (the paper's numbers and the
@@ -49,13 +49,14 @@ _API = {
     "member_records": "membrax.sweep",
     "split_cpu_devices": "membrax.devices",
     "read_results": "membrax.io",
-    "fcc_specimen": "membrax.spheres.packing",
+    "fcc_specimen": "membrax.spheres.fcc",
     "random_packing": "membrax.spheres.compaction",
-    "Grading": "membrax.spheres.random_packing",
+    "Grading": "membrax.spheres.grading",
     "build_specimen": "membrax.assemble",
     "rigid_wall_test": "membrax.triaxial.rigid",
     "membrane_test": "membrax.triaxial.membrane_cell",
     "sphere_dem": "membrax.spheres.integrate",
+    "membrane_dem": "membrax.membrane.coupled",
     "prism_mesh": "membrax.membrane.mesh",
     "ErrorCode": "membrax.errors",
     "SimulationError": "membrax.errors",

@@ -29,9 +29,10 @@ from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.compaction import Compaction, random_packing
 from membrax.spheres.contact import ContactParams
+from membrax.spheres.fcc import Specimen, fcc_specimen, with_imperfection
+from membrax.spheres.grading import RandomSpecimen
 from membrax.spheres.integrate import DampingParams
-from membrax.spheres.packing import Specimen, fcc_specimen, particle_mass, with_imperfection
-from membrax.spheres.random_packing import RandomSpecimen
+from membrax.spheres.particles import particle_mass
 from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
 from membrax.triaxial.protocol import Loading
 
@@ -223,7 +224,7 @@ _RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
 
 
 #: The modules whose code makes a compacted packing (membrax/spheres/): their text is part of the cache key.
-_COMPACTION_SOURCES = ("compaction.py", "random_packing.py", "contact.py", "integrate.py")
+_COMPACTION_SOURCES = ("compaction.py", "grading.py", "contact.py", "integrate.py")
 
 
 def _compaction_cache_path(key: tuple) -> Path:

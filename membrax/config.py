@@ -46,7 +46,7 @@ import numpy as np
 
 from membrax import defaults, theory
 from membrax.errors import ConfigError
-from membrax.spheres.random_packing import Grading
+from membrax.spheres.grading import Grading
 from membrax.validation import check_range
 
 __all__ = [
@@ -136,7 +136,7 @@ def characteristic_size_mm(values: Mapping) -> float:
     """The particle size D a laboratory quotes for a configuration, mm: d50 of ``grading``, else the diameter.
 
     ``values``: a configuration as a mapping (:func:`config_to_dict`, a sweep's member). d50 is read off
-    the grading curve (:meth:`~membrax.spheres.random_packing.Grading.size_passing`), as a laboratory reads
+    the grading curve (:meth:`~membrax.spheres.grading.Grading.size_passing`), as a laboratory reads
     it off its sieve analysis; the membrane corrections' D (``calibrate``) is this size.
     """
     pairs = values.get("grading") or ()
@@ -649,7 +649,7 @@ def _check_grading(value: Any) -> tuple[Any, str | None]:
 
 
 def grading_of(pairs) -> Grading:
-    """The :class:`~membrax.spheres.random_packing.Grading` of [size mm, percent passing] pairs.
+    """The :class:`~membrax.spheres.grading.Grading` of [size mm, percent passing] pairs.
 
     mm and % are converted here, once.
     """

@@ -45,7 +45,7 @@ from membrax.errors import RunError, SimulationError
 from membrax.executor import BatchedTest, batch_template, cast_state, float32_batch, table_capacities
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
 from membrax.membrane.measure import right_cylinder_stresses
-from membrax.spheres.random_packing import mass_fractions
+from membrax.spheres.grading import mass_fractions
 from membrax.triaxial import analysis
 from membrax.triaxial.protocol import CONSOLIDATION_RECORD_EVERY, PHASES
 
@@ -434,7 +434,7 @@ def specimen_metadata(specimen) -> dict:
     """The specimen's record for a run's attributes: packing, size, solid fraction, grading.
 
     For a random specimen sampled from a grading: the sieve sizes (mm) and percent passing beside the
-    percent passing of the sampled spheres (:func:`membrax.spheres.random_packing.mass_fractions`).
+    percent passing of the sampled spheres (:func:`membrax.spheres.grading.mass_fractions`).
     """
     radius = np.asarray(specimen.radius, dtype=float)
     solid = float(np.sum(4.0 / 3.0 * np.pi * radius**3))

@@ -31,6 +31,7 @@ EXPECTED = {
     "rigid_wall_test",
     "membrane_test",
     "sphere_dem",
+    "membrane_dem",
     "prism_mesh",
     # errors
     "ErrorCode",
@@ -51,8 +52,8 @@ def test_the_api_is_exactly_the_curated_names():
 
 def test_every_name_resolves_to_its_defining_module():
     from membrax import assemble, config, devices, errors, io, run, sensitivities, sweep
-    from membrax.membrane import mesh
-    from membrax.spheres import compaction, integrate, packing, random_packing
+    from membrax.membrane import coupled, mesh
+    from membrax.spheres import compaction, fcc, grading, integrate
     from membrax.triaxial import membrane_cell, rigid
 
     homes = {
@@ -64,13 +65,14 @@ def test_every_name_resolves_to_its_defining_module():
         "member_records": sweep,
         "split_cpu_devices": devices,
         "read_results": io,
-        "fcc_specimen": packing,
+        "fcc_specimen": fcc,
         "random_packing": compaction,
-        "Grading": random_packing,
+        "Grading": grading,
         "build_specimen": assemble,
         "rigid_wall_test": rigid,
         "membrane_test": membrane_cell,
         "sphere_dem": integrate,
+        "membrane_dem": coupled,
         "prism_mesh": mesh,
         "ErrorCode": errors,
         "SimulationError": errors,

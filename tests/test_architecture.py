@@ -20,10 +20,21 @@ PACKAGE = Path(membrax.__file__).parent
 
 LAYERS = (
     # foundations: no simulation state, import nothing above
-    ("validation", "vector", "fusion", "native", "errors", "batch", "devices", "theory", "pytree"),
+    (
+        "validation",
+        "vector",
+        "compensated",
+        "fusion",
+        "native",
+        "errors",
+        "batch",
+        "devices",
+        "theory",
+        "pytree",
+    ),
     ("defaults",),
     # specimen + membrane: geometry
-    ("spheres.packing", "spheres.random_packing", "spheres.neighbors", "membrane.mesh"),
+    ("spheres.particles", "spheres.fcc", "spheres.grading", "spheres.neighbors", "membrane.mesh"),
     # laws: contacts, walls and platens
     ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
     # step
@@ -113,7 +124,7 @@ def test_imports_run_along_the_data_flow(module):
 
 
 #: The simulator: every layer from the specimen to the results. It takes SI and never reads the configuration.
-SIMULATOR = {name for name, level in LAYER.items() if LAYER["spheres.packing"] <= level < LAYER["config"]}
+SIMULATOR = {name for name, level in LAYER.items() if LAYER["spheres.fcc"] <= level < LAYER["config"]}
 
 
 def test_no_module_below_the_configuration_imports_it():
@@ -131,7 +142,7 @@ def test_the_checker_sees_every_kind_of_import(tmp_path):
     sample.write_text(
         "from membrax import io as io_lib, theory\n"
         "import membrax.sweep\n"
-        "from membrax.spheres import integrate, packing as specimen\n"
+        "from membrax.spheres import integrate, fcc as specimen\n"
         "from membrax.membrane.coupled import membrane_dem\n"
         "def f():\n"
         "    from membrax.run import run_test\n"
@@ -143,7 +154,7 @@ def test_the_checker_sees_every_kind_of_import(tmp_path):
         "sweep",
         "run",
         "spheres.integrate",
-        "spheres.packing",
+        "spheres.fcc",
         "membrane.coupled",
     }
 

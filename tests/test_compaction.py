@@ -24,8 +24,8 @@ from membrax.spheres.compaction import (
     packing_measures,
     random_packing,
 )
-from membrax.spheres.packing import fcc_specimen
-from membrax.spheres.random_packing import Grading, sample_diameters
+from membrax.spheres.fcc import fcc_specimen
+from membrax.spheres.grading import Grading, sample_diameters
 
 DIAMETER = 0.025
 

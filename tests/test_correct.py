@@ -573,17 +573,17 @@ def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_
 def test_the_calibration_grid_spans_the_ranges_the_correction_is_for():
     """σc 10–100 kPa, t_m 1–5 mm, E_m 700–2800 kPa, D/D_s 1/6 to 1/10 (D_s from the FCC platen area)."""
     from calibrate import designs
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
 
     values = {"cell_pressure_kpa": set(), "membrane_thickness_mm": set(), "membrane_modulus_kpa": set()}
     ratios = []
     for specimen, design in designs.CALIBRATION.values():
         for field, chosen in design.items():
             values[field] |= set(chosen)
-        fcc = packing.fcc_specimen(
+        lattice = fcc.fcc_specimen(
             0.025, width_spheres=specimen["particles_across"], height_layers=specimen["layers"]
         )
-        ratios.append(0.025 / math.sqrt(4.0 * float(fcc.cross_section_area) / math.pi))
+        ratios.append(0.025 / math.sqrt(4.0 * float(lattice.cross_section_area) / math.pi))
     assert (min(values["cell_pressure_kpa"]), max(values["cell_pressure_kpa"])) == (10.0, 100.0)
     assert (min(values["membrane_thickness_mm"]), max(values["membrane_thickness_mm"])) == (1.0, 5.0)
     assert (min(values["membrane_modulus_kpa"]), max(values["membrane_modulus_kpa"])) == (700.0, 2800.0)

@@ -15,9 +15,10 @@ from helpers import tolerance
 from membrax import assemble, batch
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.membrane import coupled
-from membrax.spheres import contact, integrate, neighbors, packing
+from membrax.spheres import contact, fcc, integrate, neighbors
 from membrax.spheres import walls as walls_lib
 from membrax.spheres.measure import measure
+from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.triaxial import rigid
 
 R = 0.0125
@@ -109,7 +110,7 @@ def test_walls_at_rest_or_servo_controlled_give_the_absolute_law_bit_for_bit(pre
     # A rigid box with spheres given random velocities, its walls at rest, then servo-controlled (as in
     # consolidation, where they move at the servo's velocity): the reference field is exactly 0 both times,
     # so 200 steps of either frame, local and viscous damping at once, end in the same bits.
-    test = rigid.rigid_wall_test(packing.fcc_specimen(D, 4, 4), 1e4, time_step=2e-6)
+    test = rigid.rigid_wall_test(fcc.fcc_specimen(D, 4, 4), 1e4, time_step=2e-6)
     rng = np.random.default_rng(3)
     moving = test.initial_state.set(
         velocity=jnp.asarray(
@@ -196,7 +197,7 @@ def chain_excess(frame, num_spheres=8, speed=0.01, duration=0.003):
     platens' mean stress − the Love–Weber stress, γ m, the pair contacts' closing rate r_p), Pa, kg/s, m/s."""
     z = R + D * np.arange(num_spheres)
     position = jnp.asarray(np.stack([np.zeros(num_spheres), np.zeros(num_spheres), z], axis=1), dtype=float)
-    particles = integrate.make_particles(jnp.full(num_spheres, R, position.dtype), packing.GRANITE_DENSITY)
+    particles = integrate.make_particles(jnp.full(num_spheres, R, position.dtype), GRANITE_DENSITY)
     frame_fn = neighbors.pair_neighbor_fn([-D, -D, -R], [D, D, num_spheres * D + R], D, 0.2 * D, D)
     walls = walls_lib.triaxial_walls(np.zeros((0, 2)), np.zeros(0), num_spheres * D)
     law = contact.ContactParams.paper()
@@ -252,7 +253,7 @@ def test_local_damping_drag_on_the_platens_of_a_rigid_box_is_what_the_affine_fra
     # drags the spheres against the platens' motion; the affine frame removes that part, leaving the
     # damping of the non-affine motion (measured here 0.34 % of σ1 against 0.68 %): the platen stress within
     # the issue's 0.5 % of the contact stress.
-    test = rigid.rigid_wall_test(packing.fcc_specimen(D, 6, 10), 1e4)
+    test = rigid.rigid_wall_test(fcc.fcc_specimen(D, 6, 10), 1e4)
     state, _ = test.consolidate()
     member = test.particles.member
 

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 from helpers import ACCUMULATED, tolerance
 
-from membrax import batch, theory
-from membrax.spheres import contact, integrate, neighbors, packing
+from membrax import batch, compensated, theory
+from membrax.spheres import contact, fcc, integrate, neighbors
 from membrax.spheres import walls as walls_lib
+from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.triaxial import rigid as triaxial
 
 R = 0.0125
@@ -24,7 +25,7 @@ def free_system(
     """Spheres in free space, platens far below and above (z = 0 and z = 1 m)."""
     position = jnp.asarray(position, dtype=float)  # JAX's default float: float64 under x64, else float32
     radius = jnp.broadcast_to(jnp.asarray(radius, position.dtype), position.shape[:1])
-    particles = integrate.make_particles(radius, packing.GRANITE_DENSITY)
+    particles = integrate.make_particles(radius, GRANITE_DENSITY)
     if inertia is not None:
         particles = particles.set(inertia=jnp.full_like(particles.inertia, inertia))
     frame = neighbors.pair_neighbor_fn(
@@ -79,7 +80,7 @@ def test_head_on_collision_duration_and_restitution(precision):
 
 def precompressed_cluster(squeeze=1e-3, speed=0.1, seed=1):
     """A 4×4×4 square FCC block shrunk by ``squeeze`` so every lattice contact is closed, in a tight box."""
-    specimen = packing.fcc_specimen(D, 4, 4, cross_section="square")
+    specimen = fcc.fcc_specimen(D, 4, 4, cross_section="square")
     position = jnp.asarray(specimen.position) * (1 - squeeze)
     normals, distances = specimen.outline_faces()
     walls = walls_lib.triaxial_walls(
@@ -88,7 +89,7 @@ def precompressed_cluster(squeeze=1e-3, speed=0.1, seed=1):
         specimen.height * (1 - squeeze) - squeeze * D,
     )
     walls = walls.set(position=walls.position.at[:, 0].set(-squeeze * D))
-    particles = integrate.make_particles(specimen.radius, packing.GRANITE_DENSITY)
+    particles = integrate.make_particles(specimen.radius, GRANITE_DENSITY)
     frame = neighbors.pair_neighbor_fn(
         np.asarray(position).min(0) - D, np.asarray(position).max(0) + D, D, 0.2 * D, D
     )
@@ -273,7 +274,7 @@ def test_remap_pair_history_by_partner_id():
 
 def sheared_block(skin):
     """A small frictional block sheared by its top platen: contacts slide, springs build and rotate."""
-    specimen = packing.fcc_specimen(D, 4, 5)
+    specimen = fcc.fcc_specimen(D, 4, 5)
     return triaxial.rigid_wall_test(specimen, 40e3, skin_fraction=skin, time_step=1e-5, max_wall_speed=0.01)
 
 
@@ -322,7 +323,7 @@ def test_rebuilding_every_step_equals_every_fifty_steps():
 
 
 def test_too_small_capacity_is_reallocated_and_gives_the_same_result():
-    specimen = packing.fcc_specimen(D, 4, 5)
+    specimen = fcc.fcc_specimen(D, 4, 5)
     reference = triaxial.rigid_wall_test(specimen, 40e3)
     small = triaxial.rigid_wall_test(specimen, 40e3)
     # A list with a fifth of the capacity needed: the first chunk overflows and is rerun after reallocation.
@@ -352,7 +353,7 @@ def test_shared_lists_with_a_larger_capacity_hold_the_brute_force_pairs():
     cutoff + skin found by brute force."""
     from membrax.executor import _shared_neighbors
 
-    specimen = packing.fcc_specimen(D, 4, 5)
+    specimen = fcc.fcc_specimen(D, 4, 5)
     frame = triaxial.rigid_wall_test(specimen, 40e3).runner.neighbor_frame
     position = np.asarray(specimen.position)
     moved = position + np.random.default_rng(0).normal(0.0, 0.02 * D, position.shape)
@@ -376,7 +377,7 @@ def test_shared_lists_asked_for_more_than_the_cell_list_holds_get_its_candidate_
     brute-force pairs and flag no overflow."""
     from membrax.executor import _shared_neighbors
 
-    specimen = packing.fcc_specimen(D, 4, 5)
+    specimen = fcc.fcc_specimen(D, 4, 5)
     frame = triaxial.rigid_wall_test(specimen, 40e3).runner.neighbor_frame
     position = np.asarray(specimen.position)
     allocated = frame.allocate(jnp.asarray(position))
@@ -398,7 +399,7 @@ def test_compensated_summation_keeps_subresolution_motion_in_float32():
     plain = value
     increment = jnp.full((1,), 1e-9, jnp.float32)
     for _ in range(1000):
-        value, compensation = walls_lib.compensated_add(value, compensation, increment)
+        value, compensation = compensated.compensated_add(value, compensation, increment)
         plain = plain + increment
     start = float(jnp.float32(0.075))
     assert float(plain[0]) == start  # the naive sum lost everything
@@ -444,7 +445,7 @@ def contact_case(friction_deg, stiffness):
 
 
 def test_folded_batch_and_vmap_match_a_loop_over_cases():
-    specimen = packing.fcc_specimen(D, 4, 4)
+    specimen = fcc.fcc_specimen(D, 4, 4)
     friction, stiffness, pressure = small_batch_cases()
     num_steps = 400
     options = {"time_step": 5e-6, "max_wall_speed": 0.01}
@@ -525,7 +526,7 @@ def test_gradient_through_viscous_simulation_matches_finite_differences():
 @pytest.fixture(scope="module")
 def rigid_triaxial_friction_series():
     """One folded batch of three 6-across, 8-layer specimens at φμ = 15°, 25°, 35°, 40 kPa."""
-    specimen = packing.fcc_specimen(D, 6, 8)
+    specimen = fcc.fcc_specimen(D, 6, 8)
     friction = np.array([15.0, 25.0, 35.0])
     test = triaxial.rigid_wall_test(specimen, np.full(3, 40e3), contact_case(friction, np.full(3, 1e7)))
     state, consolidation = test.consolidate(chunk_steps=2000)

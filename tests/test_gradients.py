@@ -24,7 +24,7 @@ from membrax import gradients, sensitivities
 from membrax.assemble import build_test
 from membrax.spheres.contact import tangential_spring_update
 from membrax.spheres.integrate import DampingParams
-from membrax.spheres.packing import particle_mass
+from membrax.spheres.particles import particle_mass
 from membrax.spheres.walls import platen_separation
 
 SMOOTH = dataclasses.replace(SMALL_MEMBRANE_TEST, viscous_damping=True)

@@ -13,7 +13,7 @@ import pytest
 
 from membrax import io
 from membrax.membrane.mesh import cylinder_mesh
-from membrax.spheres import packing
+from membrax.spheres import fcc
 
 RADIUS = 0.13
 HEIGHT = 0.2
@@ -27,7 +27,7 @@ def mesh():
 
 @pytest.fixture(scope="module")
 def specimen():
-    return packing.fcc_specimen(particle_diameter=0.025, width_spheres=4, height_layers=3)
+    return fcc.fcc_specimen(particle_diameter=0.025, width_spheres=4, height_layers=3)
 
 
 def _membrane_fields(mesh):

@@ -17,7 +17,7 @@ from membrax.driver import two_rate_plan
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.mesh import cylinder_mesh
 from membrax.runner import rebase_to_shear_start
-from membrax.spheres import packing
+from membrax.spheres import fcc
 from membrax.spheres.walls import (
     BOTTOM,
     TOP,
@@ -98,7 +98,7 @@ def test_a_rate_change_covers_its_strain_at_the_mean_rate():
 
 @pytest.fixture(scope="module")
 def small_test():
-    specimen = packing.fcc_specimen(0.025, 4, 5)
+    specimen = fcc.fcc_specimen(0.025, 4, 5)
     return membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, edges_per_diameter=2.5)
 
 
@@ -124,10 +124,10 @@ def test_symmetric_shearing_moves_both_platens_at_half_the_rate_and_ramps_to_the
 
 
 def test_the_seeded_imperfection_is_reproducible_and_only_shrinks_spheres():
-    specimen = packing.fcc_specimen(0.025, 4, 5)
-    one = packing.with_imperfection(specimen, 1e-3, seed=7)
-    again = packing.with_imperfection(specimen, 1e-3, seed=7)
-    other = packing.with_imperfection(specimen, 1e-3, seed=8)
+    specimen = fcc.fcc_specimen(0.025, 4, 5)
+    one = fcc.with_imperfection(specimen, 1e-3, seed=7)
+    again = fcc.with_imperfection(specimen, 1e-3, seed=7)
+    other = fcc.with_imperfection(specimen, 1e-3, seed=8)
     radius, nominal = np.asarray(one.radius), np.asarray(specimen.radius)
     np.testing.assert_array_equal(radius, np.asarray(again.radius))
     assert np.any(radius != np.asarray(other.radius))
@@ -136,9 +136,9 @@ def test_the_seeded_imperfection_is_reproducible_and_only_shrinks_spheres():
     # uniform on [0, f D): mean f D / 2 within 4 standard errors (σ = f/√12 per sphere)
     assert abs(reduction.mean() - 5e-4) < 4 * 1e-3 / math.sqrt(12 * reduction.size)
     np.testing.assert_array_equal(np.asarray(one.position), np.asarray(specimen.position))
-    np.testing.assert_array_equal(np.asarray(packing.with_imperfection(specimen, 0.0).radius), nominal)
+    np.testing.assert_array_equal(np.asarray(fcc.with_imperfection(specimen, 0.0).radius), nominal)
     with pytest.raises(ValueError, match="fraction"):
-        packing.with_imperfection(specimen, -1e-3)
+        fcc.with_imperfection(specimen, -1e-3)
     # Its contacts are open, so Δt is the touching lattice's: the same as the perfect specimen's.
     perfect = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3)
     imperfect = membrane_test(one, cell_pressure=1e4, membrane_thickness=5e-3)
@@ -149,7 +149,7 @@ def test_the_seeded_imperfection_is_reproducible_and_only_shrinks_spheres():
 def test_nodes_touch_spheres_at_the_chosen_offset(factor):
     """The mesh is built f t_m/2 outside the outer spheres: on a flat face of the octagon the rest nodes
     lie at R + f t_m/2 from the plane of the outer sphere centres, where the contact's overlap is zero."""
-    specimen = packing.fcc_specimen(0.025, 4, 5)
+    specimen = fcc.fcc_specimen(0.025, 4, 5)
     thickness = 5e-3
     test = membrane_test(specimen, 1e4, 5e-3, edges_per_diameter=2.5, contact_offset_factor=factor)
     assert float(test.params.membrane.contact_thickness) == pytest.approx(factor * thickness, rel=1e-15)
@@ -258,7 +258,7 @@ def test_the_ramped_peak_is_a_material_number_not_a_rate_effect():
     rounding (before and after the spring-rotation cap of spheres/contact.py, and with the cap disabled)
     gave differences fast − slow of 0.09°/0.04°, 0.12°/0.00° and 0.34°/0.25° (external/internal), and
     moved each peak by up to 0.45°: the bound is that scatter, not a rate effect."""
-    specimen = packing.fcc_specimen(0.025, 4, 5)
+    specimen = fcc.fcc_specimen(0.025, 4, 5)
     test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, edges_per_diameter=2.5)
     state, records = test.consolidate(max_steps=6000, chunk_steps=1000, record_every=100, tolerance=0.01)
     start = _consolidated_start(test, records)
@@ -274,7 +274,7 @@ def test_the_membranes_radial_stress_grows_with_the_hoop_strain_below_henkel_and
     (`membrane-corrections.md`, hoop tension): that formula puts the mid-height strain, the barrel's
     largest, on the whole height of a membrane free at its ends. 4 × 4 × 6 specimen, 10 kPa, 5 mm, float64;
     the issue-16 note gives the measured ratio (0.5–0.9 here, ~0.5 beyond 4 % at demo size)."""
-    specimen = packing.fcc_specimen(0.025, 4, 6)
+    specimen = fcc.fcc_specimen(0.025, 4, 6)
     test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, edges_per_diameter=3.0)
     state, records = test.consolidate(max_steps=20000, chunk_steps=1000, record_every=100, tolerance=0.01)
     start = _consolidated_start(test, records)
@@ -316,7 +316,7 @@ def test_a_ramped_rigid_wall_test_sets_the_platen_acceleration_of_its_ramp():
     lateral walls servo-held (infinite acceleration: no ramp), by hand."""
     from membrax.triaxial.rigid import rigid_wall_test
 
-    test = rigid_wall_test(packing.fcc_specimen(0.025, 3, 4), cell_pressure=1e4)
+    test = rigid_wall_test(fcc.fcc_specimen(0.025, 3, 4), cell_pressure=1e4)
     state = test.start_shear(test.initial_state, inertial_number=1e-3, ramp_strain=0.01)
     rate = test.shear_rate(1e-3)
     height = float(state.walls.position[0, TOP] + state.walls.position[0, BOTTOM])

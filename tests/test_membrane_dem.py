@@ -10,7 +10,7 @@ from membrax.membrane import coupled as membrane_dem
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import cylinder_mesh
-from membrax.spheres import packing
+from membrax.spheres import fcc
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
 from membrax.spheres.neighbors import pair_neighbor_fn
@@ -136,7 +136,7 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
     - the candidate table starts with one slot per node, too few where a node sees two spheres: the driver
       grows it on the overflow bit and reruns, so the final table holds every node's candidates.
     """
-    specimen = packing.fcc_specimen(0.025, 4, 5)
+    specimen = fcc.fcc_specimen(0.025, 4, 5)
     test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, candidate_capacity=1)
     state, records = test.consolidate(max_steps=3000, chunk_steps=1000, record_every=100, tolerance=0.01)
     assert int(state.error) == 0

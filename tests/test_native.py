@@ -796,7 +796,7 @@ def test_rollout_gradient_is_the_same_through_whole_windows_loop_windows_and_the
 def test_the_chunks_scheduler_option_changes_the_order_not_the_bits():
     """``native.compiler_options`` (XLA-CPU's memory-optimised scheduler) reorders a step's thunks; 300
     coupled steps of a consolidating specimen in float32, sheared by its servo, end on the same bits."""
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
     from membrax.triaxial import membrane_cell
 
     def run(options):
@@ -804,7 +804,7 @@ def test_the_chunks_scheduler_option_changes_the_order_not_the_bits():
         return jax.device_get(jax.jit(steps, compiler_options=options)(state))
 
     with jax.enable_x64(False):
-        specimen = packing.fcc_specimen(0.025, 4, 5)
+        specimen = fcc.fcc_specimen(0.025, 4, 5)
         test = membrane_cell.membrane_test(
             specimen, cell_pressure=1e4, membrane_thickness=0.005, edges_per_diameter=2.0
         )

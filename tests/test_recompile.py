@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from helpers import tolerance
 
-from membrax.spheres import packing
+from membrax.spheres import fcc
 from membrax.spheres.walls import set_control
 from membrax.triaxial.membrane_cell import membrane_test
 from membrax.triaxial.rigid import rigid_wall_test
@@ -39,7 +39,7 @@ def test_the_coupled_step_compiles_once_for_new_parameters_and_stages(float64):
 
 def _coupled_step_compiles_once():
     test = membrane_test(
-        packing.fcc_specimen(0.025, 4, 5),
+        fcc.fcc_specimen(0.025, 4, 5),
         cell_pressure=1e4,
         membrane_thickness=5e-3,
         edges_per_diameter=2.5,
@@ -72,7 +72,7 @@ def test_the_rigid_wall_step_compiles_once_for_new_parameters_and_stages(members
 
 def _rigid_wall_step_compiles_once(members):
     pressure = 40e3 if members == 1 else jnp.asarray([10e3, 40e3, 100e3])
-    test = rigid_wall_test(packing.fcc_specimen(0.025, 3, 4), pressure, time_step=1e-5)
+    test = rigid_wall_test(fcc.fcc_specimen(0.025, 3, 4), pressure, time_step=1e-5)
     step, traces = _counted(test.runner.step_fn)
     state, params = test.initial_state, test.params
     step(state, params)

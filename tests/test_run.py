@@ -12,7 +12,7 @@ from membrax import cli
 from membrax.config import TriaxialConfig
 from membrax.membrane import energies
 from membrax.run import CHECKPOINT_NAME, run_test
-from membrax.spheres import packing
+from membrax.spheres import fcc
 from membrax.triaxial.membrane_cell import membrane_test
 
 SMALL = dict(
@@ -33,7 +33,7 @@ SMALL = dict(
 
 @functools.cache
 def _consolidated(modulus_kpa, thickness_mm=5.0, bending_factor=1.0):
-    specimen = packing.fcc_specimen(0.025, 4, 5)
+    specimen = fcc.fcc_specimen(0.025, 4, 5)
     test = membrane_test(
         specimen,
         cell_pressure=1e4,

@@ -18,7 +18,7 @@ from membrax.config import ConfigError, TriaxialConfig
 from membrax.errors import RunError
 from membrax.io import read_results
 from membrax.run import run_test
-from membrax.spheres.packing import GRANITE_DENSITY
+from membrax.spheres.particles import GRANITE_DENSITY
 
 # Every test here runs a batched simulation (the module fixture alone takes about a minute).
 pytestmark = pytest.mark.slow

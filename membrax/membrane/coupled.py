@@ -71,6 +71,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 from membrax import native, pytree
+from membrax.compensated import compensated_add
 from membrax.defaults import MEMBRANE_MODULUS
 from membrax.errors import not_finite_bit
 from membrax.membrane import energies
@@ -99,7 +100,7 @@ from membrax.spheres.integrate import (
     sphere_dem,
 )
 from membrax.spheres.neighbors import PairNeighborFn
-from membrax.spheres.walls import BOTTOM, TOP, affine_velocity, compensated_add
+from membrax.spheres.walls import BOTTOM, TOP, affine_velocity
 from membrax.validation import check_range
 
 __all__ = [
@@ -343,7 +344,7 @@ def advance_nodes(membrane_force, contact_force, nodes: MembraneNodes, dt, dampi
 
     F = F_membrane + F_contact; F_d = F − α|F| sign(u) − γ m u, u = v − v_ref (``nodes.reference_velocity``,
     0 when None; :func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and
-    0 on the others (``nodes.free``); x' + c' = x + c + Δt v' (:func:`membrax.spheres.walls.compensated_add`).
+    0 on the others (``nodes.free``); x' + c' = x + c + Δt v' (:func:`membrax.compensated.compensated_add`).
     On the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
     ``membrane_nodes.cc``) does it, and reverse mode a compiled backward kernel
     (``membrane_nodes_backward``) that gives this JAX code's derivatives to round-off. The damping

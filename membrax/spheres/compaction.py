@@ -1,8 +1,8 @@
 """Random packings, second half: a loose cloud compacted in a rigid mould by radius expansion.
 
-Contract. :func:`compact` takes sphere diameters (:func:`membrax.spheres.random_packing.sample_diameters`)
+Contract. :func:`compact` takes sphere diameters (:func:`membrax.spheres.grading.sample_diameters`)
 and a cylindrical mould (diameter and height, m), places the spheres, shrunk, as a loose random cloud in the
-mould (:func:`membrax.spheres.random_packing.loose_cloud`), and grows them in the fixed mould until the mean
+mould (:func:`membrax.spheres.grading.loose_cloud`), and grows them in the fixed mould until the mean
 stress on the mould and its two platens is ``target_stress`` and the unbalanced-force ratio is below
 ``tolerance``. It returns a :class:`Compaction`: the centres and radii scaled back so that the radii are the
 sampled ones (the mould shrinks by the same factor: the specimen's diameter and height are the mould's over
@@ -83,9 +83,18 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.spatial
 
+from membrax.compensated import compensated_add
 from membrax.driver import advance
 from membrax.errors import SimulationError, describe
 from membrax.spheres.contact import ContactParams, normal_energy
+from membrax.spheres.fcc import fcc_specimen
+from membrax.spheres.grading import (
+    CLOUD_SOLID_FRACTION,
+    Grading,
+    RandomSpecimen,
+    loose_cloud,
+    sample_diameters,
+)
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -97,15 +106,8 @@ from membrax.spheres.integrate import (
 )
 from membrax.spheres.measure import unbalanced_force_ratio
 from membrax.spheres.neighbors import pair_neighbor_fn
-from membrax.spheres.packing import GRANITE_DENSITY, fcc_specimen
-from membrax.spheres.random_packing import (
-    CLOUD_SOLID_FRACTION,
-    Grading,
-    RandomSpecimen,
-    loose_cloud,
-    sample_diameters,
-)
-from membrax.spheres.walls import BOTTOM, TOP, compensated_add, triaxial_walls
+from membrax.spheres.particles import GRANITE_DENSITY
+from membrax.spheres.walls import BOTTOM, TOP, triaxial_walls
 from membrax.validation import check_range
 
 __all__ = [
@@ -191,7 +193,7 @@ class Compaction:
             return cls(position=np.array(data["position"]), radius=np.array(data["radius"]), **scalars)
 
     def specimen(self, grading: Grading | None = None) -> RandomSpecimen:
-        """The packing as a :class:`~membrax.spheres.random_packing.RandomSpecimen` (JAX's default float).
+        """The packing as a :class:`~membrax.spheres.grading.RandomSpecimen` (JAX's default float).
 
         Its ``packing_measures`` are :attr:`measures` and the compaction's stress: ``compaction_stress`` (Pa)
         and, where the stress jumped over the window (:attr:`stress_jump`), ``compaction_stress_below`` and

@@ -59,17 +59,17 @@ import numpy as np
 import scipy.sparse.linalg
 
 from membrax import native, pytree
+from membrax.compensated import compensated_add
 from membrax.defaults import DAMPING_FRAME, DAMPING_FRAMES
 from membrax.errors import ErrorCode, describe, not_finite_bit
 from membrax.spheres import contact
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.neighbors import PairNeighborFn, outside_box, remap_pair_history
-from membrax.spheres.packing import moment_of_inertia, particle_mass
+from membrax.spheres.particles import moment_of_inertia, particle_mass
 from membrax.spheres.walls import (
     WallState,
     advance_walls,
     affine_velocity,
-    compensated_add,
     ramped_velocity,
     servo_velocity,
 )

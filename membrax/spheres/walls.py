@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import pytree
+from membrax.compensated import compensated_add
 from membrax.validation import check_range
 
 __all__ = [
@@ -45,7 +46,6 @@ __all__ = [
     "affine_velocity",
     "change_speed",
     "advance_walls",
-    "compensated_add",
     "cross_section",
     "platen_separation",
     "ramp_acceleration",
@@ -68,7 +68,7 @@ class WallState:
       normal: (W, 3) outward unit normals, shared by all members.
       position: (B, W) plane positions h, m.
       position_compensation: (B, W) low-order part of h (compensated summation; h + this is exact to
-        ~float64 resolution even in float32, see :func:`membrax.spheres.integrate.compensated_add`).
+        ~float64 resolution even in float32, see :func:`membrax.compensated.compensated_add`).
       velocity: (B, W) dh/dt, m/s.
       target_velocity: (B, W) the velocity a constant-velocity wall ramps to, m/s (module docstring).
       acceleration: (B, W) the largest |dv/dt| of a constant-velocity wall, m/s² (inf: no ramp).
@@ -377,21 +377,6 @@ def change_speed(walls: WallState, factor: float, strain_rate: float, ramp_strai
         target_velocity=target.astype(walls.target_velocity.dtype),
         acceleration=acceleration.astype(walls.acceleration.dtype),
     )
-
-
-def compensated_add(value, compensation, increment):
-    """(value + increment) by compensated (Kahan–Babuška/Fast2Sum) summation.
-
-    Explicit DEM moves a body by ~1e-9 m per step, below float32 resolution at coordinates of 0.1 m
-    (ulp 7e-9 m): a plain sum loses the motion. The rounding error of each sum is carried in
-    ``compensation`` and fed back into the next increment, so value + compensation tracks the exact sum.
-
-    Returns:
-      (new value, new compensation).
-    """
-    corrected = increment + compensation
-    total = value + corrected
-    return total, corrected - (total - value)
 
 
 def advance_walls(walls: WallState, dt) -> WallState:

@@ -51,6 +51,8 @@ from membrax.membrane.coupled import (
 from membrax.membrane.measure import measure_coupled
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, inner_volume, prism_mesh
 from membrax.spheres.contact import ContactParams
+from membrax.spheres.fcc import Specimen
+from membrax.spheres.grading import RandomSpecimen
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -60,8 +62,7 @@ from membrax.spheres.integrate import (
     sphere_dem,
 )
 from membrax.spheres.neighbors import pair_neighbor_fn
-from membrax.spheres.packing import GRANITE_DENSITY, Specimen
-from membrax.spheres.random_packing import RandomSpecimen
+from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
 from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
@@ -239,7 +240,7 @@ def membrane_test(
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
 
     Args:
-      specimen: from :func:`membrax.spheres.packing.fcc_specimen`, or a random one
+      specimen: from :func:`membrax.spheres.fcc.fcc_specimen`, or a random one
         (:meth:`membrax.spheres.compaction.Compaction.specimen`: a cylindrical mesh of its diameter, every
         sphere a candidate of the node–sphere contact).
       cell_pressure: σc, Pa, > 0 (paper: 1e4, 4e4, 1e5).

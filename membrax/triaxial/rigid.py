@@ -29,6 +29,7 @@ import numpy as np
 from membrax import batch
 from membrax.driver import ChunkRunner
 from membrax.spheres.contact import ContactParams
+from membrax.spheres.fcc import Specimen
 from membrax.spheres.integrate import (
     DEFAULT_SAFETY,
     DampingParams,
@@ -40,7 +41,7 @@ from membrax.spheres.integrate import (
 )
 from membrax.spheres.measure import measure
 from membrax.spheres.neighbors import pair_neighbor_fn
-from membrax.spheres.packing import GRANITE_DENSITY, Specimen
+from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
 from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
@@ -158,7 +159,7 @@ def rigid_wall_test(
     """Build a rigid-wall triaxial test (module docstring) on a specimen, or on a folded batch of copies.
 
     Args:
-      specimen: from :func:`membrax.spheres.packing.fcc_specimen`.
+      specimen: from :func:`membrax.spheres.fcc.fcc_specimen`.
       cell_pressure: σc, Pa, > 0: a scalar, or one value per batch member (B,), which folds B copies of
         the specimen into one system (:mod:`membrax.batch`).
       contact_params: contact law (default: the paper's, :meth:`ContactParams.paper`); fields may be

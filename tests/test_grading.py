@@ -1,4 +1,4 @@
-"""Gradings sampled by mass and the loose random cloud (membrax.spheres.random_packing)."""
+"""Gradings sampled by mass and the loose random cloud (membrax.spheres.grading)."""
 
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from membrax.spheres.random_packing import (
+from membrax.spheres.grading import (
     OUTLINE_SIDES,
     Grading,
     RandomSpecimen,

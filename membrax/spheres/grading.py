@@ -16,7 +16,7 @@ n = f V_s / v̄ spheres of mean volume v̄ = (π/6) 2 (b − a) / (a⁻² − b�
 counts rounded by largest remainder, and its diameters are drawn from the inverse of F(d) = (a⁻² − d⁻²) /
 (a⁻² − b⁻²), stratified (one draw in each of n equal quantile strata) so that a bin of few spheres still
 spreads over its sizes. The sampled fractions differ from the curve by the rounding of the counts:
-at most about one sphere's mass per bin (:func:`mass_fractions`, ``tests/test_random_packing.py``).
+at most about one sphere's mass per bin (:func:`mass_fractions`, ``tests/test_grading.py``).
 
 The loose cloud is random sequential addition (the largest spheres first, each at uniform random positions
 until it overlaps none placed so far, found on a uniform cell grid): the cloud YADE's ``makeCloud`` and
@@ -305,7 +305,7 @@ def loose_cloud(
 class RandomSpecimen:
     """A cylindrical specimen of spheres at random positions (made by :mod:`membrax.spheres.compaction`).
 
-    It answers what the cells read of a specimen (:class:`membrax.spheres.packing.Specimen` is the FCC
+    It answers what the cells read of a specimen (:class:`membrax.spheres.fcc.Specimen` is the FCC
     one): centres and radii, the height, the cross-section and its outline, the characteristic diameter.
     z is vertical; the specimen stands on z = 0 and its axis is the z axis.
 

@@ -1,4 +1,4 @@
-"""membrax.spheres.packing against hand counts, FCC lattice geometry and closed-form porosities.
+"""membrax.spheres.fcc against hand counts, FCC lattice geometry and closed-form porosities.
 
 Units: m, kg. D = 25 mm spheres as in the paper unless stated. Neighbour searches use scipy's KD-tree on
 the built positions, independently of the integer-lattice arithmetic inside the builder.
@@ -14,7 +14,8 @@ from helpers import assert_close
 from scipy.spatial import cKDTree
 
 from membrax import theory
-from membrax.spheres import packing
+from membrax.spheres import fcc
+from membrax.spheres.particles import GRANITE_DENSITY, moment_of_inertia, particle_mass
 
 D = 0.025
 R = D / 2
@@ -22,7 +23,7 @@ R = D / 2
 
 @pytest.fixture(scope="module")
 def paper():
-    return packing.fcc_specimen(particle_diameter=D, width_spheres=10, height_layers=25)
+    return fcc.fcc_specimen(particle_diameter=D, width_spheres=10, height_layers=25)
 
 
 def _contact_pairs(specimen):
@@ -89,7 +90,7 @@ def test_tiny_specimen_counted_by_hand():
     # W = 4, L = 4, octagon: h = 1.5D and √2·h = 2.12D, so c = 2D.
     # Even layer: x, y ∈ {±0.5, ±1.5}D, 16 sites, minus the 4 corners (1.5, 1.5) with |x| + |y| = 3 > 2: 12.
     # Odd layer: x, y ∈ {−1, 0, 1}D, 9 sites, all with |x| + |y| ≤ 2: 9. N = 12 + 9 + 12 + 9 = 42.
-    tiny = packing.fcc_specimen(particle_diameter=D, width_spheres=4, height_layers=4)
+    tiny = fcc.fcc_specimen(particle_diameter=D, width_spheres=4, height_layers=4)
     assert tiny.centre_diagonal_limit == pytest.approx(2 * D, rel=1e-15)
     assert np.bincount(np.asarray(tiny.layer)).tolist() == [12, 9, 12, 9]
     assert tiny.num_particles == 42
@@ -101,7 +102,7 @@ def test_tiny_specimen_counted_by_hand():
 @pytest.mark.parametrize(("width", "layers"), [(2, 2), (3, 5), (4, 4), (7, 6), (10, 25)])
 def test_square_count_closed_form(width, layers):
     # Square: W² sites in the even layers, (W − 1)² in the odd ones.
-    specimen = packing.fcc_specimen(D, width, layers, cross_section="square")
+    specimen = fcc.fcc_specimen(D, width, layers, cross_section="square")
     expected = math.ceil(layers / 2) * width**2 + (layers // 2) * (width - 1) ** 2
     assert specimen.num_particles == expected
     assert specimen.cross_section_area == pytest.approx((width * D) ** 2, rel=1e-14)
@@ -176,7 +177,7 @@ def test_octagon_is_symmetric_and_centred(paper):
 def test_square_porosity_closed_form(width, layers):
     # Hand derivation for even L: N = (L/2)(W² + (W − 1)²), V = (W·D)²·((L − 1)/√2 + 1)·D, so
     # (1 − n)/(1 − n_FCC) = (W² + (W − 1)²)/(2W²) · L/(L − 1 + √2) = (1 − 1/W + 1/(2W²)) · L/(L − 1 + √2).
-    specimen = packing.fcc_specimen(D, width, layers, cross_section="square")
+    specimen = fcc.fcc_specimen(D, width, layers, cross_section="square")
     wall_factor = 1 - 1 / width + 1 / (2 * width**2)
     end_factor = layers / (layers - 1 + math.sqrt(2))
     expected = 1 - theory.FCC_SOLID_FRACTION * wall_factor * end_factor
@@ -189,7 +190,7 @@ def test_square_porosity_approaches_fcc_from_above():
     # 0.2884 for (W, L) = (4, 4), (8, 12), (16, 24), (32, 48): still 11 % above n_FCC = 0.2595 at W = 32
     # (22 % at W = 16). The wall voids dominate; within 2 % of n_FCC needs W, L of several hundred.
     sizes = [(4, 4), (8, 12), (16, 24), (32, 48)]
-    porosities = [packing.fcc_specimen(D, w, n, cross_section="square").porosity for w, n in sizes]
+    porosities = [fcc.fcc_specimen(D, w, n, cross_section="square").porosity for w, n in sizes]
     assert np.all(np.diff(porosities) < 0)
     for (width, layers), porosity in zip(sizes, porosities, strict=True):
         excess = porosity - theory.FCC_POROSITY
@@ -219,7 +220,7 @@ def test_lateral_boundary_equals_missing_contacts(cross_section, width):
     # Independent of the builder's lattice bookkeeping: a sphere in a full lattice has 4 contacts in its
     # layer and 4 in each existing adjacent layer; it is on the lateral boundary iff it has fewer.
     layers = 4
-    specimen = packing.fcc_specimen(D, width, layers, cross_section=cross_section)
+    specimen = fcc.fcc_specimen(D, width, layers, cross_section=cross_section)
     pairs, _ = _contact_pairs(specimen)
     counts = np.bincount(pairs.ravel(), minlength=specimen.num_particles)
     layer = np.asarray(specimen.layer)
@@ -230,7 +231,7 @@ def test_lateral_boundary_equals_missing_contacts(cross_section, width):
 @pytest.mark.parametrize("cross_section", ["octagon", "square"])
 @pytest.mark.parametrize("width", [3, 4, 5, 6, 7, 10, 13])
 def test_outline_faces_touch_and_are_not_penetrated(cross_section, width):
-    specimen = packing.fcc_specimen(D, width, 3, cross_section=cross_section)
+    specimen = fcc.fcc_specimen(D, width, 3, cross_section=cross_section)
     gaps = _face_gaps(specimen)
     assert gaps.min() >= -1e-12 * D  # nobody penetrates a wall
     touching = np.abs(gaps) < 1e-12 * D
@@ -264,7 +265,7 @@ def test_outline_faces_touch_paper_boundary(paper):
 
 @pytest.mark.parametrize("cross_section", ["octagon", "square"])
 def test_outline_vertices_polygon(paper, cross_section):
-    specimen = paper if cross_section == "octagon" else packing.fcc_specimen(cross_section="square")
+    specimen = paper if cross_section == "octagon" else fcc.fcc_specimen(cross_section="square")
     vertices = np.asarray(specimen.outline_vertices)
     normals, distances = (np.asarray(a) for a in specimen.outline_faces())
     assert len(vertices) == len(distances) == (8 if cross_section == "octagon" else 4)
@@ -307,12 +308,12 @@ def test_octagon_is_near_regular(paper):
 )
 def test_bad_inputs_raise_naming_the_argument(kwargs, name):
     with pytest.raises(ValueError, match=name):
-        packing.fcc_specimen(**kwargs)
+        fcc.fcc_specimen(**kwargs)
 
 
 def test_square_accepts_two_spheres_across():
     # W = 2: 4 spheres in the even layers, the single centre (0, 0) in the odd ones.
-    assert packing.fcc_specimen(width_spheres=2, height_layers=3, cross_section="square").num_particles == 9
+    assert fcc.fcc_specimen(width_spheres=2, height_layers=3, cross_section="square").num_particles == 9
 
 
 # ------------------------------------------------------------------------------------------------------
@@ -323,37 +324,37 @@ def test_square_accepts_two_spheres_across():
 def test_particle_mass_and_time_scale_by_hand(paper):
     # 2650 kg/m³ · π/6 · 0.025³ m³ = 2650 · 8.18123e-6 = 0.0216803 kg (the brief's 0.021679 was a slip in
     # the last digit); √(m/k) for k = 1e7 N/m is 4.656e-5 s (the issue quotes 4.7e-5 s).
-    mass = packing.particle_mass(R, packing.GRANITE_DENSITY)
+    mass = particle_mass(R, GRANITE_DENSITY)
     assert float(mass) == pytest.approx(2650 * math.pi / 6 * D**3, rel=1e-14)
     assert float(mass) == pytest.approx(0.0216803, abs=5e-8)
     assert math.sqrt(float(mass) / 1e7) == pytest.approx(4.656e-5, abs=5e-9)
     assert round(math.sqrt(float(mass) / 1e7), 6) == 4.7e-5
-    inertia = packing.moment_of_inertia(mass, R)
+    inertia = moment_of_inertia(mass, R)
     # I = 2/5 m R² = 0.4 · 0.0216803 kg · 1.5625e-4 m² = 1.35502e-6 kg·m².
     assert float(inertia) == pytest.approx(1.35502e-6, abs=5e-12)
-    assert_close(paper.mass(packing.GRANITE_DENSITY), np.full(1816, float(mass)), rtol=1e-15)
-    assert paper.mass(packing.GRANITE_DENSITY).dtype == jnp.float64  # tests run in x64
+    assert_close(paper.mass(GRANITE_DENSITY), np.full(1816, float(mass)), rtol=1e-15)
+    assert paper.mass(GRANITE_DENSITY).dtype == jnp.float64  # tests run in x64
 
 
 def test_mass_functions_under_jit_vmap_and_grad():
     radii = jnp.array([0.01, 0.0125, 0.02])
-    density = jnp.asarray(packing.GRANITE_DENSITY)
-    eager = packing.particle_mass(radii, density)
-    assert_close(jax.jit(packing.particle_mass)(radii, density), eager, rtol=1e-15)
-    assert_close(jax.vmap(packing.particle_mass, in_axes=(0, None))(radii, density), eager, rtol=1e-15)
-    inertia = packing.moment_of_inertia(eager, radii)
-    assert_close(jax.jit(packing.moment_of_inertia)(eager, radii), inertia, rtol=1e-15)
-    assert_close(jax.vmap(packing.moment_of_inertia)(eager, radii), inertia, rtol=1e-15)
+    density = jnp.asarray(GRANITE_DENSITY)
+    eager = particle_mass(radii, density)
+    assert_close(jax.jit(particle_mass)(radii, density), eager, rtol=1e-15)
+    assert_close(jax.vmap(particle_mass, in_axes=(0, None))(radii, density), eager, rtol=1e-15)
+    inertia = moment_of_inertia(eager, radii)
+    assert_close(jax.jit(moment_of_inertia)(eager, radii), inertia, rtol=1e-15)
+    assert_close(jax.vmap(moment_of_inertia)(eager, radii), inertia, rtol=1e-15)
     # dm/dR = 4πR²ρ.
-    gradient = jax.vmap(jax.grad(packing.particle_mass), in_axes=(0, None))(radii, density)
-    assert_close(gradient, 4 * math.pi * np.asarray(radii) ** 2 * packing.GRANITE_DENSITY, rtol=1e-14)
+    gradient = jax.vmap(jax.grad(particle_mass), in_axes=(0, None))(radii, density)
+    assert_close(gradient, 4 * math.pi * np.asarray(radii) ** 2 * GRANITE_DENSITY, rtol=1e-14)
 
 
 def test_mass_functions_reject_bad_inputs():
     with pytest.raises(ValueError, match="density"):
-        packing.particle_mass(R, -1.0)
+        particle_mass(R, -1.0)
     with pytest.raises(ValueError, match="radius"):
-        packing.moment_of_inertia(1.0, float("nan"))
+        moment_of_inertia(1.0, float("nan"))
 
 
 def test_specimen_is_a_pytree_with_static_parameters(paper):

@@ -1,4 +1,4 @@
-"""Face-centred cubic (FCC) specimens of equal spheres, and the mass properties of a sphere.
+"""Face-centred cubic (FCC) specimens of equal spheres.
 
 Contract: :func:`fcc_specimen` returns a :class:`Specimen`, a frozen pytree (:mod:`membrax.pytree`) whose
 array fields are the sphere centres ``position`` (N, 3) in metres, the radii (N,) in metres, the 0-based
@@ -6,8 +6,7 @@ array fields are the sphere centres ``position`` (N, 3) in metres, the radii (N,
 arrays come in JAX's default float dtype (float32, or float64 when the user enabled x64); this module
 never enables x64. The build parameters are static fields, and the derived geometry (height, outline,
 cross-section area, porosity, void ratio) are Python floats or small arrays computed from them, in SI units
-(m, m², m³). :func:`particle_mass` and :func:`moment_of_inertia` are pure ``jax.numpy`` and work under
-``jax.jit``, ``jax.vmap`` and ``jax.grad``.
+(m, m², m³). A sphere's mass and moment of inertia are in :mod:`membrax.spheres.particles`.
 
 Conventions. z is vertical and points up; the specimen stands on the plane z = 0, which the bottom spheres
 touch; its axis is the z axis (x = y = 0). Particles are ordered layer by layer (z ascending), then by y
@@ -36,20 +35,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import pytree
+from membrax.spheres.particles import particle_mass
 from membrax.validation import check_range
 
 __all__ = [
     "CROSS_SECTIONS",
-    "GRANITE_DENSITY",
     "Specimen",
     "fcc_specimen",
-    "moment_of_inertia",
-    "particle_mass",
     "with_imperfection",
 ]
-
-#: Particle density in kg/m³. The paper gives no density; 2650 kg/m³ is granite (assumed).
-GRANITE_DENSITY = 2650.0
 
 #: Accepted values of ``cross_section`` in :func:`fcc_specimen`.
 CROSS_SECTIONS = ("octagon", "square")
@@ -65,51 +59,6 @@ _OCTAGON_NORMALS = np.array(
     [(1.0, 0.0), (_DIAGONAL, _DIAGONAL), (0.0, 1.0), (-_DIAGONAL, _DIAGONAL), (-1.0, 0.0),
      (-_DIAGONAL, -_DIAGONAL), (0.0, -1.0), (_DIAGONAL, -_DIAGONAL)]
 )  # fmt: skip
-
-
-def _as_float(x):
-    """``jnp.asarray`` that turns integer input into the default float dtype (keeps float dtypes)."""
-    array = jnp.asarray(x)
-    if not jnp.issubdtype(array.dtype, jnp.floating):
-        array = array.astype(jnp.result_type(float))
-    return array
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Mass properties of a solid sphere
-# ---------------------------------------------------------------------------------------------------------
-
-
-def particle_mass(radius, density):
-    """Mass of a solid sphere, m = (4/3) π R³ ρ.
-
-    Args:
-      radius: R in m, > 0 (scalar or array; broadcasts with ``density``).
-      density: ρ in kg/m³, > 0 (e.g. :data:`GRANITE_DENSITY`).
-
-    Returns:
-      m in kg, in the float dtype of the inputs.
-    """
-    check_range("radius", radius, lower=0.0, lower_open=True, hint="Metres.")
-    check_range("density", density, lower=0.0, lower_open=True, hint="kg/m³, e.g. 2650 for granite.")
-    radius = _as_float(radius)
-    return (4.0 / 3.0 * math.pi) * _as_float(density) * radius**3
-
-
-def moment_of_inertia(mass, radius):
-    """Moment of inertia of a solid sphere about any axis through its centre, I = (2/5) m R².
-
-    Args:
-      mass: m in kg, > 0.
-      radius: R in m, > 0.
-
-    Returns:
-      I in kg·m², in the float dtype of the inputs.
-    """
-    check_range("mass", mass, lower=0.0, lower_open=True, hint="kg.")
-    check_range("radius", radius, lower=0.0, lower_open=True, hint="Metres.")
-    radius = _as_float(radius)
-    return 0.4 * _as_float(mass) * radius**2
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -269,7 +218,7 @@ class Specimen:
     # --- mass -------------------------------------------------------------------------------------------
 
     def mass(self, density):
-        """(N,) particle masses in kg for a density ρ in kg/m³; see :func:`particle_mass`."""
+        """(N,) particle masses in kg for a density ρ in kg/m³ (:mod:`membrax.spheres.particles`)."""
         return particle_mass(self.radius, density)
 
     def summary(self) -> str:
