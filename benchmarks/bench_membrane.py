@@ -7,7 +7,7 @@ triangles) wraps the specimen at t_m/2 outside the outline. For each dtype, in a
 - node–sphere contact forces (K = 3 candidate spheres per node, sphere sums over the slot incidence):
   evaluations/s;
 - one candidate-list rebuild (every sphere, through the cell list of
-  :func:`membrax.membrane.contact.build_candidates`): ms;
+  :func:`membrax.membrane.candidates.build_candidates`): ms;
 - the full coupled step (DEM + membrane + node–sphere contacts + candidate updates,
   :mod:`membrax.membrane.coupled`) of the paper-size specimen consolidating at 10 kPa in a 5 mm membrane:
   steps/s and particle-steps/s (spheres + nodes);
@@ -46,6 +46,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     import numpy as np
 
     from membrax import native
+    from membrax.membrane import candidates as membrane_candidates
     from membrax.membrane import contact as membrane_contact
     from membrax.membrane import energies
     from membrax.membrane.mesh import prism_mesh
@@ -87,9 +88,9 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     spheres = jnp.asarray(specimen.position)
     radius = jnp.asarray(specimen.radius)
     capacity = 3  # the coupled test's default K; at 10 kPa a node has at most 2 candidates
-    grid = membrane_contact.cell_grid(spheres, radius, 0.2 * diameter)
+    grid = membrane_candidates.cell_grid(spheres, radius, 0.2 * diameter)
     build = jax.jit(
-        lambda x: membrane_contact.build_candidates(
+        lambda x: membrane_candidates.build_candidates(
             x, spheres, radius, thickness, 0.2 * diameter, capacity, grid=grid
         )
     )

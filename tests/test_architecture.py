@@ -34,7 +34,14 @@ LAYERS = (
     ),
     ("defaults",),
     # specimen + membrane: geometry
-    ("spheres.particles", "spheres.fcc", "spheres.grading", "spheres.neighbors", "membrane.mesh"),
+    (
+        "spheres.particles",
+        "spheres.fcc",
+        "spheres.grading",
+        "spheres.neighbors",
+        "membrane.mesh",
+        "membrane.candidates",
+    ),
     # laws: contacts, walls and platens
     ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
     # step

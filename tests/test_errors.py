@@ -6,7 +6,7 @@ import numpy as np
 
 from membrax import errors
 from membrax.errors import ErrorCode
-from membrax.membrane import contact as membrane_contact
+from membrax.membrane import candidates as membrane_candidates
 from membrax.spheres import integrate
 
 
@@ -37,7 +37,7 @@ def test_the_module_aliases_are_the_same_bits():
     assert integrate.ERROR_NEIGHBOR_OVERFLOW is ErrorCode.NEIGHBOR_OVERFLOW
     assert integrate.ERROR_NOT_FINITE is ErrorCode.NOT_FINITE
     assert integrate.ERROR_OUTSIDE_BOX is ErrorCode.OUTSIDE_BOX
-    assert membrane_contact.ERROR_MEMBRANE_CANDIDATE_OVERFLOW is ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
+    assert membrane_candidates.ERROR_MEMBRANE_CANDIDATE_OVERFLOW is ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
     assert integrate.describe_errors is errors.describe
 
 

@@ -8,20 +8,22 @@ import numpy as np
 import pytest
 from helpers import tolerance
 
-from membrax.membrane.contact import (
+from membrax.membrane.candidates import (
     ERROR_MEMBRANE_CANDIDATE_OVERFLOW,
-    ContactNodes,
-    ContactSpheres,
-    MembraneContactParams,
     build_candidates,
     candidate_errors,
     cell_grid,
     needs_rebuild,
-    node_sphere_forces,
-    node_sphere_normal_energy,
     remap_node_history,
     sphere_slot_table,
     update_candidates,
+)
+from membrax.membrane.contact import (
+    ContactNodes,
+    ContactSpheres,
+    MembraneContactParams,
+    node_sphere_forces,
+    node_sphere_normal_energy,
 )
 
 THICKNESS = 0.005

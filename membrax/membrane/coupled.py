@@ -29,7 +29,7 @@ One step (explicit central differences, as the DEM; velocities at half steps):
    Clamped nodes (the two end rings, the O-rings) follow their platen rigidly:
    y = y_clamp + (z_platen − z_platen,0) e_z;
 5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
-   (:func:`membrax.membrane.contact.update_candidates`); an overflow sets
+   (:func:`membrax.membrane.candidates.update_candidates`); an overflow sets
    ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) in the DEM state's error bitmask,
    and the chunk driver reallocates a larger table and reruns the chunk.
 
@@ -75,20 +75,22 @@ from membrax.compensated import compensated_add
 from membrax.defaults import MEMBRANE_MODULUS
 from membrax.errors import not_finite_bit
 from membrax.membrane import energies
+from membrax.membrane.candidates import (
+    NodeCandidates,
+    build_candidates,
+    candidate_errors,
+    remap_node_history,
+    update_candidates,
+)
 from membrax.membrane.contact import (
     ContactNodes,
     ContactSpheres,
     MembraneContactParams,
-    NodeCandidates,
-    build_candidates,
-    candidate_errors,
     node_sphere_backward_kernel,
     node_sphere_forces,
     node_sphere_kernel,
     node_sphere_kernel_inputs,
     node_sphere_reference,
-    remap_node_history,
-    update_candidates,
 )
 from membrax.membrane.mesh import MembraneMesh, free_node_mask
 from membrax.spheres.integrate import (
@@ -837,7 +839,7 @@ def membrane_dem(
 
 
 class CandidateCapacities(NamedTuple):
-    """The static sizes of a node candidate table (:class:`~membrax.membrane.contact.NodeCandidates`).
+    """The static sizes of a node candidate table (:class:`~membrax.membrane.candidates.NodeCandidates`).
 
     Attributes:
       capacity: K, candidates per node.

@@ -23,7 +23,7 @@ with a leading time axis):
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
 :func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
 may touch any sphere (the candidate search runs over all of them through a cell list,
-:func:`membrax.membrane.contact.build_candidates`). Units: the builder takes laboratory units (kPa, mm),
+:func:`membrax.membrane.candidates.build_candidates`). Units: the builder takes laboratory units (kPa, mm),
 named in the arguments; everything inside is SI.
 """
 
