@@ -43,7 +43,7 @@ LAYERS = (
         "membrane.candidates",
     ),
     # laws: contacts, walls and platens
-    ("spheres.contact", "spheres.walls", "membrane.energies", "membrane.contact"),
+    ("spheres.contact", "spheres.walls", "membrane.energies", "membrane._kernels", "membrane.contact"),
     # step
     ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
     ("driver",),

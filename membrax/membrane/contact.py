@@ -59,6 +59,7 @@ import jax.numpy as jnp
 
 from membrax import native, pytree
 from membrax.fusion import materialize
+from membrax.membrane import _kernels
 from membrax.spheres.contact import normal_energy, tangential_spring_update
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
@@ -67,10 +68,7 @@ __all__ = [
     "ContactSpheres",
     "MembraneContactParams",
     "NodeSphereForces",
-    "node_sphere_backward_kernel",
     "node_sphere_forces",
-    "node_sphere_kernel",
-    "node_sphere_kernel_inputs",
     "node_sphere_normal_energy",
     "node_sphere_reference",
 ]
@@ -268,96 +266,14 @@ def node_sphere_forces(
     )
 
 
-# The kernels' side of the law. Each function below takes node_sphere_forces' first seven arguments, in
-# its order, so that membrax.membrane.coupled.node_step can chain these kernels with the others of a step.
-
-
-def node_sphere_kernel_inputs(nodes, spheres, candidates, spring, dt, params, membrane_thickness):
-    """The kernels' differentiable inputs, flat in their order (less the candidates), the scalars stacked.
-
-    Returns:
-      (x_node, v_node, x_sphere, v_sphere, ω_sphere, R, springs, (Δt, k_n, k_t, μ, t_m)), all of the node
-      positions' dtype: what :func:`membrax.native.pack_cotangents` carries the kernels' cotangents back
-      through to the arguments.
-    """
-    del candidates  # integer ids: passed to the kernels as they are, no cotangent
-    dtype = nodes.position.dtype
-    node_rows = (nodes.position, nodes.velocity)
-    sphere_rows = (spheres.position, spheres.velocity, spheres.angular_velocity, spheres.radius)
-    law = (params.normal_stiffness, params.tangential_stiffness, params.friction_coefficient)
-    return (
-        *native.in_dtype(dtype, *node_rows, *sphere_rows, spring),
-        native.stack_scalars(dtype, dt, *law, membrane_thickness),
-    )
-
-
-def _kernel_operands(args):
-    """The flat inputs, and the operands both kernels begin with (the int32 candidates before the springs)."""
-    flat = node_sphere_kernel_inputs(*args)
-    return flat, (*flat[:6], args[2].astype(jnp.int32), *flat[6:])  # between the sphere radii and the springs
-
-
-def node_sphere_kernel(*args):
-    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc).
-
-    The springs are updated in place (operand 7 to result 3): in a loop whose carry holds them, XLA then
-    needs no copy of the new ones into the carry.
-    """
-    flat, operands = _kernel_operands(args)
-    node_position, sphere_position, spring = flat[0], flat[2], flat[6]
-    dtype = node_position.dtype
-    rows = jax.ShapeDtypeStruct(node_position.shape, dtype)
-    sphere_rows = jax.ShapeDtypeStruct(sphere_position.shape, dtype)
-    return native.call(
-        "node_sphere_forces",
-        dtype,
-        (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
-        *operands,
-        input_output_aliases={7: 3},
-    )
-
-
-def _backward_node_sphere_forces(args, perturbed, cotangents):
-    """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
-    del perturbed  # it covers every differentiable argument
-    # The node addends are zero (this law's shares alone), two buffers: each is written in place.
-    position = args[0].position
-    position_addend, velocity_addend = jnp.zeros_like(position), jnp.zeros_like(position)
-    flat_cotangents = node_sphere_backward_kernel(args, cotangents, position_addend, velocity_addend)
-    return native.pack_cotangents(node_sphere_kernel_inputs, args, flat_cotangents)
-
-
-def node_sphere_backward_kernel(args, cotangents, position_addend, velocity_addend):
-    """``node_sphere_backward`` on :func:`node_sphere_forces`' first seven arguments: its flat cotangents.
-
-    Returns the cotangents of :func:`node_sphere_kernel_inputs`' arrays, from those of the four outputs of
-    :func:`node_sphere_kernel` (``cotangents``). The node position's and velocity's are the addends plus
-    this law's shares, in the addends' buffers, and the springs' is written over the springs' cotangent
-    (``cotangents[3]``): in-place updates (``input_output_aliases``: arguments 13, 14 and 12 to results
-    0, 1 and 6).
-    """
-    flat, operands = _kernel_operands(args)
-    dtype = flat[0].dtype
-    return native.call(
-        "node_sphere_backward",
-        dtype,
-        tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat),
-        *operands,
-        *(jnp.asarray(c, dtype) for c in cotangents),
-        position_addend.astype(dtype),
-        velocity_addend.astype(dtype),
-        input_output_aliases={12: 6, 13: 0, 14: 1},
-    )
-
-
 def node_sphere_reference(*args):
-    """The four outputs of :func:`node_sphere_kernel`, from the JAX law (the definition)."""
+    """The four outputs of the compiled node–sphere kernel (membrane/_kernels.py), from the JAX law."""
     result = _reference_node_sphere_forces(*args)
     return result.node_force, result.sphere_force, result.sphere_torque, result.spring
 
 
 _compiled_node_sphere_forces = native.with_reference(
-    node_sphere_kernel, node_sphere_reference, _backward_node_sphere_forces
+    _kernels.node_sphere_kernel, node_sphere_reference, _kernels.backward_node_sphere_forces
 )
 
 

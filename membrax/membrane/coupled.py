@@ -74,7 +74,7 @@ from membrax import native, pytree
 from membrax.compensated import compensated_add
 from membrax.defaults import MEMBRANE_MODULUS
 from membrax.errors import not_finite_bit
-from membrax.membrane import energies
+from membrax.membrane import _kernels, energies
 from membrax.membrane.candidates import (
     NodeCandidates,
     build_candidates,
@@ -86,10 +86,7 @@ from membrax.membrane.contact import (
     ContactNodes,
     ContactSpheres,
     MembraneContactParams,
-    node_sphere_backward_kernel,
     node_sphere_forces,
-    node_sphere_kernel,
-    node_sphere_kernel_inputs,
     node_sphere_reference,
 )
 from membrax.membrane.mesh import MembraneMesh, free_node_mask
@@ -367,100 +364,11 @@ def _advance_nodes_reference(membrane_force, contact_force, nodes: MembraneNodes
     return force, velocity, position, compensation
 
 
-def _node_update_inputs(nodes: MembraneNodes, dt, damping):
-    """The node update kernels' inputs after the two forces: x, c, v, v_ref, m and Δt, α, γ stacked."""
-    dtype = nodes.position.dtype
-    # One specimen's damping: the first entry of a per-member array.
-    damping_law = (jnp.ravel(damping.local_coefficient)[0], jnp.ravel(damping.viscous_rate)[0])
-    reference = nodes.reference_velocity
-    reference = jnp.zeros_like(nodes.velocity) if reference is None else reference  # 0: the absolute law
-    return (
-        *native.in_dtype(
-            dtype, nodes.position, nodes.position_compensation, nodes.velocity, reference, nodes.mass
-        ),
-        native.stack_scalars(dtype, dt, *damping_law),
-    )
-
-
-def _advance_nodes_inputs(membrane_force, contact_force, nodes: MembraneNodes, dt, damping):
-    """The kernels' differentiable inputs, flat (not ``nodes.free``): F_m, F_c, x, c, v, v_ref, m, Δt/α/γ."""
-    forces = native.in_dtype(nodes.position.dtype, membrane_force, contact_force)
-    return (*forces, *_node_update_inputs(nodes, dt, damping))
-
-
-def _advance_nodes_kernel(*args):
-    *vectors, mass, scalars = _advance_nodes_inputs(*args)
-    dtype = mass.dtype
-    rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
-    free = args[2].free
-    return native.call(
-        "membrane_nodes", dtype, (rows, rows, rows, rows), *vectors, mass, free.astype(dtype), scalars
-    )
-
-
-def _advance_nodes_residuals(args, outputs, perturbed):
-    """What ``membrane_nodes_backward`` reads, for reverse mode to keep (``native.with_reference``).
-
-    The total force F (the first output, in place of the two forces it sums), the velocities, masses, mask
-    and scalars; not the positions and compensations, which the backward kernel does not read.
-    """
-    del perturbed  # the backward kernel covers every argument
-    membrane_force, contact_force, nodes, *rest = args
-    force = outputs[0]
-    same = membrane_force.shape == force.shape and membrane_force.dtype == force.dtype
-    absent = native.Absent.like
-    return (
-        force if same else membrane_force,
-        absent(contact_force) if same else contact_force,
-        nodes.set(position=absent(nodes.position), position_compensation=absent(nodes.position_compensation)),
-        *rest,
-    )
-
-
-def _advance_nodes_backward(args, perturbed, cotangents):
-    """The compiled reverse-mode rule (``membrane_nodes_backward``), from the residuals above.
-
-    From the arguments themselves too: the two forces are summed here, as the forward kernel sums them.
-    """
-    del perturbed  # it covers every differentiable argument
-    total_kept = isinstance(args[1], native.Absent)  # the first slot then holds F itself
-    # Zeros stand in for what was not kept: only their shapes and dtypes reach the cotangents' packing.
-    args = native.zeros_for_absent(args)
-    force, position, velocity, reference_bar, mass_bar, scalars_bar = _advance_nodes_backward_kernel(
-        args, cotangents, total_kept
-    )
-    # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
-    flat = (force, force, position, position, velocity, reference_bar, mass_bar, scalars_bar)
-    return native.pack_cotangents(_advance_nodes_inputs, args, flat)
-
-
-def _advance_nodes_backward_kernel(args, cotangents, total_kept):
-    """``membrane_nodes_backward`` on :func:`advance_nodes`' arguments: (F̄, x̄, v̄, v̄_ref, m̄, (Δt, α, γ)̄).
-
-    ``total_kept``: the first argument is F itself (else the two forces, summed here as the forward kernel
-    sums them). The kernel never reads the compensation's cotangent (x' and c' share the position's), so
-    its buffer takes the positions' cotangent (argument 9 to result 1), a copy into a loop's carry saved.
-    """
-    *vectors, mass, scalars = _advance_nodes_inputs(*args)
-    dtype = mass.dtype
-    rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
-    return native.call(
-        "membrane_nodes_backward",
-        dtype,
-        (rows, rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
-        vectors[0] if total_kept else vectors[0] + vectors[1],
-        vectors[4],
-        vectors[5],
-        mass,
-        args[2].free.astype(dtype),
-        scalars,
-        *(jnp.asarray(c, dtype) for c in cotangents),
-        input_output_aliases={9: 1},
-    )
-
-
 _compiled_advance_nodes = native.with_reference(
-    _advance_nodes_kernel, _advance_nodes_reference, _advance_nodes_backward, _advance_nodes_residuals
+    _kernels.advance_nodes_kernel,
+    _advance_nodes_reference,
+    _kernels.advance_nodes_backward,
+    _kernels.advance_nodes_residuals,
 )
 
 
@@ -510,127 +418,23 @@ def node_step(
     return _COMPILED_NODE_STEP[model](nodes, spheres, candidates, spring, dt, params, damping, mesh)
 
 
-def _node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mesh):
-    """node_step's arguments split into the three laws' own: (contact, membrane, update).
-
-    ``contact`` is node_sphere_forces' first seven arguments, ``membrane`` nodal_forces' (less the model),
-    ``update`` advance_nodes' after its two forces.
-    """
-    contact = (nodes.for_contact(), spheres, candidates, spring, dt, params.contact, params.contact_thickness)
-    membrane = (
-        nodes.position,
-        mesh,
-        params.modulus,
-        params.thickness,
-        params.cell_pressure,
-        energies.LATEX_POISSON_RATIO,
-        params.bending_factor,
-    )
-    return contact, membrane, (nodes, dt, damping)
-
-
 def _node_step_reference(*args, model):
-    contact, membrane, update = _node_step_parts(*args)
+    contact, membrane, update = _kernels.node_step_parts(*args)
     contact_outputs = node_sphere_reference(*contact)
     internal = energies.reference_nodal_forces(*membrane, model)
     return (*contact_outputs, *_advance_nodes_reference(internal, contact_outputs[0], *update))
 
 
-def _node_step_kernel(*args, model):
-    contact, membrane, update = _node_step_parts(*args)
-    contact_outputs = node_sphere_kernel(*contact)
-    internal = energies.nodal_forces_kernel(*membrane, model)
-    return (*contact_outputs, *_advance_nodes_kernel(internal, contact_outputs[0], *update))
-
-
-def _node_step_kernel_inputs(*args):
-    """The three kernels' flat inputs from node_step's arguments, each array once.
-
-    The node–sphere law's (the node positions and velocities among them), the membrane forces' scalars,
-    and the node update's compensations, masses and scalars: what the chained backward kernels return
-    cotangents of.
-    """
-    contact, membrane, update = _node_step_parts(*args)
-    _, membrane_scalars = energies.nodal_forces_kernel_inputs(*membrane)
-    _, compensation, _, reference, mass, update_scalars = _node_update_inputs(*update)
-    return (
-        *node_sphere_kernel_inputs(*contact),
-        membrane_scalars,
-        compensation,
-        reference,
-        mass,
-        update_scalars,
-    )
-
-
-def _node_step_residuals(args, outputs, perturbed):
-    """What reverse mode keeps: the arguments but the compensation, which no kernel reads, and F."""
-    mesh_perturbed = perturbed[-1]  # node_step's last argument
-    if any(jax.tree.leaves(mesh_perturbed)):  # the reference's rule, from all the arguments
-        return args, None
-    nodes, *rest = args
-    compensation = native.Absent.like(nodes.position_compensation)
-    return (nodes.set(position_compensation=compensation), *rest), outputs[4]
-
-
-def _node_step_backward(residuals, perturbed, cotangents, model):
-    """The three backward kernels, chained: node update, membrane forces, node–sphere law."""
-    args, total_force = residuals
-    if total_force is None:
-        return native.reference_vjp(functools.partial(_node_step_reference, model=model), args, cotangents)
-    args = native.zeros_for_absent(args)
-    contact, membrane, (nodes, dt, damping) = _node_step_parts(*args)
-    params_perturbed = perturbed[5]  # node_step's MembraneParams
-    dtype = nodes.position.dtype
-    (
-        node_force_bar,
-        sphere_force_bar,
-        torque_bar,
-        spring_bar,
-        total_bar,
-        velocity_bar,
-        position_bar,
-        compensation_bar,
-    ) = (jnp.asarray(c, dtype) for c in cotangents)
-    # 4. The node update: F stands in for its two forces (its backward kernel reads only their sum).
-    update_args = (total_force, jnp.zeros_like(total_force), nodes, dt, damping)
-    force_bar, update_position_bar, update_velocity_bar, reference_bar, mass_bar, update_scalars_bar = (
-        _advance_nodes_backward_kernel(
-            update_args, (total_bar, velocity_bar, position_bar, compensation_bar), total_kept=True
-        )
-    )
-    # 2. The membrane forces: J ū added in place to the update's position cotangent (ū = F̄; the update's
-    # kernel copied it to update_position_bar, the compensation's).
-    position_sum, membrane_scalars_bar = energies.nodal_forces_backward_kernel(
-        membrane, force_bar, position_bar, bool(params_perturbed.bending_factor), model
-    )
-    # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).
-    contact_flat = node_sphere_backward_kernel(
-        contact,
-        (force_bar + node_force_bar, sphere_force_bar, torque_bar, spring_bar),
-        position_sum,
-        update_velocity_bar,
-    )
-    # The node positions' and velocities' cotangents are whole in the contact's; the membrane's and the
-    # update's scalars, the compensations', the reference velocities' and the masses' are packed beside
-    # them (Δt is shared).
-    flat = (
-        *contact_flat,
-        membrane_scalars_bar,
-        update_position_bar,
-        reference_bar,
-        mass_bar,
-        update_scalars_bar,
-    )
-    return native.pack_cotangents(_node_step_kernel_inputs, args, flat)
-
-
 _COMPILED_NODE_STEP = {
     model: native.with_reference(
-        functools.partial(_node_step_kernel, model=model),
+        functools.partial(_kernels.node_step_kernel, model=model),
         functools.partial(_node_step_reference, model=model),
-        functools.partial(_node_step_backward, model=model),
-        _node_step_residuals,
+        functools.partial(
+            _kernels.node_step_backward,
+            model=model,
+            reference=functools.partial(_node_step_reference, model=model),
+        ),
+        _kernels.node_step_residuals,
     )
     for model in energies.STRETCHING_MODELS
 }

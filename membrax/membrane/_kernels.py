@@ -1,0 +1,303 @@
+"""The membrane's compiled CPU kernels on the JAX side: flat inputs, calls, residuals, backward rules.
+
+Contract. Private to :mod:`membrax.membrane`. For each law with a kernel in :mod:`membrax.native`
+(the node–sphere contact, ``node_sphere.cc``; the node update, ``membrane_nodes.cc``; the three chained as
+one node step), the functions that turn the law's arguments into the kernel's flat operands
+(``*_inputs``), call the forward kernel (``*_kernel``), choose what reverse mode keeps (``*_residuals``)
+and run the backward kernels (``*_backward``). The laws themselves, their JAX definitions (the references)
+and their :func:`membrax.native.with_reference` bindings stay in :mod:`membrax.membrane.contact` and
+:mod:`membrax.membrane.coupled`, which import these.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from membrax import native
+from membrax.membrane import energies
+
+# The kernels' side of the law. Each function below takes node_sphere_forces' first seven arguments, in
+# its order, so that membrax.membrane.coupled.node_step can chain these kernels with the others of a step.
+
+
+def node_sphere_kernel_inputs(nodes, spheres, candidates, spring, dt, params, membrane_thickness):
+    """The kernels' differentiable inputs, flat in their order (less the candidates), the scalars stacked.
+
+    Returns:
+      (x_node, v_node, x_sphere, v_sphere, ω_sphere, R, springs, (Δt, k_n, k_t, μ, t_m)), all of the node
+      positions' dtype: what :func:`membrax.native.pack_cotangents` carries the kernels' cotangents back
+      through to the arguments.
+    """
+    del candidates  # integer ids: passed to the kernels as they are, no cotangent
+    dtype = nodes.position.dtype
+    node_rows = (nodes.position, nodes.velocity)
+    sphere_rows = (spheres.position, spheres.velocity, spheres.angular_velocity, spheres.radius)
+    law = (params.normal_stiffness, params.tangential_stiffness, params.friction_coefficient)
+    return (
+        *native.in_dtype(dtype, *node_rows, *sphere_rows, spring),
+        native.stack_scalars(dtype, dt, *law, membrane_thickness),
+    )
+
+
+def kernel_operands(args):
+    """The flat inputs, and the operands both kernels begin with (the int32 candidates before the springs)."""
+    flat = node_sphere_kernel_inputs(*args)
+    return flat, (*flat[:6], args[2].astype(jnp.int32), *flat[6:])  # between the sphere radii and the springs
+
+
+def node_sphere_kernel(*args):
+    """(node force, sphere force, sphere torque, new springs) from the compiled kernel (node_sphere.cc).
+
+    The springs are updated in place (operand 7 to result 3): in a loop whose carry holds them, XLA then
+    needs no copy of the new ones into the carry.
+    """
+    flat, operands = kernel_operands(args)
+    node_position, sphere_position, spring = flat[0], flat[2], flat[6]
+    dtype = node_position.dtype
+    rows = jax.ShapeDtypeStruct(node_position.shape, dtype)
+    sphere_rows = jax.ShapeDtypeStruct(sphere_position.shape, dtype)
+    return native.call(
+        "node_sphere_forces",
+        dtype,
+        (rows, sphere_rows, sphere_rows, jax.ShapeDtypeStruct(spring.shape, dtype)),
+        *operands,
+        input_output_aliases={7: 3},
+    )
+
+
+def backward_node_sphere_forces(args, perturbed, cotangents):
+    """The compiled reverse-mode rule (``node_sphere_backward``: the law of each touching slot backwards)."""
+    del perturbed  # it covers every differentiable argument
+    # The node addends are zero (this law's shares alone), two buffers: each is written in place.
+    position = args[0].position
+    position_addend, velocity_addend = jnp.zeros_like(position), jnp.zeros_like(position)
+    flat_cotangents = node_sphere_backward_kernel(args, cotangents, position_addend, velocity_addend)
+    return native.pack_cotangents(node_sphere_kernel_inputs, args, flat_cotangents)
+
+
+def node_sphere_backward_kernel(args, cotangents, position_addend, velocity_addend):
+    """``node_sphere_backward`` on :func:`node_sphere_forces`' first seven arguments: its flat cotangents.
+
+    Returns the cotangents of :func:`node_sphere_kernel_inputs`' arrays, from those of the four outputs of
+    :func:`node_sphere_kernel` (``cotangents``). The node position's and velocity's are the addends plus
+    this law's shares, in the addends' buffers, and the springs' is written over the springs' cotangent
+    (``cotangents[3]``): in-place updates (``input_output_aliases``: arguments 13, 14 and 12 to results
+    0, 1 and 6).
+    """
+    flat, operands = kernel_operands(args)
+    dtype = flat[0].dtype
+    return native.call(
+        "node_sphere_backward",
+        dtype,
+        tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat),
+        *operands,
+        *(jnp.asarray(c, dtype) for c in cotangents),
+        position_addend.astype(dtype),
+        velocity_addend.astype(dtype),
+        input_output_aliases={12: 6, 13: 0, 14: 1},
+    )
+
+
+def node_update_inputs(nodes, dt, damping):
+    """The node update kernels' inputs after the two forces: x, c, v, v_ref, m and Δt, α, γ stacked."""
+    dtype = nodes.position.dtype
+    # One specimen's damping: the first entry of a per-member array.
+    damping_law = (jnp.ravel(damping.local_coefficient)[0], jnp.ravel(damping.viscous_rate)[0])
+    reference = nodes.reference_velocity
+    reference = jnp.zeros_like(nodes.velocity) if reference is None else reference  # 0: the absolute law
+    return (
+        *native.in_dtype(
+            dtype, nodes.position, nodes.position_compensation, nodes.velocity, reference, nodes.mass
+        ),
+        native.stack_scalars(dtype, dt, *damping_law),
+    )
+
+
+def advance_nodes_inputs(membrane_force, contact_force, nodes, dt, damping):
+    """The kernels' differentiable inputs, flat (not ``nodes.free``): F_m, F_c, x, c, v, v_ref, m, Δt/α/γ."""
+    forces = native.in_dtype(nodes.position.dtype, membrane_force, contact_force)
+    return (*forces, *node_update_inputs(nodes, dt, damping))
+
+
+def advance_nodes_kernel(*args):
+    *vectors, mass, scalars = advance_nodes_inputs(*args)
+    dtype = mass.dtype
+    rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
+    free = args[2].free
+    return native.call(
+        "membrane_nodes", dtype, (rows, rows, rows, rows), *vectors, mass, free.astype(dtype), scalars
+    )
+
+
+def advance_nodes_residuals(args, outputs, perturbed):
+    """What ``membrane_nodes_backward`` reads, for reverse mode to keep (``native.with_reference``).
+
+    The total force F (the first output, in place of the two forces it sums), the velocities, masses, mask
+    and scalars; not the positions and compensations, which the backward kernel does not read.
+    """
+    del perturbed  # the backward kernel covers every argument
+    membrane_force, contact_force, nodes, *rest = args
+    force = outputs[0]
+    same = membrane_force.shape == force.shape and membrane_force.dtype == force.dtype
+    absent = native.Absent.like
+    return (
+        force if same else membrane_force,
+        absent(contact_force) if same else contact_force,
+        nodes.set(position=absent(nodes.position), position_compensation=absent(nodes.position_compensation)),
+        *rest,
+    )
+
+
+def advance_nodes_backward(args, perturbed, cotangents):
+    """The compiled reverse-mode rule (``membrane_nodes_backward``), from the residuals above.
+
+    From the arguments themselves too: the two forces are summed here, as the forward kernel sums them.
+    """
+    del perturbed  # it covers every differentiable argument
+    total_kept = isinstance(args[1], native.Absent)  # the first slot then holds F itself
+    # Zeros stand in for what was not kept: only their shapes and dtypes reach the cotangents' packing.
+    args = native.zeros_for_absent(args)
+    force, position, velocity, reference_bar, mass_bar, scalars_bar = advance_nodes_backward_kernel(
+        args, cotangents, total_kept
+    )
+    # x' = x + c + Δt v': the position and the compensation share a cotangent, as do the two forces.
+    flat = (force, force, position, position, velocity, reference_bar, mass_bar, scalars_bar)
+    return native.pack_cotangents(advance_nodes_inputs, args, flat)
+
+
+def advance_nodes_backward_kernel(args, cotangents, total_kept):
+    """``membrane_nodes_backward`` on :func:`advance_nodes`' arguments: (F̄, x̄, v̄, v̄_ref, m̄, (Δt, α, γ)̄).
+
+    ``total_kept``: the first argument is F itself (else the two forces, summed here as the forward kernel
+    sums them). The kernel never reads the compensation's cotangent (x' and c' share the position's), so
+    its buffer takes the positions' cotangent (argument 9 to result 1), a copy into a loop's carry saved.
+    """
+    *vectors, mass, scalars = advance_nodes_inputs(*args)
+    dtype = mass.dtype
+    rows = jax.ShapeDtypeStruct(vectors[0].shape, dtype)
+    return native.call(
+        "membrane_nodes_backward",
+        dtype,
+        (rows, rows, rows, rows, jax.ShapeDtypeStruct(mass.shape, dtype), jax.ShapeDtypeStruct((3,), dtype)),
+        vectors[0] if total_kept else vectors[0] + vectors[1],
+        vectors[4],
+        vectors[5],
+        mass,
+        args[2].free.astype(dtype),
+        scalars,
+        *(jnp.asarray(c, dtype) for c in cotangents),
+        input_output_aliases={9: 1},
+    )
+
+
+def node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mesh):
+    """node_step's arguments split into the three laws' own: (contact, membrane, update).
+
+    ``contact`` is node_sphere_forces' first seven arguments, ``membrane`` nodal_forces' (less the model),
+    ``update`` advance_nodes' after its two forces.
+    """
+    contact = (nodes.for_contact(), spheres, candidates, spring, dt, params.contact, params.contact_thickness)
+    membrane = (
+        nodes.position,
+        mesh,
+        params.modulus,
+        params.thickness,
+        params.cell_pressure,
+        energies.LATEX_POISSON_RATIO,
+        params.bending_factor,
+    )
+    return contact, membrane, (nodes, dt, damping)
+
+
+def node_step_kernel(*args, model):
+    contact, membrane, update = node_step_parts(*args)
+    contact_outputs = node_sphere_kernel(*contact)
+    internal = energies.nodal_forces_kernel(*membrane, model)
+    return (*contact_outputs, *advance_nodes_kernel(internal, contact_outputs[0], *update))
+
+
+def node_step_kernel_inputs(*args):
+    """The three kernels' flat inputs from node_step's arguments, each array once.
+
+    The node–sphere law's (the node positions and velocities among them), the membrane forces' scalars,
+    and the node update's compensations, masses and scalars: what the chained backward kernels return
+    cotangents of.
+    """
+    contact, membrane, update = node_step_parts(*args)
+    _, membrane_scalars = energies.nodal_forces_kernel_inputs(*membrane)
+    _, compensation, _, reference, mass, update_scalars = node_update_inputs(*update)
+    return (
+        *node_sphere_kernel_inputs(*contact),
+        membrane_scalars,
+        compensation,
+        reference,
+        mass,
+        update_scalars,
+    )
+
+
+def node_step_residuals(args, outputs, perturbed):
+    """What reverse mode keeps: the arguments but the compensation, which no kernel reads, and F."""
+    mesh_perturbed = perturbed[-1]  # node_step's last argument
+    if any(jax.tree.leaves(mesh_perturbed)):  # the reference's rule, from all the arguments
+        return args, None
+    nodes, *rest = args
+    compensation = native.Absent.like(nodes.position_compensation)
+    return (nodes.set(position_compensation=compensation), *rest), outputs[4]
+
+
+def node_step_backward(residuals, perturbed, cotangents, model, reference):
+    """The three backward kernels, chained: node update, membrane forces, node–sphere law.
+
+    ``reference``: node_step's JAX definition (the model bound), whose rule serves where the mesh's rest
+    geometry is differentiated.
+    """
+    args, total_force = residuals
+    if total_force is None:
+        return native.reference_vjp(reference, args, cotangents)
+    args = native.zeros_for_absent(args)
+    contact, membrane, (nodes, dt, damping) = node_step_parts(*args)
+    params_perturbed = perturbed[5]  # node_step's MembraneParams
+    dtype = nodes.position.dtype
+    (
+        node_force_bar,
+        sphere_force_bar,
+        torque_bar,
+        spring_bar,
+        total_bar,
+        velocity_bar,
+        position_bar,
+        compensation_bar,
+    ) = (jnp.asarray(c, dtype) for c in cotangents)
+    # 4. The node update: F stands in for its two forces (its backward kernel reads only their sum).
+    update_args = (total_force, jnp.zeros_like(total_force), nodes, dt, damping)
+    force_bar, update_position_bar, update_velocity_bar, reference_bar, mass_bar, update_scalars_bar = (
+        advance_nodes_backward_kernel(
+            update_args, (total_bar, velocity_bar, position_bar, compensation_bar), total_kept=True
+        )
+    )
+    # 2. The membrane forces: J ū added in place to the update's position cotangent (ū = F̄; the update's
+    # kernel copied it to update_position_bar, the compensation's).
+    position_sum, membrane_scalars_bar = energies.nodal_forces_backward_kernel(
+        membrane, force_bar, position_bar, bool(params_perturbed.bending_factor), model
+    )
+    # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).
+    contact_flat = node_sphere_backward_kernel(
+        contact,
+        (force_bar + node_force_bar, sphere_force_bar, torque_bar, spring_bar),
+        position_sum,
+        update_velocity_bar,
+    )
+    # The node positions' and velocities' cotangents are whole in the contact's; the membrane's and the
+    # update's scalars, the compensations', the reference velocities' and the masses' are packed beside
+    # them (Δt is shared).
+    flat = (
+        *contact_flat,
+        membrane_scalars_bar,
+        update_position_bar,
+        reference_bar,
+        mass_bar,
+        update_scalars_bar,
+    )
+    return native.pack_cotangents(node_step_kernel_inputs, args, flat)
