@@ -50,6 +50,8 @@ LAYERS = (
     # measurements
     ("spheres.measure", "membrane.measure"),
     # specimens made by a DEM run: the compaction of a random packing
+    ("spheres.mould",),
+    ("spheres.fire",),
     ("spheres.compaction",),
     # protocol: consolidation and shearing
     ("triaxial.protocol",),

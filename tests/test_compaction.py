@@ -15,17 +15,12 @@ import numpy as np
 import pytest
 
 from membrax.errors import SimulationError
-from membrax.spheres import compaction
-from membrax.spheres.compaction import (
-    Compaction,
-    _FireRelaxer,
-    compact,
-    mould_energy,
-    packing_measures,
-    random_packing,
-)
+from membrax.spheres import fire
+from membrax.spheres.compaction import Compaction, compact, packing_measures, random_packing
 from membrax.spheres.fcc import fcc_specimen
+from membrax.spheres.fire import FireRelaxer
 from membrax.spheres.grading import Grading, sample_diameters
+from membrax.spheres.mould import mould_energy
 
 DIAMETER = 0.025
 
@@ -115,20 +110,20 @@ def test_friction_during_compaction_leaves_a_looser_packing(dense, loose):
 def test_a_compacted_specimen_is_kept_on_disk_and_a_later_process_loads_it_unchanged(tmp_path, monkeypatch):
     """build_specimen compacts a random specimen once: a second "process" (the in-process store emptied)
     loads the very same packing from the cache folder instead of compacting again."""
-    from membrax import assemble, runner
+    from membrax import assemble
     from membrax.config import TriaxialConfig
 
     monkeypatch.setenv("MEMBRAX_CACHE_DIR", str(tmp_path))
-    monkeypatch.setattr(runner, "_RANDOM_SPECIMENS", {})
+    monkeypatch.setattr(assemble, "_RANDOM_SPECIMENS", {})
     config = TriaxialConfig(packing="random", specimen_diameter_mm=100.0, specimen_height_mm=100.0)
     first = assemble.build_specimen(config)
     (saved,) = (tmp_path / "specimens").glob("*.npz")
-    monkeypatch.setattr(runner, "_RANDOM_SPECIMENS", {})
+    monkeypatch.setattr(assemble, "_RANDOM_SPECIMENS", {})
 
     def compact_again(*args, **kwargs):
         raise AssertionError("the cached packing was compacted again")
 
-    monkeypatch.setattr(runner, "random_packing", compact_again)
+    monkeypatch.setattr(assemble, "random_packing", compact_again)
     second = assemble.build_specimen(config)
     np.testing.assert_array_equal(np.asarray(second.position), np.asarray(first.position))
     np.testing.assert_array_equal(np.asarray(second.radius), np.asarray(first.radius))
@@ -149,7 +144,7 @@ def test_a_compacted_specimen_is_kept_on_disk_and_a_later_process_loads_it_uncha
 JUMP_AT, STRESS_BELOW, STRESS_ABOVE = 1.0192651, 7.9e3, 10.9e3
 
 
-class _JumpRelaxer(_FireRelaxer):
+class _JumpRelaxer(FireRelaxer):
     """Spheres of 25 mm, k_n = 1e7 N/m, whose relaxed stress is a step at s* (as the device sees s).
 
     Each relaxation is at rest already (ratio 5e-4, no FIRE step), and returns positions tagged with the
@@ -219,15 +214,15 @@ def test_a_search_that_can_make_no_progress_ends_naming_its_state():
     relaxer = _JumpRelaxer("float64")
     with pytest.raises(SimulationError) as raised:
         relaxer.search(accept_jump=False)
-    assert len(relaxer.growths) == closing + compaction._IDLE_CALLS
+    assert len(relaxer.growths) == closing + fire.IDLE_CALLS
     message = str(raised.value)
     below = repr(float(np.nextafter(JUMP_AT, 0.0)))
     for part in (
-        f"{compaction._IDLE_CALLS} calls in a row",
+        f"{fire.IDLE_CALLS} calls in a row",
         f"bracket below s = {below} at 7900 Pa, above s = {JUMP_AT!r} at 10900 Pa",
         "unbalanced-force ratio 0.0005",
         "0 FIRE steps",
-        f"{closing + compaction._IDLE_CALLS} calls",
+        f"{closing + fire.IDLE_CALLS} calls",
         "stress_tolerance",
     ):
         assert part in message, message
@@ -267,7 +262,7 @@ def test_a_bracket_closed_on_a_state_short_of_rest_reopens_and_reaches_the_windo
     assert abs(growth / expected - 1.0) < 0.02 * 1e4 / (1e7 / DIAMETER)  # the window, in s
 
 
-class _OverflowingRelaxer(_FireRelaxer):
+class _OverflowingRelaxer(FireRelaxer):
     """A relaxer whose neighbour list overflows at every measure, even right after it is allocated."""
 
     def __init__(self):

@@ -24,7 +24,7 @@ normal force over the mould's area and σ_r the mould's radial force over its la
   packing's stiffness scale K = k_n/d̄ (σ ≈ 1.2 K ln(s/s_J) for an isostatic packing of coordination 6, so
   K underestimates dσ/d ln s): g = clip(servo_gain (σ_target − σ)/K, −servo_growth, servo_growth).
 
-Damping: Cundall's local damping (``local_damping``) and the MD quench of FIRE (:func:`_quench`: every
+Damping: Cundall's local damping (``local_damping``) and the MD quench of FIRE (:func:`quench`: every
 velocity is zeroed when the packing's power turns negative), which removes kinetic energy only.
 
 Friction during compaction (``friction_coefficient``, between spheres; mould and platens are smooth, a
@@ -33,41 +33,11 @@ fraction ≈ 0.64 for equal spheres, Agnolin & Roux 2007), a larger μ arrests t
 leaves a looser packing (≈ 0.59 at μ = 0.3, same source). The test sets its own friction afterwards; the
 contacts' tangential springs are not carried over.
 
-The mould wall is a true cylinder: a frictionless sphere of radius r at distance ρ from the axis overlaps it
-by δ = ρ + r − R_m, energy ½ k_w max(δ, 0)² (k_w the contact law's wall stiffness), force its gradient
-(:func:`mould_energy`).
+The mould: :mod:`membrax.spheres.mould`.
 
-Frictionless: FIRE. Near jamming a damped dynamics relaxes slowly (the critical slowing down of jamming:
-several 1e5 steps left the unbalanced-force ratio at 0.03 and the core coordination at 5.4–5.6). Without
-friction the forces are conservative, so the packing at rest is an energy minimum, and the protocol of
-O'Hern, Silbert, Liu & Nagel (2003, Phys. Rev. E 68, 011306) applies: the growth above stops when the
-running stress first reaches the target (the dense fluid's dynamic stress, not yet a jammed network's); then
-the growth factor is fixed and FIRE (``_FireRelaxer``; Bitzek et al. 2006) brings the spheres to rest; an
-unjammed result (stress below 1 % of the target) grows s by a doubling step, a jammed one corrects s by a
-secant step in ln s (bisecting once the target is bracketed), until the relaxed stress is within
-``stress_tolerance`` of the target. With friction the servo above runs to the end.
+Frictionless: FIRE (:mod:`membrax.spheres.fire`) brings the grown packing to rest and searches the growth
+factor for the target stress. With friction the servo above runs to the end.
 
-Stress jumps. A jammed packing's relaxed stress is not a continuous function of s: where the contact network
-rearranges it jumps, and FIRE from the last state can land on either branch. Measured on the paper-size
-specimen (``benchmarks/bench_compaction.py``, float64): seed 8 relaxed to 7.73 kPa at s = 1.0169722844042632
-and to 11.29 kPa at the next float64, nothing in the ±2 % window around 10 kPa; seed 5 from unjammed (~0)
-to 35.5 kPa. When the bracket in s has closed to round-off (no growth of the packing's dtype lies strictly
-between its ends) with no relaxed state in the window, the search relaxes to rest an end whose relaxation
-stopped short (far from the target FIRE stops once the stress settles). Near jamming a settled stress can
-be far from the stress at rest (the calibration grid's 300 × 600 mm seed-0 specimen: settled at 32.7 kPa,
-2.0 kPa relaxed on): an end that at rest lies on the other side of the target, or in the window, was a false
-end, and the search drops it and goes on from its state at rest. Otherwise it accepts the jammed state at
-rest (ratio below 10 × the FIRE tolerance, as in the window's test) nearest the target in ratio,
-|ln σ/σ_target| (its relaxed positions at its own growth), and records the jump in
-:attr:`Compaction.stress_jump`;
-``converged`` is True: the packing is jammed and at rest, and no growth the search can still try brings it
-nearer the target. Callers that need the window check ``stress_jump is None``.
-
-Budgets. Every host loop ends: the growth loop and each FIRE relaxation count steps against ``max_steps``
-and run at least one step per compiled chunk; a relaxation that gets no FIRE step from a neighbour list
-allocated afresh for its positions, and a search whose calls stop running FIRE steps without narrowing the
-bracket (:data:`_IDLE_CALLS` in a row), raise :class:`membrax.errors.SimulationError` naming the growth, the
-stress, the unbalanced-force ratio, the steps, the calls and the bracket.
 """
 
 from __future__ import annotations
@@ -83,11 +53,11 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.spatial
 
-from membrax.compensated import compensated_add
 from membrax.driver import advance
 from membrax.errors import SimulationError, describe
-from membrax.spheres.contact import ContactParams, normal_energy
+from membrax.spheres.contact import ContactParams
 from membrax.spheres.fcc import fcc_specimen
+from membrax.spheres.fire import FireRelaxer, quench, unbalanced_ratio
 from membrax.spheres.grading import (
     CLOUD_SOLID_FRACTION,
     Grading,
@@ -104,10 +74,10 @@ from membrax.spheres.integrate import (
     make_particles,
     sphere_dem,
 )
-from membrax.spheres.measure import unbalanced_force_ratio
+from membrax.spheres.mould import mould_energy, mould_mean_stress, mould_radial_load
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.particles import GRANITE_DENSITY
-from membrax.spheres.walls import BOTTOM, TOP, triaxial_walls
+from membrax.spheres.walls import triaxial_walls
 from membrax.validation import check_range
 
 __all__ = [
@@ -115,7 +85,6 @@ __all__ = [
     "Compaction",
     "compact",
     "compaction_time_step",
-    "mould_energy",
     "packing_measures",
     "random_packing",
 ]
@@ -123,15 +92,6 @@ __all__ = [
 #: The whole-specimen solid fraction :func:`random_packing` samples spheres for (the specimen's size then
 #: comes out as the requested one times (guess/achieved)^(1/3)).
 SOLID_FRACTION_GUESS = 0.58
-
-#: The calls in a row, each running no FIRE step and leaving the growth bracket as it was, after which the
-#: frictionless search stops (:class:`membrax.errors.SimulationError`). Such a call relaxed the positions it
-#: was given at a growth whose logarithm is already an end of the bracket (a secant step rounded onto it), so
-#: it learnt nothing; a step that finds anything new runs FIRE or narrows the bracket and resets the count.
-#: 64, the bits of a float64, is far more than roundings repeat in a row, and ends a stuck search within a
-#: second: an idle call is one force evaluation (on the paper-size seed-8 specimen, 1,740 spheres in
-#: float64, the search before jumps were accepted repeated 3,963 of them in 55 s).
-_IDLE_CALLS = 64
 
 
 @dataclasses.dataclass(frozen=True)
@@ -298,429 +258,6 @@ def packing_measures(
     }
 
 
-def mould_energy(position, radius, mould_radius, stiffness):
-    """Σ_i ½ k_w max(ρ_i + r_i − R_m, 0)², J: the spheres' overlap with a smooth cylinder on the z axis.
-
-    Args:
-      position: (N, 3) centres, m.
-      radius: (N,) radii, m.
-      mould_radius: R_m, m.
-      stiffness: k_w, N/m.
-    """
-    rho = jnp.sqrt(position[:, 0] ** 2 + position[:, 1] ** 2 + jnp.finfo(position.dtype).tiny)
-    return jnp.sum(normal_energy(rho + radius - mould_radius, stiffness))
-
-
-def _quench(before, after):
-    """Stop every sphere when the packing's power P = Σ F·v turns negative.
-
-    The MD quench of FIRE (Bitzek et al. 2006), with the step's own velocity change for F: it removes kinetic
-    energy only, at the moments the packing moves uphill in energy; a packing at rest is unchanged.
-    """
-    power = jnp.sum((after.velocity - before.velocity) * before.velocity) + jnp.sum(
-        (after.angular_velocity - before.angular_velocity) * before.angular_velocity
-    )
-    uphill = power < 0.0
-    return after.set(
-        velocity=jnp.where(uphill, 0.0, after.velocity),
-        angular_velocity=jnp.where(uphill, 0.0, after.angular_velocity),
-    )
-
-
-def _mould_radial_load(mould_force, position):
-    """The mould's radial load, N: the spheres push it outward by −Σ F_i·ρ̂_i (F_i its force on sphere i)."""
-    rho = jnp.sqrt(jnp.sum(position[:, :2] ** 2, axis=1)) + jnp.finfo(position.dtype).tiny
-    return -jnp.sum((mould_force[:, 0] * position[:, 0] + mould_force[:, 1] * position[:, 1]) / rho)
-
-
-def _mean_stress(wall_force, radial_load, mould_radius, mould_height):
-    """σ = (σ_a + 2σ_r)/3, Pa, of the mould and its platens.
-
-    σ_a is the platens' mean normal force (``wall_force``: one member's (W,) wall forces) over the mould's
-    area, σ_r the mould's radial load over its lateral area.
-    """
-    axial = 0.5 * (wall_force[BOTTOM] + wall_force[TOP]) / (math.pi * mould_radius**2)
-    return (axial + 2.0 * radial_load / (2.0 * math.pi * mould_radius * mould_height)) / 3.0
-
-
-def _unbalanced_ratio(net_force, forces, particles, neighbors):
-    """The packing's unbalanced-force ratio (:func:`membrax.spheres.measure.unbalanced_force_ratio`)."""
-    first = neighbors.idx[0]
-    pair_member = particles.member[jnp.where(first < particles.num_particles, first, 0)]
-    return unbalanced_force_ratio(net_force, forces, particles, pair_member)[0]
-
-
-class _FireRelaxer:
-    """Frictionless spheres at fixed radii relaxed to rest with FIRE, and the growth that gives a stress.
-
-    FIRE (Bitzek, Koskinen, Gähler, Moseler & Gumbsch 2006, Phys. Rev. Lett. 97, 170201): semi-implicit
-    Euler steps v ← v + Δt F/m, x ← x + Δt v, with, before each, the power P = F·v tested: downhill (P > 0)
-    the velocity is turned toward the force, v ← (1 − α) v + α |v| F̂, and after ``N_min`` downhill steps the
-    step grows (Δt ← min(f_inc Δt, Δt_max), α ← f_α α); uphill the spheres stop (v = 0), Δt ← f_dec Δt and α
-    is reset. The parameters are the paper's (N_min 5, f_inc 1.1, f_dec 0.5, α₀ 0.1, f_α 0.99, Δt_max 10 Δt).
-    It minimises the energy of the contacts, the platens and the mould, so it needs conservative forces: only
-    for frictionless spheres. Masses only set the path, not the minimum.
-    """
-
-    def __init__(self, particles, params, frame, template, dt, mould_radius, mould_height, chunk_steps):
-        self.particles, self.params, self.frame, self.template = particles, params, frame, template
-        self.dt, self.mould_radius, self.mould_height = dt, mould_radius, mould_height
-        self.chunk_steps = chunk_steps
-        self.neighbors = None
-        self._chunk = jax.jit(self._chunk_impl)
-        self._measure = jax.jit(self._measure_impl)
-
-    def _forces(self, position, compensation, neighbors, growth):
-        """(net force (N, 3), Forces, the mould's force on the spheres (N, 3)) at rest."""
-        zeros = jnp.zeros_like(position)
-        state = self.template.set(
-            position=position,
-            position_compensation=compensation,
-            velocity=zeros,
-            angular_velocity=zeros,
-            neighbors=neighbors,
-            pair_spring=jnp.zeros((neighbors.idx.shape[1], 3), position.dtype),
-        )
-        touching = self.particles.set(radius=growth * self.particles.radius)
-        forces = compute_forces(state, touching, self.params, self.dt, wall_friction=False)
-        stiffness = self.params.contact.wall_normal_stiffness
-        mould = -jax.grad(mould_energy)(position, touching.radius, self.mould_radius, stiffness)
-        return forces.force + mould, forces, mould
-
-    def _chunk_impl(self, carry, growth):
-        mass = self.particles.mass[:, None]
-        # Bitzek et al. cap the step at 10 Δt_MD; here Δt is already half the critical step of the stiffest
-        # (FCC) contact network, and a random packing's is larger but not known in advance: 1.8 Δt.
-        largest_step = 1.8 * self.dt
-
-        def fire_step(carry, _params):
-            position, compensation, velocity, neighbors, step, alpha, downhill_steps = carry
-            neighbors = self.frame.update(position, neighbors)
-            force, _, _ = self._forces(position, compensation, neighbors, growth)
-            power = jnp.sum(force * velocity)
-            downhill = power > 0.0
-            speed = jnp.sqrt(jnp.sum(velocity * velocity))
-            force_norm = jnp.sqrt(jnp.sum(force * force)) + jnp.finfo(force.dtype).tiny
-            mixed = (1.0 - alpha) * velocity + alpha * speed * force / force_norm
-            downhill_steps = jnp.where(downhill, downhill_steps + 1, 0)
-            speeding = downhill & (downhill_steps > 5)
-            step = jnp.where(speeding, jnp.minimum(1.1 * step, largest_step), step)
-            step = jnp.where(downhill, step, 0.5 * step)
-            alpha = jnp.where(speeding, 0.99 * alpha, jnp.where(downhill, alpha, 0.1))
-            velocity = jnp.where(downhill, mixed, 0.0) + step * force / mass
-            # Compensated: a step moves a sphere ~1e-9 m, below float32's resolution at 0.1 m.
-            position, compensation = compensated_add(position, compensation, step * velocity)
-            return position, compensation, velocity, neighbors, step, alpha, downhill_steps
-
-        return advance(fire_step, carry, None, self.chunk_steps)
-
-    def _measure_impl(self, position, compensation, neighbors, growth):
-        """(σ = (σ_a + 2σ_r)/3 in Pa, unbalanced-force ratio, neighbour overflow) of the spheres at rest."""
-        neighbors = self.frame.update(position, neighbors)
-        net, forces, mould = self._forces(position, compensation, neighbors, growth)
-        radial = _mould_radial_load(mould, position)
-        stress = _mean_stress(forces.wall_total_force[0], radial, self.mould_radius, self.mould_height)
-        ratio = _unbalanced_ratio(net, forces, self.particles, neighbors)
-        return stress, ratio, neighbors.did_buffer_overflow
-
-    def relax(self, position, growth, target, tolerance, max_steps, on_chunk=None, settle=True):
-        """FIRE at growth s until the unbalanced-force ratio is below ``tolerance``.
-
-        ``position`` is (x, compensation); returns ((x, compensation), σ, ratio, steps), the very arrays
-        given when it ran no step. ``settle`` False relaxes to ``tolerance`` even far from the target (a
-        state the search may accept, module docstring "Stress jumps"). Each pass measures, then runs a chunk
-        of ``chunk_steps`` steps or returns: at most ``max_steps`` / ``chunk_steps`` + 1 passes, plus one
-        neighbour-list reallocation per chunk.
-
-        Raises:
-          SimulationError: the neighbour list overflowed again at the positions it was just allocated for.
-        """
-        position, compensation = position
-        dtype = position.dtype
-        # One list for every relaxation (a new allocation may change its capacity and recompile the chunk).
-        if self.neighbors is None:
-            self.neighbors = self.frame.allocate(position)
-        neighbors = self.neighbors
-        carry = (
-            position,
-            compensation,
-            jnp.zeros_like(position),
-            neighbors,
-            jnp.asarray(self.dt, dtype),
-            jnp.asarray(0.1, dtype),
-            jnp.asarray(0, jnp.int32),
-        )
-        growth = jnp.asarray(growth, dtype)
-        steps, best, best_at, last_stress = 0, math.inf, 0, math.nan
-        calls, reallocated = 0, False
-        while True:
-            stress, ratio, overflow = (float(x) for x in self._measure(*carry[:2], carry[3], growth))
-            calls += 1
-            if overflow:
-                # A list allocated at these very positions holds their pairs: overflowing again, it never
-                # will (non-finite positions, or a sphere outside the list's box).
-                if reallocated:
-                    finite = bool(np.isfinite(np.asarray(carry[0])).all())
-                    raise SimulationError(
-                        f"compaction: the FIRE relaxation at growth factor s = {float(growth)!r} overflowed "
-                        f"its neighbour list again right after allocating it for the same positions (stress "
-                        f"{stress:.6g} Pa, unbalanced-force ratio {ratio:.3g}, {steps} FIRE steps, {calls} "
-                        f"calls, positions {'finite' if finite else 'NOT finite'}). "
-                        + (
-                            "A sphere has left the mould's neighbour box: check the mould's size against "
-                            "the spheres (mould_diameter, mould_height) and the contact stiffness."
-                            if finite
-                            else "The relaxation went unstable (FIRE's step is capped at 1.8 times "
-                            "compaction_time_step's): report the seed and the arguments of compact."
-                        )
-                    )
-                self.neighbors = self.frame.allocate(carry[0])
-                carry = (*carry[:3], self.neighbors, *carry[4:])
-                reallocated = True
-                continue
-            if on_chunk is not None and steps:
-                on_chunk(
-                    {
-                        "steps": steps,
-                        "stress": stress,
-                        "growth": float(growth),
-                        "unbalanced_force_ratio": ratio,
-                    }
-                )
-            # Unjammed (the contacts all open once at rest): nothing to converge, the growth must rise.
-            unjammed = steps > 0 and stress < 1e-2 * target
-            # At the round-off floor (float32: an unbalanced-force ratio of a few 1e-3) FIRE stalls.
-            if ratio < 0.9 * best:
-                best, best_at = ratio, steps
-            stalled = steps - best_at >= 5 * self.chunk_steps
-            # Far from the target, a settled stress is all the growth correction needs.
-            settled = settle and abs(stress - last_stress) < 0.01 * abs(stress - target) and ratio < 0.1
-            last_stress = stress
-            done = ratio < tolerance or unjammed or stalled or settled
-            if done or steps >= max_steps or not math.isfinite(ratio):
-                return carry[:2], stress, ratio, steps
-            carry = self._chunk(carry, growth)
-            steps += self.chunk_steps
-            reallocated = False
-
-    def relax_to_stress(
-        self,
-        position,
-        growth,
-        target,
-        stress_tolerance,
-        tolerance,
-        max_steps,
-        on_chunk=None,
-        accept_jump=True,
-    ):
-        """Relax, then correct the growth s until the relaxed stress is within ``stress_tolerance`` of target.
-
-        A jammed frictionless packing's stress rises about linearly in ln s above its jamming point. An
-        unjammed state (stress below 1 % of the target at rest) grows s by a step that doubles each time
-        (from Δ ln s = 1e-3); a jammed one takes a secant step in
-        ln s through the last jammed state (the first with the stiffness scale), bisecting instead once a
-        state below and one above the target bracket it. Where the stress jumps over the window, the bracket
-        closes to round-off and the jammed state at rest nearest the target is returned (module docstring,
-        "Stress jumps"; ``accept_jump`` False searches on, for tests of the budget).
-
-        Returns:
-          (positions, growth, stress, ratio, steps, converged, jump): ``jump`` None, or the
-          :attr:`Compaction.stress_jump` dict of an accepted jump.
-
-        Raises:
-          SimulationError: :data:`_IDLE_CALLS` calls in a row ran no FIRE step and left the bracket as it
-            was, or the bracket closed with no jammed state at rest to accept.
-        """
-        mean_diameter = float(2.0 * jnp.mean(self.particles.radius))
-        stiffness_scale = float(self.params.contact.normal_stiffness) / mean_diameter
-        first_increment = 1e-3  # Δ ln s of the first growth of an unjammed state: a jamming distance's scale
-        increment = first_increment
-        below, above, previous = -math.inf, math.inf, None
-        steps, stress, ratio = 0, math.nan, math.nan
-        # The device sees s rounded to the packing's dtype: the bracket is closed when none lies inside.
-        dtype = np.dtype(position[0].dtype)
-        # (growth, stress) at the bracket's ends; the jammed state at rest nearest the target.
-        low_end = high_end = closest = None
-        end_states = {}  # "below"/"above": the relaxed state at that end of the bracket
-        calls = idle = 0
-        window = (target, stress_tolerance, 10.0 * tolerance)
-        while steps < max_steps:
-            position, stress, ratio, used = self.relax(
-                position,
-                growth,
-                target,
-                tolerance,
-                max_steps - steps,
-                on_chunk=None
-                if on_chunk is None
-                else lambda info, done=steps: on_chunk({**info, "steps": done + info["steps"]}),
-            )
-            steps += used
-            calls += 1
-            if not math.isfinite(ratio):
-                break
-            at_rest = ratio < 10.0 * tolerance
-            if abs(stress / target - 1.0) < stress_tolerance and at_rest:
-                return position, growth, stress, ratio, steps, True, None
-            # Nearest in ratio, |ln σ/σ_target|: a jammed packing's stress spans decades above jamming, and a
-            # difference would rank a barely jammed state (−99 %) above one at 2.01 times the target. A tie
-            # goes to the later state: the bracket closes in, so it is the one nearer the jump.
-            if at_rest and stress >= 1e-2 * target:
-                if closest is None or abs(math.log(stress / target)) <= abs(math.log(closest[2] / target)):
-                    closest = (position, growth, stress, ratio)
-            bracket = (below, above)
-            log_growth = math.log(growth)
-            state = (position, growth, stress, ratio)
-            if stress < 1e-2 * target:  # unjammed
-                below, low_end, end_states["below"] = log_growth, (growth, stress), state
-                step_to = log_growth + increment
-                increment *= 2.0
-            else:
-                if stress < target:
-                    below, low_end, end_states["below"] = log_growth, (growth, stress), state
-                else:
-                    above, high_end, end_states["above"] = log_growth, (growth, stress), state
-                slope = stiffness_scale
-                # A secant needs two distinct growths (a bisection can land on the previous one).
-                if previous is not None and stress != previous[1] and log_growth != previous[0]:
-                    slope = max((stress - previous[1]) / (log_growth - previous[0]), 1e-2 * stiffness_scale)
-                previous = (log_growth, stress)
-                step_to = log_growth + (target - stress) / slope
-            # Progress: a FIRE step, or an end of the bracket moved in.
-            idle = 0 if used or below > bracket[0] or above < bracket[1] else idle + 1
-            where = (growth, stress, ratio, steps, calls, (low_end, high_end), window)
-            if idle >= _IDLE_CALLS:
-                raise SimulationError(
-                    f"compaction: the search for the growth factor made no progress in {idle} calls in a row "
-                    f"(no FIRE step, the bracket unchanged): {_describe_search(*where)}. No growth left to "
-                    "try reaches the window: widen stress_tolerance, or report the seed and the arguments "
-                    "of compact."
-                )
-            if accept_jump and low_end is not None and high_end is not None:
-                low, high = dtype.type(low_end[0]), dtype.type(high_end[0])
-                if not np.nextafter(low, high) < high:
-                    # Closed: every further growth would repeat an end's, so the nearest state at rest is the
-                    # answer. Only a jump gets here: one spacing of s (1.2e-7 in float32) moves a smooth
-                    # branch's stress by ~1.2 k_n/d̄ × 1.2e-7 ≈ 60 Pa at k_n/d̄ = 4e8 Pa, under the window's
-                    # 2 × 2 % of 10 kPa, so a bisection lands in the window before the bracket closes.
-                    # Unless an end was a settled state short of rest that, at rest, lies on the other side of
-                    # the target: then the bracket was false and the search goes on from that state.
-                    reopened, used = self._relax_ends(
-                        end_states, target, stress_tolerance, tolerance, max_steps - steps
-                    )
-                    steps += used
-                    if reopened is not None:
-                        position, growth, stress, ratio = end_states[reopened]
-                        if reopened == "above":
-                            above, high_end = math.inf, None
-                        else:
-                            below, low_end = -math.inf, None
-                        del end_states[reopened]
-                        # The unjammed calls inside the false bracket doubled the growth step (to e^(2^40)):
-                        # start again from the jamming distance's scale.
-                        previous, increment = None, first_increment
-                        continue
-                    closest, jump = self._accept_jump(end_states, closest, target, tolerance, where)
-                    return *closest, steps, True, jump
-            if not below < step_to < above:
-                step_to = 0.5 * (below + above)
-            growth = math.exp(step_to)
-        return position, growth, stress, ratio, steps, False, None
-
-    def _relax_ends(self, end_states, target, stress_tolerance, tolerance, max_steps):
-        """Relax to rest each end of a closed bracket whose relaxation stopped short of rest.
-
-        Far from the target FIRE stops once the stress settles, and near jamming a settled stress is not yet
-        the stress at rest: measured on the calibration grid's 300 × 600 mm specimen of 25 mm spheres, seed 0,
-        float64, a state that settled at 32.7 kPa (ratio 0.029) relaxed on to 2.0 kPa, under the 10 kPa
-        target, so the bracket it closed was false.
-
-        Args:
-          end_states: {"below", "above"}: (positions, s, σ, ratio) at the bracket's ends; updated in place
-            with the relaxed states.
-          target: the target stress, Pa.
-          stress_tolerance: the window's relative half-width.
-          tolerance: the FIRE tolerance (at rest below 10×).
-          max_steps: FIRE steps left.
-
-        Returns:
-          (the end, "below" or "above", whose state at rest crossed the target or lies in the window, or None;
-          FIRE steps used).
-        """
-        steps = 0
-        for end in ("above", "below"):
-            end_position, end_growth, end_stress, end_ratio = end_states[end]
-            if end_ratio < 10.0 * tolerance or end_stress < 1e-2 * target or steps >= max_steps:
-                continue
-            end_position, end_stress, end_ratio, used = self.relax(
-                end_position, end_growth, target, tolerance, max_steps - steps, settle=False
-            )
-            steps += used
-            end_states[end] = (end_position, end_growth, end_stress, end_ratio)
-            crossed = end_stress < target if end == "above" else end_stress >= target
-            in_window = abs(end_stress / target - 1.0) < stress_tolerance and end_ratio < 10.0 * tolerance
-            if crossed or in_window:
-                return end, steps
-        return None, steps
-
-    @staticmethod
-    def _accept_jump(end_states, closest, target, tolerance, where):
-        """The jammed state at rest nearest the target once the bracket closed on a jump (module docstring).
-
-        Args:
-          end_states: {"below", "above"}: (positions, s, σ, ratio) at the bracket's ends, relaxed to rest
-            where they were short of it (:meth:`_relax_ends`).
-          closest: the nearest state at rest so far, (positions, s, σ, ratio), or None.
-          target: the target stress, Pa.
-          tolerance: the FIRE tolerance (at rest below 10×).
-          where: the search's state for :func:`_describe_search`.
-
-        Returns:
-          (closest state, the :attr:`Compaction.stress_jump` dict).
-
-        Raises:
-          SimulationError: no jammed state at rest to accept.
-        """
-        for end_position, end_growth, end_stress, end_ratio in end_states.values():
-            if end_ratio < 10.0 * tolerance and end_stress >= 1e-2 * target:
-                if closest is None or abs(math.log(end_stress / target)) < abs(math.log(closest[2] / target)):
-                    closest = (end_position, end_growth, end_stress, end_ratio)
-        if closest is None:
-            raise SimulationError(
-                "compaction: the stress jumps over the window between neighbouring growths and no jammed "
-                f"state was at rest to accept: {_describe_search(*where)}. Lower fire_tolerance or raise "
-                "max_steps so that each relaxation reaches rest."
-            )
-        (_, growth_below, stress_below, _), (_, growth_above, stress_above, _) = (
-            end_states["below"],
-            end_states["above"],
-        )
-        jump = {
-            "stress_below": stress_below,
-            "stress_above": stress_above,
-            "growth_below": growth_below,
-            "growth_above": growth_above,
-            "stress_accepted": closest[2],
-        }
-        return closest, jump
-
-
-def _describe_search(growth, stress, ratio, steps, calls, ends, window) -> str:
-    """The state of :meth:`_FireRelaxer.relax_to_stress` in words, for an error message.
-
-    ``ends``: the bracket's (s, σ) ends, each None until set; ``window``: (target σ, its relative tolerance,
-    the unbalanced-force ratio at rest).
-    """
-    low, high = ("(none)" if end is None else f"s = {end[0]!r} at {end[1]:.6g} Pa" for end in ends)
-    target, stress_tolerance, at_rest = window
-    return (
-        f"growth factor s = {growth!r}, relaxed stress {stress:.6g} Pa (target {target:.6g} Pa "
-        f"± {stress_tolerance:.3g}), unbalanced-force ratio {ratio:.3g} (at rest below {at_rest:.3g}), "
-        f"{steps} FIRE steps, {calls} calls, bracket below {low}, above {high}"
-    )
-
-
 def compaction_time_step(smallest_diameter: float, contact_params: ContactParams, density: float) -> float:
     """Δt = ``DEFAULT_SAFETY`` × the critical step of an FCC block of the smallest spheres (s).
 
@@ -860,11 +397,11 @@ def compact(
         state_, growth, average = carry
         contact_radius = growth * particles.radius
         force = -jax.grad(mould_energy)(state_.position, contact_radius, mould_radius, wall_stiffness)
-        radial_load = _mould_radial_load(force, state_.position)
+        radial_load = mould_radial_load(force, state_.position)
         before = state_
-        state_ = _quench(before, step_fn(state_, params, sphere_force=force, contact_radius=contact_radius))
+        state_ = quench(before, step_fn(state_, params, sphere_force=force, contact_radius=contact_radius))
         # Collisions in the cloud load the walls in spikes; the control reads a running mean.
-        stress = _mean_stress(state_.walls.force[0], radial_load, mould_radius, mould_height)
+        stress = mould_mean_stress(state_.walls.force[0], radial_load, mould_radius, mould_height)
         average = average + (stress - average) / averaging_steps
         error = target_stress - average
         free = growth_rate * error / target_stress
@@ -882,7 +419,7 @@ def compact(
         net = forces.force - jax.grad(mould_energy)(
             state_.position, touching.radius, mould_radius, wall_stiffness
         )
-        return _unbalanced_ratio(net, forces, particles, state_.neighbors)
+        return unbalanced_ratio(net, forces, particles, state_.neighbors)
 
     carry = (state, jnp.asarray(start, dtype), jnp.asarray(0.0, dtype))
     began = time.perf_counter()
@@ -910,7 +447,7 @@ def compact(
             break
     position, jump = (state.position, state.position_compensation), None
     if frictionless and steps < max_steps:
-        relaxer = _FireRelaxer(particles, params, frame, state, dt, mould_radius, mould_height, chunk_steps)
+        relaxer = FireRelaxer(particles, params, frame, state, dt, mould_radius, mould_height, chunk_steps)
         position, growth, stress, ratio, fire_steps, converged, jump = relaxer.relax_to_stress(
             position,
             float(growth),
