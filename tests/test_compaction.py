@@ -206,7 +206,7 @@ def test_a_stress_jump_over_the_window_ends_on_the_closest_state_at_rest(dtype, 
 
 def test_a_search_that_can_make_no_progress_ends_naming_its_state():
     """The same jump with acceptance off: once the bracket has closed, every call repeats an end's growth
-    (no FIRE step, the bracket unchanged); after _IDLE_CALLS (64) of them the search raises, naming s,
+    (no FIRE step, the bracket unchanged); after fire.IDLE_CALLS (64) of them the search raises, naming s,
     the stress, the ratio, the steps, the calls and both ends of the bracket."""
     accepting = _JumpRelaxer("float64")
     accepting.search()
