@@ -31,10 +31,10 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
     import numpy as np
 
     from membrax import batch, native
-    from membrax.spheres import contact, integrate, packing
+    from membrax.spheres import contact, fcc, integrate
     from membrax.triaxial import rigid as triaxial
 
-    specimen = packing.fcc_specimen(0.025, width, layers)
+    specimen = fcc.fcc_specimen(0.025, width, layers)
     single = triaxial.rigid_wall_test(specimen, 40e3)
     state = single.set_walls(single.initial_state, True, 0.0, 40e3)
     _, step = integrate.sphere_dem(

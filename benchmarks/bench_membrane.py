@@ -50,7 +50,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     from membrax.membrane import contact as membrane_contact
     from membrax.membrane import energies
     from membrax.membrane.mesh import prism_mesh
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
     from membrax.triaxial import membrane_cell as membrane_triaxial
 
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
@@ -60,7 +60,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
 
         specimen = random_packing(Grading.equal(diameter), 0.25, 0.5).specimen()
     else:
-        specimen = packing.fcc_specimen(diameter, 10, 25)
+        specimen = fcc.fcc_specimen(diameter, 10, 25)
     mesh = prism_mesh(
         np.asarray(specimen.outline_vertices),
         0.5 * thickness,

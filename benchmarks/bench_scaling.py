@@ -29,10 +29,10 @@ def measure(dtype: str, across: int, layers: int, repeats: int) -> dict:
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
     from membrax import native
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
     from membrax.triaxial import membrane_cell
 
-    specimen = packing.fcc_specimen(0.025, across, layers)
+    specimen = fcc.fcc_specimen(0.025, across, layers)
     test = membrane_cell.membrane_test(specimen, cell_pressure=1e4, membrane_thickness=0.005)
     state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
     coupled = jax.jit(  # compiled as membrax compiles a run's chunks

@@ -108,10 +108,10 @@ def measure(dtype: str, repeats: int) -> dict:
     import jax.numpy as jnp
 
     from membrax import native
-    from membrax.spheres import packing
+    from membrax.spheres import fcc
     from membrax.triaxial import membrane_cell as membrane_triaxial
 
-    specimen = packing.fcc_specimen(0.025, 10, 25)
+    specimen = fcc.fcc_specimen(0.025, 10, 25)
     test = membrane_triaxial.membrane_test(
         specimen, cell_pressure=1e4, membrane_thickness=0.005, edges_per_diameter=5.0
     )

@@ -149,45 +149,6 @@ def _theory(_: argparse.Namespace) -> int:
     return 0
 
 
-def rigid_wall_demo(width_spheres: int = 6, height_layers: int = 8, cell_pressure_kpa: float = 40.0) -> str:
-    """Run a small rigid-wall FCC triaxial test and report its peak φ' beside Rowe's (the demo's job)."""
-    import time
-
-    from membrax.spheres import packing
-    from membrax.triaxial.rigid import peak, rigid_wall_test
-
-    start = time.perf_counter()
-    specimen = packing.fcc_specimen(paper.PARTICLE_DIAMETER_MM / 1000.0, width_spheres, height_layers)
-    test = rigid_wall_test(specimen, cell_pressure_kpa * 1e3)
-    state, consolidation = test.consolidate()
-    consolidation_steps = int(state.step)
-    state, shear = test.shear(state, target_axial_strain=0.01, inertial_number=1e-3)
-    love_weber, love_weber_strain = peak(shear)
-    wall, wall_strain = peak(shear, "wall_friction_angle")
-    rowe_exact = float(theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, theory.FCC))
-    rowe_paper = float(
-        theory.rowe_peak_friction_angle_deg(paper.INTERPARTICLE_FRICTION_DEG, theory.FCC_PAPER)
-    )
-    lines = [
-        _rule(
-            f"Rigid-wall FCC triaxial test, {cell_pressure_kpa:g} kPa, "
-            f"phi_mu = {paper.INTERPARTICLE_FRICTION_DEG:g} deg"
-        ),
-        specimen.summary(),
-        f"time step {test.dt:.3e} s (critical {test.critical_dt:.3e} s, rotation included)",
-        f"consolidation: {consolidation_steps} steps, unbalanced force ratio "
-        f"{consolidation.unbalanced_force_ratio[-1, 0]:.1e}",
-        f"shearing to 1 % at inertial number 1e-3: {int(state.step) - consolidation_steps} steps",
-        f"{'':<30}{'peak phi (deg)':>15}{'at strain (%)':>15}",
-        f"{'Love-Weber (contacts)':<30}{love_weber:>15.2f}{100 * love_weber_strain:>15.3f}",
-        f"{'walls':<30}{wall:>15.2f}{100 * wall_strain:>15.3f}",
-        f"{'Rowe, tan(alpha) = 2':<30}{rowe_exact:>15.2f}",
-        f"{'Rowe, alpha = 63.5 (paper)':<30}{rowe_paper:>15.2f}",
-        f"wall time {time.perf_counter() - start:.0f} s",
-    ]
-    return "\n".join(lines)
-
-
 def _run_config(config, out, resume: bool, progress: bool) -> int:
     from membrax.errors import RunError
     from membrax.run import run_test

@@ -28,7 +28,7 @@ import pytest
 
 from membrax import plots
 from membrax.membrane.mesh import cylinder_mesh, offset_polygon, prism_mesh
-from membrax.spheres import packing
+from membrax.spheres import fcc
 
 R = 0.13
 HEIGHT = 0.2
@@ -51,7 +51,7 @@ def cylinder():
 def specimen():
     # W = 4 octagon, hand count in units of D/2: even layers x, y ∈ {±1, ±3} with |x| + |y| <= c = 4
     # (c = 2·isqrt(⌊3²/2⌋) = 4): 16 − 4 corners (3, 3) = 12 spheres; odd layers x, y ∈ {0, ±2}: all 9.
-    return packing.fcc_specimen(particle_diameter=D, width_spheres=4, height_layers=3)
+    return fcc.fcc_specimen(particle_diameter=D, width_spheres=4, height_layers=3)
 
 
 @pytest.fixture(scope="module")
