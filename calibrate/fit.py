@@ -190,13 +190,15 @@ def predict(model, params: dict, table):
         return np.asarray(axial), np.asarray(radial)
 
 
-def cross_validated_predictions(model, table, groups=None, **fit_options):
+def cross_validated_predictions(model, table, groups=None, held_out=None, **fit_options):
     """(Δσ_a/σc, Δσ_r/σc) of every row, each predicted by a fit that left the row's group out.
 
     Args:
       model: a :class:`calibrate.models.CorrectionModel`.
       table: a :class:`calibrate.datasets.FittingTable`.
       groups: the label of each row's group (default ``table.case``: leave-one-case-out).
+      held_out: the groups to leave out and predict, one refit each (default: every group); the rows of
+        the others stay NaN.
       **fit_options: passed to :func:`fit`.
 
     Returns:
@@ -205,7 +207,7 @@ def cross_validated_predictions(model, table, groups=None, **fit_options):
     groups = table.case if groups is None else np.asarray(groups)
     axial = np.full(table.num_rows, np.nan)
     radial = np.full(table.num_rows, np.nan)
-    for group in np.unique(groups):
+    for group in np.unique(groups) if held_out is None else np.asarray(held_out):
         held = groups == group
         result = fit(model, table.select(~held), **fit_options)
         axial[held], radial[held] = predict(model, result.params, table.select(held))
