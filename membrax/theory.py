@@ -27,7 +27,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from membrax.validation import check_range
+from membrax.validation import as_float, check_range
 
 __all__ = [
     "FCC",
@@ -82,14 +82,6 @@ __all__ = [
 ]
 
 
-def _as_float(x):
-    """``jnp.asarray`` that turns integer input into the default float dtype (keeps float dtypes)."""
-    array = jnp.asarray(x)
-    if not jnp.issubdtype(array.dtype, jnp.floating):
-        array = array.astype(jnp.result_type(float))
-    return array
-
-
 _POSITIVE = {"lower": 0.0, "lower_open": True}
 _STRAIN = {"upper": 1.0, "upper_open": True}
 _STRAIN_HINT = "Strains are fractions (0.05 for 5 %), compression positive, and must stay below 1."
@@ -121,17 +113,17 @@ def stress_ratio(sigma_1, sigma_3):
       sigma_3: minor principal (radial) effective stress in the same unit, > 0.
     """
     check_range("sigma_3", sigma_3, **_POSITIVE)
-    return _as_float(sigma_1) / _as_float(sigma_3)
+    return as_float(sigma_1) / as_float(sigma_3)
 
 
 def mean_stress(sigma_1, sigma_3):
     """Mean stress p = (σ1 + 2σ3)/3 for axisymmetric (triaxial) conditions, in the unit of σ1 and σ3."""
-    return (_as_float(sigma_1) + 2.0 * _as_float(sigma_3)) / 3.0
+    return (as_float(sigma_1) + 2.0 * as_float(sigma_3)) / 3.0
 
 
 def deviator_stress(sigma_1, sigma_3):
     """Deviator stress q = σ1 − σ3, in the unit of σ1 and σ3."""
-    return _as_float(sigma_1) - _as_float(sigma_3)
+    return as_float(sigma_1) - as_float(sigma_3)
 
 
 def mobilised_friction_angle(sigma_1, sigma_3):
@@ -148,8 +140,8 @@ def mobilised_friction_angle(sigma_1, sigma_3):
     """
     check_range("sigma_1", sigma_1, **_POSITIVE)
     check_range("sigma_3", sigma_3, **_POSITIVE)
-    sigma_1 = _as_float(sigma_1)
-    sigma_3 = _as_float(sigma_3)
+    sigma_1 = as_float(sigma_1)
+    sigma_3 = as_float(sigma_3)
     return jnp.arcsin((sigma_1 - sigma_3) / (sigma_1 + sigma_3))
 
 
@@ -161,7 +153,7 @@ def mobilised_friction_angle_deg(sigma_1, sigma_3):
 def friction_angle_from_stress_ratio(ratio):
     """Friction angle (radians) from R = σ1/σ3: sin φ' = (R − 1)/(R + 1)   [C, reference §6]."""
     check_range("ratio", ratio, **_POSITIVE)
-    ratio = _as_float(ratio)
+    ratio = as_float(ratio)
     return jnp.arcsin((ratio - 1.0) / (ratio + 1.0))
 
 
@@ -175,14 +167,14 @@ def stress_ratio_from_friction_angle(friction_angle):
       R = σ1/σ3, dimensionless.
     """
     check_range("friction_angle", friction_angle, lower=-math.pi / 2, upper=math.pi / 2, upper_open=True)
-    sine = jnp.sin(_as_float(friction_angle))
+    sine = jnp.sin(as_float(friction_angle))
     return (1.0 + sine) / (1.0 - sine)
 
 
 def friction_angle_from_q_over_p(q_over_p):
     """Friction angle (radians) in triaxial compression from M = q/p: sin φ' = 3M/(6 + M)  [C, §9]."""
     check_range("q_over_p", q_over_p, lower=0.0, upper=3.0, upper_open=True)
-    q_over_p = _as_float(q_over_p)
+    q_over_p = as_float(q_over_p)
     return jnp.arcsin(3.0 * q_over_p / (6.0 + q_over_p))
 
 
@@ -215,7 +207,7 @@ def area_correction(initial_area, axial_strain, volumetric_strain=0.0):
     check_range("initial_area", initial_area, **_POSITIVE)
     check_range("axial_strain", axial_strain, **_STRAIN, hint=_STRAIN_HINT)
     check_range("volumetric_strain", volumetric_strain, **_STRAIN, hint=_STRAIN_HINT)
-    return _as_float(initial_area) * (1.0 - _as_float(volumetric_strain)) / (1.0 - _as_float(axial_strain))
+    return as_float(initial_area) * (1.0 - as_float(volumetric_strain)) / (1.0 - as_float(axial_strain))
 
 
 def radial_strain(axial_strain, volumetric_strain):
@@ -226,14 +218,14 @@ def radial_strain(axial_strain, volumetric_strain):
     """
     check_range("axial_strain", axial_strain, **_STRAIN, hint=_STRAIN_HINT)
     check_range("volumetric_strain", volumetric_strain, **_STRAIN, hint=_STRAIN_HINT)
-    return 1.0 - jnp.sqrt((1.0 - _as_float(volumetric_strain)) / (1.0 - _as_float(axial_strain)))
+    return 1.0 - jnp.sqrt((1.0 - as_float(volumetric_strain)) / (1.0 - as_float(axial_strain)))
 
 
 def radial_strain_small(axial_strain, volumetric_strain):
     """Small-strain radial strain εr ≈ (εv − εa)/2, from εv = εa + 2εr   [D, reference §9]."""
     check_range("axial_strain", axial_strain, **_STRAIN, hint=_STRAIN_HINT)
     check_range("volumetric_strain", volumetric_strain, **_STRAIN, hint=_STRAIN_HINT)
-    return 0.5 * (_as_float(volumetric_strain) - _as_float(axial_strain))
+    return 0.5 * (as_float(volumetric_strain) - as_float(axial_strain))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -291,7 +283,7 @@ def rowe_stress_ratio(interparticle_friction_angle, packing: RowePacking = FCC):
         upper_open=True,
         hint="Radians; use rowe_peak_friction_angle_deg for degrees.",
     )
-    return packing.tan_alpha * jnp.tan(_as_float(interparticle_friction_angle) + packing.beta)
+    return packing.tan_alpha * jnp.tan(as_float(interparticle_friction_angle) + packing.beta)
 
 
 def rowe_peak_friction_angle(interparticle_friction_angle, packing: RowePacking = FCC):
@@ -306,7 +298,7 @@ def rowe_peak_friction_angle(interparticle_friction_angle, packing: RowePacking 
 def rowe_peak_friction_angle_deg(interparticle_friction_angle_deg, packing: RowePacking = FCC):
     """:func:`rowe_peak_friction_angle` with φμ and the result in degrees."""
     check_range("interparticle_friction_angle_deg", interparticle_friction_angle_deg, **_ANGLE_DEG)
-    friction = jnp.deg2rad(_as_float(interparticle_friction_angle_deg))
+    friction = jnp.deg2rad(as_float(interparticle_friction_angle_deg))
     return jnp.rad2deg(rowe_peak_friction_angle(friction, packing))
 
 
@@ -326,12 +318,12 @@ def relative_density(void_ratio, void_ratio_min, void_ratio_max):
     check_range("void_ratio", void_ratio, **_POSITIVE)
     check_range("void_ratio_min", void_ratio_min, **_POSITIVE)
     check_range("void_ratio_max", void_ratio_max, **_POSITIVE)
-    e_min = _as_float(void_ratio_min)
-    e_max = _as_float(void_ratio_max)
+    e_min = as_float(void_ratio_min)
+    e_max = as_float(void_ratio_max)
     check_range(
         "void_ratio_max - void_ratio_min", e_max - e_min, **_POSITIVE, hint="e_max must exceed e_min."
     )
-    return (e_max - _as_float(void_ratio)) / (e_max - e_min)
+    return (e_max - as_float(void_ratio)) / (e_max - e_min)
 
 
 def relative_dilatancy_index(
@@ -357,11 +349,11 @@ def relative_dilatancy_index(
     """
     check_range("relative_density", relative_density, lower=0.0, upper=1.0)
     check_range("mean_effective_stress_kpa", mean_effective_stress_kpa, **_POSITIVE)
-    pressure = _as_float(mean_effective_stress_kpa)
+    pressure = as_float(mean_effective_stress_kpa)
     log_term = q_constant - jnp.log(pressure)
     if low_pressure_rule:
         log_term = jnp.where(pressure < 150.0, 5.0, log_term)
-    index = _as_float(relative_density) * log_term - r_constant
+    index = as_float(relative_density) * log_term - r_constant
     return jnp.clip(index, 0.0, 4.0) if clip else index
 
 
@@ -391,12 +383,12 @@ def bolton_peak_friction_angle_deg(
     index = relative_dilatancy_index(
         relative_density, mean_effective_stress_kpa, clip=clip, low_pressure_rule=low_pressure_rule
     )
-    return _as_float(critical_friction_angle_deg) + (5.0 if plane_strain else 3.0) * index
+    return as_float(critical_friction_angle_deg) + (5.0 if plane_strain else 3.0) * index
 
 
 def bolton_max_dilatancy_rate(relative_dilatancy_index_value):
     """Bolton's maximum dilatancy rate in triaxial compression, (−dεv/dε1)_max = 0.3 I_R   [C, §7]."""
-    return 0.3 * _as_float(relative_dilatancy_index_value)
+    return 0.3 * as_float(relative_dilatancy_index_value)
 
 
 def paper_eq1_peak_friction_angle_deg(
@@ -411,11 +403,11 @@ def paper_eq1_peak_friction_angle_deg(
     check_range("critical_friction_angle_deg", critical_friction_angle_deg, **_ANGLE_DEG)
     check_range("relative_density", relative_density, lower=0.0, upper=1.0)
     check_range("mean_effective_stress_kpa", mean_effective_stress_kpa, **_POSITIVE)
-    pressure = _as_float(mean_effective_stress_kpa)
+    pressure = as_float(mean_effective_stress_kpa)
     return (
-        3.0 * _as_float(relative_density) * (10.0 - jnp.log(pressure))
+        3.0 * as_float(relative_density) * (10.0 - jnp.log(pressure))
         - 1.0
-        + _as_float(critical_friction_angle_deg)
+        + as_float(critical_friction_angle_deg)
     )
 
 
@@ -437,9 +429,9 @@ def leps_friction_angle_deg(
       atmospheric_pressure_kpa: p_a, kPa.
     """
     check_range("confining_stress_kpa", confining_stress_kpa, **_POSITIVE)
-    return _as_float(reference_friction_angle_deg) - _as_float(
+    return as_float(reference_friction_angle_deg) - as_float(
         friction_angle_drop_per_log_cycle_deg
-    ) * jnp.log10(_as_float(confining_stress_kpa) / atmospheric_pressure_kpa)
+    ) * jnp.log10(as_float(confining_stress_kpa) / atmospheric_pressure_kpa)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -493,9 +485,9 @@ def molenkamp_luger_indentation_ratio(
     check_range("constant", constant, **_POSITIVE, hint="Molenkamp & Luger give 0.15–0.4.")
     return (
         constant
-        * (1.0 + _as_float(void_ratio)) ** (4.0 / 9.0)
-        * jnp.cbrt(_as_float(grain_diameter) / _as_float(membrane_thickness))
-        * jnp.cbrt(_as_float(effective_stress) / _as_float(membrane_modulus))
+        * (1.0 + as_float(void_ratio)) ** (4.0 / 9.0)
+        * jnp.cbrt(as_float(grain_diameter) / as_float(membrane_thickness))
+        * jnp.cbrt(as_float(effective_stress) / as_float(membrane_modulus))
     )
 
 
@@ -506,7 +498,7 @@ def molenkamp_luger_validity(
     ratio = molenkamp_luger_indentation_ratio(
         void_ratio, grain_diameter, membrane_thickness, effective_stress, membrane_modulus, constant
     )
-    thin = _as_float(membrane_thickness) / _as_float(grain_diameter) < 0.2
+    thin = as_float(membrane_thickness) / as_float(grain_diameter) < 0.2
     large = ratio > 0.2
     return MolenkampLugerValidity(thin_membrane=thin, large_deflection=large, valid=thin & large)
 
@@ -531,10 +523,8 @@ def baldi_nova_penetration(grain_diameter, effective_stress, membrane_modulus, m
     check_range("effective_stress", effective_stress, lower=0.0)
     check_range("membrane_modulus", membrane_modulus, **_POSITIVE)
     check_range("membrane_thickness", membrane_thickness, **_POSITIVE)
-    grain = _as_float(grain_diameter)
-    group = (
-        _as_float(effective_stress) * grain / (_as_float(membrane_modulus) * _as_float(membrane_thickness))
-    )
+    grain = as_float(grain_diameter)
+    group = as_float(effective_stress) * grain / (as_float(membrane_modulus) * as_float(membrane_thickness))
     return 0.5 * grain * jnp.cbrt(group)
 
 
@@ -548,7 +538,7 @@ def baldi_nova_volumetric_strain(penetration, specimen_diameter):
       specimen_diameter: D, > 0, same length unit.
     """
     check_range("specimen_diameter", specimen_diameter, **_POSITIVE)
-    return 4.0 * _as_float(penetration) / _as_float(specimen_diameter)
+    return 4.0 * as_float(penetration) / as_float(specimen_diameter)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -610,10 +600,10 @@ def membrane_bulge_pressure(membrane_modulus, membrane_thickness, aperture_radiu
     check_range("membrane_thickness", membrane_thickness, **_POSITIVE)
     check_range("aperture_radius", aperture_radius, **_POSITIVE)
     check_range("bulge_height", bulge_height, lower=0.0)
-    aperture = _as_float(aperture_radius)
-    shear_modulus = _as_float(membrane_modulus) / 3.0
-    tension_scale = shear_modulus * _as_float(membrane_thickness) / aperture
-    return tension_scale * _bulge_shape(_as_float(bulge_height) / aperture)
+    aperture = as_float(aperture_radius)
+    shear_modulus = as_float(membrane_modulus) / 3.0
+    tension_scale = shear_modulus * as_float(membrane_thickness) / aperture
+    return tension_scale * _bulge_shape(as_float(bulge_height) / aperture)
 
 
 def membrane_limit_pressure(membrane_modulus, membrane_thickness, aperture_radius):
@@ -633,9 +623,9 @@ def membrane_limit_pressure(membrane_modulus, membrane_thickness, aperture_radiu
     check_range("aperture_radius", aperture_radius, **_POSITIVE)
     return (
         BULGE_LIMIT_COEFFICIENT
-        * (_as_float(membrane_modulus) / 3.0)
-        * _as_float(membrane_thickness)
-        / _as_float(aperture_radius)
+        * (as_float(membrane_modulus) / 3.0)
+        * as_float(membrane_thickness)
+        / as_float(aperture_radius)
     )
 
 
@@ -680,8 +670,8 @@ def apply_membrane_correction(sigma_1, sigma_3, correction: MembraneCorrection) 
       correction: increments from one of the ``*_correction`` functions, in the same unit.
     """
     return CorrectedStresses(
-        sigma_1=_as_float(sigma_1) - correction.axial_stress,
-        sigma_3=_as_float(sigma_3) + correction.radial_stress,
+        sigma_1=as_float(sigma_1) - correction.axial_stress,
+        sigma_3=as_float(sigma_3) + correction.radial_stress,
     )
 
 
@@ -707,10 +697,10 @@ def astm_shell_correction(membrane_modulus, membrane_thickness, specimen_diamete
     check_range("axial_strain", axial_strain, **_STRAIN, hint=_STRAIN_HINT)
     axial = (
         4.0
-        * _as_float(membrane_modulus)
-        * _as_float(membrane_thickness)
-        * _as_float(axial_strain)
-        / _as_float(specimen_diameter)
+        * as_float(membrane_modulus)
+        * as_float(membrane_thickness)
+        * as_float(axial_strain)
+        / as_float(specimen_diameter)
     )
     return MembraneCorrection(axial_stress=axial, radial_stress=jnp.zeros_like(axial))
 
@@ -733,9 +723,9 @@ def henkel_gilbert_shell_correction(
     _check_membrane(membrane_modulus, membrane_thickness, "initial_diameter", initial_diameter)
     check_range("axial_strain", axial_strain, **_STRAIN, hint=_STRAIN_HINT)
     check_range("volumetric_strain", volumetric_strain, **_STRAIN, hint=_STRAIN_HINT)
-    axial_strain = _as_float(axial_strain)
-    diameter = _as_float(initial_diameter) * (1.0 - radial_strain(axial_strain, volumetric_strain))
-    extension_modulus = _as_float(membrane_modulus) * _as_float(membrane_thickness)
+    axial_strain = as_float(axial_strain)
+    diameter = as_float(initial_diameter) * (1.0 - radial_strain(axial_strain, volumetric_strain))
+    extension_modulus = as_float(membrane_modulus) * as_float(membrane_thickness)
     axial = 4.0 * extension_modulus * axial_strain / diameter
     return MembraneCorrection(axial_stress=axial, radial_stress=jnp.zeros_like(axial))
 
@@ -771,8 +761,8 @@ def hoop_tension_correction(
     check_range("axial_strain", axial_strain, **_STRAIN, hint=_STRAIN_HINT)
     check_range("volumetric_strain", volumetric_strain, **_STRAIN, hint=_STRAIN_HINT)
     check_range("unstretched_membrane_diameter", unstretched_membrane_diameter, **_POSITIVE)
-    initial_diameter = _as_float(initial_diameter)
-    extension_modulus = _as_float(membrane_modulus) * _as_float(membrane_thickness)
+    initial_diameter = as_float(initial_diameter)
+    extension_modulus = as_float(membrane_modulus) * as_float(membrane_thickness)
     if small_strain:
         hoop_strain = -radial_strain_small(axial_strain, volumetric_strain)
         radial = 2.0 * extension_modulus * hoop_strain / initial_diameter
@@ -818,11 +808,11 @@ def right_cylinder_shell_correction(
     check_range("poisson_ratio", poisson_ratio, lower=0.0, upper=0.5)
     strain_fn = radial_strain_small if small_strain else radial_strain
     hoop_strain = strain_fn(axial_strain, volumetric_strain)
-    axial_strain = _as_float(axial_strain)
-    stiffness = _as_float(membrane_modulus) * _as_float(membrane_thickness) / (1.0 - poisson_ratio**2)
+    axial_strain = as_float(axial_strain)
+    stiffness = as_float(membrane_modulus) * as_float(membrane_thickness) / (1.0 - poisson_ratio**2)
     axial_force = stiffness * (axial_strain + poisson_ratio * hoop_strain)
     hoop_tension = -stiffness * (hoop_strain + poisson_ratio * axial_strain)
-    diameter = _as_float(membrane_diameter)
+    diameter = as_float(membrane_diameter)
     radial = 2.0 * hoop_tension / diameter
     if clip_hoop_compression:
         radial = jnp.maximum(radial, 0.0)
@@ -845,7 +835,7 @@ def filter_paper_correction(filter_paper_load_per_length, covered_perimeter, spe
     check_range("covered_perimeter", covered_perimeter, lower=0.0)
     check_range("specimen_area", specimen_area, **_POSITIVE)
     check_range("axial_strain", axial_strain, lower=0.0, **_STRAIN, hint=_STRAIN_HINT)
-    full = _as_float(filter_paper_load_per_length) * _as_float(covered_perimeter) / _as_float(specimen_area)
-    axial_strain = _as_float(axial_strain)
+    full = as_float(filter_paper_load_per_length) * as_float(covered_perimeter) / as_float(specimen_area)
+    axial_strain = as_float(axial_strain)
     axial = jnp.where(axial_strain > 0.02, full, 50.0 * axial_strain * full)
     return MembraneCorrection(axial_stress=axial, radial_stress=jnp.zeros_like(axial))

@@ -6,6 +6,7 @@ and the offending value when a *concrete* input is NaN or out of range, and retu
 Inside ``jax.jit``, ``jax.vmap`` or ``jax.grad`` the inputs are tracers whose values are unknown, so the
 check is skipped there: a traced program carries no host-side checks (they would force a device sync and
 cannot raise anyway). Users who call the public functions eagerly, with numbers or arrays, get the check.
+``as_float`` turns the checked input into an array of a float dtype, as the laws compute in it.
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from __future__ import annotations
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-__all__ = ["check_range", "is_traced"]
+__all__ = ["as_float", "check_range", "is_traced"]
 
 
 def is_traced(value) -> bool:
@@ -71,3 +73,11 @@ def check_range(
         offending = array[bad].ravel()[0]
         shown = f"{offending:g}" if math.isfinite(offending) else str(offending)
         raise ValueError(f"{name} = {shown} is outside the accepted range {accepted}.{suffix}")
+
+
+def as_float(x):
+    """``jnp.asarray`` that turns integer input into JAX's default float dtype (float dtypes are kept)."""
+    array = jnp.asarray(x)
+    if not jnp.issubdtype(array.dtype, jnp.floating):
+        array = array.astype(jnp.result_type(float))
+    return array

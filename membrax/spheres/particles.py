@@ -10,22 +10,12 @@ from __future__ import annotations
 
 import math
 
-import jax.numpy as jnp
-
-from membrax.validation import check_range
+from membrax.validation import as_float, check_range
 
 __all__ = ["GRANITE_DENSITY", "moment_of_inertia", "particle_mass"]
 
 #: Particle density in kg/m³. The paper gives no density; 2650 kg/m³ is granite (assumed).
 GRANITE_DENSITY = 2650.0
-
-
-def _as_float(x):
-    """``jnp.asarray`` that turns integer input into the default float dtype (keeps float dtypes)."""
-    array = jnp.asarray(x)
-    if not jnp.issubdtype(array.dtype, jnp.floating):
-        array = array.astype(jnp.result_type(float))
-    return array
 
 
 def particle_mass(radius, density):
@@ -40,8 +30,8 @@ def particle_mass(radius, density):
     """
     check_range("radius", radius, lower=0.0, lower_open=True, hint="Metres.")
     check_range("density", density, lower=0.0, lower_open=True, hint="kg/m³, e.g. 2650 for granite.")
-    radius = _as_float(radius)
-    return (4.0 / 3.0 * math.pi) * _as_float(density) * radius**3
+    radius = as_float(radius)
+    return (4.0 / 3.0 * math.pi) * as_float(density) * radius**3
 
 
 def moment_of_inertia(mass, radius):
@@ -56,5 +46,5 @@ def moment_of_inertia(mass, radius):
     """
     check_range("mass", mass, lower=0.0, lower_open=True, hint="kg.")
     check_range("radius", radius, lower=0.0, lower_open=True, hint="Metres.")
-    radius = _as_float(radius)
-    return 0.4 * _as_float(mass) * radius**2
+    radius = as_float(radius)
+    return 0.4 * as_float(mass) * radius**2
