@@ -195,13 +195,12 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
         params.membrane.cell_pressure,
         params.membrane.bending_factor,
     )
-    columns = []
-    for column in np.eye(3 * mesh.num_nodes):
-        vector = jnp.asarray((column * scale).reshape(-1, 3))
-        product = membrane_dem._stiffness_product(
+    basis = jnp.asarray((np.eye(3 * mesh.num_nodes) * scale).reshape(-1, mesh.num_nodes, 3))
+    products = jax.vmap(
+        lambda vector: membrane_dem._stiffness_product(
             vector, mesh.reference_position, mesh, *stiffness, model="neo_hookean"
         )
-        columns.append(np.asarray(product).ravel() * scale)
-    dense = np.array(columns).T
+    )(basis)
+    dense = (np.asarray(products).reshape(basis.shape[0], -1) * scale).T  # column j: M^-1/2 K M^-1/2 e_j
     largest = np.linalg.eigvalsh(0.5 * (dense + dense.T))[-1]
     assert first["mesh"] == pytest.approx(2.0 / np.sqrt(largest), rel=1e-3)
