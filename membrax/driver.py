@@ -13,9 +13,15 @@ the host:
 - hands each accepted chunk to a hook (records, progress bars, checkpoints, VTK) that may end members'
   budgets early (a consolidation stop test).
 
-Its users: :class:`ChunkRunner` (one state: the stages of :class:`membrax.triaxial.protocol.StagedTest`,
-interactive use) and :class:`membrax.executor.BatchedTest` (stacked members: every run of
-:mod:`membrax.run` and :mod:`membrax.sweep`).
+Its users, each handing it a chunk and callbacks: :class:`ChunkRunner` (one state: the stages of
+:class:`membrax.triaxial.protocol.StagedTest`, interactive use), :class:`membrax.executor.BatchedTest`
+(stacked members: every run of :mod:`membrax.run` and :mod:`membrax.sweep`), the compaction of a random
+packing and its FIRE relaxations (:mod:`membrax.spheres.compaction`, :mod:`membrax.spheres.fire`: a
+chunk, then a measure that may end the budget), the continuation differences of
+:mod:`membrax.sensitivities` (relax until balanced) and the gradient rollouts of :mod:`membrax.gradients`
+(the whole compiled rollout is one chunk: an overflow grows the start states' tables and runs it again).
+``tests/test_architecture.py`` holds that no other loop launches a chunk or reads error bits. Every table
+grows through :func:`grow_tables`.
 
 The compiled chunk body is written once, here, and every loop over time steps in membrax is one of its
 two pieces: :func:`advance` (``num_steps`` steps, a ``lax.fori_loop``) and :func:`record_blocks`
@@ -34,13 +40,16 @@ import numpy as np
 
 from membrax import native
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
-from membrax.spheres.neighbors import PairNeighborFn, remap_pair_history
+from membrax.spheres.neighbors import PairNeighborFn, allocate_shared, remap_pair_history
 
 __all__ = [
+    "TABLE_GROWTH",
+    "TABLE_GROWTHS",
     "advance",
     "record_blocks",
     "ChunkRunner",
     "drive",
+    "grow_tables",
     "concatenate_records",
     "run_phases",
     "two_rate_plan",
@@ -81,6 +90,91 @@ def record_blocks(block: Callable, carry, num_records: int):
       (the final carry, the records stacked along a leading axis of ``num_records``).
     """
     return jax.lax.scan(lambda current, _: block(current), carry, None, length=num_records)
+
+
+#: The factor by which a neighbour list's pair capacity grows on an overflow.
+TABLE_GROWTH = 1.5
+
+#: Growths in a row, with no chunk accepted between them, after which :func:`drive` gives up: a chunk that
+#: still overflows tables 1.5^8 ≈ 26 times as large has run away (a sphere flung out, positions no longer
+#: finite), not outgrown them.
+TABLE_GROWTHS = 8
+
+
+def _itself(state):
+    return state
+
+
+def _replaced(_state, dem):
+    return dem
+
+
+def grow_tables(
+    states,
+    error: int,
+    frame: PairNeighborFn,
+    *,
+    dem_of: Callable = _itself,
+    with_dem: Callable = _replaced,
+    grow_membrane: Callable | None = None,
+    overflowed=None,
+    capacity_growth: float = TABLE_GROWTH,
+):
+    """The one table growth of membrax: larger neighbour lists and node candidate tables for ``states``.
+
+    On :attr:`ErrorCode.NEIGHBOR_OVERFLOW` every state's neighbour list is allocated afresh at its positions
+    with one shared capacity, at least ``capacity_growth`` × the old one (:func:`allocate_shared`: the lists
+    of a batch's members keep one shape, so they stack), and the tangential springs move to the new slots by
+    partner id (:func:`remap_pair_history`); on :attr:`ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`
+    ``grow_membrane`` grows the node candidate tables (:func:`membrax.membrane.coupled.grow_candidates`).
+    The runs' drivers (:meth:`ChunkRunner.grow`, :meth:`membrax.executor.BatchedTest.grow`), FIRE's
+    relaxation and the compaction call it from :func:`drive`'s ``grow``.
+
+    Args:
+      states: the states to grow (a list: one state, or the members of a batch).
+      error: the error bits (ORed over the members).
+      frame: the neighbour-list factory.
+      dem_of: ``dem_of(state)``: the sphere state, with ``position``, ``neighbors`` and ``pair_spring``
+        (None: no contact history, as in FIRE).
+      with_dem: ``with_dem(state, dem)``: the state with that sphere state put back.
+      grow_membrane: ``grow_membrane(states, overflowed) -> states`` with larger candidate tables, or None
+        (then a candidate overflow cannot be grown).
+      overflowed: the overflowing chunk's end state (its tables say how large the new ones must be).
+      capacity_growth: the pair capacity's growth factor; 1.0 rebuilds at the same capacity (the compiled
+        chunk is reused).
+
+    Returns:
+      The grown states (a list), or None if a table cannot be grown.
+    """
+    states = list(states)
+    if error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW and grow_membrane is None:
+        return None
+    if error & ErrorCode.NEIGHBOR_OVERFLOW:
+        dems = [dem_of(state) for state in states]
+        old = dems[0].neighbors
+        lists = allocate_shared(
+            frame,
+            [dem.position for dem in dems],
+            capacity=math.ceil(capacity_growth * int(old.max_occupancy)),
+            cell_capacity=int(old.cell_list_capacity or 0),
+        )
+        states = [
+            with_dem(
+                state,
+                dem.set(
+                    neighbors=new,
+                    pair_spring=None
+                    if dem.pair_spring is None
+                    else remap_pair_history(
+                        dem.neighbors.idx, new.idx, dem.pair_spring, int(np.shape(dem.position)[0])
+                    ),
+                ),
+            )
+            for state, dem, new in zip(states, dems, lists, strict=True)
+        ]
+    if error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW:
+        states = list(grow_membrane(states, overflowed))
+    return states
 
 
 def concatenate_records(chunks):
@@ -149,17 +243,46 @@ class ChunkRunner:
 
         Args:
           state: the state whose sphere state (``dem_of``) holds the list to rebuild.
-          capacity_growth: spare capacity as a fraction of the old capacity (default: the runner's, for an
-            overflow); 1.0 rebuilds without growing, so the compiled chunk is reused.
+          capacity_growth: the capacity's growth factor (default: the runner's, for an overflow); 1.0
+            rebuilds without growing, so the compiled chunk is reused.
         """
-        dem = self.dem_of(state)
-        old = dem.neighbors
         growth = self.capacity_growth if capacity_growth is None else capacity_growth
-        extra = int(np.ceil((growth - 1.0) * old.idx.shape[1]))
-        new = self.neighbor_frame.allocate(dem.position, extra_capacity=extra)
-        spring = remap_pair_history(old.idx, new.idx, dem.pair_spring, self.num_particles)
+        (state,) = grow_tables(
+            [state],
+            ErrorCode.NEIGHBOR_OVERFLOW,
+            self.neighbor_frame,
+            dem_of=self.dem_of,
+            with_dem=self.with_dem,
+            capacity_growth=growth,
+        )
         self.reallocations += 1
-        return self.with_dem(state, dem.set(neighbors=new, pair_spring=spring))
+        return state
+
+    def grow(self, state, error, overflowed):
+        """``state`` with the tables that overflowed (``error``) grown (:func:`grow_tables`), or None.
+
+        ``overflowed`` is the overflowing chunk's end state; :func:`drive`'s ``grow``.
+        """
+        grow_membrane = None
+        if self.grow_membrane is not None:
+
+            def grow_membrane(states, end):
+                return [self.grow_membrane(s, end) for s in states]
+
+        grown = grow_tables(
+            [state],
+            int(error[0]),
+            self.neighbor_frame,
+            dem_of=self.dem_of,
+            with_dem=self.with_dem,
+            grow_membrane=grow_membrane,
+            overflowed=overflowed,
+            capacity_growth=self.capacity_growth,
+        )
+        if grown is None:
+            return None
+        self.reallocations += 1
+        return grown[0]
 
     def run(
         self,
@@ -191,17 +314,6 @@ class ChunkRunner:
             new, records = self._chunk(current, params, num_records=num_records, record_every=record_every)
             return new, left - num_records * record_every, records, None
 
-        def grow(current, error, overflowed):
-            membrane_overflow = error[0] & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW
-            if membrane_overflow and self.grow_membrane is None:
-                return None
-            if error[0] & ErrorCode.NEIGHBOR_OVERFLOW:
-                current = self.reallocate(current)
-            if membrane_overflow:
-                current = self.grow_membrane(current, overflowed)
-                self.reallocations += 1
-            return current
-
         def fail(error, new, current):
             return SimulationError(
                 f"simulation stopped in the chunk ending at step {int(new.step)}: "
@@ -223,7 +335,7 @@ class ChunkRunner:
             record_every,
             chunk_steps,
             errors=lambda s: np.atleast_1d(np.asarray(s.error)),
-            grow=grow,
+            grow=self.grow,
             fail=fail,
             accept=accept,
         )
@@ -238,8 +350,10 @@ def drive(
     Each pass launches one compiled chunk of up to ``chunk_steps`` steps (whole records of
     ``record_every`` steps) for every member that still has steps in its budget, then on the host:
 
-    1. reads the error bits; on a table overflow (:data:`membrax.errors.OVERFLOWS`) grows the tables from
-       the chunk's *starting* state and reruns the chunk, so contacts are never dropped;
+    1. reads the error bits; on a table overflow (:data:`membrax.errors.OVERFLOWS`) alone grows the tables
+       from the chunk's *starting* state (``grow``, :func:`grow_tables`) and reruns the chunk, so contacts
+       are never dropped; :data:`TABLE_GROWTHS` growths in a row, or an overflow beside another error (a
+       run-away chunk overflows too), go to ``fail``;
     2. on any other error raises what ``fail`` builds (the state before the chunk is attached there), or,
        given ``isolate``, ends the budgets of the members in error and reruns the chunk for the others;
     3. accepts the chunk: ``accept`` stores its records, reports progress, writes checkpoints and names the
@@ -269,21 +383,24 @@ def drive(
     """
     left = np.ceil(np.asarray(budgets, dtype=np.float64) / record_every).astype(np.int64) * record_every
     records_per_chunk = max(1, chunk_steps // record_every)
+    growths = 0  # in a row, since the last accepted chunk
     while left.max(initial=0) > 0:
         count = min(records_per_chunk, math.ceil(left.max() / record_every))
         new_state, new_left, records, valid = chunk(state, left, count)
-        error = errors(new_state)
+        error = np.asarray(errors(new_state))
         if isolate is not None and np.any(error & ~OVERFLOWS):
             left = np.asarray(isolate(error & ~OVERFLOWS, new_state, left), dtype=np.int64).copy()
             continue
-        if np.any(error & OVERFLOWS):
+        # A chunk that also ran away (not finite, out of the box) overflows its tables too: growing them
+        # would only run it away again.
+        if np.any(error & OVERFLOWS) and not np.any(error & ~OVERFLOWS) and growths < TABLE_GROWTHS:
             grown = grow(state, error, new_state)
             if grown is not None:
-                state = grown
+                state, growths = grown, growths + 1
                 continue
         if np.any(error):
             raise fail(error, new_state, state)
-        state = new_state
+        state, growths = new_state, 0
         left = np.asarray(new_left, dtype=np.int64).copy()
         for member in accept(state, records, valid, left):
             left[member] = 0

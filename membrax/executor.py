@@ -26,13 +26,12 @@ from collections.abc import Callable, Sequence
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax_md.partition import NeighborListFormat
 
 from membrax import native
 from membrax.assemble import BATCHED_FIELDS, build_test, common_nodes_around, loading, structure_key
 from membrax.batch import stack
 from membrax.config import TriaxialConfig
-from membrax.driver import advance, drive, record_blocks
+from membrax.driver import advance, drive, grow_tables, record_blocks
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
 from membrax.membrane.coupled import (
     CandidateCapacities,
@@ -40,7 +39,7 @@ from membrax.membrane.coupled import (
     grow_candidates,
     grown_candidate_capacities,
 )
-from membrax.spheres.neighbors import remap_pair_history
+from membrax.spheres.neighbors import allocate_shared
 from membrax.triaxial.protocol import PHASES
 
 __all__ = [
@@ -77,38 +76,6 @@ def _members(tree, count: int) -> list:
     """
     host = jax.device_get(tree)
     return [jax.tree_util.tree_map(lambda leaf, b=b: np.asarray(leaf)[b], host) for b in range(count)]
-
-
-def _shared_neighbors(frame, positions: Sequence, capacity: int = 0, cell_capacity: int = 0) -> list:
-    """One neighbour list per member with identical static structure (capacities), so they stack.
-
-    jax-md keeps the list's capacity and cell-list capacity as static fields (and a fresh cell-list
-    closure per allocation), so lists allocated separately do not stack. Every member's list is rebuilt
-    here from one template with the largest capacities needed (at least ``capacity``/``cell_capacity``):
-    the template's reference position is moved away, which makes ``update`` rebuild at the member's
-    positions. Real pairs come out in the same order as an allocation of their own; only the padding differs.
-    """
-    positions = [jnp.asarray(p) for p in positions]
-    while True:
-        allocated = [frame.allocate(p) for p in positions]
-        occupancy = max([capacity] + [int(nl.max_occupancy) for nl in allocated])
-        cells = max([cell_capacity] + [int(nl.cell_list_capacity or 0) for nl in allocated])
-        template = allocated[0]
-        if cells and template.format is not NeighborListFormat.Dense:
-            # A rebuild's table holds at most the cell list's candidates, N · 3^d · cell capacity
-            # (jax-md truncates to the smaller), so a larger capacity than that cannot be asked for.
-            count, dimension = positions[0].shape
-            occupancy = min(occupancy, count * 3**dimension * cells)
-        # The template's pair table must have the capacity it claims: update's rebuild and its no-rebuild
-        # branch return tables of those two sizes, which lax.cond needs equal.
-        padding = occupancy - template.idx.shape[-1]
-        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=positions[0].shape[0])
-        template = template.set(idx=idx, max_occupancy=occupancy, cell_list_capacity=cells or None)
-        away = jnp.full_like(template.reference_position, 1e6)
-        lists = [frame.update(p, template.set(reference_position=away)) for p in positions]
-        if not any(bool(nl.did_buffer_overflow) for nl in lists):
-            return lists
-        capacity, cell_capacity = math.ceil(1.5 * occupancy), math.ceil(1.5 * max(cells, 1))
 
 
 # ----------------------------------------------------------------------------------------------------------
@@ -214,34 +181,33 @@ class BatchedTest:
         """The real members' states of a stacked state."""
         return _members(states, self.num_members)
 
-    def _grow(self, states, error, overflowed):
-        """Reallocate every member's neighbour list and/or candidate table with one larger capacity."""
-        members = _members(states, self.num_padded)
-        frame = self.tests[0].runner.neighbor_frame
+    def grow(self, states, error, overflowed):
+        """Every member's tables that overflowed grown to one larger capacity (:func:`grow_tables`).
+
+        Args:
+          states: the stacked states (padded) to grow.
+          error: the members' error bits, (B,) or ORed.
+          overflowed: the overflowing chunk's end candidate tables (stacked), or None.
+
+        Returns:
+          The grown stacked states.
+        """
         particles = self.tests[0].particles
-        if np.any(error & ErrorCode.NEIGHBOR_OVERFLOW):
-            old = states.dem.neighbors
-            lists = _shared_neighbors(
-                frame,
-                [m.dem.position for m in members],
-                capacity=math.ceil(1.5 * old.max_occupancy),
-                cell_capacity=int(old.cell_list_capacity or 0),
-            )
-            members = [
-                m.set(
-                    dem=m.dem.set(
-                        neighbors=nl,
-                        pair_spring=remap_pair_history(
-                            m.dem.neighbors.idx, nl.idx, m.dem.pair_spring, particles.num_particles
-                        ),
-                    )
-                )
-                for m, nl in zip(members, lists, strict=True)
-            ]
-        if np.any(error & ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW):
-            capacities = grown_candidate_capacities(states.membrane.candidates, overflowed)
-            thickness = np.asarray(self.params.membrane.contact_thickness)
-            members = [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
+        thickness = np.asarray(self.params.membrane.contact_thickness)
+
+        def grow_membrane(members, end):
+            capacities = grown_candidate_capacities(states.membrane.candidates, end)
+            return [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
+
+        members = grow_tables(
+            _members(states, self.num_padded),
+            int(np.bitwise_or.reduce(np.atleast_1d(error))),
+            self.tests[0].runner.neighbor_frame,
+            dem_of=lambda state: state.dem,
+            with_dem=lambda state, dem: state.set(dem=dem),
+            grow_membrane=grow_membrane,
+            overflowed=overflowed,
+        )
         self.reallocations += 1
         return stack(members)
 
@@ -342,7 +308,7 @@ class BatchedTest:
             chunk_steps,
             # Overflows anywhere (padding included) grow every member's tables; other errors of real members.
             errors=lambda s: np.asarray(s.dem.error) & real_bits,
-            grow=lambda s, error, overflowed: self._grow(s, error, overflowed.membrane.candidates),
+            grow=lambda s, error, overflowed: self.grow(s, error, overflowed.membrane.candidates),
             fail=fail,
             accept=accept,
             isolate=None if on_failure is None else isolate,
@@ -482,7 +448,7 @@ def build_batch(
         raise ValueError(f"order = {order}; give a permutation of range({len(configs)}).")
     configs, tests = [configs[i] for i in order], [tests[i] for i in order]
     states = [t.start_consolidation(t.initial_state) for t in tests]
-    lists = _shared_neighbors(tests[0].runner.neighbor_frame, [s.dem.position for s in states])
+    lists = allocate_shared(tests[0].runner.neighbor_frame, [s.dem.position for s in states])
     states = [s.set(dem=s.dem.set(neighbors=nl)) for s, nl in zip(states, lists, strict=True)]
     num_padded = num_devices * math.ceil(len(tests) / num_devices)
     slots = list(range(len(tests))) + [0] * (num_padded - len(tests))
@@ -543,7 +509,7 @@ def batch_template(batch: BatchedTest, capacities: dict):
         grow_candidates(m, particles, _node_capacities(capacities), thickness[b])
         for b, m in enumerate(members)
     ]
-    lists = _shared_neighbors(
+    lists = allocate_shared(
         batch.tests[0].runner.neighbor_frame,
         [m.dem.position for m in members],
         capacities["neighbor_pairs"],

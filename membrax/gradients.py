@@ -50,8 +50,8 @@ import numpy as np
 
 from membrax import native
 from membrax.config import TriaxialConfig
-from membrax.driver import advance, record_blocks
-from membrax.errors import OVERFLOWS, describe
+from membrax.driver import advance, drive, record_blocks
+from membrax.errors import SimulationError, describe
 from membrax.executor import GEOMETRY_FIELDS, BatchedTest, build_batch
 from membrax.sensitivities import (
     _check_wrt,
@@ -316,8 +316,6 @@ def shearing_rollout(
 
 
 def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: int = UNROLL) -> Rollout:
-    from membrax.errors import SimulationError
-
     configs = [configs] if isinstance(configs, TriaxialConfig) else list(configs)
     wrt = tuple(wrt)
     _check_wrt(wrt)
@@ -339,25 +337,39 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: in
         geometry = {}
     theta0 = np.asarray([[float(getattr(c, name)) for name in wrt] for c in batch.configs])
     rollout = Rollout(batch, wrt, steps, window, theta0, geometry, shear_steps, next(iter(shear)), unroll)
-    forward = rollout.forward
-    for _ in range(8):
-        _, errors = forward(jnp.asarray(theta0))
-        errors = np.asarray(errors)
-        if not np.any(errors & int(OVERFLOWS)):
-            break
-        # Grow the start states' tables to what the rollout needed, and run again.
-        final = rollout.final_states()
-        states = batch.initial_state
-        batch.initial_state = batch._grow(states, np.bitwise_or.reduce(errors), final.membrane.candidates)
+    errors = {}
+
+    def run(states, left, _num_records):  # the whole rollout is the chunk
+        batch.initial_state = states
+        errors["now"] = np.asarray(rollout.forward(jnp.asarray(theta0))[1])
+        return states, left - 1, None, None
+
+    def grow(states, error, _overflowed):
+        # The tables the rollout needed are those of its end states.
+        grown = batch.grow(states, error, rollout.final_states().membrane.candidates)
         for compiled in ("forward", "values_and_jacobians"):  # the tables' shapes changed: compile again
             rollout.__dict__.pop(compiled, None)
-        forward = rollout.forward
-    bad = np.flatnonzero(errors)
-    if bad.size:
-        raise SimulationError(
-            f"member {int(bad[0])} ({batch.configs[int(bad[0])].name}) failed in the rollout: "
-            + "; ".join(describe(int(errors[bad[0]])))
+        return grown
+
+    def fail(error, _new, _states):
+        bad = int(np.flatnonzero(error)[0])
+        return SimulationError(
+            f"member {bad} ({batch.configs[bad].name}) failed in the rollout: "
+            + "; ".join(describe(int(error[bad])))
         )
+
+    # One pass of the one host loop: an overflow grows the start states' tables and runs the rollout again.
+    batch.initial_state, _ = drive(
+        run,
+        batch.initial_state,
+        [1],
+        1,
+        1,
+        errors=lambda _: errors["now"],
+        grow=grow,
+        fail=fail,
+        accept=lambda *_: [],
+    )
     return rollout
 
 

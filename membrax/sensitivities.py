@@ -43,6 +43,7 @@ history would differ.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import time
 from typing import NamedTuple
@@ -53,7 +54,8 @@ import numpy as np
 
 from membrax.assemble import build_test
 from membrax.config import TriaxialConfig, to_si
-from membrax.driver import advance
+from membrax.driver import advance, drive
+from membrax.errors import SimulationError, describe
 from membrax.executor import GEOMETRY_FIELDS
 from membrax.membrane import energies
 from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
@@ -399,6 +401,7 @@ def continuation_differences(
         return advance(step, state, params, chunk_steps)
 
     evaluate = jax.jit(lambda state, theta: system.evaluate(u0, theta, state))
+    runner = equilibrium.test.runner
     columns = []
     for k in range(len(system.wrt)):
         relative = DIFFERENCE_STEPS.get(system.wrt[k], 1e-4) if relative_step is None else relative_step
@@ -408,15 +411,41 @@ def continuation_differences(
             theta = system.theta0.copy()
             theta[k] += sign * step_size
             theta = jnp.asarray(theta)
-            state = equilibrium.state
-            for _ in range(max_chunks):
-                state = relax_chunk(state, theta)
-                residual, measured = (np.asarray(a) for a in evaluate(state, theta))
-                if np.max(np.abs(residual[:-2])) < tolerance * load:
-                    break
-            outputs.append(measured)
+            measured = []
+
+            def chunk(state, left, _num_records, theta=theta):
+                return relax_chunk(state, theta), left - chunk_steps, None, None
+
+            def balanced(state, _records, _valid, _left, theta=theta, measured=measured):
+                residual, outputs_now = (np.asarray(a) for a in evaluate(state, theta))
+                measured[:] = [outputs_now]
+                return [0] if np.max(np.abs(residual[:-2])) < tolerance * load else []
+
+            drive(
+                chunk,
+                equilibrium.state,
+                [max_chunks * chunk_steps],
+                chunk_steps,
+                chunk_steps,
+                errors=lambda state: np.atleast_1d(np.asarray(state.error)),
+                grow=runner.grow,
+                fail=functools.partial(_relaxation_failed, system.wrt[k], sign),
+                accept=balanced,
+            )
+            outputs.append(measured[0])
         columns.append((outputs[0] - outputs[1]) / (2.0 * step_size))
     return np.stack(columns, axis=1)
+
+
+def _relaxation_failed(parameter, sign, error, new, state):
+    """The :class:`SimulationError` of a relaxation after a parameter step that ran away."""
+    return SimulationError(
+        f"the relaxation after stepping {parameter} by {'+' if sign > 0 else '-'}h stopped in the chunk "
+        f"ending at step {int(new.step)}: "
+        + "; ".join(describe(int(np.asarray(error)[0])))
+        + ". Lower relative_step.",
+        state=state,
+    )
 
 
 def sensitivity(

@@ -10,6 +10,7 @@ builds on the DEM, the DEM knows nothing of the membrane, so the rigid-wall test
 """
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -224,6 +225,84 @@ def test_the_loop_reader_sees_both_spellings(tmp_path):
         "def q(x):\n    return x.scan(1)\n"
     )
     assert _loop_calls(sample) == {"fori_loop", "scan"}
+
+
+#: Loops outside the driver that may read error bits, and why.
+HOST_LOOP_EXCEPTIONS = {
+    # Allocates one table at given positions, growing it until nothing overflows: the table growth that
+    # driver.grow_tables calls, not a loop over time steps.
+    "spheres.neighbors": "allocate_shared",
+}
+_CHUNK_NAME = re.compile(r"(^|_)chunk$")
+
+
+def _loop_body_nodes(loop):
+    """The nodes a loop runs on each pass: its body, not the bodies of functions defined in it (callbacks
+    handed to the driver run there, not here)."""
+    pending = list(loop.body) + list(getattr(loop, "orelse", []))
+    while pending:
+        node = pending.pop()
+        yield node
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            pending.extend(ast.iter_child_nodes(node))
+
+
+def _host_loops(path: Path) -> list[str]:
+    """Loops in ``path`` that launch a compiled chunk (a callable named ``chunk``, ``_chunk``, ``…_chunk``;
+    hooks ``on_chunk``/``after_chunk`` aside) or read a state's error bits (``.error``,
+    ``.did_buffer_overflow``): each a host loop of its own beside :func:`membrax.driver.drive`."""
+    found = []
+    tree = ast.parse(path.read_text(), filename=str(path))
+    functions = {
+        id(node): parent.name
+        for parent in ast.walk(tree)
+        if isinstance(parent, (ast.FunctionDef, ast.AsyncFunctionDef))
+        for node in ast.walk(parent)
+    }
+    for loop in ast.walk(tree):
+        if not isinstance(loop, (ast.For, ast.While, ast.AsyncFor)):
+            continue
+        for node in _loop_body_nodes(loop):
+            if isinstance(node, ast.Call):
+                name = getattr(node.func, "id", getattr(node.func, "attr", ""))
+                if _CHUNK_NAME.search(name) and not name.startswith(("on_", "after_")):
+                    found.append(f"{functions.get(id(loop), '<module>')}:{loop.lineno} calls {name}")
+            elif isinstance(node, ast.Attribute) and node.attr in ("error", "did_buffer_overflow"):
+                found.append(f"{functions.get(id(loop), '<module>')}:{loop.lineno} reads .{node.attr}")
+    return sorted(found)
+
+
+def test_driver_drive_is_the_one_host_loop():
+    """Compaction, FIRE, the continuation differences and the gradient rollouts run their chunks through
+    driver.drive: no other loop launches a chunk or reads error bits (HOST_LOOP_EXCEPTIONS: stated)."""
+    offenders = {}
+    for name, path in FILES.items():
+        if name == "driver":
+            continue
+        loops = _host_loops(path)
+        allowed = HOST_LOOP_EXCEPTIONS.get(name)
+        loops = [loop for loop in loops if allowed is None or not loop.startswith(f"{allowed}:")]
+        if loops:
+            offenders[name] = loops
+    assert offenders == {}
+
+
+def test_the_host_loop_reader_sees_chunks_and_error_bits_but_not_callbacks(tmp_path):
+    sample = tmp_path / "loops.py"
+    sample.write_text(
+        "def relax(state, chunk, drive):\n"
+        "    while True:\n"
+        "        state = chunk(state)\n"  # a loop launching a chunk
+        "    for k in range(3):\n"
+        "        def step(s):\n"
+        "            return s._chunk(s.error)\n"  # a callback: runs in the driver
+        "        drive(step, on_chunk=print)\n"
+        "    for k in range(2):\n"
+        "        if state.dem.error:\n"  # reads error bits
+        "            break\n"
+        "        state = relax_chunk(state)\n"
+    )
+    assert _host_loops(sample) == ["relax:2 calls chunk", "relax:8 calls relax_chunk", "relax:8 reads .error"]
 
 
 def test_no_module_renames_a_membrax_module_on_import():

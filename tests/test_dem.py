@@ -351,7 +351,7 @@ def test_shared_lists_with_a_larger_capacity_hold_the_brute_force_pairs():
     """A batch's reallocation (executor._shared_neighbors) asks for more capacity than a fresh allocation
     has: each member's list then has exactly that capacity, and its real pairs are the pairs within the
     cutoff + skin found by brute force."""
-    from membrax.executor import _shared_neighbors
+    from membrax.spheres.neighbors import allocate_shared as _shared_neighbors
 
     specimen = fcc.fcc_specimen(D, 4, 5)
     frame = triaxial.rigid_wall_test(specimen, 40e3).runner.neighbor_frame
@@ -375,7 +375,7 @@ def test_shared_lists_asked_for_more_than_the_cell_list_holds_get_its_candidate_
     """A capacity above the cell list's candidates, N · 3³ · cell capacity, is capped there (a rebuild
     truncates to it, and the no-rebuild branch must match it for lax.cond): the lists stack, keep the
     brute-force pairs and flag no overflow."""
-    from membrax.executor import _shared_neighbors
+    from membrax.spheres.neighbors import allocate_shared as _shared_neighbors
 
     specimen = fcc.fcc_specimen(D, 4, 5)
     frame = triaxial.rigid_wall_test(specimen, 40e3).runner.neighbor_frame

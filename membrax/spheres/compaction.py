@@ -53,7 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.spatial
 
-from membrax.driver import advance
+from membrax.driver import advance, drive, grow_tables
 from membrax.errors import SimulationError, describe
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.fcc import fcc_specimen
@@ -423,28 +423,57 @@ def compact(
 
     carry = (state, jnp.asarray(start, dtype), jnp.asarray(0.0, dtype))
     began = time.perf_counter()
-    steps, converged, ratio = 0, False, math.inf
     frictionless = friction_coefficient == 0.0
-    while steps < max_steps:
-        carry = chunk(carry)
-        state, growth, stress = carry
-        steps += chunk_steps
-        if int(state.error):
-            raise SimulationError(
-                f"compaction failed at step {steps}: {describe(int(state.error))}; report the seed and the "
-                "arguments of compact."
-            )
-        stress = float(stress)
-        ratio = float(unbalanced(state, growth))
+    # Filled by each accepted chunk: the steps run, the last unbalanced-force ratio, whether it converged.
+    done = {"steps": 0, "ratio": math.inf, "converged": False}
+
+    def run_chunk(current, left, _num_records):
+        return chunk(current), left - chunk_steps, None, None
+
+    def grow(current, error, _overflowed):
+        (grown,) = grow_tables([current[0]], int(error[0]), frame)
+        return (grown, *current[1:])
+
+    def failed(error, _new, _current):
+        return SimulationError(
+            f"compaction failed in the chunk ending at step {done['steps'] + chunk_steps}: "
+            + "; ".join(describe(int(error[0])))
+            + "; report the seed and the arguments of compact."
+        )
+
+    def accept(current, _records, _valid, _left):
+        state_, growth_, stress_ = current
+        done["steps"] += chunk_steps
+        stress_ = float(stress_)
+        done["ratio"] = ratio_ = float(unbalanced(state_, growth_))
         if on_chunk is not None:
             on_chunk(
-                {"steps": steps, "stress": stress, "growth": float(growth), "unbalanced_force_ratio": ratio}
+                {
+                    "steps": done["steps"],
+                    "stress": stress_,
+                    "growth": float(growth_),
+                    "unbalanced_force_ratio": ratio_,
+                }
             )
-        if frictionless and stress > (1.0 - stress_tolerance) * target_stress:
-            break  # jammed: FIRE finds the packing at rest (below)
-        if abs(stress / target_stress - 1.0) < stress_tolerance and ratio < tolerance:
-            converged = True
-            break
+        if frictionless and stress_ > (1.0 - stress_tolerance) * target_stress:
+            return [0]  # jammed: FIRE finds the packing at rest (below)
+        done["converged"] = abs(stress_ / target_stress - 1.0) < stress_tolerance and ratio_ < tolerance
+        return [0] if done["converged"] else []
+
+    carry, _ = drive(
+        run_chunk,
+        carry,
+        [max_steps],
+        chunk_steps,
+        chunk_steps,
+        errors=lambda current: np.atleast_1d(np.asarray(current[0].error)),
+        grow=grow,
+        fail=failed,
+        accept=accept,
+    )
+    state, growth, stress = carry
+    stress = float(stress)
+    steps, ratio, converged = done["steps"], done["ratio"], done["converged"]
     position, jump = (state.position, state.position_compensation), None
     if frictionless and steps < max_steps:
         relaxer = FireRelaxer(particles, params, frame, state, dt, mould_radius, mould_height, chunk_steps)

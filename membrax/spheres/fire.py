@@ -32,24 +32,27 @@ rest (ratio below 10 × the FIRE tolerance, as in the window's test) nearest the
 ``converged`` is True: the packing is jammed and at rest, and no growth the search can still try brings it
 nearer the target. Callers that need the window check ``stress_jump is None``.
 
-Budgets. Every host loop ends: the growth loop and each FIRE relaxation count steps against ``max_steps``
-and run at least one step per compiled chunk; a relaxation that gets no FIRE step from a neighbour list
-allocated afresh for its positions, and a search whose calls stop running FIRE steps without narrowing the
-bracket (:data:`IDLE_CALLS` in a row), raise :class:`membrax.errors.SimulationError` naming the growth, the
-stress, the unbalanced-force ratio, the steps, the calls and the bracket.
+Budgets. Every loop ends: the growth phase's chunks and each FIRE relaxation's run through
+:func:`membrax.driver.drive` with ``max_steps`` as their budget (a chunk whose neighbour list overflowed is
+run again from its start with a larger list, :func:`membrax.driver.grow_tables`; one whose positions are no
+longer finite raises :class:`membrax.errors.SimulationError`); a relaxation whose positions overflow a list
+allocated afresh for them, and a search whose calls stop running FIRE steps without narrowing the bracket
+(:data:`IDLE_CALLS` in a row), raise :class:`membrax.errors.SimulationError` naming the growth, the stress,
+the unbalanced-force ratio, the steps, the calls and the bracket.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from membrax.compensated import compensated_add
-from membrax.driver import advance
-from membrax.errors import SimulationError
+from membrax.driver import advance, drive, grow_tables
+from membrax.errors import ErrorCode, SimulationError, describe, not_finite_bit
 from membrax.spheres.integrate import (
     compute_forces,
 )
@@ -67,6 +70,17 @@ __all__ = ["IDLE_CALLS", "FireRelaxer", "describe_search", "quench", "unbalanced
 #: second: an idle call is one force evaluation (on the paper-size seed-8 specimen, 1,740 spheres in
 #: float64, the search before jumps were accepted repeated 3,963 of them in 55 s).
 IDLE_CALLS = 64
+
+
+class _Spheres(NamedTuple):
+    """FIRE's spheres as :func:`membrax.driver.grow_tables` sees them: frictionless, so no contact history."""
+
+    position: jax.Array
+    neighbors: object
+    pair_spring: None = None
+
+    def set(self, **changes):
+        return self._replace(**changes)
 
 
 def quench(before, after):
@@ -154,7 +168,9 @@ class FireRelaxer:
             position, compensation = compensated_add(position, compensation, step * velocity)
             return position, compensation, velocity, neighbors, step, alpha, downhill_steps
 
-        return advance(fire_step, carry, None, self.chunk_steps)
+        carry = advance(fire_step, carry, None, self.chunk_steps)
+        # The list at the end positions, so that its overflow bit covers the state the search measures.
+        return (*carry[:3], self.frame.update(carry[0], carry[3]), *carry[4:])
 
     def _measure_impl(self, position, compensation, neighbors, growth):
         """(σ = (σ_a + 2σ_r)/3 in Pa, unbalanced-force ratio, neighbour overflow) of the spheres at rest."""
@@ -170,80 +186,126 @@ class FireRelaxer:
 
         ``position`` is (x, compensation); returns ((x, compensation), σ, ratio, steps), the very arrays
         given when it ran no step. ``settle`` False relaxes to ``tolerance`` even far from the target (a
-        state the search may accept, module docstring "Stress jumps"). Each pass measures, then runs a chunk
-        of ``chunk_steps`` steps or returns: at most ``max_steps`` / ``chunk_steps`` + 1 passes, plus one
-        neighbour-list reallocation per chunk.
+        state the search may accept, module docstring "Stress jumps"). It measures the positions given,
+        then runs chunks of ``chunk_steps`` steps through :func:`membrax.driver.drive`, measuring after
+        each, until done or ``max_steps`` / ``chunk_steps`` (rounded up) chunks have run; a chunk whose
+        neighbour list overflowed is run again with a larger list.
 
         Raises:
-          SimulationError: the neighbour list overflowed again at the positions it was just allocated for.
+          SimulationError: the neighbour list overflowed again at the positions it was just allocated for,
+            or a chunk left positions that are not finite.
         """
         position, compensation = position
         dtype = position.dtype
         # One list for every relaxation (a new allocation may change its capacity and recompile the chunk).
         if self.neighbors is None:
             self.neighbors = self.frame.allocate(position)
-        neighbors = self.neighbors
         carry = (
             position,
             compensation,
             jnp.zeros_like(position),
-            neighbors,
+            self.neighbors,
             jnp.asarray(self.dt, dtype),
             jnp.asarray(0.1, dtype),
             jnp.asarray(0, jnp.int32),
         )
         growth = jnp.asarray(growth, dtype)
-        steps, best, best_at, last_stress = 0, math.inf, 0, math.nan
-        calls, reallocated = 0, False
-        while True:
+        stress, ratio, overflow = (float(x) for x in self._measure(*carry[:2], carry[3], growth))
+        if overflow:  # the list of an earlier relaxation is too small for these positions
+            carry = self._grow(carry, ErrorCode.NEIGHBOR_OVERFLOW)
             stress, ratio, overflow = (float(x) for x in self._measure(*carry[:2], carry[3], growth))
-            calls += 1
             if overflow:
                 # A list allocated at these very positions holds their pairs: overflowing again, it never
                 # will (non-finite positions, or a sphere outside the list's box).
-                if reallocated:
-                    finite = bool(np.isfinite(np.asarray(carry[0])).all())
-                    raise SimulationError(
-                        f"compaction: the FIRE relaxation at growth factor s = {float(growth)!r} overflowed "
-                        f"its neighbour list again right after allocating it for the same positions (stress "
-                        f"{stress:.6g} Pa, unbalanced-force ratio {ratio:.3g}, {steps} FIRE steps, {calls} "
-                        f"calls, positions {'finite' if finite else 'NOT finite'}). "
-                        + (
-                            "A sphere has left the mould's neighbour box: check the mould's size against "
-                            "the spheres (mould_diameter, mould_height) and the contact stiffness."
-                            if finite
-                            else "The relaxation went unstable (FIRE's step is capped at 1.8 times "
-                            "compaction_time_step's): report the seed and the arguments of compact."
-                        )
+                finite = bool(np.isfinite(np.asarray(carry[0])).all())
+                raise SimulationError(
+                    f"compaction: the FIRE relaxation at growth factor s = {float(growth)!r} overflowed "
+                    f"its neighbour list again right after allocating it for the same positions (stress "
+                    f"{stress:.6g} Pa, unbalanced-force ratio {ratio:.3g}, 0 FIRE steps, 2 calls, positions "
+                    f"{'finite' if finite else 'NOT finite'}). "
+                    + (
+                        "A sphere has left the mould's neighbour box: check the mould's size against the "
+                        "spheres (mould_diameter, mould_height) and the contact stiffness."
+                        if finite
+                        else "The relaxation went unstable (FIRE's step is capped at 1.8 times "
+                        "compaction_time_step's): report the seed and the arguments of compact."
                     )
-                self.neighbors = self.frame.allocate(carry[0])
-                carry = (*carry[:3], self.neighbors, *carry[4:])
-                reallocated = True
-                continue
-            if on_chunk is not None and steps:
+                )
+        track = {
+            "steps": 0,
+            "stress": stress,
+            "ratio": ratio,
+            "best": math.inf,
+            "best_at": 0,
+            "last": math.nan,
+        }
+
+        def finished(stress, ratio):
+            """Whether the relaxation is done at (σ, ratio) after ``track["steps"]`` steps."""
+            steps = track["steps"]
+            # Unjammed (the contacts all open once at rest): nothing to converge, the growth must rise.
+            unjammed = steps > 0 and stress < 1e-2 * target
+            # At the round-off floor (float32: an unbalanced-force ratio of a few 1e-3) FIRE stalls.
+            if ratio < 0.9 * track["best"]:
+                track["best"], track["best_at"] = ratio, steps
+            stalled = steps - track["best_at"] >= 5 * self.chunk_steps
+            # Far from the target, a settled stress is all the growth correction needs.
+            settled = settle and abs(stress - track["last"]) < 0.01 * abs(stress - target) and ratio < 0.1
+            track["last"] = stress
+            return ratio < tolerance or unjammed or stalled or settled or not math.isfinite(ratio)
+
+        if finished(stress, ratio) or max_steps <= 0:
+            return carry[:2], stress, ratio, 0
+
+        def chunk(current, left, _num_records):
+            return self._chunk(current, growth), left - self.chunk_steps, None, None
+
+        def accept(current, _records, _valid, _left):
+            track["steps"] += self.chunk_steps
+            stress, ratio, _ = (float(x) for x in self._measure(*current[:2], current[3], growth))
+            track["stress"], track["ratio"] = stress, ratio
+            if on_chunk is not None:
                 on_chunk(
                     {
-                        "steps": steps,
+                        "steps": track["steps"],
                         "stress": stress,
                         "growth": float(growth),
                         "unbalanced_force_ratio": ratio,
                     }
                 )
-            # Unjammed (the contacts all open once at rest): nothing to converge, the growth must rise.
-            unjammed = steps > 0 and stress < 1e-2 * target
-            # At the round-off floor (float32: an unbalanced-force ratio of a few 1e-3) FIRE stalls.
-            if ratio < 0.9 * best:
-                best, best_at = ratio, steps
-            stalled = steps - best_at >= 5 * self.chunk_steps
-            # Far from the target, a settled stress is all the growth correction needs.
-            settled = settle and abs(stress - last_stress) < 0.01 * abs(stress - target) and ratio < 0.1
-            last_stress = stress
-            done = ratio < tolerance or unjammed or stalled or settled
-            if done or steps >= max_steps or not math.isfinite(ratio):
-                return carry[:2], stress, ratio, steps
-            carry = self._chunk(carry, growth)
-            steps += self.chunk_steps
-            reallocated = False
+            return [0] if finished(stress, ratio) else []
+
+        def failed(error, new, _current):
+            return SimulationError(
+                f"compaction: the FIRE relaxation at growth factor s = {float(growth)!r} stopped in the "
+                f"chunk after {track['steps']} FIRE steps: "
+                + "; ".join(describe(int(error[0])))
+                + " (FIRE's step is capped at 1.8 times compaction_time_step's): report the seed and the "
+                "arguments of compact."
+            )
+
+        carry, _ = drive(
+            chunk,
+            carry,
+            [max_steps],
+            self.chunk_steps,
+            self.chunk_steps,
+            errors=lambda current: np.atleast_1d(
+                np.where(current[3].did_buffer_overflow > 0, ErrorCode.NEIGHBOR_OVERFLOW, 0)
+                | np.asarray(not_finite_bit(current[0]))
+            ),
+            grow=lambda current, error, _overflowed: self._grow(current, int(error[0])),
+            fail=failed,
+            accept=accept,
+        )
+        return carry[:2], track["stress"], track["ratio"], track["steps"]
+
+    def _grow(self, carry, error):
+        """The FIRE carry with a larger neighbour list at its positions (``grow_tables``)."""
+        spheres = _Spheres(carry[0], carry[3])
+        ((_, neighbors, _),) = grow_tables([spheres], error, self.frame)
+        self.neighbors = neighbors  # later relaxations start from it
+        return (*carry[:3], neighbors, *carry[4:])
 
     def relax_to_stress(
         self,

@@ -25,6 +25,7 @@ dtypes and ranks internally, so its calls run under local standard promotion: me
 from __future__ import annotations
 
 import contextlib
+import math
 from typing import NamedTuple
 
 import jax
@@ -37,7 +38,7 @@ import numpy as np
 with jax.numpy_dtype_promotion("standard"), jax.numpy_rank_promotion("allow"):
     from jax_md import partition, space
 
-__all__ = ["PairNeighborFn", "outside_box", "pair_neighbor_fn", "remap_pair_history"]
+__all__ = ["PairNeighborFn", "allocate_shared", "outside_box", "pair_neighbor_fn", "remap_pair_history"]
 
 # Keys i·N + j must fit in int32 when x64 is off.
 _MAX_PARTICLES = 46_340
@@ -109,6 +110,43 @@ def pair_neighbor_fn(
         format=partition.OrderedSparse,
     )
     return PairNeighborFn(neighbor_fn=neighbor_fn, origin=-lower, box=box, cutoff=cutoff, skin=skin)
+
+
+def allocate_shared(frame: PairNeighborFn, positions, capacity: int = 0, cell_capacity: int = 0) -> list:
+    """One neighbour list per member with identical static structure (capacities), so they stack.
+
+    jax-md keeps the list's capacity and cell-list capacity as static fields (and a fresh cell-list
+    closure per allocation), so lists allocated separately do not stack. Every member's list is rebuilt
+    here from one template with the largest capacities needed (at least ``capacity``/``cell_capacity``):
+    the template's reference position is moved away, which makes ``update`` rebuild at the member's
+    positions. Real pairs come out in the same order as an allocation of their own; only the padding differs.
+    """
+    positions = [jnp.asarray(p) for p in positions]
+    while True:
+        allocated = [frame.allocate(p) for p in positions]
+        occupancy = max([capacity] + [int(nl.max_occupancy) for nl in allocated])
+        cells = max([cell_capacity] + [int(nl.cell_list_capacity or 0) for nl in allocated])
+        template = allocated[0]
+        if cells and template.format is not partition.NeighborListFormat.Dense:
+            # A rebuild's table holds at most the cell list's candidates, N · 3^d · cell capacity
+            # (jax-md truncates to the smaller), so a larger capacity than that cannot be asked for.
+            count, dimension = positions[0].shape
+            occupancy = min(occupancy, count * 3**dimension * cells)
+        # The template's pair table must have the capacity it claims: update's rebuild and its no-rebuild
+        # branch return tables of those two sizes, which lax.cond needs equal.
+        padding = occupancy - template.idx.shape[-1]
+        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=positions[0].shape[0])
+        # The overflow bit is sticky (jax-md ORs it into every update): an allocation that overflowed would
+        # pass it to every rebuild from this template, however large.
+        error = partition.PartitionError(jnp.zeros_like(template.error.code))
+        template = template.set(
+            idx=idx, max_occupancy=occupancy, cell_list_capacity=cells or None, error=error
+        )
+        away = jnp.full_like(template.reference_position, 1e6)
+        lists = [frame.update(p, template.set(reference_position=away)) for p in positions]
+        if not any(bool(nl.did_buffer_overflow) for nl in lists):
+            return lists
+        capacity, cell_capacity = math.ceil(1.5 * occupancy), math.ceil(1.5 * max(cells, 1))
 
 
 def outside_box(position, neighbor_frame: PairNeighborFn):
