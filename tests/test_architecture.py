@@ -43,7 +43,14 @@ LAYERS = (
         "membrane.candidates",
     ),
     # laws: contacts, walls and platens
-    ("spheres.contact", "spheres.walls", "membrane.energies", "membrane._kernels", "membrane.contact"),
+    (
+        "spheres.contact",
+        "spheres._kernels",
+        "spheres.walls",
+        "membrane.energies",
+        "membrane._kernels",
+        "membrane.contact",
+    ),
     # step
     ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
     ("driver",),

@@ -322,8 +322,7 @@ def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
 def _dem_case(seed=9, num_spheres=150, num_slots=900):
     """Spheres in a box, a neighbour list with padding (i = N), springs and stiffnesses varying by slot:
     ``_pair_totals_*``' arguments (spheres, idx, springs, law, Δt)."""
-    from membrax.spheres import integrate
-    from membrax.spheres.contact import ContactParams
+    from membrax.spheres.contact import ContactParams, PairSpheres
 
     rng = np.random.default_rng(seed)
     position = rng.uniform(0.0, 0.08, (num_spheres, 3))
@@ -335,7 +334,7 @@ def _dem_case(seed=9, num_spheres=150, num_slots=900):
     count = min(len(i), num_slots - 50)
     idx = np.full((2, num_slots), num_spheres, dtype=np.int32)
     idx[0, :count], idx[1, :count] = i[:count], j[:count]
-    spheres = integrate.PairSpheres(
+    spheres = PairSpheres(
         position=jnp.asarray(position),
         position_compensation=jnp.asarray(compensation),
         velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
