@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from membrax import native
+from membrax.defaults import LATEX_POISSON_RATIO
 from membrax.membrane import energies
 from membrax.membrane.contact import (
     ContactNodes,
@@ -657,7 +658,7 @@ def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_t
     contact_outputs = jax.jit(contact.node_sphere_forces)(
         nodes.for_contact(), spheres, candidates, spring, dt, params.contact, params.contact_thickness
     )[:4]
-    material = (params.modulus, params.thickness, params.cell_pressure, energies.LATEX_POISSON_RATIO)
+    material = (params.modulus, params.thickness, params.cell_pressure, LATEX_POISSON_RATIO)
     internal = jax.jit(energies.nodal_forces, static_argnums=6)(
         nodes.position, mesh, *material, model, params.bending_factor
     )

@@ -72,7 +72,7 @@ import scipy.sparse.linalg
 
 from membrax import native, pytree
 from membrax.compensated import compensated_add
-from membrax.defaults import MEMBRANE_MODULUS
+from membrax.defaults import MEMBRANE_MODULUS, STRETCHING_MODELS
 from membrax.errors import not_finite_bit
 from membrax.membrane import _kernels, energies
 from membrax.membrane.candidates import (
@@ -436,7 +436,7 @@ _COMPILED_NODE_STEP = {
         ),
         _kernels.node_step_residuals,
     )
-    for model in energies.STRETCHING_MODELS
+    for model in STRETCHING_MODELS
 }
 
 
