@@ -52,7 +52,7 @@ LAYERS = (
         "membrane.contact",
     ),
     # step
-    ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
+    ("spheres.integrate", "membrane.node_update", "membrane.coupled", "membrane.indentation"),
     ("driver",),
     # measurements
     ("spheres.measure", "membrane.measure"),

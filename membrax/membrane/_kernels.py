@@ -6,8 +6,8 @@ Contract. Private to :mod:`membrax.membrane`. For each law with a kernel in :mod
 into the kernel's flat operands (``*_inputs``), call the forward kernel (``*_kernel``), choose what reverse
 mode keeps (``*_residuals``) and run the backward kernels (``*_backward``). The laws themselves, their JAX
 definitions (the references) and their :func:`membrax.native.with_reference` bindings stay in
-:mod:`membrax.membrane.energies`, :mod:`membrax.membrane.contact` and :mod:`membrax.membrane.coupled`,
-which import these.
+:mod:`membrax.membrane.energies`, :mod:`membrax.membrane.contact` and
+:mod:`membrax.membrane.node_update`, which import these.
 """
 
 from __future__ import annotations
@@ -103,7 +103,7 @@ def nodal_forces_backward_kernel(args, cotangent, addend, bending_derivative, mo
 
 
 # The kernels' side of the law. Each function below takes node_sphere_forces' first seven arguments, in
-# its order, so that membrax.membrane.coupled.node_step can chain these kernels with the others of a step.
+# its order, so that membrax.membrane.node_update.node_step can chain these kernels with the others of a step.
 
 
 def node_sphere_kernel_inputs(nodes, spheres, candidates, spring, dt, params, membrane_thickness):
