@@ -376,7 +376,7 @@ def centre_cylinder_radial_stress(records, particle_radius: float, index: int = 
     """Internal σ3 over the right cylinder through the boundary spheres' centres, kPa.
 
     membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area
-    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane.measure.right_cylinder_stresses`). The paper's
+    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane.records.right_cylinder_stresses`). The paper's
     "surface area of the right cylinder" (its §4.3) may be that of the cylinder through the centres of
     the boundary spheres, r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16
     found that reading reproduces the paper's Δσ3 ≈ 0.1 σc:

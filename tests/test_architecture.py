@@ -55,7 +55,7 @@ LAYERS = (
     ("spheres.integrate", "membrane.node_update", "membrane.coupled", "membrane.indentation"),
     ("driver",),
     # measurements
-    ("spheres.measure", "membrane.measure"),
+    ("spheres.measure", "membrane.measure", "membrane.records"),
     # specimens made by a DEM run: the compaction of a random packing
     ("spheres.mould",),
     ("spheres.fire",),
