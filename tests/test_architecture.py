@@ -69,7 +69,19 @@ LAYERS = (
     ("triaxial.protocol",),
     ("triaxial.rigid", "triaxial.membrane_cell"),
     # results
-    ("triaxial.analysis", "io.files", "io.vtk", "io.results", "io.checkpoint", "io", "plots", "paper"),
+    (
+        "triaxial.analysis",
+        "io.files",
+        "io.vtk",
+        "io.results",
+        "io.checkpoint",
+        "io",
+        "plots",
+        "paper.published",
+        "paper.tables",
+        "paper.fig9",
+        "paper",
+    ),
     # the configuration: laboratory units in, SI out; read by the runs only
     ("config",),
     # runs: a configuration becomes a test, members become a batch, the stage loop every run and sweep
