@@ -29,7 +29,7 @@ speed at 1 % strain in both cells); every figure is the mean over the records be
   the damping causes (in the box, ``σ1 bnd/LW−1`` times ``σ1 LW`` over σc, less inertia, ~I² of it);
 - ``Dnode σ1`` and ``Dnode σ3`` (% of σc): the membrane nodes' damping forces, what they add to the ram
   (axially, (1/AH) Σ D_z (z − z_mid)) and to the internal σ3 (radially, −Σ D·r̂ over the right
-  cylinder's lateral area, as :mod:`membrax.membrane.measure` counts the membrane's load);
+  cylinder's lateral area, as :mod:`membrax.membrane.records` counts the membrane's load);
 - ``(int−ext)σ1 %σc`` and ``(int−ext)σ3 %σc``: the membrane cell's internal minus external stresses, the
   targets a membrane correction is fitted on (:mod:`calibrate.datasets`).
 

@@ -224,7 +224,15 @@ _RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
 
 
 #: The modules whose code makes a compacted packing (membrax/spheres/): their text is part of the cache key.
-_COMPACTION_SOURCES = ("compaction.py", "fire.py", "mould.py", "grading.py", "contact.py", "integrate.py")
+_COMPACTION_SOURCES = (
+    "compaction.py",
+    "fire.py",
+    "mould.py",
+    "grading.py",
+    "contact.py",
+    "_kernels.py",
+    "integrate.py",
+)
 
 
 def _compaction_cache_path(key: tuple) -> Path:

@@ -1,12 +1,13 @@
 """The paper's test as membrax's defaults, in SI: the one source the configuration and the simulator share.
 
 Contract. Plain constants (no JAX, no imports from membrax): the inputs of the reference study that are
-also membrax's defaults (its §3 and Table 1), the shearing's start-up ramp, and the unbalanced-force
-ratio that ends consolidation. :class:`membrax.config.TriaxialConfig` derives its laboratory-unit field
-defaults from these (``membrane_modulus_kpa = MEMBRANE_MODULUS / 1e3``), the cells
-(:mod:`membrax.triaxial`) and the membrane (:mod:`membrax.membrane.coupled`) take them as their SI
-defaults, and :mod:`membrax.paper` prints them beside the paper's tables; nothing below the configuration
-imports the configuration (``tests/test_architecture.py``).
+also membrax's defaults (its §3 and Table 1), the membrane's material laws (latex's ν, the stretching
+laws), the shearing's start-up ramp, and the unbalanced-force ratio that ends consolidation.
+:class:`membrax.config.TriaxialConfig` derives its laboratory-unit field defaults from these
+(``membrane_modulus_kpa = MEMBRANE_MODULUS / 1e3``), the cells (:mod:`membrax.triaxial`) and the
+membrane (:mod:`membrax.membrane.coupled`) take them as their SI defaults, and :mod:`membrax.paper` prints
+them beside the paper's tables; nothing below the configuration imports the configuration
+(``tests/test_architecture.py``).
 """
 
 from __future__ import annotations
@@ -16,11 +17,13 @@ __all__ = [
     "DAMPING_FRAME",
     "DAMPING_FRAMES",
     "FRICTION_ANGLE_DEG",
+    "LATEX_POISSON_RATIO",
     "LAYERS",
     "MEMBRANE_MODULUS",
     "PARTICLES_ACROSS",
     "PARTICLE_DIAMETER",
     "SHEAR_RAMP_STRAIN",
+    "STRETCHING_MODELS",
     "default_consolidation_tolerance",
 ]
 
@@ -34,6 +37,12 @@ LAYERS = 25
 FRICTION_ANGLE_DEG = 25.0
 #: Latex membrane Young's modulus E_m, Pa: the paper's 1400 kPa (its Table 1).
 MEMBRANE_MODULUS = 1.4e6
+#: ν of latex, an incompressible rubber: the membrane's forces and bending rigidity
+#: (:func:`membrax.membrane.energies.nodal_forces`).
+LATEX_POISSON_RATIO = 0.5
+#: The membrane's stretching laws (:func:`membrax.membrane.energies.stretching_energy`), in the order the
+#: compiled kernel numbers them (``membrane_forces.cc``).
+STRETCHING_MODELS = ("neo_hookean", "svk")
 
 #: Axial strain at which the platens reach full speed after a linear ramp from rest
 #: (:meth:`membrax.triaxial.membrane_cell.MembraneTest.start_shear`; YADE's

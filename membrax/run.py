@@ -7,7 +7,7 @@ the strain rate of ``inertial_number`` to ``target_axial_strain``, recorded ever
 steps below ``fine_until_strain`` and every ``record_every_coarse`` steps after. The folder receives:
 
 - ``results.nc`` / ``results.csv``: the shearing records
-  (:class:`membrax.membrane.measure.MembraneMeasurements` plus the derived quantities of
+  (:class:`membrax.membrane.records.MembraneMeasurements` plus the derived quantities of
   :func:`membrax.triaxial.analysis.derived_quantities`), the first one being the last consolidation record
   (the initial state of the paper's Table 3), with axial, radial and volumetric strain counted from the start
   of shearing (the paper's figures start at 0 %), the configuration, version, N, dt, step counts and timings
@@ -75,7 +75,7 @@ class RunResult:
     Attributes:
       folder: the results folder.
       results: xarray.Dataset of the shearing records (stresses in Pa, strains as fractions, SI throughout;
-        the columns of :class:`membrax.membrane.measure.MembraneMeasurements`).
+        the columns of :class:`membrax.membrane.records.MembraneMeasurements`).
       consolidation: xarray.Dataset of the consolidation records, the same columns.
       summary: the Markdown summary (Table 2/3 numbers in kPa and degrees).
       files: {kind: path} of the files written.

@@ -44,7 +44,7 @@ from membrax.config import TriaxialConfig, config_to_dict
 from membrax.errors import RunError, SimulationError
 from membrax.executor import BatchedTest, batch_template, cast_state, float32_batch, table_capacities
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
-from membrax.membrane.measure import right_cylinder_stresses
+from membrax.membrane.records import right_cylinder_stresses
 from membrax.spheres.grading import mass_fractions
 from membrax.triaxial import analysis
 from membrax.triaxial.protocol import CONSOLIDATION_RECORD_EVERY, PHASES

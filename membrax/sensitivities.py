@@ -59,8 +59,8 @@ from membrax.errors import SimulationError, describe
 from membrax.executor import GEOMETRY_FIELDS
 from membrax.membrane import energies
 from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
-from membrax.membrane.measure import measure_coupled
 from membrax.membrane.mesh import free_node_mask, inner_volume
+from membrax.membrane.records import measure_coupled
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.walls import BOTTOM, TOP, platen_separation
 

@@ -30,6 +30,11 @@ LAYERS = (
         "errors",
         "batch",
         "devices",
+        "theory._ranges",
+        "theory.measures",
+        "theory.strength",
+        "theory.penetration",
+        "theory.corrections",
         "theory",
         "pytree",
     ),
@@ -44,12 +49,19 @@ LAYERS = (
         "membrane.candidates",
     ),
     # laws: contacts, walls and platens
-    ("spheres.contact", "spheres.walls", "membrane.energies", "membrane._kernels", "membrane.contact"),
+    (
+        "spheres.contact",
+        "spheres._kernels",
+        "spheres.walls",
+        "membrane.energies",
+        "membrane._kernels",
+        "membrane.contact",
+    ),
     # step
-    ("spheres.integrate", "membrane.coupled", "membrane.indentation"),
+    ("spheres.integrate", "membrane.node_update", "membrane.coupled", "membrane.indentation"),
     ("driver",),
     # measurements
-    ("spheres.measure", "membrane.measure"),
+    ("spheres.measure", "membrane.measure", "membrane.records"),
     # specimens made by a DEM run: the compaction of a random packing
     ("spheres.mould",),
     ("spheres.fire",),
@@ -58,7 +70,19 @@ LAYERS = (
     ("triaxial.protocol",),
     ("triaxial.rigid", "triaxial.membrane_cell"),
     # results
-    ("triaxial.analysis", "io.files", "io.vtk", "io.results", "io.checkpoint", "io", "plots", "paper"),
+    (
+        "triaxial.analysis",
+        "io.files",
+        "io.vtk",
+        "io.results",
+        "io.checkpoint",
+        "io",
+        "plots",
+        "paper.published",
+        "paper.tables",
+        "paper.fig9",
+        "paper",
+    ),
     # the configuration: laboratory units in, SI out; read by the runs only
     ("config",),
     # runs: a configuration becomes a test, members become a batch, the stage loop every run and sweep

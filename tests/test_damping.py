@@ -14,7 +14,7 @@ from helpers import tolerance
 
 from membrax import assemble, batch
 from membrax.config import ConfigError, TriaxialConfig
-from membrax.membrane import coupled
+from membrax.membrane import node_update
 from membrax.spheres import contact, fcc, integrate, neighbors
 from membrax.spheres import walls as walls_lib
 from membrax.spheres.measure import measure
@@ -309,7 +309,7 @@ def test_membrane_nodes_moving_with_the_reference_are_not_damped_and_none_is_the
     free = np.ones(n, dtype=bool)
     free[:6] = False
     velocity = jnp.asarray(rng.normal(0.0, 0.01, (n, 3)))
-    nodes = coupled.MembraneNodes(
+    nodes = node_update.MembraneNodes(
         position=jnp.asarray(rng.uniform(-0.1, 0.1, (n, 3))),
         position_compensation=jnp.zeros((n, 3)),
         velocity=velocity,
@@ -320,7 +320,7 @@ def test_membrane_nodes_moving_with_the_reference_are_not_damped_and_none_is_the
     contact_force = jnp.asarray(rng.normal(0.0, 0.5, (n, 3)))
     damping = integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0))
     dt = 2e-6
-    step = jax.jit(coupled.advance_nodes)
+    step = jax.jit(node_update.advance_nodes)
     _, moved, _, _ = step(membrane_force, contact_force, nodes.set(reference_velocity=velocity), dt, damping)
     undamped = velocity + dt * (membrane_force + contact_force) / nodes.mass[:, None]
     # Round-off of v + Δt F/m is relative to its terms' size, not to the sum (some nearly cancel).

@@ -16,6 +16,7 @@ import pytest
 from membrax.driver import two_rate_plan
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.mesh import cylinder_mesh
+from membrax.membrane.records import right_cylinder_stresses
 from membrax.runner import rebase_to_shear_start
 from membrax.spheres import fcc
 from membrax.spheres.walls import (
@@ -203,7 +204,7 @@ def test_areas_count_from_the_start_of_shearing():
 
 def test_right_cylinder_stresses_work_under_jit_and_grad():
     def external(ram, height):
-        return membrane_measure.right_cylinder_stresses(ram, ram, ram, height, 1.0, 1.0, 1.0, 1.0)[1]
+        return right_cylinder_stresses(ram, ram, ram, height, 1.0, 1.0, 1.0, 1.0)[1]
 
     # A = A₀ / (1 − ε_a) at constant volume: σ = F (1 − ε_a)/A₀ = F H/H₀; dσ/dH = F/H₀
     value = jax.jit(external)(jnp.asarray(3.0), jnp.asarray(0.9))

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 from helpers import tolerance
 
-from membrax.membrane import energies
+from membrax.membrane import energies, records
 from membrax.membrane import measure as mm
 from membrax.membrane.coupled import platen_reaction
 from membrax.membrane.mesh import cylinder_mesh, enclosed_volume, flat_mesh
+from membrax.spheres.measure import principal_axisymmetric
 
 # jitted once: eager dispatch of these many small ops is slower than one compilation
 distance_to_triangle = jax.jit(mm.point_triangle_distance)
@@ -372,7 +373,7 @@ def test_radial_projected_area_of_a_cylinder_and_of_an_indented_band(precision):
     mesh = cylinder_mesh(radius, height, 0.01, dtype=dtype)
     x0 = mesh.reference_position
     ring = x0[mesh.bottom_ring]
-    area = jax.jit(mm.radial_projected_area)(x0, mesh, ring)
+    area = jax.jit(records.radial_projected_area)(x0, mesh, ring)
     volume = float(enclosed_volume(x0, mesh))
     tol = 10 * tolerance(precision)
     assert float(area) == pytest.approx(2.0 * volume / radius, rel=tol)
@@ -382,7 +383,7 @@ def test_radial_projected_area_of_a_cylinder_and_of_an_indented_band(precision):
 
     def pressure_resultant(position):
         force = -jax.grad(energies.pressure_energy)(position, mesh, pressure)
-        return -jnp.sum(mm.radial_components(force, position, ring))
+        return -jnp.sum(records.radial_components(force, position, ring))
 
     angle = np.arctan2(np.asarray(x0[:, 1]), np.asarray(x0[:, 0]))
     rows = np.arange(x0.shape[0]) // n
@@ -390,15 +391,15 @@ def test_radial_projected_area_of_a_cylinder_and_of_an_indented_band(precision):
     inward = -np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)
     indented = x0 + jnp.asarray(wave[:, None] * inward, dtype)
     for position in (x0, indented):
-        projected = mm.radial_projected_area(position, mesh, ring)
+        projected = records.radial_projected_area(position, mesh, ring)
         assert float(pressure_resultant(position)) == pytest.approx(pressure * float(projected), rel=tol)
-    indented_area = float(mm.radial_projected_area(indented, mesh, ring))
+    indented_area = float(records.radial_projected_area(indented, mesh, ring))
     assert indented_area < float(area)
     assert indented_area > float(area) * (1.0 - 2 * 3e-3 / radius)
     # vmap over two radii: A_r = 2V/R for each
     scales = jnp.asarray([1.0, 1.5], dtype)
     stacked = x0[None] * jnp.stack([scales, scales, jnp.ones_like(scales)], axis=1)[:, None, :]
-    areas = jax.vmap(mm.radial_projected_area, in_axes=(0, None, 0))(
+    areas = jax.vmap(records.radial_projected_area, in_axes=(0, None, 0))(
         stacked, mesh, stacked[:, mesh.bottom_ring]
     )
     np.testing.assert_allclose(np.asarray(areas), float(area) * np.asarray(scales), rtol=tol)
@@ -469,10 +470,10 @@ def test_love_weber_and_section_4_3_stresses_of_a_hand_built_static_ring(precisi
     height = 2.0 * g["radius"]
     volume = np.pi * reach_radius**2 * height
     pair_member = jnp.zeros(4, jnp.int32)
-    stress = jax.jit(mm.membrane_love_weber_stress)(
+    stress = jax.jit(records.membrane_love_weber_stress)(
         forces, slot_force, slot_branch, particles, pair_member, jnp.asarray([volume], dtype)
     )
-    axial, radial = (float(x[0]) for x in mm.principal_axisymmetric(stress))
+    axial, radial = (float(x[0]) for x in principal_axisymmetric(stress))
     tol = 10 * tolerance(precision)
     assert axial == pytest.approx(8.0 * platen * g["radius"] / volume, rel=tol)
     assert radial == pytest.approx(2.0 * push * reach_radius / volume, rel=tol)
@@ -480,10 +481,10 @@ def test_love_weber_and_section_4_3_stresses_of_a_hand_built_static_ring(precisi
     # §4.3: the membrane's force on the spheres is −f r̂ at each; the ring of nodes fixes the axis at 0
     sphere_force = -push * jnp.asarray(g["outward"], dtype)
     ring = jnp.asarray(reach_radius * g["outward"], dtype)
-    radial_force = float(mm.membrane_radial_force(sphere_force, g["centres"], ring))
+    radial_force = float(records.membrane_radial_force(sphere_force, g["centres"], ring))
     assert radial_force == pytest.approx(4.0 * push, rel=tol)
     platen_area = np.pi * (g["a"] + g["radius"]) ** 2
-    area, _, internal_axial, internal_radial = mm.right_cylinder_stresses(
+    area, _, internal_axial, internal_radial = records.right_cylinder_stresses(
         4.0 * platen, 4.0 * platen, radial_force, height, volume, height, volume, platen_area
     )
     assert float(area) == pytest.approx(platen_area, rel=tol)
@@ -496,7 +497,7 @@ def test_love_weber_and_section_4_3_stresses_of_a_hand_built_static_ring(precisi
     # vmap over two load levels: both stresses are linear in the forces
     scale = jnp.asarray([1.0, 2.0], dtype)
     scaled = jax.vmap(
-        lambda s: mm.membrane_love_weber_stress(
+        lambda s: records.membrane_love_weber_stress(
             forces.set(pair_force=s * forces.pair_force, wall_force=s * forces.wall_force),
             s * slot_force,
             slot_branch,

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from membrax import native
+from membrax.defaults import LATEX_POISSON_RATIO
 from membrax.membrane import energies
 from membrax.membrane.contact import (
     ContactNodes,
@@ -322,8 +323,7 @@ def test_failed_build_warns_and_falls_back_to_jax(tmp_path):
 def _dem_case(seed=9, num_spheres=150, num_slots=900):
     """Spheres in a box, a neighbour list with padding (i = N), springs and stiffnesses varying by slot:
     ``_pair_totals_*``' arguments (spheres, idx, springs, law, Δt)."""
-    from membrax.spheres import integrate
-    from membrax.spheres.contact import ContactParams
+    from membrax.spheres.contact import ContactParams, PairSpheres
 
     rng = np.random.default_rng(seed)
     position = rng.uniform(0.0, 0.08, (num_spheres, 3))
@@ -335,7 +335,7 @@ def _dem_case(seed=9, num_spheres=150, num_slots=900):
     count = min(len(i), num_slots - 50)
     idx = np.full((2, num_slots), num_spheres, dtype=np.int32)
     idx[0, :count], idx[1, :count] = i[:count], j[:count]
-    spheres = integrate.PairSpheres(
+    spheres = PairSpheres(
         position=jnp.asarray(position),
         position_compensation=jnp.asarray(compensation),
         velocity=jnp.asarray(rng.normal(0.0, 0.1, (num_spheres, 3))),
@@ -396,7 +396,7 @@ def test_dem_pair_kernel_matches_jax_and_conserves_momentum():
 def _node_update_case():
     """advance_nodes' arguments: two forces, 500 nodes (the first 40 clamped, some at rest, some moving at
     their reference velocity, the damping's affine field), Δt, damping."""
-    from membrax.membrane import coupled
+    from membrax.membrane import node_update
     from membrax.spheres import integrate
 
     rng = np.random.default_rng(11)
@@ -407,7 +407,7 @@ def _node_update_case():
     contact_force = jnp.asarray(rng.normal(0.0, 0.5, (n, 3)))
     velocity = rng.normal(0.0, 0.01, (n, 3)) * (rng.random((n, 3)) > 0.1)  # some v = 0
     reference = np.where(rng.random((n, 3)) > 0.1, rng.normal(0.0, 0.01, (n, 3)), velocity)  # some u = 0
-    nodes = coupled.MembraneNodes(
+    nodes = node_update.MembraneNodes(
         position=jnp.asarray(rng.uniform(-0.2, 0.2, (n, 3))),
         position_compensation=jnp.asarray(rng.normal(0.0, 1e-18, (n, 3))),
         velocity=jnp.asarray(velocity),
@@ -420,11 +420,11 @@ def _node_update_case():
 
 
 def test_node_update_kernel_matches_jax_and_keeps_the_compensated_sum():
-    from membrax.membrane import coupled as membrane_dem
+    from membrax.membrane import node_update
 
     args = _node_update_case()
-    compiled = jax.jit(membrane_dem._compiled_advance_nodes)(*args)
-    reference = membrane_dem._advance_nodes_reference(*args)
+    compiled = jax.jit(node_update._compiled_advance_nodes)(*args)
+    reference = node_update._advance_nodes_reference(*args)
     for got, want in zip(compiled[:3], reference[:3], strict=True):  # force, velocity, position
         assert _relative_error(got, want) < 1e-14
     assert np.all(np.asarray(compiled[1])[:40] == 0.0)
@@ -445,8 +445,7 @@ _LARGE = {
 def _cotangent_cases(large=False):
     """(FFI target, compiled, reference, positional args) of each kernel with a compiled reverse-mode rule;
     ``large``: sizes at which the membrane, node–sphere and pair kernels run in two halves (parallel.h)."""
-    from membrax.membrane import contact
-    from membrax.membrane import coupled as membrane_dem
+    from membrax.membrane import contact, node_update
     from membrax.spheres import integrate
 
     mesh, position = _deformed_cylinder(seed=1, edge=_LARGE["edge"] if large else 0.02)
@@ -470,8 +469,8 @@ def _cotangent_cases(large=False):
         ),
         (
             "membrane_nodes_backward",
-            membrane_dem._compiled_advance_nodes,
-            membrane_dem._advance_nodes_reference,
+            node_update._compiled_advance_nodes,
+            node_update._advance_nodes_reference,
             _node_update_case(),
         ),
         (
@@ -592,7 +591,7 @@ def test_membrane_forces_differentiated_in_the_rest_geometry_use_the_reference_r
 def _node_step_case(seed=5, num_spheres=30, capacity=3):
     """node_step's arguments on a deformed cylinder: spheres just inside it, some nodes pressed into them
     (t_m/2 = 2 mm, overlaps from −1 to 2 mm), carried springs, padded candidate slots, clamped rings."""
-    from membrax.membrane import coupled
+    from membrax.membrane import coupled, node_update
     from membrax.spheres import integrate
 
     mesh, position = _deformed_cylinder(seed=seed)
@@ -617,7 +616,7 @@ def _node_step_case(seed=5, num_spheres=30, capacity=3):
         radius=jnp.asarray(radius),
     )
     spring = jnp.asarray(rng.normal(0.0, 20.0, (3, num_nodes, capacity)))
-    nodes = coupled.MembraneNodes(
+    nodes = node_update.MembraneNodes(
         position=jnp.asarray(position),
         position_compensation=jnp.asarray(rng.normal(0.0, 1e-18, (num_nodes, 3))),
         velocity=node_velocity,
@@ -635,40 +634,40 @@ def _node_step_case(seed=5, num_spheres=30, capacity=3):
     )
     damping = integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0))
     args = (nodes, spheres, jnp.asarray(candidates), spring, 1e-5, params, damping, mesh)
-    return coupled, args
+    return node_update, args
 
 
 @pytest.mark.parametrize("model", ["neo_hookean", "svk"])
 def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_their_forward_bits(model):
-    """``coupled.node_step`` runs the node–sphere law, the membrane forces and the node update as one
+    """``node_update.node_step`` runs the node–sphere law, the membrane forces and the node update as one
     reverse-mode rule whose three backward kernels add their shares of the nodes' cotangents in place.
     Its forward must be the three compiled functions' to the bit (the same kernels), its cotangents those
     of ``jax.vjp`` of the three JAX definitions composed, for every argument at once (float64, 1e-12 of the
     largest entry), and all three backward kernels must be in the program."""
     from membrax.membrane import contact
 
-    coupled, args = _node_step_case()
+    node_update, args = _node_step_case()
     *values, mesh = args
 
     def without_mesh(function):  # the rest geometry is not differentiated here (see the next test)
         return lambda *a: function(*a, mesh, model=model)
 
-    got = jax.jit(without_mesh(coupled.node_step))(*values)
+    got = jax.jit(without_mesh(node_update.node_step))(*values)
     nodes, spheres, candidates, spring, dt, params, damping = values
     contact_outputs = jax.jit(contact.node_sphere_forces)(
         nodes.for_contact(), spheres, candidates, spring, dt, params.contact, params.contact_thickness
     )[:4]
-    material = (params.modulus, params.thickness, params.cell_pressure, energies.LATEX_POISSON_RATIO)
+    material = (params.modulus, params.thickness, params.cell_pressure, LATEX_POISSON_RATIO)
     internal = jax.jit(energies.nodal_forces, static_argnums=6)(
         nodes.position, mesh, *material, model, params.bending_factor
     )
-    update = jax.jit(coupled.advance_nodes)(internal, contact_outputs[0], nodes, dt, damping)
+    update = jax.jit(node_update.advance_nodes)(internal, contact_outputs[0], nodes, dt, damping)
     for g, w in zip(got, (*contact_outputs, *update), strict=True):
         assert np.array_equal(np.asarray(g), np.asarray(w))
     pullback = _check_cotangents(
         "node_step",
-        without_mesh(coupled.node_step),
-        without_mesh(coupled._node_step_reference),
+        without_mesh(node_update.node_step),
+        without_mesh(node_update._node_step_reference),
         values,
         seed=7,
     )
@@ -679,7 +678,7 @@ def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_t
     # vmap over two moduli (the kernels run once per member, their aliases in each) equals a loop.
     def loss(modulus):
         changed = (*values[:5], params.set(modulus=modulus), damping)
-        return sum(jnp.sum(out**2) for out in without_mesh(coupled.node_step)(*changed)[4:7])
+        return sum(jnp.sum(out**2) for out in without_mesh(node_update.node_step)(*changed)[4:7])
 
     moduli = jnp.asarray([1.4e6, 2.1e6])
     batched = jax.jit(jax.vmap(jax.value_and_grad(loss)))(moduli)
@@ -693,9 +692,9 @@ def test_node_step_differentiated_in_the_rest_geometry_uses_the_reference_rule()
     """Where the mesh's rest geometry is differentiated, node_step keeps all its arguments and takes the
     JAX definitions' rule: the rest areas' cotangent against ``jax.vjp`` of the composed definitions
     (float64, 1e-12 of the largest entry), with the positions' and moduli's beside it."""
-    coupled, args = _node_step_case(seed=6)
+    node_update, args = _node_step_case(seed=6)
     nodes, spheres, candidates, spring, dt, params, damping, mesh = args
-    outputs = coupled.node_step(*args)
+    outputs = node_update.node_step(*args)
     rng = np.random.default_rng(8)
     cotangents = tuple(jnp.asarray(rng.normal(size=out.shape)) for out in outputs)
 
@@ -707,9 +706,9 @@ def test_node_step_differentiated_in_the_rest_geometry_uses_the_reference_rule()
 
         return jax.vjp(run, area, position, modulus)[1](cotangents)
 
-    reference = jax.tree_util.Partial(coupled._node_step_reference, model="neo_hookean")
+    reference = jax.tree_util.Partial(node_update._node_step_reference, model="neo_hookean")
     primals = (mesh.reference_area, nodes.position, params.modulus)
-    got = jax.jit(lambda *v: pulled(coupled.node_step, *v))(*primals)
+    got = jax.jit(lambda *v: pulled(node_update.node_step, *v))(*primals)
     want = pulled(reference, *primals)
     for g, w in zip(got, want, strict=True):
         assert _relative_error(g, w) < 1e-12
@@ -719,7 +718,7 @@ def test_node_step_cotangents_in_float32_hold_the_float64_ones():
     """What users run: node_step's compiled rule in float32 against the float64 reference rule (the JAX
     definitions'), every floating argument, within float32's round-off grown by the step's sums (1e-4 of
     the largest entry; the contact law's sliding branch and the membrane's dual numbers lose a few digits)."""
-    coupled, args = _node_step_case(seed=9)
+    node_update, args = _node_step_case(seed=9)
     *values64, mesh = args
 
     def as32(value):
@@ -732,11 +731,11 @@ def test_node_step_cotangents_in_float32_hold_the_float64_ones():
 
     values32 = jax.tree.map(as32, values64)
     mesh32 = jax.tree.map(as32, mesh)
-    outputs = without_mesh(coupled._node_step_reference, mesh)(*values64)
+    outputs = without_mesh(node_update._node_step_reference, mesh)(*values64)
     rng = np.random.default_rng(10)
     cotangents64 = tuple(jnp.asarray(rng.normal(size=out.shape)) for out in outputs)
-    want = jax.vjp(without_mesh(coupled._node_step_reference, mesh), *values64)[1](cotangents64)
-    compiled = without_mesh(coupled.node_step, mesh32)
+    want = jax.vjp(without_mesh(node_update._node_step_reference, mesh), *values64)[1](cotangents64)
+    compiled = without_mesh(node_update.node_step, mesh32)
     got = jax.jit(lambda *v: jax.vjp(compiled, *v)[1](jax.tree.map(as32, cotangents64)))(*values32)
     checked = 0
     for g, w in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):

@@ -1,24 +1,109 @@
 """The membrane's compiled CPU kernels on the JAX side: flat inputs, calls, residuals, backward rules.
 
 Contract. Private to :mod:`membrax.membrane`. For each law with a kernel in :mod:`membrax.native`
-(the node–sphere contact, ``node_sphere.cc``; the node update, ``membrane_nodes.cc``; the three chained as
-one node step), the functions that turn the law's arguments into the kernel's flat operands
-(``*_inputs``), call the forward kernel (``*_kernel``), choose what reverse mode keeps (``*_residuals``)
-and run the backward kernels (``*_backward``). The laws themselves, their JAX definitions (the references)
-and their :func:`membrax.native.with_reference` bindings stay in :mod:`membrax.membrane.contact` and
-:mod:`membrax.membrane.coupled`, which import these.
+(the membrane forces, ``membrane_forces.cc``; the node–sphere contact, ``node_sphere.cc``; the node update,
+``membrane_nodes.cc``; the three chained as one node step), the functions that turn the law's arguments
+into the kernel's flat operands (``*_inputs``), call the forward kernel (``*_kernel``), choose what reverse
+mode keeps (``*_residuals``) and run the backward kernels (``*_backward``). The laws themselves, their JAX
+definitions (the references) and their :func:`membrax.native.with_reference` bindings stay in
+:mod:`membrax.membrane.energies`, :mod:`membrax.membrane.contact` and
+:mod:`membrax.membrane.node_update`, which import these.
 """
 
 from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from membrax import native
-from membrax.membrane import energies
+from membrax.defaults import LATEX_POISSON_RATIO, STRETCHING_MODELS
+
+# The membrane forces (membrane_forces.cc): −∇ of the membrane's energy, on nodal_forces' arguments.
+
+
+def nodal_forces_kernel_inputs(
+    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
+):
+    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b)."""
+    scalars = (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+    return position, native.stack_scalars(position.dtype, *scalars)
+
+
+def _mesh_inputs(mesh, dtype):
+    """The kernel's mesh inputs, in its order after the positions."""
+    return (
+        mesh.corner_index,
+        mesh.reference_inverse.astype(dtype),
+        mesh.reference_area.astype(dtype),
+        mesh.hinge_index,
+        mesh.edge_weight.astype(dtype),
+        mesh.rest_dihedral.astype(dtype),
+        mesh.bottom_ring,
+        mesh.top_ring,
+    )
+
+
+def nodal_forces_kernel(
+    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
+):
+    """The compiled kernel's forces (``membrane_forces.cc``).
+
+    The arguments are those of :func:`membrax.membrane.energies.reference_nodal_forces`.
+    """
+    position, scalars = nodal_forces_kernel_inputs(
+        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
+    )
+    dtype = position.dtype
+    return native.call(
+        "membrane_forces",
+        dtype,
+        jax.ShapeDtypeStruct(position.shape, dtype),
+        position,
+        *_mesh_inputs(mesh, dtype),
+        scalars,
+        model=np.int64(STRETCHING_MODELS.index(model)),
+    )
+
+
+def nodal_forces_backward(args, perturbed, cotangent, model):
+    """The compiled reverse-mode rule (``membrane_forces_backward``).
+
+    J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
+    (the reference's rule) when the mesh's rest geometry is differentiated.
+    """
+    if any(jax.tree.leaves(perturbed[1])):
+        return None
+    # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
+    flat = nodal_forces_backward_kernel(args, cotangent, jnp.zeros_like(args[0]), bool(perturbed[6]), model)
+    return native.pack_cotangents(nodal_forces_kernel_inputs, args, flat)
+
+
+def nodal_forces_backward_kernel(args, cotangent, addend, bending_derivative, model):
+    """``membrane_forces_backward`` on ``args``, the arguments of ``energies.nodal_forces`` less the model.
+
+    Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b)) for ū = ``cotangent``; the first in the addend's
+    buffer (aliased), so a caller that passes the positions' cotangent so far has it updated in place.
+    """
+    position, scalars = nodal_forces_kernel_inputs(*args)
+    dtype = position.dtype
+    return native.call(
+        "membrane_forces_backward",
+        dtype,
+        (jax.ShapeDtypeStruct(position.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
+        position,
+        *_mesh_inputs(args[1], dtype),
+        scalars,
+        cotangent.astype(dtype),
+        addend.astype(dtype),
+        input_output_aliases={11: 0},
+        model=np.int64(STRETCHING_MODELS.index(model)),
+        bending_derivative=np.int64(bending_derivative),
+    )
+
 
 # The kernels' side of the law. Each function below takes node_sphere_forces' first seven arguments, in
-# its order, so that membrax.membrane.coupled.node_step can chain these kernels with the others of a step.
+# its order, so that membrax.membrane.node_update.node_step can chain these kernels with the others of a step.
 
 
 def node_sphere_kernel_inputs(nodes, spheres, candidates, spring, dt, params, membrane_thickness):
@@ -204,7 +289,7 @@ def node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mes
         params.modulus,
         params.thickness,
         params.cell_pressure,
-        energies.LATEX_POISSON_RATIO,
+        LATEX_POISSON_RATIO,
         params.bending_factor,
     )
     return contact, membrane, (nodes, dt, damping)
@@ -213,7 +298,7 @@ def node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mes
 def node_step_kernel(*args, model):
     contact, membrane, update = node_step_parts(*args)
     contact_outputs = node_sphere_kernel(*contact)
-    internal = energies.nodal_forces_kernel(*membrane, model)
+    internal = nodal_forces_kernel(*membrane, model)
     return (*contact_outputs, *advance_nodes_kernel(internal, contact_outputs[0], *update))
 
 
@@ -225,7 +310,7 @@ def node_step_kernel_inputs(*args):
     cotangents of.
     """
     contact, membrane, update = node_step_parts(*args)
-    _, membrane_scalars = energies.nodal_forces_kernel_inputs(*membrane)
+    _, membrane_scalars = nodal_forces_kernel_inputs(*membrane)
     _, compensation, _, reference, mass, update_scalars = node_update_inputs(*update)
     return (
         *node_sphere_kernel_inputs(*contact),
@@ -279,7 +364,7 @@ def node_step_backward(residuals, perturbed, cotangents, model, reference):
     )
     # 2. The membrane forces: J ū added in place to the update's position cotangent (ū = F̄; the update's
     # kernel copied it to update_position_bar, the compensation's).
-    position_sum, membrane_scalars_bar = energies.nodal_forces_backward_kernel(
+    position_sum, membrane_scalars_bar = nodal_forces_backward_kernel(
         membrane, force_bar, position_bar, bool(params_perturbed.bending_factor), model
     )
     # 1. The node–sphere law: its node force is F's share, and the ring sums read it too (node_force_bar).

@@ -15,10 +15,11 @@ One step (explicit central differences, as the DEM; velocities at half steps):
 
 1. node–sphere contacts at (y_n, x_n) with the velocities of the previous half step
    (:func:`membrax.membrane.contact.node_sphere_forces`);
-2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.mesh.nodal_forces`);
+2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.energies.nodal_forces`);
 3. the DEM step with the contacts' reactions added to the spheres (forces and torques);
-4. free nodes: damped leapfrog with the lumped masses (area × t_m × ρ_latex / 3 per triangle corner) and
-   the DEM's damping law (:func:`membrax.spheres.integrate.apply_damping`), in the DEM's frame: with
+4. free nodes (:mod:`membrax.membrane.node_update`): damped leapfrog with the lumped masses (area × t_m
+   × ρ_latex / 3 per triangle corner) and the DEM's damping law
+   (:func:`membrax.spheres.integrate.apply_damping`), in the DEM's frame: with
    ``DampingParams.frame = "affine"`` (the default) on the velocity relative to the platens' affine field
    v_ref = (0, 0, v_b + (v_t − v_b)(z − z_b)/(z_t − z_b)) while they shear the specimen
    (:func:`membrax.spheres.walls.affine_velocity`), so that the membrane's share of the drag does not load
@@ -48,11 +49,8 @@ axial force "including forces from the membrane that are transmitted through the
 the platen") and the membrane alone pulls R − F_ring contacts: the spheres receive more than the ram
 when the membrane is in axial tension (the paper's internal σ1 above the external one, its Table 3).
 
-Reverse mode. On the CPU kernels (:mod:`membrax.native`), steps 1, 2 and 4 are one reverse-mode rule,
-:func:`node_step`: the same forward kernels, so the same numbers, and backward kernels chained so that
-each adds its share of the nodes' position and velocity cotangents to the last one's in place, where three
-separate rules left XLA to add three (n, 3) cotangents and copy them into a rollout's loop carry on every
-step. Elsewhere (other backends and dtypes, or the kernels off) the three functions run as written above.
+Reverse mode. On the CPU kernels, steps 1, 2 and 4 are one reverse-mode rule,
+:func:`membrax.membrane.node_update.node_step`; elsewhere the three functions run as written above.
 
 Scope: one specimen (``particles.num_members == 1``), the platens being walls 0 and 1 and no lateral
 walls; batches of specimens are the business of :mod:`membrax.sweep`. SI units: m, s, N, Pa, kg.
@@ -71,10 +69,9 @@ import numpy as np
 import scipy.sparse.linalg
 
 from membrax import native, pytree
-from membrax.compensated import compensated_add
 from membrax.defaults import MEMBRANE_MODULUS
 from membrax.errors import not_finite_bit
-from membrax.membrane import _kernels, energies
+from membrax.membrane import energies
 from membrax.membrane.candidates import (
     NodeCandidates,
     build_candidates,
@@ -87,37 +84,27 @@ from membrax.membrane.contact import (
     ContactSpheres,
     MembraneContactParams,
     node_sphere_forces,
-    node_sphere_reference,
 )
 from membrax.membrane.mesh import MembraneMesh, free_node_mask
-from membrax.spheres.integrate import (
-    DampingParams,
-    DEMParams,
-    DEMState,
-    Particles,
-    apply_damping,
-    sphere_dem,
-)
+from membrax.membrane.node_update import MembraneNodes, advance_nodes, node_step
+from membrax.spheres.integrate import DEMParams, DEMState, Particles, sphere_dem
 from membrax.spheres.neighbors import PairNeighborFn
 from membrax.spheres.walls import BOTTOM, TOP, affine_velocity
 from membrax.validation import check_range
 
 __all__ = [
     "LATEX_DENSITY",
-    "advance_nodes",
     "CandidateCapacities",
     "candidate_capacities",
     "CoupledParams",
     "contact_forces",
     "CoupledState",
-    "MembraneNodes",
     "MembraneParams",
     "MembraneState",
     "grow_candidates",
     "grown_candidate_capacities",
     "membrane_critical_time_step",
     "membrane_dem",
-    "node_step",
     "platen_heights",
     "platen_reaction",
 ]
@@ -136,7 +123,7 @@ class MembraneParams:
       cell_pressure: p, Pa, on the membrane's outer face.
       contact: the node–sphere contact law.
       bending_factor: scale of the bending rigidity, dimensionless: 1 the plate's E t³/12(1 − ν²), 0 a pure
-        membrane (:func:`membrax.membrane.mesh.total_energy`).
+        membrane (:func:`membrax.membrane.energies.total_energy`).
       contact_offset_factor: where nodes touch spheres, dimensionless: at R + f t_m/2 from a sphere's
         centre (1: the membrane's inner face touches the sphere, its nodes on the mid-surface t_m/2
         off; 0: the nodes on the sphere surface, as the paper's "constrained to lie on the surface of
@@ -312,134 +299,6 @@ def platen_reaction(node_force, mesh: MembraneMesh, position=None, cell_pressure
     return jnp.stack(reactions)
 
 
-@pytree.dataclass
-class MembraneNodes:
-    """The membrane's nodes as the node update integrates them (rows, SI; step 4 of the module docstring).
-
-    Attributes:
-      position: (n, 3) node positions y_n, m.
-      position_compensation: (n, 3) low-order part of y_n, m.
-      velocity: (n, 3) node velocities at the previous half step, m/s.
-      mass: (n,) lumped masses, kg.
-      free: (n,) bool, the nodes that move (False on the clamped rings).
-      reference_velocity: (n, 3) the velocity field the damping is relative to, m/s (the platens' affine
-        field, :func:`membrax.spheres.walls.affine_velocity`); None for 0, the absolute law.
-    """
-
-    position: jnp.ndarray
-    position_compensation: jnp.ndarray
-    velocity: jnp.ndarray
-    mass: jnp.ndarray
-    free: jnp.ndarray
-    reference_velocity: jnp.ndarray | None = None
-
-    def for_contact(self) -> ContactNodes:
-        """The positions and velocities, as the node–sphere law reads them."""
-        return ContactNodes(position=self.position, velocity=self.velocity)
-
-
-def advance_nodes(membrane_force, contact_force, nodes: MembraneNodes, dt, damping: DampingParams):
-    """Step 4 of the module docstring for every node: (total force, velocity, position, compensation).
-
-    F = F_membrane + F_contact; F_d = F − α|F| sign(u) − γ m u, u = v − v_ref (``nodes.reference_velocity``,
-    0 when None; :func:`membrax.spheres.integrate.apply_damping`); v' = v + Δt F_d/m on the free nodes and
-    0 on the others (``nodes.free``); x' + c' = x + c + Δt v' (:func:`membrax.compensated.compensated_add`).
-    On the CPU, in float32 or float64, one pass of a compiled kernel (:mod:`membrax.native`,
-    ``membrane_nodes.cc``) does it, and reverse mode a compiled backward kernel
-    (``membrane_nodes_backward``) that gives this JAX code's derivatives to round-off. The damping
-    coefficients are one specimen's (scalars, or arrays of one member).
-    """
-    args = (membrane_force, contact_force, nodes, dt, damping)
-    if native.enabled_for(nodes.position.dtype):
-        return _compiled_advance_nodes(*args)
-    return _advance_nodes_reference(*args)
-
-
-def _advance_nodes_reference(membrane_force, contact_force, nodes: MembraneNodes, dt, damping):
-    force = membrane_force + contact_force
-    member = jnp.zeros(nodes.position.shape[0], dtype=jnp.int32)
-    damped = apply_damping(force, nodes.velocity, nodes.mass, damping, member, nodes.reference_velocity)
-    velocity = jnp.where(nodes.free[:, None], nodes.velocity + dt * damped / nodes.mass[:, None], 0.0)
-    position, compensation = compensated_add(nodes.position, nodes.position_compensation, dt * velocity)
-    return force, velocity, position, compensation
-
-
-_compiled_advance_nodes = native.with_reference(
-    _kernels.advance_nodes_kernel,
-    _advance_nodes_reference,
-    _kernels.advance_nodes_backward,
-    _kernels.advance_nodes_residuals,
-)
-
-
-# Steps 1, 2 and 4 of the module docstring for every node, as one reverse-mode rule on the CPU. Run as
-# three separate rules, their backward kernels each return a cotangent of the node positions (and two of
-# the velocities), which XLA then adds in passes over the whole mesh and copies into the loop's carry;
-# chained here, each kernel adds its share in place to the one before (the kernels' addends).
-def node_step(
-    nodes: MembraneNodes,
-    spheres: ContactSpheres,
-    candidates,
-    spring,
-    dt,
-    params: MembraneParams,
-    damping: DampingParams,
-    mesh: MembraneMesh,
-    model: str = "neo_hookean",
-):
-    """The node–sphere contacts, the membrane forces and the node update of one step, on the CPU kernels.
-
-    The same numbers as :func:`membrax.membrane.contact.node_sphere_forces` (``nodes.for_contact()``,
-    ``spheres``, ``candidates``, ``spring``, ``dt``, ``params.contact``, ``params.contact_thickness``),
-    :func:`membrax.membrane.mesh.nodal_forces` (at ``nodes.position``, ``mesh``, ``params.modulus``,
-    ``params.thickness``, ``params.cell_pressure``, ν of latex, ``params.bending_factor``) and
-    :func:`advance_nodes` (those forces, ``nodes``, ``dt``, ``damping``), from the same kernels, so the
-    same bits. Reverse mode runs their three backward kernels one after the other, each adding its share of
-    the nodes' cotangents to the last one's in place; it gives the three functions' derivatives to
-    round-off (``tests/test_native.py``), also under ``vmap``, and falls back to the JAX definitions' where
-    the mesh's rest geometry is differentiated. For float32 and float64 where
-    :func:`membrax.native.enabled_for`.
-
-    Args:
-      nodes: the nodes' positions, compensations, velocities, masses and free mask.
-      spheres: the spheres as the node–sphere law reads them.
-      candidates: (n, K) int sphere ids padded with N (``NodeCandidates.idx``).
-      spring: (3, n, K) carried tangential springs, N.
-      dt: time step, s.
-      params: the membrane's parameters (its contact law among them).
-      damping: the damping law of the nodes (the DEM's).
-      mesh: the membrane.
-      model: the stretching law (static).
-
-    Returns:
-      (contact node force, sphere force, sphere torque, new springs, total node force F, velocity,
-      position, compensation), as the three functions return them.
-    """
-    return _COMPILED_NODE_STEP[model](nodes, spheres, candidates, spring, dt, params, damping, mesh)
-
-
-def _node_step_reference(*args, model):
-    contact, membrane, update = _kernels.node_step_parts(*args)
-    contact_outputs = node_sphere_reference(*contact)
-    internal = energies.reference_nodal_forces(*membrane, model)
-    return (*contact_outputs, *_advance_nodes_reference(internal, contact_outputs[0], *update))
-
-
-_COMPILED_NODE_STEP = {
-    model: native.with_reference(
-        functools.partial(_kernels.node_step_kernel, model=model),
-        functools.partial(_node_step_reference, model=model),
-        functools.partial(
-            _kernels.node_step_backward,
-            model=model,
-            reference=functools.partial(_node_step_reference, model=model),
-        ),
-        _kernels.node_step_residuals,
-    )
-    for model in energies.STRETCHING_MODELS
-}
-
-
 def _contact_spheres(spheres: DEMState, particles: Particles) -> ContactSpheres:
     """The spheres of a DEM state as the node–sphere law reads them."""
     return ContactSpheres(
@@ -487,7 +346,7 @@ def membrane_dem(
       dt: time step, s (the smaller of the DEM's and :func:`membrane_critical_time_step`'s, with a safety).
       platen_area: the platen area for the servo, m².
       latex_density: ρ of the membrane, kg/m³, for the lumped node masses.
-      stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.mesh.stretching_energy`).
+      stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.energies.stretching_energy`).
       wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
     """
     if particles.num_members != 1:

@@ -24,9 +24,10 @@ import functools
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from membrax import native
+from membrax.defaults import LATEX_POISSON_RATIO, STRETCHING_MODELS
+from membrax.membrane import _kernels
 from membrax.membrane.mesh import (
     MembraneMesh,
     dihedral_angle,
@@ -39,8 +40,6 @@ from membrax.membrane.mesh import (
 )
 
 __all__ = [
-    "STRETCHING_MODELS",
-    "LATEX_POISSON_RATIO",
     "stretching_energy",
     "bending_rigidity",
     "bending_energy",
@@ -48,13 +47,8 @@ __all__ = [
     "total_energy",
     "nodal_forces",
     "reference_nodal_forces",
-    "nodal_forces_kernel",
-    "nodal_forces_kernel_inputs",
-    "nodal_forces_backward_kernel",
     "lumped_mass",
 ]
-
-STRETCHING_MODELS = ("neo_hookean", "svk")
 
 
 def stretching_energy(
@@ -185,10 +179,6 @@ def total_energy(
     )
 
 
-#: ν of latex, the default of :func:`nodal_forces` (an incompressible rubber).
-LATEX_POISSON_RATIO = 0.5
-
-
 def nodal_forces(
     position,
     mesh: MembraneMesh,
@@ -229,88 +219,11 @@ def reference_nodal_forces(
     )
 
 
-def nodal_forces_kernel_inputs(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
-):
-    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b)."""
-    scalars = (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
-    return position, native.stack_scalars(position.dtype, *scalars)
-
-
-def _mesh_inputs(mesh, dtype):
-    """The kernel's mesh inputs, in its order after the positions."""
-    return (
-        mesh.corner_index,
-        mesh.reference_inverse.astype(dtype),
-        mesh.reference_area.astype(dtype),
-        mesh.hinge_index,
-        mesh.edge_weight.astype(dtype),
-        mesh.rest_dihedral.astype(dtype),
-        mesh.bottom_ring,
-        mesh.top_ring,
-    )
-
-
-def nodal_forces_kernel(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
-):
-    """The compiled kernel's forces (``membrane_forces.cc``; arguments of :func:`reference_nodal_forces`)."""
-    position, scalars = nodal_forces_kernel_inputs(
-        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
-    )
-    dtype = position.dtype
-    return native.call(
-        "membrane_forces",
-        dtype,
-        jax.ShapeDtypeStruct(position.shape, dtype),
-        position,
-        *_mesh_inputs(mesh, dtype),
-        scalars,
-        model=np.int64(STRETCHING_MODELS.index(model)),
-    )
-
-
-def _backward_nodal_forces(args, perturbed, cotangent, model):
-    """The compiled reverse-mode rule (``membrane_forces_backward``).
-
-    J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
-    (the reference's rule) when the mesh's rest geometry is differentiated.
-    """
-    if any(jax.tree.leaves(perturbed[1])):
-        return None
-    # At f_b = 0 the hinges only serve ∂/∂f_b: skipped unless the bending factor is differentiated.
-    flat = nodal_forces_backward_kernel(args, cotangent, jnp.zeros_like(args[0]), bool(perturbed[6]), model)
-    return native.pack_cotangents(nodal_forces_kernel_inputs, args, flat)
-
-
-def nodal_forces_backward_kernel(args, cotangent, addend, bending_derivative, model):
-    """``membrane_forces_backward`` on :func:`nodal_forces`' arguments (``args``, less the model).
-
-    Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b)) for ū = ``cotangent``; the first in the addend's
-    buffer (aliased), so a caller that passes the positions' cotangent so far has it updated in place.
-    """
-    position, scalars = nodal_forces_kernel_inputs(*args)
-    dtype = position.dtype
-    return native.call(
-        "membrane_forces_backward",
-        dtype,
-        (jax.ShapeDtypeStruct(position.shape, dtype), jax.ShapeDtypeStruct(scalars.shape, dtype)),
-        position,
-        *_mesh_inputs(args[1], dtype),
-        scalars,
-        cotangent.astype(dtype),
-        addend.astype(dtype),
-        input_output_aliases={11: 0},
-        model=np.int64(STRETCHING_MODELS.index(model)),
-        bending_derivative=np.int64(bending_derivative),
-    )
-
-
 _COMPILED_NODAL_FORCES = {
     model: native.with_reference(
-        functools.partial(nodal_forces_kernel, model=model),
+        functools.partial(_kernels.nodal_forces_kernel, model=model),
         functools.partial(reference_nodal_forces, model=model),
-        functools.partial(_backward_nodal_forces, model=model),
+        functools.partial(_kernels.nodal_forces_backward, model=model),
     )
     for model in STRETCHING_MODELS
 }

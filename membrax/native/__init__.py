@@ -7,8 +7,8 @@ with a C++17 compiler (``$CXX``, else ``g++``) against XLA's FFI headers, into a
 the sources' hash and the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/membrax``), and loaded with
 ``ctypes``. ``MEMBRAX_NATIVE=0`` turns them off. A failed build warns once and falls back to JAX.
 
-Kernels: the membrane's nodal forces (:func:`membrax.membrane.mesh.nodal_forces`), its node update
-(:func:`membrax.membrane.coupled.advance_nodes`), the node–sphere law
+Kernels: the membrane's nodal forces (:func:`membrax.membrane.energies.nodal_forces`), its node update
+(:func:`membrax.membrane.node_update.advance_nodes`), the node–sphere law
 (:func:`membrax.membrane.contact.node_sphere_forces`) and the DEM's sphere–sphere contacts summed per
 sphere (:func:`membrax.spheres.integrate.compute_forces`, with the law of
 :func:`membrax.spheres.contact.pair_contact`). Each caller wraps its kernel with :func:`with_reference`.
@@ -29,7 +29,7 @@ remain the definition: the tests hold each backward kernel to ``jax.vjp`` of the
 and that derivative is used on other backends and for arguments a backward kernel does not cover (the
 membrane mesh's rest geometry). Where several kernels read the same array, their backward kernels take
 an addend, the cotangent so far, which ``input_output_aliases`` (:func:`call`) lets them update in place
-(:func:`membrax.membrane.coupled.node_step`). XLA runs the reverse pass's kernels one after another, so
+(:func:`membrax.membrane.node_update.node_step`). XLA runs the reverse pass's kernels one after another, so
 the membrane, node–sphere and pair backward kernels split their element loops in two fixed halves, the
 second offered to XLA's intra-op thread pool (``parallel.h``); each half sums its own elements in order,
 so the result does not depend on which thread ran it.
@@ -82,7 +82,7 @@ _HEADERS = ("contact_law.h", "dual.h", "ffi_bind.h", "parallel.h")
 _KERNELS = {
     "membrane_forces": "MembraxMembraneForces",  # membrane.nodal_forces
     "membrane_forces_backward": "MembraxMembraneForcesBackward",  # its reverse-mode rule
-    "membrane_nodes": "MembraxMembraneNodes",  # membrane_dem.advance_nodes
+    "membrane_nodes": "MembraxMembraneNodes",  # node_update.advance_nodes
     "membrane_nodes_backward": "MembraxMembraneNodesBackward",
     "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
     "node_sphere_backward": "MembraxNodeSphereBackward",

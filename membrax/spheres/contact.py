@@ -21,6 +21,11 @@ Layout: vectors are component-first, shape (3, ...) (see :mod:`membrax.vector`),
 once and applies to one contact, (3,), or to all contacts at once, (3, C), without ``vmap``; scalars
 (radii, stiffnesses) are () or (C,).
 
+Neighbour lists: :class:`PairSpheres` holds the spheres as the sphere–sphere contacts of a neighbour
+list read them; :func:`slot_spheres` says which pair slots are pairs and which spheres they join, and
+:func:`slot_law` gives each slot the law of its batch member (:func:`for_members`: a parameter is a scalar
+or one value per member).
+
 Sign conventions: forces and torques in N and N·m on the bodies named; ``spring`` is the tangential force
 on body j (for walls, on the sphere).
 
@@ -42,9 +47,13 @@ from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 __all__ = [
     "ContactParams",
     "PairContact",
+    "PairSpheres",
     "WallContact",
+    "for_members",
     "normal_energy",
     "pair_contact",
+    "slot_law",
+    "slot_spheres",
     "tangential_spring_update",
     "wall_contact",
 ]
@@ -223,6 +232,55 @@ def pair_contact(
         normal_force=normal_force,
         overlap=overlap,
         branch=branch,
+    )
+
+
+# The sphere–sphere contacts of a neighbour list: its pair slots (i, j), padded with i = N, read as the
+# spheres and the law of each slot.
+
+
+def for_members(value, member):
+    """A law's parameter that is a scalar or one value per batch member, spread over particles or pairs."""
+    value = jnp.asarray(value)
+    return value if value.ndim == 0 else value[member]
+
+
+@pytree.dataclass
+class PairSpheres:
+    """The spheres as the sphere–sphere contacts read them (rows, SI).
+
+    Attributes:
+      position: (N, 3) centres x, m.
+      position_compensation: (N, 3) low-order part of x, m (the branches add it, see
+        :class:`membrax.spheres.integrate.DEMState`).
+      velocity: (N, 3) m/s.
+      angular_velocity: (N, 3) rad/s.
+      radius: (N,) m.
+      member: (N,) int32 batch member of each sphere: a slot takes the contact law of its sphere i's member.
+    """
+
+    position: jnp.ndarray
+    position_compensation: jnp.ndarray
+    velocity: jnp.ndarray
+    angular_velocity: jnp.ndarray
+    radius: jnp.ndarray
+    member: jnp.ndarray
+
+
+def slot_spheres(spheres: PairSpheres, idx):
+    """Which slots are pairs (i < N), and their spheres i and j with the padding (i = N) sent to sphere 0."""
+    n = spheres.radius.shape[0]
+    i, j = idx[0], idx[1]
+    valid = i < n
+    return valid, jnp.where(valid, i, 0), jnp.where(valid, j, 0)
+
+
+def slot_law(law: ContactParams, member):
+    """(k_n, k_t, μ) of the sphere–sphere law for slots of batch members ``member`` (scalars stay scalars)."""
+    return (
+        for_members(law.normal_stiffness, member),
+        for_members(law.tangential_stiffness, member),
+        for_members(law.friction_coefficient, member),
     )
 
 

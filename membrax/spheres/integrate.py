@@ -62,8 +62,8 @@ from membrax import native, pytree
 from membrax.compensated import compensated_add
 from membrax.defaults import DAMPING_FRAME, DAMPING_FRAMES
 from membrax.errors import ErrorCode, describe, not_finite_bit
-from membrax.spheres import contact
-from membrax.spheres.contact import ContactParams
+from membrax.spheres import _kernels, contact
+from membrax.spheres.contact import ContactParams, PairSpheres, for_members, slot_law, slot_spheres
 from membrax.spheres.neighbors import PairNeighborFn, outside_box, remap_pair_history
 from membrax.spheres.particles import moment_of_inertia, particle_mass
 from membrax.spheres.walls import (
@@ -86,7 +86,6 @@ __all__ = [
     "DEMState",
     "DampingParams",
     "Forces",
-    "PairSpheres",
     "Particles",
     "apply_damping",
     "compute_forces",
@@ -269,12 +268,6 @@ class Forces:
     wall_contacts: jnp.ndarray  # (B, W) int number of spheres touching each wall
 
 
-def _for_members(value, member):
-    """A parameter that is a scalar or one value per batch member, spread over particles/pairs."""
-    value = jnp.asarray(value)
-    return value if value.ndim == 0 else value[member]
-
-
 def _along(position_t, wall_normal):
     """x·e for every sphere (positions (3, N)) and wall (normals (W, 3)): (N, W)."""
     return (
@@ -300,46 +293,9 @@ def _pair_branch(position, compensation, gi, gj):
     return (rows_j[0:3] - rows_i[0:3]) + (rows_j[3:6] - rows_i[3:6])
 
 
-@pytree.dataclass
-class PairSpheres:
-    """The spheres as the sphere–sphere contacts read them (rows, SI).
-
-    Attributes:
-      position: (N, 3) centres x, m.
-      position_compensation: (N, 3) low-order part of x, m (the branches add it, see :class:`DEMState`).
-      velocity: (N, 3) m/s.
-      angular_velocity: (N, 3) rad/s.
-      radius: (N,) m.
-      member: (N,) int32 batch member of each sphere: a slot takes the contact law of its sphere i's member.
-    """
-
-    position: jnp.ndarray
-    position_compensation: jnp.ndarray
-    velocity: jnp.ndarray
-    angular_velocity: jnp.ndarray
-    radius: jnp.ndarray
-    member: jnp.ndarray
-
-
-def _slot_spheres(spheres: PairSpheres, idx):
-    """Which slots are pairs (i < N), and their spheres i and j with the padding (i = N) sent to sphere 0."""
-    n = spheres.radius.shape[0]
-    i, j = idx[0], idx[1]
-    valid = i < n
-    return valid, jnp.where(valid, i, 0), jnp.where(valid, j, 0)
-
-
-def _slot_law(law: ContactParams, member):
-    """(k_n, k_t, μ) of the sphere–sphere law for slots of batch members ``member`` (scalars stay scalars)."""
-    return (
-        _for_members(law.normal_stiffness, member),
-        _for_members(law.tangential_stiffness, member),
-        _for_members(law.friction_coefficient, member),
-    )
-
-
-# The sphere–sphere contacts of a neighbour list summed per sphere: the JAX definition, the compiled kernel
-# and its reverse-mode rule, all on (spheres, idx, spring, law, dt) (compute_forces' pair part).
+# The sphere–sphere contacts of a neighbour list summed per sphere: the JAX definition and its binding to
+# the compiled kernel and its reverse-mode rule (membrax.spheres._kernels), all on (spheres, idx, spring,
+# law, dt) (compute_forces' pair part).
 
 
 def _pair_totals_reference(spheres: PairSpheres, idx, spring, law: ContactParams, dt):
@@ -350,8 +306,8 @@ def _pair_totals_reference(spheres: PairSpheres, idx, spring, law: ContactParams
     """
     n = spheres.radius.shape[0]
     i, j = idx[0], idx[1]
-    valid, gi, gj = _slot_spheres(spheres, idx)
-    normal_stiffness, tangential_stiffness, friction_coefficient = _slot_law(law, spheres.member[gi])
+    valid, gi, gj = slot_spheres(spheres, idx)
+    normal_stiffness, tangential_stiffness, friction_coefficient = slot_law(law, spheres.member[gi])
     # Gather whole rows of one packed (N, 12) array, then transpose: XLA's CPU gather is ~10× faster on
     # contiguous rows than on the columns of (3, N) arrays (measured at N = 1816, C = 11865).
     packed = jnp.concatenate(
@@ -390,67 +346,8 @@ def _pair_totals_reference(spheres: PairSpheres, idx, spring, law: ContactParams
     return totals, select(valid, pairs.spring).T, pair_force.T
 
 
-def _pair_totals_inputs(spheres: PairSpheres, idx, spring, law: ContactParams, dt):
-    """The kernels' differentiable inputs, flat, in their order (all but ``idx``): k_n, k_t, μ per slot."""
-    dtype = spheres.position.dtype
-    slots = spring.shape[0]
-    _, gi, _ = _slot_spheres(spheres, idx)
-
-    def per_slot(value):
-        return jnp.broadcast_to(jnp.asarray(value, dtype), (slots,))
-
-    rows = (spheres.position, spheres.position_compensation, spheres.velocity, spheres.angular_velocity)
-    return (
-        *native.in_dtype(dtype, *rows, spheres.radius, spring),
-        *(per_slot(value) for value in _slot_law(law, spheres.member[gi])),
-        native.stack_scalars(dtype, dt),
-    )
-
-
-def _pair_kernel_operands(args):
-    """The flat inputs, and the operands both kernels begin with (the int32 ``idx`` before the springs)."""
-    flat = _pair_totals_inputs(*args)
-    return flat, (*flat[:5], args[1].astype(jnp.int32), *flat[5:])  # idx between the radii and the springs
-
-
-def _pair_totals_kernel(*args):
-    """:func:`_pair_totals_reference` by the compiled kernel (``dem_pairs.cc``)."""
-    flat, operands = _pair_kernel_operands(args)
-    radius, spring = flat[4], flat[5]
-    dtype = radius.dtype
-    n, slots = radius.shape[0], spring.shape[0]
-    return native.call(
-        "dem_pairs",
-        dtype,
-        (
-            jax.ShapeDtypeStruct((n, 6), dtype),
-            jax.ShapeDtypeStruct((slots, 3), dtype),
-            jax.ShapeDtypeStruct((slots, 3), dtype),
-        ),
-        *operands,
-    )
-
-
-def _pair_totals_backward(args, perturbed, cotangents):
-    """The compiled reverse-mode rule (``dem_pairs_backward``: the law of each touching slot backwards)."""
-    del perturbed  # it covers every differentiable argument
-    flat, operands = _pair_kernel_operands(args)
-    dtype = flat[4].dtype
-    position, velocity, angular, radius_bar, spring_bar, kn_bar, kt_bar, mu_bar, dt_bar = native.call(
-        "dem_pairs_backward",
-        dtype,
-        tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat[:1] + flat[2:]),
-        *operands,
-        *(jnp.asarray(c, dtype) for c in cotangents),
-    )
-    # b = (x_j − x_i) + (c_j − c_i): the position and its compensation share a cotangent.
-    flat_cotangents = (position, position, velocity, angular, radius_bar, spring_bar)
-    flat_cotangents += (kn_bar, kt_bar, mu_bar, dt_bar)
-    return native.pack_cotangents(_pair_totals_inputs, args, flat_cotangents)
-
-
 _compiled_pair_totals = native.with_reference(
-    _pair_totals_kernel, _pair_totals_reference, _pair_totals_backward
+    _kernels.pair_totals_kernel, _pair_totals_reference, _kernels.pair_totals_backward
 )
 
 
@@ -474,9 +371,9 @@ def compute_forces(
         member=particles.member,
     )
     # Padded slots point at particle n; clamp the gather and mask the result.
-    valid, gi, gj = _slot_spheres(spheres, state.neighbors.idx)
+    valid, gi, gj = slot_spheres(spheres, state.neighbors.idx)
     law = params.contact
-    pair_stiffness = _for_members(law.normal_stiffness, particles.member[gi])
+    pair_stiffness = for_members(law.normal_stiffness, particles.member[gi])
     pair_args = (spheres, state.neighbors.idx, state.pair_spring, law, dt)
     if native.enabled_for(state.position.dtype):
         totals, pair_spring, pair_force = _compiled_pair_totals(*pair_args)
@@ -500,7 +397,7 @@ def compute_forces(
     wall_position = walls.position[pm]  # (N, W)
     wall_normal = walls.normal  # (W, 3)
     wall_compensation = walls.position_compensation[pm]
-    wall_kn = _for_members(law.wall_normal_stiffness, pm)
+    wall_kn = for_members(law.wall_normal_stiffness, pm)
     wall_kn = jnp.broadcast_to(wall_kn, (n,)) if wall_kn.ndim == 0 else wall_kn
     if wall_friction:
         shape = wall_position.shape
@@ -522,8 +419,8 @@ def compute_forces(
             jnp.moveaxis(state.wall_spring, 2, 0),
             dt,
             wall_kn[:, None],
-            per_particle(_for_members(law.wall_tangential_stiffness, pm)),
-            per_particle(_for_members(law.wall_friction_coefficient, pm)),
+            per_particle(for_members(law.wall_tangential_stiffness, pm)),
+            per_particle(for_members(law.wall_friction_coefficient, pm)),
         )
         wall_force_t = out.force  # (3, N, W)
         force_t = force_t + jnp.sum(wall_force_t, axis=2)
@@ -584,8 +481,8 @@ def apply_damping(force, velocity, mass, damping: DampingParams, member, referen
       member: (N,) int32 batch member of each row.
       reference_velocity: (N, 3) v_ref, m/s; None for 0 (the absolute law, the same bits).
     """
-    alpha = _for_members(damping.local_coefficient, member)
-    gamma = _for_members(damping.viscous_rate, member)
+    alpha = for_members(damping.local_coefficient, member)
+    gamma = for_members(damping.viscous_rate, member)
     alpha = alpha[:, None] if alpha.ndim else alpha
     gamma = gamma[:, None] if gamma.ndim else gamma
     relative = velocity if reference_velocity is None else velocity - reference_velocity

@@ -16,7 +16,7 @@ Definitions (reference §9):
 - Strains from the walls: ε_a = (H0 − H)/H0 and ε_v = (V0 − V)/V0, V = A H.
 
 The measurements of a DEM specimen inside a membrane (the paper's §4.3 external and internal stresses)
-are :func:`membrax.membrane.measure.measure_coupled`'s.
+are :func:`membrax.membrane.records.measure_coupled`'s.
 """
 
 from __future__ import annotations

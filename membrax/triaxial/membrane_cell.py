@@ -5,7 +5,7 @@ Contract. :func:`membrane_test` builds the coupled system of :mod:`membrax.membr
 mesh whose mid-surface sits t_m/2 outside the outer particles, its corners rounded about the corner spheres
 (:func:`membrax.membrane.mesh.prism_mesh` with ``corner_radius`` = R), with its end rings clamped to the
 platens — and returns a :class:`MembraneTest`. Its methods run the stages with the chunk driver and
-return the state and the records (:class:`membrax.membrane.measure.MembraneMeasurements`, numpy arrays
+return the state and the records (:class:`membrax.membrane.records.MembraneMeasurements`, numpy arrays
 with a leading time axis):
 
 - :meth:`MembraneTest.consolidate` (stage 1): the cell pressure acts on the membrane's outer face; both
@@ -48,8 +48,8 @@ from membrax.membrane.coupled import (
     membrane_critical_time_step,
     membrane_dem,
 )
-from membrax.membrane.measure import measure_coupled
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, inner_volume, prism_mesh
+from membrax.membrane.records import measure_coupled
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.fcc import Specimen
 from membrax.spheres.grading import RandomSpecimen

@@ -1,58 +1,22 @@
-"""The paper's numbers (Table 1 grid, fixed parameters, Tables 2–3, Fig. 9) and membrax's results beside them.
-
-The paper's numbers live here and nowhere else: its Table 1 grid (:data:`TABLE_1_GRID`, the default grid
-of :func:`membrax.sweep.run_sweep`), its fixed parameters (:data:`PARTICLE_DIAMETER_MM`,
-:data:`MEMBRANE_MODULUS_KPA`, :data:`INTERPARTICLE_FRICTION_DEG`; membrax's defaults are these values, so
-they are read from :mod:`membrax.defaults`, as the configuration's are, and checked against the paper in
-``tests/test_paper.py``), its laboratory ballast (``BALLAST_*``), its Tables 2 and 3
-(:data:`PAPER_TABLE_2`, :data:`PAPER_TABLE_3`, :data:`PAPER_10KPA_5MM`) and its Fig. 9.
+"""Tables 2 and 3 of the paper for membrax's cases, beside the paper's: one specimen per case, or several.
 
 Contract. Every function takes ``results``, a mapping from a case key ``(cell_pressure_kpa,
 membrane_thickness_mm)`` (two positive finite numbers, kPa and mm) to that case's shear records: the
 mapping described in :mod:`membrax.triaxial.analysis` (a ``dict`` of arrays or an ``xarray.Dataset``, the
-first record being the end of consolidation). Each case needs the series ``axial_strain``,
-``external_axial_stress``, ``external_radial_stress``, ``internal_axial_stress`` and
-``internal_radial_stress`` (:data:`REQUIRED_SERIES`). Everything runs on the host in numpy float64.
+first record being the end of consolidation). Each case needs the series of :data:`REQUIRED_SERIES`
+(:func:`checked_cases` checks them). Everything runs on the host in numpy float64.
 
 - :func:`table_2` and :func:`table_3` return one row (a ``dict`` of floats) per case, sorted by thickness
   then pressure as in the paper; for each quantity the row holds ours (``{quantity}``), the paper's
-  (``paper_{quantity}``, NaN when the case is not in the paper's grid) and ``difference_{quantity}`` =
-  ours − paper. Table 2 is the peak mobilised φ' (:func:`membrax.triaxial.analysis.peak`), Table 3 the initial
-  stresses (:func:`membrax.triaxial.analysis.initial_state`, first record) and the additional (membrane)
-  stresses internal − external.
+  (``paper_{quantity}``, NaN when the case is not in the paper's grid, :func:`membrax.paper.paper_key`)
+  and ``difference_{quantity}`` = ours − paper. Table 2 is the peak mobilised φ'
+  (:func:`membrax.triaxial.analysis.peak`), Table 3 the initial stresses
+  (:func:`membrax.triaxial.analysis.initial_state`, first record) and the additional (membrane) stresses
+  internal − external.
 - :func:`write_tables` writes both as CSV (exact floats) and Markdown (2 decimals, "–" for NaN).
 - :func:`spread_tables` and :func:`write_spread_tables`: the same tables over several specimens per case
   (the seeds of a random packing): mean, sample s.d., min and max, beside a reference packing's values
   (the FCC lattice) and the paper's.
-- :func:`fig9_data` and :func:`paper_fig9_data` give, per thickness, the numbers of the paper's Fig. 9:
-  the Molenkamp & Luger indentation ratio and the negative of the relative initial axial stress ratio
-  (see below); :func:`membrax.plots.plot_fig9` draws them.
-
-Matching the paper's grid. A case is the paper's case when its pressure and thickness are each within
-0.005 (kPa, mm) of one of the paper's (:func:`paper_key`): a run at 10/3 mm is the paper's 3.33 mm case.
-
-The paper's values (:data:`PAPER_TABLE_2`, :data:`PAPER_TABLE_3`) are copied from its Tables 2 and 3 as
-printed, keyed by ``(cell_pressure_kpa, membrane_thickness_mm)`` floats over (10, 40, 100) kPa × (2.5,
-3.33, 5.0) mm. The tables print the middle thickness as "3.3"; the study's thickness is 3.33 mm (Table 1:
-membrane/particle ratio 2/15 of 25 mm spheres), so it is keyed 3.33.
-
-Fig. 9 (the paper's §5.2). The primary axis is α/D from the paper's Eq. 2 with C = 0.275,
-:func:`membrax.theory.molenkamp_luger_indentation_ratio` with the paper's parameters as ``membrax theory``
-uses them (FCC void ratio, 25 mm spheres, E_m = 1400 kPa, the case's membrane thickness and cell
-pressure). The secondary axis is "the negative of the relative initial axial stress ratio", read here as
-
-    −(σ1,int/σ1,ext − 1) = −Δσ1/σ1,ext        (initial stresses, first record; Table 3 for the paper)
-
-Reading. The paper's Fig. 7 calls σ1,int/σ1,ext the "axial stress ratio (internal to external)" and the
-caption of Fig. 9 speaks of the "internal/external stress ratio"; "initial" is the state of Table 3;
-"relative" takes the ratio relative to 1, i.e. the additional axial stress relative to the external one,
-the quantity of the sentence just before Fig. 9 ("their significance relative to the externally applied
-stresses decreases"). With the paper's Table 3 this gives 0.364, 0.271, 0.221 at 10, 40, 100 kPa for
-5 mm and 0.274, 0.275, 0.364 at 10 kPa for 2.5, 3.33, 5 mm, as its Fig. 9 bullets say (greatest at low
-pressure; thickest membrane the greatest influence), and its negative increases with pressure like
-α/D ∝ σ'^(1/3) ("plotted as a negative to show the correlation"). The plain ratio σ1,int/σ1,ext would
-only shift the curves by 1; normalising Δσ1 by σ3 instead is not what "axial stress ratio" means in the
-paper. This reading is an interpretation [U]: the figure itself is not in the text available.
 
 Checks. An empty ``results``, a key that is not a pair of positive finite numbers, or records missing a
 required series (or holding none) raise ``ValueError`` naming the case and the fix.
@@ -68,124 +32,20 @@ from pathlib import Path
 
 import numpy as np
 
-from membrax import defaults, theory
 from membrax.io.files import atomic_write_bytes, ensure_folder
+from membrax.paper.published import PAPER_TABLE_2, PAPER_TABLE_3, paper_key
 from membrax.triaxial import analysis
 
 __all__ = [
-    "BALLAST_CRITICAL_FRICTION_DEG",
-    "BALLAST_VOID_RATIO",
-    "BALLAST_VOID_RATIO_MAX",
-    "BALLAST_VOID_RATIO_MIN",
-    "INTERPARTICLE_FRICTION_DEG",
-    "MEMBRANE_MODULUS_KPA",
-    "PAPER_10KPA_5MM",
-    "PAPER_CELL_PRESSURES_KPA",
-    "PAPER_THICKNESSES_MM",
-    "PARTICLE_DIAMETER_MM",
-    "SPECIMEN_DIAMETER_MM",
-    "TABLE_1_GRID",
-    "PAPER_TABLE_2",
-    "PAPER_TABLE_3",
     "REQUIRED_SERIES",
-    "spread_tables",
-    "write_spread_tables",
-    "paper_key",
+    "checked_cases",
     "table_2",
     "table_3",
     "centre_cylinder_radial_stress",
     "write_tables",
-    "fig9_data",
-    "paper_fig9_data",
+    "spread_tables",
+    "write_spread_tables",
 ]
-
-#: The paper's cell pressures (kPa), its Table 1.
-PAPER_CELL_PRESSURES_KPA = (10.0, 40.0, 100.0)
-#: The paper's membrane thicknesses (mm), its Table 1 (Tables 2 and 3 print 3.33 as "3.3").
-PAPER_THICKNESSES_MM = (2.5, 3.33, 5.0)
-#: The paper's Table 1 as a sweep grid (configuration field → values).
-TABLE_1_GRID = {"cell_pressure_kpa": PAPER_CELL_PRESSURES_KPA, "membrane_thickness_mm": PAPER_THICKNESSES_MM}
-
-# The paper's fixed parameters (its §3, Table 1; reference §12). membrax's defaults are the paper's, so the
-# one source is membrax.defaults (in SI); tests/test_paper.py checks them against the paper's text.
-#: Sphere diameter D, mm (25 mm granite spheres).
-PARTICLE_DIAMETER_MM = 1e3 * defaults.PARTICLE_DIAMETER
-#: Latex membrane Young's modulus E_m, kPa (1400 kPa).
-MEMBRANE_MODULUS_KPA = defaults.MEMBRANE_MODULUS / 1e3
-#: Interparticle friction angle φ_μ, degrees (25°).
-INTERPARTICLE_FRICTION_DEG = defaults.FRICTION_ANGLE_DEG
-#: Nominal specimen diameter, mm (10 spheres across).
-SPECIMEN_DIAMETER_MM = defaults.PARTICLES_ACROSS * PARTICLE_DIAMETER_MM
-
-# The paper's laboratory ballast (its Fig. 1 and Eq. 1).
-#: Critical-state friction angle φ'_crit, degrees.
-BALLAST_CRITICAL_FRICTION_DEG = 36.0
-#: Minimum void ratio e_min.
-BALLAST_VOID_RATIO_MIN = 0.71
-#: Maximum void ratio e_max.
-BALLAST_VOID_RATIO_MAX = 1.00
-#: Void ratio of the tested ballast.
-BALLAST_VOID_RATIO = 0.78
-
-# The paper's Table 2 in its row order: σc (kPa), t_m (mm), peak φ' external, internal (degrees).
-_TABLE_2_ROWS = (
-    (10.0, 2.5, 40.3, 40.0),
-    (40.0, 2.5, 39.8, 40.3),
-    (100.0, 2.5, 39.1, 40.1),
-    (10.0, 3.33, 40.6, 40.1),
-    (40.0, 3.33, 39.9, 40.2),
-    (100.0, 3.33, 39.4, 40.1),
-    (10.0, 5.0, 41.1, 40.2),
-    (40.0, 5.0, 40.2, 40.2),
-    (100.0, 5.0, 39.7, 40.1),
-)
-# The paper's Table 3 in its row order: σc (kPa), t_m (mm), initial σ3 ext, σ3 int, σ1 ext, σ1 int (kPa).
-_TABLE_3_ROWS = (
-    (10.0, 2.5, 10.0, 11.2, 10.6, 13.5),
-    (40.0, 2.5, 40.0, 44.1, 40.7, 49.1),
-    (100.0, 2.5, 100.0, 109.4, 101.1, 117.7),
-    (10.0, 3.33, 10.0, 11.5, 10.9, 13.9),
-    (40.0, 3.33, 40.0, 44.4, 40.9, 50.2),
-    (100.0, 3.33, 100.0, 109.7, 100.8, 119.6),
-    (10.0, 5.0, 10.0, 11.8, 10.7, 14.6),
-    (40.0, 5.0, 40.0, 45.0, 41.0, 52.1),
-    (100.0, 5.0, 100.0, 110.6, 101.1, 123.4),
-)
-
-#: The paper's Table 2 (peak mobilised friction angles, degrees, external and internal stresses as in its
-#: §4.3), keyed by ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of
-#: :func:`membrax.triaxial.analysis.peak`.
-PAPER_TABLE_2 = {
-    (pressure, thickness): {
-        "peak_external_friction_angle_deg": external,
-        "peak_internal_friction_angle_deg": internal,
-    }
-    for pressure, thickness, external, internal in _TABLE_2_ROWS
-}
-
-#: The paper's Table 3 (initial external and internal principal stresses, kPa), keyed by
-#: ``(cell_pressure_kpa, membrane_thickness_mm)``; the keys of
-#: :func:`membrax.triaxial.analysis.initial_state`.
-PAPER_TABLE_3 = {
-    (pressure, thickness): {
-        "sigma3_external_kpa": sigma3_external,
-        "sigma3_internal_kpa": sigma3_internal,
-        "sigma1_external_kpa": sigma1_external,
-        "sigma1_internal_kpa": sigma1_internal,
-    }
-    for pressure, thickness, sigma3_external, sigma3_internal, sigma1_external, sigma1_internal in (
-        _TABLE_3_ROWS
-    )
-}
-
-#: The paper's values for 10 kPa cell pressure and a 5 mm membrane (the test of its Figs 5–8), keyed as
-#: the results of :func:`membrax.triaxial.analysis.initial_state`, :func:`~membrax.triaxial.analysis.peak` and
-#: :func:`~membrax.triaxial.analysis.largest_overestimate`, for
-#: :func:`membrax.triaxial.analysis.summary_table`: its Table 2 and 3 rows, and from Fig. 5 and §5.2 that
-#: beyond about 3 % axial strain the external φ' exceeds the internal one "by up to 4°" (§5.2 says only that
-#: the peak "occurs almost immediately at close to 0% axial strain", and not at which strain the largest
-#: difference falls, so no strains are given).
-PAPER_10KPA_5MM = {**PAPER_TABLE_3[(10.0, 5.0)], **PAPER_TABLE_2[(10.0, 5.0)], "overestimate_deg": 4.0}
 
 #: Series every case's records must hold (see :mod:`membrax.triaxial.analysis`).
 REQUIRED_SERIES = (
@@ -195,9 +55,6 @@ REQUIRED_SERIES = (
     "internal_axial_stress",
     "internal_radial_stress",
 )
-
-# A case matches the paper's when pressure and thickness are both within this of the paper's (kPa, mm).
-_GRID_TOLERANCE = 0.005
 
 # (column, Markdown label, unit) of each quantity, in column order.
 _TABLE_2_QUANTITIES = (
@@ -275,7 +132,7 @@ def _check_records(key: tuple[float, float], records) -> None:
         )
 
 
-def _cases(results) -> list[tuple[tuple[float, float], object]]:
+def checked_cases(results) -> list[tuple[tuple[float, float], object]]:
     """The checked ``(key, records)`` pairs of ``results``, sorted by thickness then pressure."""
     if not isinstance(results, Mapping):
         raise ValueError(f"results is a {type(results).__name__}; {_RESULTS_HINT}.")
@@ -292,29 +149,6 @@ def _cases(results) -> list[tuple[tuple[float, float], object]]:
 # ---------------------------------------------------------------------------------------------------------
 # Tables 2 and 3
 # ---------------------------------------------------------------------------------------------------------
-
-
-def paper_key(cell_pressure_kpa: float, membrane_thickness_mm: float) -> tuple[float, float] | None:
-    """The key of the paper's case matching a pressure and thickness, or ``None`` outside its grid.
-
-    A case matches when its pressure and thickness are each within 0.005 (kPa, mm) of the paper's, so
-    ``paper_key(10, 10 / 3)`` is ``(10.0, 3.33)``.
-
-    Args:
-      cell_pressure_kpa: σc, kPa.
-      membrane_thickness_mm: t_m, mm.
-
-    Returns:
-      A key of :data:`PAPER_TABLE_2` and :data:`PAPER_TABLE_3`, or ``None``.
-    """
-    for pressure in PAPER_CELL_PRESSURES_KPA:
-        for thickness in PAPER_THICKNESSES_MM:
-            if (
-                abs(float(cell_pressure_kpa) - pressure) <= _GRID_TOLERANCE
-                and abs(float(membrane_thickness_mm) - thickness) <= _GRID_TOLERANCE
-            ):
-                return pressure, thickness
-    return None
 
 
 def _row(key: tuple[float, float], ours: Mapping, paper_table: Mapping, quantities) -> dict:
@@ -368,7 +202,7 @@ def table_2(results) -> list[dict]:
     """
     return [
         _row(key, _peak_angles(records), PAPER_TABLE_2, _TABLE_2_QUANTITIES)
-        for key, records in _cases(results)
+        for key, records in checked_cases(results)
     ]
 
 
@@ -376,7 +210,7 @@ def centre_cylinder_radial_stress(records, particle_radius: float, index: int = 
     """Internal σ3 over the right cylinder through the boundary spheres' centres, kPa.
 
     membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area
-    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane.measure.right_cylinder_stresses`). The paper's
+    A, 2 π r H with r = √(A/π) (:func:`membrax.membrane.records.right_cylinder_stresses`). The paper's
     "surface area of the right cylinder" (its §4.3) may be that of the cylinder through the centres of
     the boundary spheres, r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16
     found that reading reproduces the paper's Δσ3 ≈ 0.1 σc:
@@ -428,7 +262,7 @@ def table_3(results, particle_radius: float | None = None) -> list[dict]:
         for values in paper.values():
             values[_CENTRES_QUANTITY[0]] = values["additional_sigma3_kpa"]
     rows = []
-    for key, records in _cases(results):
+    for key, records in checked_cases(results):
         ours = _with_additional(analysis.initial_state(records))
         if particle_radius is not None:
             ours[_CENTRES_QUANTITY[0]] = (
@@ -508,6 +342,11 @@ def write_tables(results, folder, particle_radius: float | None = None) -> dict[
     return paths
 
 
+def _table_3_quantities(particle_radius):
+    """Table 3's quantities, with the Δσ3 through the sphere centres when ``particle_radius`` is given."""
+    return (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
+
+
 # ---------------------------------------------------------------------------------------------------------
 # Tables 2 and 3 over several specimens per case (random packings: one per seed)
 # ---------------------------------------------------------------------------------------------------------
@@ -577,10 +416,6 @@ def spread_tables(results_by_specimen, reference=None, particle_radius: float | 
             rows.append(row)
         tables[name] = rows
     return tables
-
-
-def _table_3_quantities(particle_radius):
-    return (*_TABLE_3_QUANTITIES, *((_CENTRES_QUANTITY,) if particle_radius is not None else ()))
 
 
 def _spread_cell(row: dict, quantity: str) -> str:
@@ -653,95 +488,3 @@ def write_spread_tables(
         paths[name] = folder / name
         atomic_write_bytes(paths[name], text.encode("utf-8"))
     return paths
-
-
-# ---------------------------------------------------------------------------------------------------------
-# Fig. 9: indentation ratio and initial axial stress ratio against cell pressure
-# ---------------------------------------------------------------------------------------------------------
-
-
-def _paper_parameters() -> tuple[float, float, float]:
-    """The paper's void ratio, sphere diameter (mm) and membrane modulus (kPa)."""
-    return theory.FCC_VOID_RATIO, PARTICLE_DIAMETER_MM, MEMBRANE_MODULUS_KPA
-
-
-def _negative_relative_ratio(sigma1_internal: float, sigma1_external: float) -> float:
-    """−(σ1,int/σ1,ext − 1), NaN when σ1,ext is zero or either stress is not finite."""
-    if not (math.isfinite(sigma1_internal) and math.isfinite(sigma1_external)) or sigma1_external == 0.0:
-        return math.nan
-    return -(sigma1_internal / sigma1_external - 1.0)
-
-
-def _fig9_series(
-    stresses: Mapping, c: float, diameter_mm: float | None = None, modulus_kpa: float | None = None
-) -> dict[float, dict[str, np.ndarray]]:
-    """Fig. 9 numbers from ``{(pressure, thickness): initial stresses}``, grouped by thickness."""
-    void_ratio, paper_diameter_mm, paper_modulus_kpa = _paper_parameters()
-    diameter_mm = paper_diameter_mm if diameter_mm is None else diameter_mm
-    modulus_kpa = paper_modulus_kpa if modulus_kpa is None else modulus_kpa
-    data = {}
-    for thickness in sorted({key[1] for key in stresses}):
-        pressures = np.array(sorted(key[0] for key in stresses if key[1] == thickness), dtype=np.float64)
-        args = (void_ratio, diameter_mm, thickness, pressures, modulus_kpa, c)
-        data[thickness] = {
-            "cell_pressure_kpa": pressures,
-            "indentation_ratio": np.asarray(
-                theory.molenkamp_luger_indentation_ratio(*args), dtype=np.float64
-            ),
-            "indentation_ratio_valid": np.asarray(theory.molenkamp_luger_validity(*args).valid, dtype=bool),
-            "negative_relative_axial_stress_ratio": np.array(
-                [
-                    _negative_relative_ratio(
-                        stresses[p, thickness]["sigma1_internal_kpa"],
-                        stresses[p, thickness]["sigma1_external_kpa"],
-                    )
-                    for p in pressures.tolist()
-                ],
-                dtype=np.float64,
-            ),
-        }
-    return data
-
-
-def fig9_data(
-    results,
-    c: float = 0.275,
-    *,
-    particle_diameter_mm: float | None = None,
-    membrane_modulus_kpa: float | None = None,
-) -> dict[float, dict[str, np.ndarray]]:
-    """The numbers of the paper's Fig. 9 for our cases, per membrane thickness.
-
-    Args:
-      results: ``{(cell_pressure_kpa, membrane_thickness_mm): shear records}`` (see the module docstring).
-      c: Molenkamp & Luger's constant C (0.15–0.4; the paper uses the mean, 0.275).
-      particle_diameter_mm: D of Eq. 2, mm; default the paper's 25 mm (give yours if the runs used another).
-      membrane_modulus_kpa: E_m of Eq. 2, kPa; default the paper's 1400 kPa.
-
-    Returns:
-      ``{thickness_mm: {...}}`` in increasing thickness, each with float64 arrays over the cases of that
-      thickness in increasing pressure: ``cell_pressure_kpa``; ``indentation_ratio`` α/D (the paper's
-      Eq. 2 with the case's t_m and σc, D, E_m and the FCC void ratio);
-      ``indentation_ratio_valid`` (bool: inside Molenkamp & Luger's stated range,
-      :func:`membrax.theory.molenkamp_luger_validity`); ``negative_relative_axial_stress_ratio``
-      −(σ1,int/σ1,ext − 1) at the first record (see the module docstring; NaN when σ1,ext is 0).
-
-    Raises:
-      ValueError: for bad ``results`` (see the module docstring), or ``c``, D or E_m not positive.
-    """
-    stresses = {key: analysis.initial_state(records) for key, records in _cases(results)}
-    return _fig9_series(stresses, c, particle_diameter_mm, membrane_modulus_kpa)
-
-
-def paper_fig9_data(c: float = 0.275) -> dict[float, dict[str, np.ndarray]]:
-    """The numbers of the paper's Fig. 9 from its Table 3, computed as :func:`fig9_data` computes ours.
-
-    Args:
-      c: Molenkamp & Luger's constant C (the paper: 0.275).
-
-    Returns:
-      The structure of :func:`fig9_data` over the paper's grid (thicknesses 2.5, 3.33, 5.0 mm; pressures
-      10, 40, 100 kPa), the stress ratio from :data:`PAPER_TABLE_3` (e.g. −(14.6/10.7 − 1) at 10 kPa,
-      5 mm). α/D of the middle membrane is for 3.33 mm, as ``membrax theory`` prints it.
-    """
-    return _fig9_series(PAPER_TABLE_3, c)
