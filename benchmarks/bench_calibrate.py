@@ -24,8 +24,6 @@ import time
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
-
 from calibrate import correct, datasets, evaluate, fit, lab, report
 
 SPECIMEN_ARGS = (
@@ -40,16 +38,7 @@ def _thousand_rows(folder: Path, rows: int = 1000) -> tuple[Path, list[str]]:
     """The example record interpolated onto ``rows`` axial strains, and its specimen's arguments."""
     with correct.example_record_path() as source:
         record = lab.read_lab_record(source)
-    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], rows)
-    columns = [
-        100 * strain,
-        100 * np.interp(strain, record.axial_strain, record.volumetric_strain),
-        1e-3 * np.interp(strain, record.axial_strain, record.axial_stress - record.cell_pressure),
-        1e-3 * np.interp(strain, record.axial_strain, record.cell_pressure),
-    ]
-    path = folder / f"rows_{rows}.csv"
-    header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
-    np.savetxt(path, np.stack(columns, axis=1), delimiter=",", header=header, comments="", fmt="%.8g")
+    path = evaluate.write_resampled_record(record, rows, folder / f"rows_{rows}.csv")
     values = evaluate.example_arguments(record.comments)
     return path, values
 

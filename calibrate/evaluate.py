@@ -43,6 +43,8 @@ __all__ = [
     "held_out_errors",
     "lab_record_of",
     "write_example_record",
+    "write_lab_csv",
+    "write_resampled_record",
     "write_member_record",
 ]
 
@@ -267,6 +269,40 @@ def specimen_words(config: dict, rows=None) -> str:
     if rows is not None and "solid_fraction" in rows:
         words += f", solid fraction {float(rows['solid_fraction']):.3f}"
     return words
+
+
+#: The header of the four columns ``membrax correct`` reads, in the units :func:`write_lab_csv` writes.
+LAB_CSV_HEADER = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
+
+
+def write_lab_csv(path, axial_strain, volumetric_strain, deviator_stress, cell_pressure, fmt="%.8g") -> Path:
+    """Write a laboratory record's four columns (SI: strains, Pa) as a CSV in % and kPa (LAB_CSV_HEADER)."""
+    path = Path(path)
+    table = np.stack(
+        [100 * np.asarray(axial_strain), 100 * np.asarray(volumetric_strain)]
+        + [
+            1e-3 * np.broadcast_to(np.asarray(x, float), np.shape(axial_strain))
+            for x in (deviator_stress, cell_pressure)
+        ],
+        axis=1,
+    )
+    np.savetxt(path, table, delimiter=",", header=LAB_CSV_HEADER, comments="", fmt=fmt)
+    return path
+
+
+def write_resampled_record(record, rows: int, path) -> Path:
+    """``record`` (a :class:`calibrate.lab.LabRecord`) on ``rows`` equally spaced axial strains, as a CSV.
+
+    The record's columns interpolated linearly and written by :func:`write_lab_csv`: the same test read more
+    (or less) densely.
+    """
+    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], rows)
+
+    def at(values):
+        return np.interp(strain, record.axial_strain, values)
+
+    deviator = at(record.axial_stress - record.cell_pressure)
+    return write_lab_csv(path, strain, at(record.volumetric_strain), deviator, at(record.cell_pressure))
 
 
 def write_example_record(

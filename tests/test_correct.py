@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from calibrate import correct, datasets, lab, models, persistence, report
+from calibrate import correct, datasets, evaluate, lab, models, persistence, report
 from membrax import theory
 
 SPECIMEN = correct.LabSpecimen.from_mm_kpa(150.0, 20.0, 2.0, 1400.0)
@@ -945,16 +945,7 @@ def test_a_long_record_is_corrected_with_a_line_per_stage(tmp_path):
     at 5 % within its band of the example's own (the same test, read 550 times more densely)."""
     record, specimen, _, _ = _example()
     rows = 150_000
-    strain = np.linspace(record.axial_strain[0], record.axial_strain[-1], rows)
-    columns = [
-        100 * strain,
-        100 * np.interp(strain, record.axial_strain, record.volumetric_strain),
-        1e-3 * np.interp(strain, record.axial_strain, record.axial_stress - record.cell_pressure),
-        1e-3 * np.interp(strain, record.axial_strain, record.cell_pressure),
-    ]
-    path = tmp_path / "long.csv"
-    header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
-    np.savetxt(path, np.stack(columns, axis=1), delimiter=",", header=header, comments="", fmt="%.8g")
+    path = evaluate.write_resampled_record(record, rows, tmp_path / "long.csv")
     lines = []
     result, _ = report.correct_file(
         path, specimen, out=tmp_path / "out.csv", plot=False, progress=lines.append

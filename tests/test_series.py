@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from calibrate import series
+from calibrate import evaluate, series
 
 COHESION, FRICTION = 5e3, 40.0  # the synthetic series' envelope: c' = 5 kPa, φ' = 40°
 PRESSURES = (25e3, 50e3, 100e3)
@@ -27,12 +27,7 @@ def _write_record(path, cell_pressure):
         strain <= 0.05, peak * np.sin(np.pi * strain / 0.10), peak * (1 - 2 * (strain - 0.05))
     )
     volumetric = 0.3 * strain - 4.0 * strain**2
-    table = np.stack(
-        [100 * strain, 100 * volumetric, 1e-3 * deviator, np.full(strain.size, 1e-3 * cell_pressure)], 1
-    )
-    header = "axial_strain [%],volumetric_strain [%],deviator_stress [kPa],cell_pressure [kPa]"
-    np.savetxt(path, table, delimiter=",", header=header, comments="", fmt="%.12g")
-    return path
+    return evaluate.write_lab_csv(path, strain, volumetric, deviator, cell_pressure, fmt="%.12g")
 
 
 def _sheet(tmp_path, extra=""):
