@@ -34,7 +34,7 @@ import argparse
 import json
 import resource
 
-from harness import best_of, print_table, run_each_dtype, timed
+from harness import best_of, print_table, run_each_dtype, time_coupled_steps, timed
 
 
 def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: str = "fcc") -> dict:
@@ -126,13 +126,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
         membrane_thickness=thickness,
         edges_per_diameter=edges_per_diameter,
     )
-    state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
-    coupled = jax.jit(  # compiled as membrax compiles a run's chunks
-        lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: test.runner.step_fn(x, test.params), s),
-        compiler_options=native.compiler_options(),
-    )
-    state, coupled_first = timed(coupled, state)
-    coupled_total = best_of(coupled, state)
+    coupled_first, coupled_total = time_coupled_steps(test, repeats)
     coupled_rate = repeats / coupled_total
     return {
         "dtype": dtype,

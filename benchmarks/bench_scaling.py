@@ -16,7 +16,7 @@ import argparse
 import json
 import resource
 
-from harness import best_of, print_table, run_child, timed
+from harness import print_table, run_child, time_coupled_steps
 
 #: (spheres across, layers): 0.27, 0.51, 1, 1.99 and 3.99 times the paper specimen's 1,816 spheres.
 SIZES = ((7, 14), (8, 24), (10, 25), (13, 29), (16, 38))
@@ -28,19 +28,12 @@ def measure(dtype: str, across: int, layers: int, repeats: int) -> dict:
 
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
-    from membrax import native
     from membrax.spheres import fcc
     from membrax.triaxial import membrane_cell
 
     specimen = fcc.fcc_specimen(0.025, across, layers)
     test = membrane_cell.membrane_test(specimen, cell_pressure=1e4, membrane_thickness=0.005)
-    state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
-    coupled = jax.jit(  # compiled as membrax compiles a run's chunks
-        lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: test.runner.step_fn(x, test.params), s),
-        compiler_options=native.compiler_options(),
-    )
-    state, first = timed(coupled, state)
-    total = best_of(coupled, state)
+    first, total = time_coupled_steps(test, repeats)
     particles = specimen.num_particles + test.mesh.num_nodes
     return {
         "dtype": dtype,

@@ -39,6 +39,25 @@ def best_of(function, *args, runs: int = 3) -> float:
     return min(timed(function, *args)[1] for _ in range(runs))
 
 
+def time_coupled_steps(test, repeats: int) -> tuple[float, float]:
+    """(first call, best of three) seconds of ``repeats`` coupled steps of a membrane test, s.
+
+    From the test's state with the platens' servos on; compiled as membrax compiles a run's chunks (one
+    ``fori_loop``, membrax's compiler options), so the first call's excess over the best is the compile time.
+    """
+    import jax
+
+    from membrax import native
+
+    state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
+    coupled = jax.jit(
+        lambda s: jax.lax.fori_loop(0, repeats, lambda _, x: test.runner.step_fn(x, test.params), s),
+        compiler_options=native.compiler_options(),
+    )
+    state, first = timed(coupled, state)
+    return first, best_of(coupled, state)
+
+
 def print_table(rows: list[dict], titles: str, row_format: str) -> None:
     """Print one line per dtype's ``rows`` under a header and a rule.
 
