@@ -173,13 +173,14 @@ def _load_config(args: argparse.Namespace):
 
 def _run(args: argparse.Namespace) -> int:
     from membrax.errors import ConfigError
+    from membrax.run import default_folder
 
     try:
         config = _load_config(args)
     except (ConfigError, FileNotFoundError) as error:
         print(f"membrax: {error}", file=sys.stderr)
         return 2
-    out = args.out if args.out is not None else f"results_{config.name}"
+    out = args.out if args.out is not None else default_folder(config)
     args.folder_in_use = out  # for main's word on an interrupted run
     return _run_config(config, out, args.resume, not args.no_progress)
 
@@ -200,12 +201,12 @@ def _sweep(args: argparse.Namespace) -> int:
     if not _split_cpu(args):
         return 2
     from membrax.errors import ConfigError, RunError
-    from membrax.sweep import parse_grid, run_sweep
+    from membrax.sweep import default_folder, parse_grid, run_sweep
 
     try:
         config = _load_config(args)
         grid = parse_grid(args.grid) if args.grid else None
-        args.folder_in_use = args.out if args.out is not None else f"results_{config.name}_sweep"
+        args.folder_in_use = args.out if args.out is not None else default_folder(config)
         result = run_sweep(
             config,
             grid,
