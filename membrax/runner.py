@@ -212,11 +212,11 @@ def run_group(
         records so far, as returned.
     """
     hooks = _Hooks(
-        progress,
-        isolate_failures,
-        after_chunk,
-        [0] if chunk_counter is None else chunk_counter,
-        interrupt_after_chunks,
+        progress=progress,
+        isolate_failures=isolate_failures,
+        after_chunk=after_chunk,
+        chunk_counter=[0] if chunk_counter is None else chunk_counter,
+        interrupt_after_chunks=interrupt_after_chunks,
     )
     # scope holds the float32 shearing's enable_x64(False) until the group ends.
     with contextlib.ExitStack() as scope:
