@@ -44,12 +44,12 @@ def measure(
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
 
-    from membrax import executor, sweep
+    from membrax import assemble, executor, sweep
     from membrax.config import TriaxialConfig
     from membrax.reproduce import SIZES
 
     base = TriaxialConfig(**{**SIZES[size], "float64": dtype == "float64"})
-    _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
+    _, members = assemble.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
     batch = executor.build_batch([config for _, config in members], mode=mode or None)
     build = time.perf_counter() - start

@@ -31,14 +31,14 @@ def main() -> None:
     import jax
     import numpy as np
 
-    from membrax import executor, runner, sweep
+    from membrax import assemble, executor, runner, sweep
     from membrax.config import TriaxialConfig
     from membrax.reproduce import SIZES
 
     base = TriaxialConfig(**SIZES[args.size])
     if base.float64:
         jax.config.update("jax_enable_x64", True)
-    _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
+    _, members = assemble.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
     batch = executor.build_batch([config for _, config in members])
     print(

@@ -170,11 +170,11 @@ def main() -> None:
     out = args.out or tempfile.mkdtemp(prefix="membrax_profile_")
     os.makedirs(out, exist_ok=True)
     base = TriaxialConfig(**{**SIZES[args.size], "float64": args.dtype == "float64"})
-    _, members = sweep.grid_members(base, sweep.DEFAULT_GRID)
+    _, members = assemble.grid_members(base, sweep.DEFAULT_GRID)
     start = time.perf_counter()
     batch = executor.build_batch([config for _, config in members], mode=args.mode or None)
     build = time.perf_counter() - start
-    plans = [t.phase_plan(assemble.loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
+    plans = [t.phase_plan(s.loading) for t, s in zip(batch.tests, batch.settings, strict=True)]
     consolidation_every = args.record_every or plans[0]["consolidation"][1]
     left = jnp.asarray([10**9] * batch.num_padded)
 
@@ -196,8 +196,8 @@ def main() -> None:
     members_now = batch.unstack(batch.initial_state)
     sheared = batch.restack(
         [
-            test.start_shear(m, c.inertial_number, c.shear_ramp_strain, c.symmetric_loading)
-            for test, m, c in zip(batch.tests, members_now, batch.configs, strict=True)
+            test.start_phase("shear_fine", m, s.loading)
+            for test, m, s in zip(batch.tests, members_now, batch.settings, strict=True)
         ]
         + members_now[len(batch.tests) :]
     )

@@ -72,7 +72,7 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
     import jax
     import numpy as np
 
-    from membrax import assemble, executor, runner
+    from membrax import executor, runner
     from membrax.config import ConfigError, TriaxialConfig
     from membrax.errors import RunError, SimulationError
     from membrax.reproduce import SIZES
@@ -125,7 +125,7 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
             batch, Path(tempfile.mkdtemp(prefix=f"corner_{name}_")), progress=False, after_chunk=after_chunk
         )
         mine = runner.member_chunk_records(records, 0)
-        metadata = runner.run_metadata(config, test, mine, 0.0, 0.0, assemble.consolidation_tolerance(config))
+        metadata = runner.run_metadata(batch.settings[0], test, mine, 0.0, 0.0)
         shear, _ = runner.results_datasets(mine, shear_start[0], metadata)
         peak = analysis.peak(shear)
         angles = {key: float(value) for key, value in peak.items() if "index" not in key}

@@ -6,25 +6,37 @@ Contract. The configuration object (:class:`membrax.config.TriaxialConfig`) is r
 :func:`build_specimen` into its specimen (the FCC lattice, or a random packing compacted once per set of
 the fields that make it and cached on disk), :func:`loading` into the protocol's loading programme,
 :func:`damping_params` and :func:`consolidation_tolerance` into the values the step and the stop test
-take. :data:`BATCHED_FIELDS` names the fields members of one compiled batch may differ in
-(:func:`structure_key` groups the rest), :func:`common_nodes_around` the one mesh topology of a batch.
+take, :func:`run_settings` into the plain values the executor and the runner take (:class:`RunSettings`:
+they never read a configuration). :data:`BATCHED_FIELDS` names the fields members of one compiled batch
+may differ in (:func:`structure_key` groups the rest, :func:`grid_members` makes a grid's members),
+:func:`common_nodes_around` the one mesh topology of a batch.
 """
 
 from __future__ import annotations
 
 import dataclasses as pydataclasses
 import hashlib
+import itertools
 import math
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from membrax import native
-from membrax.config import INFLATION_WARNING_RATIO, TriaxialConfig, config_to_dict, inflation_ratio
+from membrax.config import (
+    INFLATION_WARNING_RATIO,
+    TriaxialConfig,
+    characteristic_size_mm,
+    config_to_dict,
+    inflation_ratio,
+    with_overrides,
+)
 from membrax.defaults import COMPACTION_STRESS, default_consolidation_tolerance
+from membrax.errors import ConfigError
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.compaction import Compaction, random_packing
@@ -39,13 +51,18 @@ from membrax.triaxial.protocol import Loading
 __all__ = [
     "BATCHED_FIELDS",
     "BOOKKEEPING_FIELDS",
+    "RunSettings",
     "build_specimen",
     "build_test",
     "common_nodes_around",
     "consolidation_tolerance",
     "damping_params",
+    "grid_members",
     "inflation_warning",
     "loading",
+    "precision_scope",
+    "report_values",
+    "run_settings",
     "structure_key",
 ]
 
@@ -258,6 +275,7 @@ def loading(config: TriaxialConfig) -> Loading:
         record_every_fine=config.record_every_fine,
         record_every_coarse=config.record_every_coarse,
         coarse_inertial_number=config.coarse_inertial_number or None,
+        symmetric=config.symmetric_loading,
     )
 
 
@@ -273,6 +291,82 @@ def consolidation_tolerance(config: TriaxialConfig) -> float:
     return tolerance
 
 
+@pydataclasses.dataclass(frozen=True)
+class RunSettings:
+    """What a run takes from its configuration besides the test: plain values (:func:`run_settings`).
+
+    Attributes:
+      name: the configuration's name (messages, member names).
+      loading: the protocol's loading programme (:func:`loading`).
+      consolidation_tolerance: the unbalanced-force ratio that ends consolidation
+        (:func:`consolidation_tolerance`).
+      chunk_steps: steps per compiled chunk.
+      checkpoint_every_chunks: chunks between checkpoints.
+      dt_safety: the time step's safety factor (named in a runaway's message).
+      float64: consolidation (and, without ``float32_shearing``, everything) in float64.
+      float32_shearing: with ``float64``, the shearing in float32.
+      provenance: the configuration as written (:func:`membrax.config.config_to_dict`), for results.
+    """
+
+    name: str
+    loading: Loading
+    consolidation_tolerance: float
+    chunk_steps: int
+    checkpoint_every_chunks: int
+    dt_safety: float
+    float64: bool
+    float32_shearing: bool
+    provenance: dict = pydataclasses.field(compare=False)
+
+    @property
+    def precision(self) -> str:
+        """``"float64"``, ``"float32"`` or ``"float64 consolidation, float32 shearing"``."""
+        if not self.float64:
+            return "float32"
+        return "float64 consolidation, float32 shearing" if self.float32_shearing else "float64"
+
+
+def run_settings(config: TriaxialConfig) -> RunSettings:
+    """The plain values a run of ``config`` takes besides its test (:class:`RunSettings`)."""
+    return RunSettings(
+        name=config.name,
+        loading=loading(config),
+        consolidation_tolerance=consolidation_tolerance(config),
+        chunk_steps=config.chunk_steps,
+        checkpoint_every_chunks=config.checkpoint_every_chunks,
+        dt_safety=config.dt_safety,
+        float64=config.float64,
+        float32_shearing=config.float32_shearing,
+        provenance=config_to_dict(config),
+    )
+
+
+def report_values(config: TriaxialConfig) -> dict:
+    """The values a report quotes about a configuration's test, as a plain dict (reports never read one).
+
+    The fields in the configuration's units (:func:`membrax.config.config_to_dict`), and
+    ``particle_radius``, ``particle_diameter`` (m, the configuration's own conversion),
+    ``characteristic_size_mm`` (:func:`membrax.config.characteristic_size_mm`: d50, or the diameter) and
+    ``precision`` (:attr:`RunSettings.precision`).
+    """
+    values = config_to_dict(config)
+    return {
+        **values,
+        "particle_radius": config.particle_radius,
+        "particle_diameter": config.particle_diameter,
+        "characteristic_size_mm": characteristic_size_mm(values),
+        "precision": run_settings(config).precision,
+    }
+
+
+def precision_scope(config: TriaxialConfig):
+    """The configuration's precision as a context (``jax.enable_x64``), scoped to the calling thread.
+
+    The process's global setting, the entry point's (:mod:`membrax.cli`) or the user's, is never changed.
+    """
+    return jax.enable_x64(config.float64)
+
+
 def structure_key(config: TriaxialConfig) -> tuple:
     """The fields that must agree within one batch (everything not batched and not bookkeeping)."""
     return tuple(
@@ -280,6 +374,38 @@ def structure_key(config: TriaxialConfig) -> tuple:
         for field in pydataclasses.fields(TriaxialConfig)
         if field.name not in BATCHED_FIELDS and field.name not in BOOKKEEPING_FIELDS
     )
+
+
+def grid_members(base: TriaxialConfig, grid: Mapping[str, Sequence]) -> tuple[dict, list]:
+    """Every combination of ``grid`` applied to ``base``, in row-major order (the last field fastest).
+
+    Returns:
+      (coordinates: {field: tuple of the field's values, converted}, members: list of
+      (index tuple, TriaxialConfig named ``{base.name}_{k}``)).
+
+    Raises:
+      ConfigError: an unknown or bookkeeping field, a repeated value, or a value out of range (the
+        configuration's own message).
+    """
+    if not grid:
+        raise ConfigError("the grid is empty; give at least one field, e.g. cell_pressure_kpa=10,40,100.")
+    fields = {field.name for field in pydataclasses.fields(TriaxialConfig)}
+    coordinates: dict[str, tuple] = {}
+    for key, values in grid.items():
+        if key not in fields or key in BOOKKEEPING_FIELDS:
+            raise ConfigError(
+                f"grid field {key!r} is not a simulation field of TriaxialConfig; choose from "
+                f"{sorted(fields - BOOKKEEPING_FIELDS)}."
+            )
+        converted = tuple(getattr(with_overrides(base, **{key: value}), key) for value in values)
+        if len(set(converted)) != len(converted):
+            raise ConfigError(f"grid field {key!r} repeats a value ({list(values)}); give distinct values.")
+        coordinates[key] = converted
+    members = []
+    for k, index in enumerate(itertools.product(*(range(len(v)) for v in coordinates.values()))):
+        overrides = {key: coordinates[key][i] for key, i in zip(coordinates, index, strict=True)}
+        members.append((index, with_overrides(base, name=f"{base.name}_{k}", **overrides)))
+    return coordinates, members
 
 
 def common_nodes_around(configs: Sequence[TriaxialConfig]) -> int:

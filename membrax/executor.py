@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
-from membrax.assemble import BATCHED_FIELDS, build_test, common_nodes_around, loading, structure_key
+from membrax.assemble import BATCHED_FIELDS, build_test, common_nodes_around, run_settings, structure_key
 from membrax.batch import stack
 from membrax.config import TriaxialConfig
 from membrax.driver import advance, drive, grow_tables, record_blocks
@@ -88,7 +88,8 @@ class BatchedTest:
     """Members of one compiled batch (built by :func:`build_batch`); arrays stacked on a member axis.
 
     Attributes:
-      configs: the members' configurations.
+      configs: the members' configurations (handed to :mod:`membrax.assemble` only, never read here).
+      settings: the members' :class:`membrax.assemble.RunSettings` (name, loading, chunk steps, ...).
       tests: the members' :class:`MembraneTest` (built with the common Δt and n_θ: each one alone runs the
         same steps as its member of the batch).
       dt: the common time step, s.
@@ -102,6 +103,7 @@ class BatchedTest:
     """
 
     configs: list
+    settings: list
     tests: list
     dt: float
     nodes_around: int
@@ -265,7 +267,7 @@ class BatchedTest:
         def fail(error, new, states):
             bad = int(np.flatnonzero(error[:num])[0])
             return SimulationError(
-                f"member {bad} ({self.configs[bad].name}) stopped in the chunk ending at step "
+                f"member {bad} ({self.settings[bad].name}) stopped in the chunk ending at step "
                 f"{int(np.asarray(new.dem.step)[bad])}: " + "; ".join(describe(error[bad])),
                 state=states,
             )
@@ -388,12 +390,15 @@ def plan_members(
         t if t.dt == dt else build_test(c, time_step=dt, nodes_around=nodes_around)
         for t, c in zip(tests, configs, strict=True)
     ]
-    plans = [t.phase_plan(loading(c)) for c, t in zip(configs, tests, strict=True)]
-    work = [
-        min(c.consolidation_max_steps, 2 * c.chunk_steps) + sum(plan[phase][0] for phase in PHASES[1:])
-        for c, plan in zip(configs, plans, strict=True)
-    ]
+    work = [_expected_steps(t, run_settings(c)) for t, c in zip(tests, configs, strict=True)]
     return tests, float(dt), nodes_around, work
+
+
+def _expected_steps(test, settings) -> int:
+    """A member's work: its planned shearing steps and two chunks of consolidation (or its cap)."""
+    plan = test.phase_plan(settings.loading)
+    consolidation = min(settings.loading.consolidation_max_steps, 2 * settings.chunk_steps)
+    return consolidation + sum(plan[phase][0] for phase in PHASES[1:])
 
 
 def build_batch(
@@ -447,7 +452,8 @@ def build_batch(
     if sorted(order) != list(range(len(configs))):
         raise ValueError(f"order = {order}; give a permutation of range({len(configs)}).")
     configs, tests = [configs[i] for i in order], [tests[i] for i in order]
-    states = [t.start_consolidation(t.initial_state) for t in tests]
+    # The members start at the protocol's first phase; membrax.runner.run_group enters the others.
+    states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]
     lists = allocate_shared(tests[0].runner.neighbor_frame, [s.dem.position for s in states])
     states = [s.set(dem=s.dem.set(neighbors=nl)) for s, nl in zip(states, lists, strict=True)]
     num_padded = num_devices * math.ceil(len(tests) / num_devices)
@@ -461,6 +467,7 @@ def build_batch(
     ]
     return BatchedTest(
         configs=configs,
+        settings=[run_settings(c) for c in configs],
         tests=tests,
         dt=float(dt),
         nodes_around=nodes_around,

@@ -48,19 +48,17 @@ from pathlib import Path
 import numpy as np
 
 from membrax import paper, plots
+from membrax.assemble import report_values
 from membrax.config import (
     BALLAST_GRADING_MM,
     DEMO_CONFIG,
     DEMO_RANDOM_CONFIG,
     TriaxialConfig,
-    characteristic_size_mm,
-    config_to_dict,
     scaled_grading,
     with_overrides,
 )
 from membrax.defaults import COMPACTION_FRICTION_DEG
 from membrax.io.results import read_results
-from membrax.runner import precision_name
 from membrax.sweep import member_records, run_sweep
 
 __all__ = [
@@ -235,16 +233,17 @@ def reproduce(
         scheduler=scheduler,
         members_per_task=members_per_task,
     )
+    values = report_values(base)
     if random:
-        return _random_outputs(result, base, size, folder, resume, reference_folder, started)
+        return _random_outputs(result, values, size, folder, resume, reference_folder, started)
     dataset = result.dataset
     cases = fcc_cases(dataset)
     files = dict(result.files)
-    files.update(paper.write_tables(cases, folder, particle_radius=base.particle_radius))
+    files.update(paper.write_tables(cases, folder, particle_radius=values["particle_radius"]))
     files["figures"] = plots.save_test_figures(cases[(10.0, 5.0)], folder) if (10.0, 5.0) in cases else []
-    diameter_mm = 1e3 * base.particle_diameter
+    diameter_mm = 1e3 * values["particle_diameter"]
     ours = paper.fig9_data(
-        cases, particle_diameter_mm=diameter_mm, membrane_modulus_kpa=base.membrane_modulus_kpa
+        cases, particle_diameter_mm=diameter_mm, membrane_modulus_kpa=values["membrane_modulus_kpa"]
     )
     files["fig9"] = plots.save_fig9(ours, folder, paper=paper.paper_fig9_data())
     seconds = time.perf_counter() - started
@@ -252,16 +251,16 @@ def reproduce(
     timed = "this call (resumed from any checkpoints) ran the sweep in" if resume else "the sweep ran in"
     text = [
         f"# membrax reproduction ({size})\n",
-        f"Specimen {base.particles_across} × {base.layers} layers, "
-        f"membrane edge D/{base.membrane_edges_per_diameter:g}, "
-        f"I = {base.inertial_number:g}"
+        f"Specimen {values['particles_across']} × {values['layers']} layers, "
+        f"membrane edge D/{values['membrane_edges_per_diameter']:g}, "
+        f"I = {values['inertial_number']:g}"
         + (
-            f" (then {base.coarse_inertial_number:g} after {100 * base.fine_until_strain:g} %)"
-            if base.coarse_inertial_number
+            f" (then {values['coarse_inertial_number']:g} after {100 * values['fine_until_strain']:g} %)"
+            if values["coarse_inertial_number"]
             else ""
         )
-        + f", to {100 * base.target_axial_strain:g} % axial strain, "
-        f"{precision_name(base)}; {timed} {result.seconds:.0f} s, "
+        + f", to {100 * values['target_axial_strain']:g} % axial strain, "
+        f"{values['precision']}; {timed} {result.seconds:.0f} s, "
         f"everything in {seconds:.0f} s.\n",
         "Members' consolidation steps (rows σc, columns t_m):\n",
         "```\n" + str(dataset["consolidation_steps"].values.astype(int)) + "\n```\n",
@@ -274,14 +273,14 @@ def reproduce(
     return {"folder": folder, "sweep": result, "files": files, "seconds": seconds}
 
 
-def _spheres_words(base: TriaxialConfig) -> str:
+def _spheres_words(values: dict) -> str:
     """The spheres of a random reproduction in words: equal ones, or the grading's sieves and d50."""
-    if not base.grading:
-        return f"equal {1e3 * base.particle_diameter:g} mm spheres"
-    sieves = ", ".join(f"{size:.3g} mm {percent:g} %" for size, percent in base.grading)
+    if not values["grading"]:
+        return f"equal {1e3 * values['particle_diameter']:g} mm spheres"
+    sieves = ", ".join(f"{size:.3g} mm {percent:g} %" for size, percent in values["grading"])
     return (
         f"spheres graded as scaled railway ballast (percent passing by mass: {sieves}; d50 "
-        f"{characteristic_size_mm(config_to_dict(base)):.3g} mm)"
+        f"{values['characteristic_size_mm']:.3g} mm)"
     )
 
 
@@ -345,7 +344,7 @@ def fcc_cases(dataset) -> dict:
     }
 
 
-def _random_outputs(result, base, size, folder, resume, reference_folder, started) -> dict:
+def _random_outputs(result, values, size, folder, resume, reference_folder, started) -> dict:
     """:func:`reproduce`'s files for ``packing="random"``: spread tables, figures per seed, the report."""
     by_seed = random_cases(result.dataset)
     reference_folder = Path(reference_folder if reference_folder is not None else f"results_reproduce_{size}")
@@ -353,13 +352,13 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
     reference = fcc_cases(reference_dataset) if reference_dataset is not None else None
     files = dict(result.files)
     # A graded specimen's particle radius: half its d50 (the size a laboratory quotes).
-    radius = 0.5e-3 * characteristic_size_mm(config_to_dict(base))
+    radius = 0.5e-3 * values["characteristic_size_mm"]
     files.update(paper.write_spread_tables(by_seed, folder, reference=reference, particle_radius=radius))
     files["figures"] = []
     for seed, cases in by_seed.items():
         if (10.0, 5.0) in cases:
             files["figures"] += plots.save_test_figures(cases[(10.0, 5.0)], folder, stem=f"seed{seed}_fig")
-    fig9 = dict(particle_diameter_mm=1e3 * 2.0 * radius, membrane_modulus_kpa=base.membrane_modulus_kpa)
+    fig9 = dict(particle_diameter_mm=1e3 * 2.0 * radius, membrane_modulus_kpa=values["membrane_modulus_kpa"])
     ours = seed_mean_fig9([paper.fig9_data(cases, **fig9) for cases in by_seed.values()])
     fcc = paper.fig9_data(reference, **fig9) if reference else None
     files["fig9"] = plots.save_fig9(ours, folder, paper=fcc, labels=("random", "FCC"))
@@ -380,11 +379,12 @@ def _random_outputs(result, base, size, folder, resume, reference_folder, starte
     ]
     text = [
         f"# membrax reproduction on random specimens ({size})\n",
-        f"Random packings of {_spheres_words(base)} in a mould "
-        f"{base.specimen_diameter_mm:g} × {base.specimen_height_mm:g} mm, compacted with an interparticle "
-        f"friction of {base.compaction_friction_deg:.4g}°, seeds {', '.join(map(str, by_seed))}; "
-        f"membrane edge D/{base.membrane_edges_per_diameter:g}, I = {base.inertial_number:g}, to "
-        f"{100 * base.target_axial_strain:g} % axial strain, {precision_name(base)}; {timed} "
+        f"Random packings of {_spheres_words(values)} in a mould "
+        f"{values['specimen_diameter_mm']:g} × {values['specimen_height_mm']:g} mm, compacted with an "
+        f"interparticle friction of {values['compaction_friction_deg']:.4g}°, seeds "
+        f"{', '.join(map(str, by_seed))}; "
+        f"membrane edge D/{values['membrane_edges_per_diameter']:g}, I = {values['inertial_number']:g}, to "
+        f"{100 * values['target_axial_strain']:g} % axial strain, {values['precision']}; {timed} "
         f"{result.seconds:.0f} s, everything in {seconds:.0f} s. {fcc_note}\n",
         "Specimens: " + "; ".join(per_seed) + ".\n",
         (folder / "random_table2.md").read_text(),

@@ -36,11 +36,10 @@ import dataclasses
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 
 from membrax import __version__, plots
-from membrax.assemble import build_test, consolidation_tolerance
+from membrax.assemble import build_test, consolidation_tolerance, precision_scope
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
 from membrax.errors import RunError
 from membrax.executor import build_batch
@@ -63,6 +62,7 @@ __all__ = [
     "RunResult",
     "build_test",
     "consolidation_tolerance",
+    "default_folder",
     "run_test",
     "figure_title",
 ]
@@ -88,6 +88,11 @@ class RunResult:
     summary: str
     files: dict
     metadata: dict
+
+
+def default_folder(config: TriaxialConfig, suffix: str = "") -> Path:
+    """Where a run of ``config`` writes by default: ``results_<name><suffix>``."""
+    return Path(f"results_{config.name}{suffix}")
 
 
 def _vtk_snapshot(series, state, test: MembraneTest) -> None:
@@ -148,9 +153,8 @@ def run_test(
     folder.mkdir(parents=True, exist_ok=True)
     if not resume:
         (folder / "config.toml").write_text(dump_config_toml(config))
-    # The configuration's precision, scoped to this call (thread-local): the process's global setting,
-    # the entry point's (membrax.cli) or the user's, is never changed.
-    with jax.enable_x64(config.float64):
+    # The configuration's precision, scoped to this call (thread-local).
+    with precision_scope(config):
         started = time.perf_counter()
         # One member on one device: the loop of every run and sweep (membrax.runner).
         batch = build_batch([config], num_devices=1, time_step=time_step, nodes_around=nodes_around)
@@ -187,15 +191,15 @@ def run_test(
             if error.records is not None:
                 _write_partial(folder, member_chunk_records(error.records, 0), config)
             raise RunError(f"{error} Records so far are in {folder}.", error.records) from error
+        mine = member_chunk_records(records, 0)
         return _finish(
             folder,
             config,
             test,
-            member_chunk_records(records, 0),
+            run_metadata(batch.settings[0], test, mine, build_seconds, elapsed),
+            mine,
             shear_start[0],
-            build_seconds,
             elapsed,
-            consolidation_tolerance(config),
             None if resumed_from is None else (resumed_from, time.perf_counter() - call_started),
         )
 
@@ -223,11 +227,8 @@ def figure_title(config, metadata: dict) -> str:
     )
 
 
-def _finish(
-    folder, config, test, records, shear_start, build_seconds, elapsed, tolerance, resumed=None
-) -> RunResult:
+def _finish(folder, config, test, metadata, records, shear_start, elapsed, resumed=None) -> RunResult:
     """Write the results, figures and summary; ``resumed`` is (checkpoint step, this call's seconds)."""
-    metadata = run_metadata(config, test, records, build_seconds, elapsed, tolerance)
     shear, consolidation = results_datasets(records, shear_start, metadata)
     files = {"consolidation": write_results(consolidation, folder, "consolidation")}
     files["results"] = write_results(shear, folder, "results")

@@ -2,10 +2,12 @@
 
 Contract. Every membrane test that runs to a results folder goes through here, alone or in a grid: a single
 test (:func:`membrax.run.run_test`) is a batch of one, a sweep (:func:`membrax.sweep.run_sweep`) runs its
-grid as batches. :func:`build_batch` builds the members of one compiled batch (:class:`BatchedTest`:
-states stacked on a member axis, one Δt, one mesh topology) and :func:`run_group` takes them through the
-protocol's stage sequence (:data:`membrax.triaxial.protocol.PHASES`, each member's steps and record
-intervals from :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan` of its :func:`loading`):
+grid as batches. :func:`membrax.executor.build_batch` builds the members of one compiled batch
+(:class:`~membrax.executor.BatchedTest`: states stacked on a member axis, one Δt, one mesh topology, each
+member's plain :class:`~membrax.assemble.RunSettings`; the runner never reads a configuration) and
+:func:`run_group` takes them through the protocol's stage sequence (:data:`membrax.triaxial.protocol.PHASES`,
+each phase started by :meth:`~membrax.triaxial.protocol.StagedTest.start_phase`, each member's steps and
+record intervals from :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan` of its loading):
 
 - ``consolidation``: the ram servo on, until each member's own stop test holds
   (:meth:`membrax.triaxial.membrane_cell.MembraneTest.is_consolidated`) or it reaches
@@ -30,6 +32,7 @@ Batching: :mod:`membrax.executor`; configurations become tests in :mod:`membrax.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import platform
 import time
 from collections.abc import Callable
@@ -39,8 +42,7 @@ import jax
 import numpy as np
 
 from membrax import __version__, theory
-from membrax.assemble import consolidation_tolerance, loading
-from membrax.config import TriaxialConfig, config_to_dict
+from membrax.assemble import RunSettings
 from membrax.errors import RunError, SimulationError
 from membrax.executor import BatchedTest, batch_template, cast_state, float32_batch, table_capacities
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
@@ -55,7 +57,6 @@ __all__ = [
     "join_records",
     "member_chunk_records",
     "phase_bar",
-    "precision_name",
     "rebase_to_shear_start",
     "results_datasets",
     "run_group",
@@ -178,6 +179,12 @@ def run_group(
 ):
     """Run one batch through the three phases of :data:`PHASES` (module docstring).
 
+    The steps, each a function below: :func:`_start_group` (afresh, or from the checkpoint), then for each
+    phase :func:`_enter_phase` (the protocol's :meth:`~membrax.triaxial.protocol.StagedTest.start_phase`
+    on every member, the budgets of its :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan`) and
+    :func:`_advance_phase` (the driver's loop, watched chunk by chunk by :func:`_on_chunk`), a checkpoint at
+    each phase's end (:func:`_save`), and last :func:`_shear_starts`.
+
     With ``float32_shearing`` (and ``float64``) consolidation runs in float64 and the shearing in float32:
     at the start of shearing the batch is rebuilt in float32 (:func:`float32_batch`) and the state carried
     over (:func:`cast_state`); the rest runs inside ``jax.enable_x64(False)``.
@@ -204,230 +211,323 @@ def run_group(
       RunError: a member blew up (error bits or runaway kinetic energy); ``error.records`` holds the
         records so far, as returned.
     """
+    hooks = _Hooks(
+        progress=progress,
+        isolate_failures=isolate_failures,
+        after_chunk=after_chunk,
+        chunk_counter=[0] if chunk_counter is None else chunk_counter,
+        interrupt_after_chunks=interrupt_after_chunks,
+    )
     # scope holds the float32 shearing's enable_x64(False) until the group ends.
     with contextlib.ExitStack() as scope:
-        chunk_counter = [0] if chunk_counter is None else chunk_counter
-        failures: dict[int, dict] = {}
-        batch.failures = failures
-        float32_shearing = batch.configs[0].float64 and batch.configs[0].float32_shearing
-
-        def to_float32():
-            """Rebuild the batch in float32 and run the rest in float32 (once)."""
-            nonlocal batch
-            if np.dtype(batch.initial_state.dem.position.dtype) == np.float32:
-                return
-            scope.enter_context(jax.enable_x64(False))
-            batch = float32_batch(batch)
-
-        config = batch.configs[0]
-        checkpoint_path = folder / CHECKPOINT_NAME
-        num = batch.num_members
-        records: dict[str, list[dict]] = {phase: [] for phase in PHASES}
-        phase_index, elapsed = 0, 0.0
-        budgets = None
-        shear_height = np.zeros(num)
-        shear_volume = np.zeros(num)
-        states = batch.initial_state
-        if resume and checkpoint_path.exists():
-            host = read_checkpoint_host(checkpoint_path)
-            if float32_shearing and host.get("dtype") == "float32":
-                to_float32()
-            states, host = load_checkpoint(checkpoint_path, batch_template(batch, host["capacities"]))
-            phase_index, elapsed = host["phase_index"], host["elapsed_s"]
-            budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
-            shear_height, shear_volume = np.asarray(host["shear_height"]), np.asarray(host["shear_volume"])
-            failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
-            for phase in PHASES:
-                names = host.get(f"names_{phase}", [])
-                if names:
-                    records[phase] = [{name: np.asarray(host[f"rec_{phase}_{name}"]) for name in names}]
-        tolerances = [consolidation_tolerance(c) for c in batch.configs]
-        volume_work = np.array([t.cell_pressure * t.initial_volume for t in batch.tests])
-        clock = time.perf_counter()
-
-        def save(current, current_budgets):
-            host = {
-                "phase_index": phase_index,
-                "elapsed_s": elapsed + time.perf_counter() - clock,
-                "capacities": table_capacities(current),
-                # None at a phase's end: the next phase computes its budgets (and starts shearing) on resume.
-                "budgets": None if current_budgets is None else [int(v) for v in current_budgets],
-                "shear_height": shear_height,
-                "shear_volume": shear_volume,
-                "member_steps": [int(step) for step in np.asarray(current.dem.step)[:num]],
-                "dtype": str(np.dtype(current.dem.position.dtype)),
-                "failures": {str(b): failure for b, failure in failures.items()},
-            }
-            for phase in PHASES:
-                joined = join_records(records[phase], axis=1)
-                host[f"names_{phase}"] = list(joined)
-                host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
-            save_checkpoint(checkpoint_path, current, host)
-
-        # The protocol's stage sequence (membrax.triaxial.protocol): each member's steps and record interval
-        # per phase. The record interval is shared: it is not a batched field, so all members have the same.
-        plans = [t.phase_plan(loading(c)) for t, c in zip(batch.tests, batch.configs, strict=True)]
-        while phase_index < len(PHASES):
-            phase = PHASES[phase_index]
-            if budgets is None:
-                if phase == "shear_fine" and float32_shearing:
-                    capacities = table_capacities(states)
-                    to_float32()
-                    states = cast_state(states, batch_template(batch, capacities))
-                if phase == "shear_fine":
-                    members = batch.unstack(states)
-                    for b, test in enumerate(batch.tests):
-                        if b in failures:  # frozen: it never shears
-                            continue
-                        shear_height[b] = _last_member_value(records["consolidation"], "height", b)
-                        shear_volume[b] = _last_member_value(records["consolidation"], "volume", b)
-                        c = batch.configs[b]
-                        members[b] = test.start_shear(
-                            members[b], c.inertial_number, c.shear_ramp_strain, c.symmetric_loading
-                        )
-                    states = batch.restack(members)
-                elif phase == "shear_coarse" and any(c.coarse_inertial_number for c in batch.configs):
-                    members = batch.unstack(states)
-                    for b, test in enumerate(batch.tests):
-                        c = batch.configs[b]
-                        if b not in failures and c.coarse_inertial_number:
-                            members[b] = test.change_shear_rate(
-                                members[b], c.inertial_number, c.coarse_inertial_number, c.shear_ramp_strain
-                            )
-                    states = batch.restack(members)
-                budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
-                budgets[list(failures)] = 0  # a failed member stays frozen
-            record_every = plans[0][phase][1]
-            total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
-            bar = phase_bar(phase, num, total, progress)
-
-            def on_chunk(current, chunk, left, phase=phase, bar=bar, record_every=record_every):
-                nonlocal budgets
-                budgets = left
-                kinetic = chunk["kinetic_energy"].reshape(num, chunk["valid"].shape[1], -1)[:, -1, 0]
-                runaway = ~np.isfinite(kinetic) | (kinetic > RUNAWAY_KINETIC_FRACTION * volume_work)
-                runaway[list(failures)] = False
-                stop = []
-                for b in np.flatnonzero(runaway):
-                    message = (
-                        f"member {b} ({batch.configs[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
-                        f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = "
-                        f"{RUNAWAY_KINETIC_FRACTION * volume_work[b]:.3g} J: "
-                        f"the run is unstable. Lower dt_safety (now {config.dt_safety}) or the stiffness."
-                    )
-                    if not isolate_failures:
-                        raise RunError(message)
-                    chunk["valid"][b] = False  # frozen at its last good records
-                    stop.append(int(b))
-                    on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]), phase)
-                records[phase].append(chunk)
-                bar.update(chunk["valid"].shape[1] * record_every)
-                postfix = {"active": int(np.sum(left > 0)), "step": int(np.max(np.asarray(current.dem.step)))}
-                if phase == "consolidation":
-                    # The worst member's unbalanced-force ratio against the stop value (tqdm sorts the keys).
-                    ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
-                    last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
-                    postfix = {
-                        "unbalanced": f"{max(last, default=0.0):.1e}",
-                        "until": f"{min(tolerances):.0e}",
-                        **({} if num == 1 else {"active": postfix["active"]}),
-                    }
-                elif num == 1:
-                    # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
-                    valid = chunk["valid"][0]
-                    last = {name: float(chunk[name][0][valid][-1].ravel()[0]) for name in _PROGRESS}
-                    external, internal = analysis.friction_angle_deg(
-                        [last["external_axial_stress"], last["internal_axial_stress"]],
-                        [last["external_radial_stress"], last["internal_radial_stress"]],
-                    )
-                    postfix = {
-                        "strain": f"{100 * last['axial_strain']:.3f}%",
-                        "phi_ext": f"{external:.1f}",
-                        "phi_int": f"{internal:.1f}",
-                    }
-                bar.set_postfix(**postfix)
-                if after_chunk is not None:
-                    after_chunk(current, phase)
-                chunk_counter[0] += 1
-                if chunk_counter[0] % config.checkpoint_every_chunks == 0:
-                    save(current, left)
-                if interrupt_after_chunks is not None and chunk_counter[0] >= interrupt_after_chunks:
-                    raise KeyboardInterrupt(f"interrupted after {chunk_counter[0]} chunks (testing aid)")
-                return stop
-
-            def on_failure(b, names, step, phase=phase):
-                failures[b] = {"error": names, "step": step, "phase": phase}
-
-            stop_fn = None
-            if phase == "consolidation":
-
-                def stop_fn(b, mine):
-                    return batch.tests[b].is_consolidated(mine, tolerances[b])
-
-            try:
-                states, budgets = batch.run_phase(
-                    states,
-                    budgets,
-                    config.chunk_steps,
-                    record_every,
-                    stop_fn=stop_fn,
-                    on_chunk=on_chunk,
-                    on_failure=on_failure if isolate_failures else None,
-                )
-            except SimulationError as error:
-                raise RunError(
-                    f"{error}. Lower dt_safety (now {config.dt_safety}) or particle_stiffness_n_m; a "
-                    "membrane modulus far above the paper's 1400 kPa also shortens the stable step.",
-                    records,
-                ) from error
-            except RunError as error:
-                error.records = records
-                raise
-            finally:
-                bar.close()
-            phase_index += 1
-            budgets = None
-            save(states, None)
-        elapsed += time.perf_counter() - clock
-        shear_start = [
-            {"height": shear_height[b], "volume": shear_volume[b], "platen_area": batch.tests[b].platen_area}
-            for b in range(num)
-        ]
-        return records, shear_start, elapsed
+        group = _start_group(batch, folder / CHECKPOINT_NAME, resume, scope)
+        while group.phase_index < len(PHASES):
+            phase = PHASES[group.phase_index]
+            if group.budgets is None:
+                _enter_phase(group, phase, scope)
+            _advance_phase(group, phase, hooks)
+            group.phase_index += 1
+            group.budgets = None
+            _save(group, group.states, None)
+        group.elapsed += time.perf_counter() - group.clock
+        return group.records, _shear_starts(group), group.elapsed
 
 
-def run_metadata(config, test, records, build_seconds, elapsed, tolerance) -> dict:
-    """The attributes of a run's datasets: configuration, version, sizes, Δt, steps, timings, machine."""
+@dataclasses.dataclass(frozen=True)
+class _Hooks:
+    """What a caller of :func:`run_group` adds to the run (its arguments of the same names)."""
+
+    progress: bool
+    isolate_failures: bool
+    after_chunk: Callable | None
+    chunk_counter: list
+    interrupt_after_chunks: int | None
+
+
+@dataclasses.dataclass
+class _Group:
+    """Where a group stands in the protocol, shared by :func:`run_group`'s steps (what a checkpoint keeps).
+
+    ``batch`` is the float32 rebuild once the float32 shearing has begun; ``plans`` (each member's
+    :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan`) and ``volume_work`` (σc V₀, the runaway
+    scale) are the batch's at the start of this call; ``clock`` the wall clock at its start.
+    """
+
+    batch: BatchedTest
+    checkpoint: Path
+    states: object
+    records: dict
+    failures: dict
+    shear_height: np.ndarray
+    shear_volume: np.ndarray
+    plans: list = dataclasses.field(default_factory=list)
+    volume_work: np.ndarray | None = None
+    phase_index: int = 0
+    elapsed: float = 0.0
+    budgets: np.ndarray | None = None
+    clock: float = 0.0
+
+    @property
+    def settings(self):
+        """The settings the members share (chunk steps, checkpoints, precision: not batched fields)."""
+        return self.batch.settings[0]
+
+    @property
+    def float32_shearing(self) -> bool:
+        return self.settings.float64 and self.settings.float32_shearing
+
+
+def _start_group(batch: BatchedTest, checkpoint: Path, resume: bool, scope) -> _Group:
+    """The group at the start of consolidation, or where the checkpoint left it (``resume``)."""
+    num = batch.num_members
+    group = _Group(
+        batch=batch,
+        checkpoint=checkpoint,
+        states=batch.initial_state,
+        records={phase: [] for phase in PHASES},
+        failures={},
+        shear_height=np.zeros(num),
+        shear_volume=np.zeros(num),
+    )
+    batch.failures = group.failures
+    if resume and checkpoint.exists():
+        _load(group, scope)
+    tests, settings = group.batch.tests, group.batch.settings
+    group.plans = [t.phase_plan(s.loading) for t, s in zip(tests, settings, strict=True)]
+    group.volume_work = np.array([t.cell_pressure * t.initial_volume for t in tests])
+    group.clock = time.perf_counter()
+    return group
+
+
+def _load(group: _Group, scope) -> None:
+    """Restore ``group`` from its checkpoint (in float32 where the checkpoint's shearing was)."""
+    host = read_checkpoint_host(group.checkpoint)
+    if group.float32_shearing and host.get("dtype") == "float32":
+        _to_float32(group, scope)
+    group.states, host = load_checkpoint(group.checkpoint, batch_template(group.batch, host["capacities"]))
+    group.phase_index, group.elapsed = host["phase_index"], host["elapsed_s"]
+    group.budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
+    group.shear_height = np.asarray(host["shear_height"])
+    group.shear_volume = np.asarray(host["shear_volume"])
+    group.failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
+    for phase in PHASES:
+        names = host.get(f"names_{phase}", [])
+        if names:
+            group.records[phase] = [{name: np.asarray(host[f"rec_{phase}_{name}"]) for name in names}]
+
+
+def _save(group: _Group, current, budgets) -> None:
+    """A checkpoint of ``current`` (stacked states) with the records so far and the phase's budgets."""
+    host = {
+        "phase_index": group.phase_index,
+        "elapsed_s": group.elapsed + time.perf_counter() - group.clock,
+        "capacities": table_capacities(current),
+        # None at a phase's end: the next phase computes its budgets (and starts shearing) on resume.
+        "budgets": None if budgets is None else [int(v) for v in budgets],
+        "shear_height": group.shear_height,
+        "shear_volume": group.shear_volume,
+        "member_steps": [int(step) for step in np.asarray(current.dem.step)[: group.batch.num_members]],
+        "dtype": str(np.dtype(current.dem.position.dtype)),
+        "failures": {str(b): failure for b, failure in group.failures.items()},
+    }
+    for phase in PHASES:
+        joined = join_records(group.records[phase], axis=1)
+        host[f"names_{phase}"] = list(joined)
+        host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
+    save_checkpoint(group.checkpoint, current, host)
+
+
+def _to_float32(group: _Group, scope) -> None:
+    """Rebuild the batch in float32 and run the rest in float32 (once)."""
+    if np.dtype(group.batch.initial_state.dem.position.dtype) == np.float32:
+        return
+    scope.enter_context(jax.enable_x64(False))
+    group.batch = float32_batch(group.batch)
+
+
+def _enter_phase(group: _Group, phase: str, scope) -> None:
+    """Start ``phase``: every member not frozen switched by the protocol, and each one's step budget.
+
+    The batch was built at the first phase's start (:func:`membrax.executor.build_batch`). At the start of
+    shearing the float32 shearing begins, and each member's height and volume are kept: strains count from
+    them (:func:`rebase_to_shear_start`).
+    """
+    if phase == "shear_fine" and group.float32_shearing:
+        capacities = table_capacities(group.states)
+        _to_float32(group, scope)
+        group.states = cast_state(group.states, batch_template(group.batch, capacities))
+    if phase == "shear_fine":
+        for b in range(group.batch.num_members):
+            if b not in group.failures:  # frozen: it never shears
+                group.shear_height[b] = _last_member_value(group.records["consolidation"], "height", b)
+                group.shear_volume[b] = _last_member_value(group.records["consolidation"], "volume", b)
+    if phase != PHASES[0]:
+        group.states = _start_members(group, phase)
+    group.budgets = np.array([plan[phase][0] for plan in group.plans], dtype=np.int64)
+    group.budgets[list(group.failures)] = 0  # a failed member stays frozen
+
+
+def _start_members(group: _Group, phase: str):
+    """The stacked states with each member not frozen switched to ``phase``'s start (its own loading)."""
+    batch = group.batch
+    members = batch.unstack(group.states)
+    started = [
+        member if b in group.failures else test.start_phase(phase, member, settings.loading)
+        for b, (member, test, settings) in enumerate(zip(members, batch.tests, batch.settings, strict=True))
+    ]
+    if all(new is old for new, old in zip(started, members, strict=True)):
+        return group.states  # nothing changes at this phase's start (no member changes its rate)
+    return batch.restack(started)
+
+
+def _advance_phase(group: _Group, phase: str, hooks: _Hooks) -> None:
+    """Run ``phase`` until every member's budget is spent (the driver's loop), a bar showing progress."""
+    settings, num = group.settings, group.batch.num_members
+    record_every = group.plans[0][phase][1]  # not a batched field: the same for every member
+    total = int(np.ceil(np.max(group.budgets, initial=0) / record_every) * record_every)
+    bar = phase_bar(phase, num, total, hooks.progress)
+
+    def on_failure(b, names, step):
+        group.failures[b] = {"error": names, "step": step, "phase": phase}
+
+    def on_chunk(current, chunk, left):
+        return _on_chunk(group, phase, hooks, bar, on_failure, current, chunk, left)
+
+    stop_fn = None
+    if phase == "consolidation":
+        tolerances = [s.consolidation_tolerance for s in group.batch.settings]
+
+        def stop_fn(b, mine):
+            return group.batch.tests[b].is_consolidated(mine, tolerances[b])
+
+    try:
+        group.states, group.budgets = group.batch.run_phase(
+            group.states,
+            group.budgets,
+            settings.chunk_steps,
+            record_every,
+            stop_fn=stop_fn,
+            on_chunk=on_chunk,
+            on_failure=on_failure if hooks.isolate_failures else None,
+        )
+    except SimulationError as error:
+        raise RunError(
+            f"{error}. Lower dt_safety (now {settings.dt_safety}) or particle_stiffness_n_m; a "
+            "membrane modulus far above the paper's 1400 kPa also shortens the stable step.",
+            group.records,
+        ) from error
+    except RunError as error:
+        error.records = group.records
+        raise
+    finally:
+        bar.close()
+
+
+def _on_chunk(group: _Group, phase: str, hooks: _Hooks, bar, on_failure, current, chunk, left) -> list:
+    """After each accepted chunk: the runaway check, the records, the bar, the hook and the checkpoint."""
+    group.budgets = left
+    stop = _runaways(group, phase, hooks, on_failure, current, chunk)
+    group.records[phase].append(chunk)
+    bar.update(chunk["valid"].shape[1] * group.plans[0][phase][1])
+    bar.set_postfix(**_postfix(group, phase, current, chunk, left))
+    if hooks.after_chunk is not None:
+        hooks.after_chunk(current, phase)
+    hooks.chunk_counter[0] += 1
+    if hooks.chunk_counter[0] % group.settings.checkpoint_every_chunks == 0:
+        _save(group, current, left)
+    if hooks.interrupt_after_chunks is not None and hooks.chunk_counter[0] >= hooks.interrupt_after_chunks:
+        raise KeyboardInterrupt(f"interrupted after {hooks.chunk_counter[0]} chunks (testing aid)")
+    return stop
+
+
+def _runaways(group: _Group, phase: str, hooks: _Hooks, on_failure, current, chunk) -> list[int]:
+    """Members whose kinetic energy ran away in ``chunk``: frozen (``isolate_failures``) or raised."""
+    num = group.batch.num_members
+    kinetic = chunk["kinetic_energy"].reshape(num, chunk["valid"].shape[1], -1)[:, -1, 0]
+    limit = RUNAWAY_KINETIC_FRACTION * group.volume_work
+    runaway = ~np.isfinite(kinetic) | (kinetic > limit)
+    runaway[list(group.failures)] = False
+    stop = []
+    for b in np.flatnonzero(runaway):
+        message = (
+            f"member {b} ({group.batch.settings[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
+            f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = {limit[b]:.3g} J: the run is unstable. Lower dt_safety "
+            f"(now {group.settings.dt_safety}) or the stiffness."
+        )
+        if not hooks.isolate_failures:
+            raise RunError(message)
+        chunk["valid"][b] = False  # frozen at its last good records
+        stop.append(int(b))
+        on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]))
+    return stop
+
+
+def _postfix(group: _Group, phase: str, current, chunk, left) -> dict:
+    """The bar's postfix after a chunk: where the group stands (tqdm sorts the keys)."""
+    num = group.batch.num_members
+    active = int(np.sum(left > 0))
+    if phase == "consolidation":
+        # The worst member's unbalanced-force ratio against the stop value.
+        ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
+        last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
+        return {
+            "unbalanced": f"{max(last, default=0.0):.1e}",
+            "until": f"{min(s.consolidation_tolerance for s in group.batch.settings):.0e}",
+            **({} if num == 1 else {"active": active}),
+        }
+    if num > 1:
+        return {"active": active, "step": int(np.max(np.asarray(current.dem.step)))}
+    # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
+    valid = chunk["valid"][0]
+    last = {name: float(chunk[name][0][valid][-1].ravel()[0]) for name in _PROGRESS}
+    external, internal = analysis.friction_angle_deg(
+        [last["external_axial_stress"], last["internal_axial_stress"]],
+        [last["external_radial_stress"], last["internal_radial_stress"]],
+    )
+    return {
+        "strain": f"{100 * last['axial_strain']:.3f}%",
+        "phi_ext": f"{external:.1f}",
+        "phi_int": f"{internal:.1f}",
+    }
+
+
+def _shear_starts(group: _Group) -> list[dict]:
+    """Each member's height, volume and platen area at the start of shearing."""
+    return [
+        {"height": group.shear_height[b], "volume": group.shear_volume[b], "platen_area": test.platen_area}
+        for b, test in enumerate(group.batch.tests)
+    ]
+
+
+def run_metadata(settings: RunSettings, test, records, build_seconds, elapsed) -> dict:
+    """The attributes of a run's datasets: configuration, version, sizes, Δt, steps, timings, machine.
+
+    ``settings``: the member's :class:`membrax.assemble.RunSettings`; ``records``: its records by phase
+    (:func:`member_chunk_records`).
+    """
     consolidation = join_records(records["consolidation"])
     shear_steps = (
-        sum(len(c["step"]) for c in records["shear_fine"]) * config.record_every_fine
-        + sum(len(c["step"]) for c in records["shear_coarse"]) * config.record_every_coarse
+        sum(len(c["step"]) for c in records["shear_fine"]) * settings.loading.record_every_fine
+        + sum(len(c["step"]) for c in records["shear_coarse"]) * settings.loading.record_every_coarse
     )
     return {
         "membrax_version": __version__,
-        "config": config_to_dict(config),
+        "config": settings.provenance,
         "num_particles": int(test.particles.num_particles),
         "num_membrane_nodes": int(test.mesh.num_nodes),
         "num_triangles": int(test.mesh.triangles.shape[0]),
         "dt_s": test.dt,
         "critical_dt_s": {key: float(value) for key, value in test.critical_dt.items()},
         "consolidation_steps": int(len(consolidation.get("step", [])) * CONSOLIDATION_RECORD_EVERY),
-        "consolidation_tolerance": tolerance,
+        "consolidation_tolerance": settings.consolidation_tolerance,
         "shear_steps": int(shear_steps),
         "build_s": build_seconds,
         "run_s": elapsed,
-        "dtype": precision_name(config),
+        "dtype": settings.precision,
         "machine": platform.platform(),
         "jax_backend": jax.default_backend(),
         "specimen": specimen_metadata(test.specimen),
     }
-
-
-def precision_name(config: TriaxialConfig) -> str:
-    """The run's precision: ``"float64"``, ``"float32"`` or ``"float64 consolidation, float32 shearing"``."""
-    if not config.float64:
-        return "float32"
-    return "float64 consolidation, float32 shearing" if config.float32_shearing else "float64"
 
 
 def specimen_metadata(specimen) -> dict:

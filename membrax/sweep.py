@@ -51,7 +51,6 @@ the sweep fails only when every member did.
 from __future__ import annotations
 
 import dataclasses as pydataclasses
-import itertools
 import json
 import math
 import os
@@ -67,26 +66,20 @@ import numpy as np
 import xarray as xr
 
 from membrax import __version__, campaign, paper
-from membrax.assemble import BOOKKEEPING_FIELDS, consolidation_tolerance, structure_key
-from membrax.config import (
-    ConfigError,
-    TriaxialConfig,
-    config_to_dict,
-    dump_config_toml,
-    parse_overrides,
-    with_overrides,
-)
+from membrax.assemble import grid_members, precision_scope, structure_key
+from membrax.config import ConfigError, TriaxialConfig, config_to_dict, dump_config_toml, parse_overrides
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
 from membrax.executor import balanced_order, build_batch, describe_failure, plan_members
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
+from membrax.run import default_folder as run_folder
 from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata
 from membrax.triaxial import analysis
 
 __all__ = [
     "DEFAULT_GRID",
     "SweepResult",
-    "grid_members",
+    "default_folder",
     "parse_grid",
     "run_sweep",
 ]
@@ -98,10 +91,16 @@ DEFAULT_GRID = paper.TABLE_1_GRID
 # ----------------------------------------------------------------------------------------------------------
 
 
+def default_folder(base: TriaxialConfig) -> Path:
+    """Where a sweep over ``base`` writes by default: ``results_<name>_sweep``."""
+    return run_folder(base, "_sweep")
+
+
 def parse_grid(items: Sequence[str]) -> dict[str, tuple]:
     """``["cell_pressure_kpa=10,40,100", "membrane_thickness_mm=2.5,5"]`` → ``{field: values}``.
 
-    Values are converted and checked by the configuration (:func:`membrax.config.with_overrides`).
+    Values are converted and checked by the configuration when the members are made
+    (:func:`membrax.assemble.grid_members`).
 
     Raises:
       ConfigError: naming the item, for a missing ``=``, an empty value list, a repeated field or a field
@@ -122,38 +121,6 @@ def parse_grid(items: Sequence[str]) -> dict[str, tuple]:
             raise ConfigError(f"--grid {item!r}: no values; write {key}=V1,V2,...")
         grid[key] = parsed
     return grid
-
-
-def grid_members(base: TriaxialConfig, grid: Mapping[str, Sequence]) -> tuple[dict, list]:
-    """Every combination of ``grid`` applied to ``base``, in row-major order (the last field fastest).
-
-    Returns:
-      (coordinates: {field: tuple of the field's values, converted}, members: list of
-      (index tuple, TriaxialConfig named ``{base.name}_{k}``)).
-
-    Raises:
-      ConfigError: an unknown or bookkeeping field, a repeated value, or a value out of range (the
-        configuration's own message).
-    """
-    if not grid:
-        raise ConfigError("the grid is empty; give at least one field, e.g. cell_pressure_kpa=10,40,100.")
-    fields = {field.name for field in pydataclasses.fields(TriaxialConfig)}
-    coordinates: dict[str, tuple] = {}
-    for key, values in grid.items():
-        if key not in fields or key in BOOKKEEPING_FIELDS:
-            raise ConfigError(
-                f"grid field {key!r} is not a simulation field of TriaxialConfig; choose from "
-                f"{sorted(fields - BOOKKEEPING_FIELDS)}."
-            )
-        converted = tuple(getattr(with_overrides(base, **{key: value}), key) for value in values)
-        if len(set(converted)) != len(converted):
-            raise ConfigError(f"grid field {key!r} repeats a value ({list(values)}); give distinct values.")
-        coordinates[key] = converted
-    members = []
-    for k, index in enumerate(itertools.product(*(range(len(v)) for v in coordinates.values()))):
-        overrides = {key: coordinates[key][i] for key, i in zip(coordinates, index, strict=True)}
-        members.append((index, with_overrides(base, name=f"{base.name}_{k}", **overrides)))
-    return coordinates, members
 
 
 @pydataclasses.dataclass
@@ -289,9 +256,9 @@ def _run_unit(
     records, shear_start, elapsed = run_group(
         batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
     )
-    for k, (config, test) in enumerate(zip(batch.configs, batch.tests, strict=True)):
+    for k, (settings, test) in enumerate(zip(batch.settings, batch.tests, strict=True)):
         mine = member_chunk_records(records, k)
-        metadata = run_metadata(config, test, mine, build_seconds, elapsed, consolidation_tolerance(config))
+        metadata = run_metadata(settings, test, mine, build_seconds, elapsed)
         failure = batch.failures.get(k)
         metadata.update(
             batch_members=batch.num_members,
@@ -351,7 +318,7 @@ def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interr
 
 def plan_group(configs: list) -> dict:
     """A group's common Δt and n_θ and each member's expected steps (run on a worker: it builds the tests)."""
-    with jax.enable_x64(configs[0].float64):
+    with precision_scope(configs[0]):
         _, time_step, nodes_around, work = plan_members(configs)
     return {"time_step": time_step, "nodes_around": nodes_around, "work": work}
 
@@ -373,7 +340,7 @@ def run_task(configs: list, folder: str, time_step: float, nodes_around: int) ->
     attempt = {"pid": os.getpid(), "host": socket.gethostname(), "time": time.time(), "resumed_steps": steps}
     with (folder / "attempts.jsonl").open("a") as log:
         log.write(json.dumps(attempt) + "\n")
-    with jax.enable_x64(configs[0].float64):
+    with precision_scope(configs[0]):
         _run_unit(
             configs,
             folder,
@@ -487,7 +454,7 @@ def run_sweep(
         raise ConfigError(f"members_per_task = {members_per_task}; give at least 1 (or None: even shares).")
     grid = dict(DEFAULT_GRID if grid is None else grid)
     coordinates, members = grid_members(base, grid)
-    folder = Path(folder if folder is not None else f"results_{base.name}_sweep")
+    folder = Path(folder if folder is not None else default_folder(base))
     folder.mkdir(parents=True, exist_ok=True)
     if not resume:
         (folder / "sweep.toml").write_text(
@@ -509,7 +476,7 @@ def run_sweep(
     for index, config in members:
         groups.setdefault(structure_key(config), []).append((index, config))
     # The base configuration's precision, scoped to this call (thread-local), as in run_test.
-    with jax.enable_x64(base.float64):
+    with precision_scope(base):
         if scheduler is None:
             outcomes = _run_groups_here(
                 groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks

@@ -2,7 +2,8 @@
 
 Data flow (README, Architecture): config → specimen + membrane → laws → step → driver → measurements →
 protocol → results → runs → commands. The configuration is the user's edge: it converts laboratory units to
-SI and validates, and only the runs and commands read it; the simulator below it takes SI and shares its
+SI and validates; its fields are read where it becomes a test (``assemble``) and by the one test's entry
+point (``run``), the other runs and the commands pass it on; the simulator below it takes SI and shares its
 defaults through ``membrax.defaults``. Every module of ``membrax`` sits on one layer below; a module may
 import its own layer and those before it, never one after (every import counts, also those inside
 functions). The sphere code (DEM) and the membrane code are two columns of the same layers: the membrane
@@ -10,12 +11,14 @@ builds on the DEM, the DEM knows nothing of the membrane, so the rigid-wall test
 """
 
 import ast
+import dataclasses
 import re
 from pathlib import Path
 
 import pytest
 
 import membrax
+from membrax.config import TriaxialConfig
 
 PACKAGE = Path(membrax.__file__).parent
 
@@ -83,7 +86,7 @@ LAYERS = (
         "paper.fig9",
         "paper",
     ),
-    # the configuration: laboratory units in, SI out; read by the runs only
+    # the configuration: laboratory units in, SI out; its fields read by assemble and run only
     ("config",),
     # runs: a configuration becomes a test, members become a batch, the stage loop every run and sweep
     # shares, then one test, a grid, the paper
@@ -93,7 +96,8 @@ LAYERS = (
     ("run", "sensitivities", "gradients"),
     ("campaign", "sweep"),
     ("reproduce",),
-    # commands: nothing imports them
+    # commands: the calibrate half (fit, correct, serve), then the command nothing imports
+    ("cli_calibrate",),
     ("cli",),
 )
 #: Subpackages that are namespaces only: their __init__ imports nothing, so importing them is free.
@@ -195,9 +199,10 @@ def test_the_checker_sees_every_kind_of_import(tmp_path):
 
 def test_membrax_never_imports_calibrate_except_the_command_line():
     """calibrate sits after every layer of membrax but the commands (README: … → runs → calibrate →
-    commands): only ``cli``, the leaf nothing imports, reaches it (``membrax fit``)."""
+    commands): only ``cli``, the leaf nothing imports, and its calibrate half ``cli_calibrate`` reach it
+    (``membrax fit``, ``correct``, ``serve``)."""
     for name, path in FILES.items():
-        if name == "cli":
+        if name in ("cli", "cli_calibrate"):
             continue
         for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
             modules = []
@@ -356,3 +361,135 @@ def test_every_runaway_of_a_host_loop_is_a_simulation_error():
                 if name == "FloatingPointError":
                     offenders.append(f"{path.relative_to(PACKAGE)}:{node.lineno} raises {name}")
     assert offenders == []
+
+
+#: Where a configuration's fields are read (issue 62, "Done when"): the configuration itself, the assembly
+#: module that turns it into a test and into the plain values below it (:class:`membrax.assemble.RunSettings`,
+#: :func:`membrax.assemble.report_values`), and :mod:`membrax.run`, the one test's entry point (folder,
+#: precision, VTK cadence, summary). Everything else takes plain values: the executor and the runner, and
+#: the sweep, the reproduction and the commands, which build, validate and pass configurations on.
+CONFIG_READERS = {"config", "assemble", "run"}
+#: Readers on their way out (being moved to plain values by another change): allowed until then only.
+CONFIG_READERS_FOR_NOW = {"gradients", "sensitivities"}
+#: What a configuration answers to: its fields, properties and methods (``TriaxialConfig``'s public names).
+CONFIG_ATTRIBUTES = {name for name in dir(TriaxialConfig) if not name.startswith("_")} | {
+    field.name for field in dataclasses.fields(TriaxialConfig)
+}
+#: Calls that return a configuration, and the names a configuration goes by in membrax by convention.
+CONFIG_MAKERS = {"TriaxialConfig", "with_overrides", "load_config", "config_from_dict"}
+CONFIG_NAMES = {"config", "configs"}
+
+
+def _holds_config(node, held: set[str]) -> bool:
+    """Whether ``node`` evaluates to a configuration (or a list of them)."""
+    if isinstance(node, ast.Name):
+        return node.id in held
+    if isinstance(node, ast.Attribute):  # batch.configs, self.config
+        return node.attr in CONFIG_NAMES
+    if isinstance(node, ast.Subscript):  # configs[0], batch.configs[b]
+        return _holds_config(node.value, held)
+    if isinstance(node, ast.Call):  # with_overrides(base, ...)
+        name = getattr(node.func, "id", getattr(node.func, "attr", ""))
+        return name in CONFIG_MAKERS
+    return False
+
+
+def _bound_configs(target, value, held: set[str]) -> set[str]:
+    """The names ``target`` binds to configurations when it takes each element of ``value`` (a loop) ."""
+    if isinstance(value, ast.Call) and getattr(value.func, "id", "") in ("zip", "enumerate"):
+        if not isinstance(target, ast.Tuple):
+            return set()
+        if value.func.id == "enumerate":
+            return _bound_configs(target.elts[1], value.args[0], held) if value.args else set()
+        pairs = zip(target.elts, value.args, strict=False)
+        return set().union(*(_bound_configs(t, v, held) for t, v in pairs))
+    if isinstance(target, ast.Name) and _holds_config(value, held):
+        return {target.id}
+    return set()
+
+
+def _config_reads(path: Path) -> list[str]:
+    """Attribute reads of a configuration in ``path`` (``config.cell_pressure_kpa``, ``c.name`` in a loop
+    over ``batch.configs``, ``base.float64`` of ``base = with_overrides(...)`` or ``base: TriaxialConfig``,
+    ``getattr(config, name)``). Building, validating or passing a configuration on is not a read."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    held = set(CONFIG_NAMES)
+    for node in ast.walk(tree):
+        if isinstance(node, ast.arg) and node.annotation is not None:
+            if "TriaxialConfig" in ast.unparse(node.annotation):
+                held.add(node.arg)
+    grown = True
+    while grown:  # names bound to configurations by assignments and loops, until none is new
+        before = len(held)
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Assign):
+                for target in node.targets:
+                    if isinstance(target, ast.Name) and _holds_config(node.value, held):
+                        held.add(target.id)
+            elif isinstance(node, (ast.For, ast.comprehension)):
+                held |= _bound_configs(node.target, node.iter, held)
+        grown = len(held) > before
+    reads = []
+    for node in ast.walk(tree):
+        if (
+            isinstance(node, ast.Attribute)
+            and node.attr in CONFIG_ATTRIBUTES
+            and _holds_config(node.value, held)
+        ):
+            reads.append(f"{path.name}:{node.lineno} {ast.unparse(node)}")
+        elif isinstance(node, ast.Call) and getattr(node.func, "id", "") == "getattr" and node.args:
+            if _holds_config(node.args[0], held):
+                reads.append(f"{path.name}:{node.lineno} {ast.unparse(node)}")
+    return reads
+
+
+def test_a_configuration_is_read_only_where_it_becomes_a_test():
+    """Followed from :func:`membrax.run.run_test`, the configuration is read only in ``config``, ``run`` and
+    ``assemble``; the executor, the runner, the sweep, the reproduction and the commands take plain values
+    (a read: an attribute of a :class:`~membrax.config.TriaxialConfig`, its fields or properties, or
+    ``getattr`` on one; loading, building, validating and handing one on to ``assemble`` are not reads)."""
+    readers = {name: _config_reads(path) for name, path in FILES.items()}
+    readers = {name: reads for name, reads in readers.items() if reads}
+    outside = {
+        name: reads for name, reads in readers.items() if name not in CONFIG_READERS | CONFIG_READERS_FOR_NOW
+    }
+    assert not outside, outside
+    assert CONFIG_READERS_FOR_NOW <= set(readers), (
+        f"{sorted(CONFIG_READERS_FOR_NOW - set(readers))} read no configuration any more: drop them from "
+        "CONFIG_READERS_FOR_NOW"
+    )
+    assert {"assemble", "run"} <= set(readers)
+
+
+def test_the_configuration_reader_sees_every_kind_of_read(tmp_path):
+    """The reader itself on a file with each form, and with the values it must not take for reads."""
+    sample = tmp_path / "reads.py"
+    sample.write_text(
+        "import numpy as np\n"
+        "def f(config, batch, tests, mine: TriaxialConfig, args):\n"
+        "    a = config.cell_pressure_kpa\n"
+        "    b = batch.configs[0].float64\n"
+        "    for c in batch.configs:\n"
+        "        c.inertial_number\n"
+        "    for k, (t, d) in enumerate(zip(tests, batch.configs)):\n"
+        "        t.cell_pressure, t.name, d.name\n"
+        "    base = with_overrides(config, name='x')\n"
+        "    first = batch.configs[0]\n"
+        "    base.layers, first.chunk_steps, mine.dt_safety, getattr(config, 'layers')\n"
+        "    [e.packing for e in batch.configs]\n"
+        "    np.float64, args.packing, batch.settings[0].name, build_test(config), structure_key(mine)\n"
+    )
+    reads = [read.split(" ", 1)[1] for read in _config_reads(sample)]
+    assert sorted(reads) == sorted(
+        [
+            "config.cell_pressure_kpa",
+            "batch.configs[0].float64",
+            "c.inertial_number",
+            "d.name",
+            "base.layers",
+            "first.chunk_steps",
+            "mine.dt_safety",
+            "getattr(config, 'layers')",
+            "e.packing",
+        ]
+    )

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from helpers import SMALL_SPECIMEN
 
-from membrax import executor, paper, runner, sweep
+from membrax import assemble, executor, paper, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.errors import RunError
 from membrax.io import read_results
@@ -262,7 +262,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
 def test_grids_are_parsed_and_checked():
     """--grid items become the members in row-major order; bad items name the problem."""
     grid = sweep.parse_grid(["cell_pressure_kpa=10,40,100", "membrane_thickness_mm=2.5, 5"])
-    coordinates, members = sweep.grid_members(TriaxialConfig(**BASE), grid)
+    coordinates, members = assemble.grid_members(TriaxialConfig(**BASE), grid)
     assert coordinates == {"cell_pressure_kpa": (10.0, 40.0, 100.0), "membrane_thickness_mm": (2.5, 5.0)}
     assert len(members) == 6
     assert members[1][0] == (0, 1) and members[1][1].cell_pressure_kpa == 10.0
@@ -275,11 +275,11 @@ def test_grids_are_parsed_and_checked():
         with pytest.raises(ConfigError, match=message):
             sweep.parse_grid(items)
     with pytest.raises(ConfigError, match="not a simulation field"):
-        sweep.grid_members(TriaxialConfig(**BASE), {"cell_presure_kpa": (10.0,)})
+        assemble.grid_members(TriaxialConfig(**BASE), {"cell_presure_kpa": (10.0,)})
     with pytest.raises(ConfigError, match="cell_pressure_kpa"):
-        sweep.grid_members(TriaxialConfig(**BASE), {"cell_pressure_kpa": (-5.0,)})
+        assemble.grid_members(TriaxialConfig(**BASE), {"cell_pressure_kpa": (-5.0,)})
     with pytest.raises(ConfigError, match="repeats"):
-        sweep.grid_members(TriaxialConfig(**BASE), sweep.parse_grid(["cell_pressure_kpa=10,10.0"]))
+        assemble.grid_members(TriaxialConfig(**BASE), sweep.parse_grid(["cell_pressure_kpa=10,10.0"]))
     with pytest.raises(ValueError, match="layers"):
         executor.build_batch([TriaxialConfig(**BASE), TriaxialConfig(**dict(BASE, layers=6))])
 

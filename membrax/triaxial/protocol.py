@@ -13,10 +13,12 @@ Contract. :class:`StagedTest` runs the two stages of the test with the chunk dri
 A cell (:class:`membrax.triaxial.rigid.RigidWallTest`, :class:`membrax.triaxial.membrane_cell.MembraneTest`)
 says what its platens and walls do at each stage.
 
-The stage sequence is written once, here: :data:`PHASES` in order, each phase's steps and record interval
-from :meth:`StagedTest.phase_plan` of a :class:`Loading`. :meth:`StagedTest.consolidate` and
-:meth:`StagedTest.shear` run it on one state; :func:`membrax.runner.run_group` runs it on a batch of
-members (a single test from a configuration is a batch of one), with checkpoints, resume and progress.
+The stage sequence is written once, here: :data:`PHASES` in order, what changes at the start of each
+(:meth:`StagedTest.start_phase`) and each phase's steps and record interval (:meth:`StagedTest.phase_plan`)
+under a :class:`Loading`. :meth:`StagedTest.consolidate` and :meth:`StagedTest.shear` run it on one
+state; :func:`membrax.runner.run_group` runs it on a batch of members (a single test from a configuration
+is a batch of one; :func:`membrax.executor.build_batch` starts them at the first phase), with checkpoints,
+resume and progress.
 """
 
 from __future__ import annotations
@@ -59,6 +61,8 @@ class Loading:
       coarse_inertial_number: I of the coarse phase, reached by a linear change of speed over
         ``ramp_strain`` after ``fine_until_strain`` (:meth:`StagedTest.change_shear_rate`); None: the
         fine phase's ``inertial_number`` throughout.
+      symmetric: both platens move in shearing (True) or the top one alone (False); None: the cell's
+        default (``start_shear``'s).
     """
 
     consolidation_max_steps: int
@@ -70,6 +74,7 @@ class Loading:
     record_every_coarse: int
     consolidation_record_every: int = CONSOLIDATION_RECORD_EVERY
     coarse_inertial_number: float | None = None
+    symmetric: bool | None = None
 
 
 class StagedTest:
@@ -84,7 +89,7 @@ class StagedTest:
     - ``start_consolidation(state)``: the servos on, at rest;
     - ``is_consolidated(records, tolerance, **criteria)``: the stop test on a chunk's records;
     - ``shear_rate(inertial_number)``: the axial strain rate ε̇ of an inertial number, 1/s;
-    - ``start_shear(state, inertial_number, ramp_strain, **loading)``: the strain-controlled platens;
+    - ``start_shear(state, inertial_number, ramp_strain, symmetric=...)``: the strain-controlled platens;
     - ``dt``: the time step, s.
     """
 
@@ -120,7 +125,7 @@ class StagedTest:
         if tolerance is None:
             dtype = self.runner.dem_of(state).position.dtype
             tolerance = default_consolidation_tolerance(self.cell, dtype == np.float64)
-        state = self.start_consolidation(state)
+        state = self.start_phase("consolidation", state)
 
         def stop(_, records):
             return self.is_consolidated(records, tolerance, **criteria)
@@ -170,6 +175,33 @@ class StagedTest:
         dem = self.runner.dem_of(state)
         return self.runner.with_dem(state, dem.set(walls=change_speed(dem.walls, factor, rate, ramp)))
 
+    def start_phase(self, phase: str, state, loading: Loading | None = None):
+        """``state``, at the end of the phase before ``phase`` (of :data:`PHASES`), switched to its start.
+
+        What changes between the phases, written once: ``consolidation`` turns the servos on
+        (:meth:`start_consolidation`; ``loading`` unused); ``shear_fine`` starts the strain-controlled
+        platens at ``loading.inertial_number``, ramped over ``loading.ramp_strain`` (None: the cell's
+        default), ``loading.symmetric`` where set (``start_shear``); ``shear_coarse`` changes to the rate
+        of ``loading.coarse_inertial_number`` where it is set (:meth:`change_shear_rate`) and otherwise
+        returns ``state`` itself.
+
+        Raises:
+          ValueError: a phase not in :data:`PHASES`.
+        """
+        if phase == "consolidation":
+            return self.start_consolidation(state)
+        ramp = self.default_ramp_strain if loading.ramp_strain is None else loading.ramp_strain
+        if phase == "shear_fine":
+            options = {} if loading.symmetric is None else {"symmetric": loading.symmetric}
+            return self.start_shear(state, loading.inertial_number, ramp, **options)
+        if phase == "shear_coarse":
+            if loading.coarse_inertial_number is None:
+                return state
+            return self.change_shear_rate(
+                state, loading.inertial_number, loading.coarse_inertial_number, ramp
+            )
+        raise ValueError(f"phase = {phase!r}; choose one of {PHASES}.")
+
     def phase_plan(self, loading: Loading) -> dict[str, tuple[int, int]]:
         """(steps, steps between records) of each phase of :data:`PHASES` under ``loading``.
 
@@ -201,9 +233,12 @@ class StagedTest:
         on_chunk=None,
         ramp_strain: float | None = None,
         coarse_inertial_number: float | None = None,
-        **loading,
+        symmetric: bool | None = None,
     ):
         """Stage 2: strain-controlled drained shearing, recorded at two rates (module docstring).
+
+        The shearing phases of :data:`PHASES`, each started by :meth:`start_phase` and run for its steps of
+        :meth:`phase_plan`.
 
         Args:
           state: the consolidated state.
@@ -217,29 +252,26 @@ class StagedTest:
           ramp_strain: axial strain at which the platens reach full speed (default the cell's), and over
             which they change speed to ``coarse_inertial_number``'s.
           coarse_inertial_number: I after ``fine_until_strain`` (None: ``inertial_number`` throughout).
-          **loading: the cell's further loading options (``symmetric`` for the membrane test).
+          symmetric: both platens move (True) or the top one alone (False); None: the cell's default.
 
         Returns:
           (state, records) with the records of both recording rates joined.
         """
-        ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
-        plan = self.phase_plan(
-            Loading(
-                consolidation_max_steps=0,  # this stage plans the shearing phases only
-                target_axial_strain=target_axial_strain,
-                inertial_number=inertial_number,
-                fine_until_strain=fine_until_strain,
-                ramp_strain=ramp,
-                record_every_fine=record_every_fine,
-                record_every_coarse=record_every_coarse,
-                coarse_inertial_number=coarse_inertial_number,
-            )
+        loading = Loading(
+            consolidation_max_steps=0,  # this stage runs the shearing phases only
+            target_axial_strain=target_axial_strain,
+            inertial_number=inertial_number,
+            fine_until_strain=fine_until_strain,
+            ramp_strain=ramp_strain,
+            record_every_fine=record_every_fine,
+            record_every_coarse=record_every_coarse,
+            coarse_inertial_number=coarse_inertial_number,
+            symmetric=symmetric,
         )
-        state = self.start_shear(state, inertial_number, ramp, **loading)
-        state, fine = run_phases(self.runner, state, self.params, [plan["shear_fine"]], chunk_steps, on_chunk)
-        if coarse_inertial_number is not None:
-            state = self.change_shear_rate(state, inertial_number, coarse_inertial_number, ramp)
-        state, coarse = run_phases(
-            self.runner, state, self.params, [plan["shear_coarse"]], chunk_steps, on_chunk
-        )
-        return state, concatenate_records([part for part in (fine, coarse) if part is not None])
+        plan = self.phase_plan(loading)
+        parts = []
+        for phase in PHASES[1:]:
+            state = self.start_phase(phase, state, loading)
+            state, part = run_phases(self.runner, state, self.params, [plan[phase]], chunk_steps, on_chunk)
+            parts.append(part)
+        return state, concatenate_records([part for part in parts if part is not None])
