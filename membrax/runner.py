@@ -93,7 +93,7 @@ def rebase_to_shear_start(records: dict, start: dict) -> dict:
     """Strains, area and stresses counted from the start of shearing (the paper's Table 3 and figures).
 
     The area A = A₀ (1 − ε_v)/(1 − ε_a) starts from the platen area A₀ at the start of shearing
-    (:func:`membrax.membrane.measure.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram
+    (:func:`membrax.membrane.records.right_cylinder_stresses`), so at ε_a = 0 the external σ1 is the ram
     servo's σc. The consolidation stage's strains (from the as-built specimen, the membrane's penetration into
     the voids included) are kept in their own columns, ``consolidation_axial_strain`` and
     ``consolidation_volumetric_strain``, the same in every row.
