@@ -69,14 +69,9 @@ def measure_membrax(dtype: str, steps: int, repeats: int) -> dict:
 
     from membrax import native
     from membrax.spheres.contact import ContactParams
-    from membrax.spheres.integrate import (
-        DampingParams,
-        DEMParams,
-        critical_time_step,
-        make_particles,
-        sphere_dem,
-    )
+    from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
     from membrax.spheres.neighbors import pair_neighbor_fn
+    from membrax.spheres.stability import critical_time_step
     from membrax.spheres.walls import triaxial_walls
 
     position, radius, half_width, height = block()

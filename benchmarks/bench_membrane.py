@@ -43,13 +43,11 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
-    import numpy as np
 
     from membrax import native
     from membrax.membrane import candidates as membrane_candidates
     from membrax.membrane import contact as membrane_contact
     from membrax.membrane import energies
-    from membrax.membrane.mesh import prism_mesh
     from membrax.spheres import fcc
     from membrax.triaxial import membrane_cell as membrane_triaxial
 
@@ -61,13 +59,14 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
         specimen = random_packing(Grading.equal(diameter), 0.25, 0.5).specimen()
     else:
         specimen = fcc.fcc_specimen(diameter, 10, 25)
-    mesh = prism_mesh(
-        np.asarray(specimen.outline_vertices),
-        0.5 * thickness,
-        specimen.height,
-        diameter / edges_per_diameter,
-        corner_radius=specimen.particle_radius,
+    # The coupled test's own mesh (a rounded prism on the FCC specimen, a cylinder on a random one)
+    test = membrane_triaxial.membrane_test(
+        specimen,
+        cell_pressure=pressure,
+        membrane_thickness=thickness,
+        edges_per_diameter=edges_per_diameter,
     )
+    mesh = test.mesh
     nodes = jnp.asarray(mesh.reference_position)
 
     def in_loop(force_fn):
@@ -120,12 +119,6 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     timed(contact, nodes)
     total_contact = best_of(contact, nodes)
     contact_rate = repeats / total_contact
-    test = membrane_triaxial.membrane_test(
-        specimen,
-        cell_pressure=1e4,
-        membrane_thickness=thickness,
-        edges_per_diameter=edges_per_diameter,
-    )
     coupled_first, coupled_total = time_coupled_steps(test, repeats)
     coupled_rate = repeats / coupled_total
     return {

@@ -142,14 +142,8 @@ def main() -> None:
     )
     parser.add_argument("--dtypes", default=",".join(DTYPES), help="comma-separated dtypes to run")
     args = parser.parse_args()
-    options = dict(
-        size=args.size,
-        steps=args.steps,
-        mode=args.mode,
-        table_steps=args.table_steps,
-        cpu_devices=args.cpu_devices,
-        batched_only=args.batched_only,
-    )
+    # measure's keywords: every option but the child's dtype and the dtypes to run
+    options = {name: value for name, value in vars(args).items() if name not in ("child", "dtypes")}
     if args.child:
         print(json.dumps(measure(args.child, **options)))
         return

@@ -9,7 +9,9 @@ the fields that make it and cached on disk), :func:`loading` into the protocol's
 take, :func:`run_settings` into the plain values the executor and the runner take (:class:`RunSettings`:
 they never read a configuration). :data:`BATCHED_FIELDS` names the fields members of one compiled batch
 may differ in (:func:`structure_key` groups the rest, :func:`grid_members` makes a grid's members),
-:func:`common_nodes_around` the one mesh topology of a batch.
+:func:`common_nodes_around` the one mesh topology of a batch. For derivatives: :func:`parameter_values`
+reads the parameters a derivative is taken with respect to, and :func:`thickness_derivative` the
+membrane's rest geometry's derivative with respect to its thickness (tests built on either side).
 """
 
 from __future__ import annotations
@@ -60,10 +62,12 @@ __all__ = [
     "grid_members",
     "inflation_warning",
     "loading",
+    "parameter_values",
     "precision_scope",
     "report_values",
     "run_settings",
     "structure_key",
+    "thickness_derivative",
 ]
 
 
@@ -427,3 +431,32 @@ def common_nodes_around(configs: Sequence[TriaxialConfig]) -> int:
         for c in configs
     ]
     return max(3, round(float(np.mean(perimeters)) / config.membrane_edge_length))
+
+
+def parameter_values(config: TriaxialConfig, names: Sequence[str]) -> np.ndarray:
+    """The configuration's values of the fields ``names``, in its units (kPa, mm, degrees, N/m), float64."""
+    return np.asarray([float(getattr(config, name)) for name in names])
+
+
+def thickness_derivative(
+    config: TriaxialConfig, test: MembraneTest, fields: Sequence[str], relative_step: float = 1e-4
+) -> dict:
+    """d(field)/d t_m per mm of the membrane mesh's arrays ``fields``, by central differences.
+
+    The configuration's test is built again with the membrane thickness t_m ± h, h = ``relative_step`` ×
+    t_m, at ``test``'s time step and node ring (so the meshes have one topology), and each field is
+    differenced: (f(t_m + h) − f(t_m − h)) / 2h. The clamp rings follow from ``reference_position``'s
+    ring rows.
+    """
+    around = int(np.asarray(test.mesh.bottom_ring).size)
+    thickness = config.membrane_thickness_mm
+    h = relative_step * thickness
+    meshes = [
+        build_test(
+            pydataclasses.replace(config, membrane_thickness_mm=thickness + sign * h),
+            time_step=test.dt,
+            nodes_around=around,
+        ).mesh
+        for sign in (1.0, -1.0)
+    ]
+    return {name: (getattr(meshes[0], name) - getattr(meshes[1], name)) / (2.0 * h) for name in fields}

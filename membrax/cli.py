@@ -198,6 +198,17 @@ def _split_cpu(args: argparse.Namespace) -> bool:
     return True
 
 
+def _campaign_options(args: argparse.Namespace) -> dict:
+    """The options ``sweep`` and ``reproduce`` share (resume, progress, devices, Dask), as keywords."""
+    return dict(
+        resume=args.resume,
+        progress=not args.no_progress,
+        num_devices=args.devices,
+        scheduler=args.scheduler,
+        members_per_task=args.task_members,
+    )
+
+
 def _sweep(args: argparse.Namespace) -> int:
     if not _split_cpu(args):
         return 2
@@ -212,11 +223,7 @@ def _sweep(args: argparse.Namespace) -> int:
             config,
             grid,
             args.folder_in_use,
-            resume=args.resume,
-            progress=not args.no_progress,
-            num_devices=args.devices,
-            scheduler=args.scheduler,
-            members_per_task=args.task_members,
+            **_campaign_options(args),
         )
     except (ConfigError, FileNotFoundError, ValueError, RunError) as error:
         print(f"membrax: {error}", file=sys.stderr)
@@ -243,11 +250,7 @@ def _reproduce(args: argparse.Namespace) -> int:
         done = reproduce(
             args.size,
             args.out,
-            resume=args.resume,
-            progress=not args.no_progress,
-            num_devices=args.devices,
-            scheduler=args.scheduler,
-            members_per_task=args.task_members,
+            **_campaign_options(args),
             overrides=parse_overrides(args.set),
             packing=args.packing,
             seeds=args.seeds,

@@ -49,13 +49,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
+from membrax.assemble import loading, parameter_values, thickness_derivative
 from membrax.config import TriaxialConfig
 from membrax.driver import advance, drive, record_blocks
 from membrax.errors import SimulationError, describe
 from membrax.executor import GEOMETRY_FIELDS, BatchedTest, build_batch
 from membrax.sensitivities import (
     _check_wrt,
-    _geometry_derivative,
     apply_parameters,
     measure_outputs,
     reference_size,
@@ -321,7 +321,8 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: in
     _check_wrt(wrt)
     if steps < 1 or window < 1 or unroll < 1:
         raise ValueError(f"steps = {steps}, window = {window}, unroll = {unroll}: give positive integers.")
-    shear = {(c.inertial_number, c.shear_ramp_strain, c.symmetric_loading) for c in configs}
+    loadings = [loading(c) for c in configs]
+    shear = {(plan.inertial_number, plan.ramp_strain, plan.symmetric) for plan in loadings}
     if shear_steps and len(shear) > 1:
         raise ValueError(
             f"the configurations shear differently (inertial_number, shear_ramp_strain, symmetric_loading: "
@@ -331,11 +332,12 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: in
     shear_steps = window * -(-shear_steps // window)
     batch = build_batch(configs, order=list(range(len(configs))), mode="vmap", num_devices=1)
     if "membrane_thickness_mm" in wrt:
-        geometry = [_geometry_derivative(c, t) for c, t in zip(batch.configs, batch.tests, strict=True)]
+        members = zip(batch.configs, batch.tests, strict=True)
+        geometry = [thickness_derivative(c, t, GEOMETRY_FIELDS) for c, t in members]
         geometry = {name: jnp.stack([g[name] for g in geometry]) for name in GEOMETRY_FIELDS}
     else:
         geometry = {}
-    theta0 = np.asarray([[float(getattr(c, name)) for name in wrt] for c in batch.configs])
+    theta0 = np.stack([parameter_values(c, wrt) for c in batch.configs])
     rollout = Rollout(batch, wrt, steps, window, theta0, geometry, shear_steps, next(iter(shear)), unroll)
     errors = {}
 
@@ -354,7 +356,7 @@ def _rollout(configs, wrt, steps: int, shear_steps: int, window: int, unroll: in
     def fail(error, _new, _states):
         bad = int(np.flatnonzero(error)[0])
         return SimulationError(
-            f"member {bad} ({batch.configs[bad].name}) failed in the rollout: "
+            f"member {bad} ({batch.settings[bad].name}) failed in the rollout: "
             + "; ".join(describe(int(error[bad])))
         )
 

@@ -52,7 +52,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax.assemble import build_test
+from membrax.assemble import build_test, parameter_values, thickness_derivative
 from membrax.config import TriaxialConfig, to_si
 from membrax.driver import advance, drive
 from membrax.errors import SimulationError, describe
@@ -152,23 +152,6 @@ def _free_and_rings(mesh):
     )
 
 
-def _geometry_derivative(config: TriaxialConfig, test, relative_step: float = 1e-4):
-    """d(rest geometry)/d t_m (per mm) of the mesh arrays, by central differences.
-
-    The clamp rings follow from ``reference_position``'s ring rows (:meth:`_System.apply`).
-    """
-    around = int(np.asarray(test.mesh.bottom_ring).size)
-    h = relative_step * config.membrane_thickness_mm
-    meshes = []
-    for sign in (1.0, -1.0):
-        other = dataclasses.replace(config, membrane_thickness_mm=config.membrane_thickness_mm + sign * h)
-        meshes.append(build_test(other, time_step=test.dt, nodes_around=around).mesh)
-    fields = {
-        name: (getattr(meshes[0], name) - getattr(meshes[1], name)) / (2.0 * h) for name in GEOMETRY_FIELDS
-    }
-    return fields
-
-
 def apply_parameters(
     values: dict, params, mesh, state, thickness_mm=None, geometry=None, clamp_position=None
 ):
@@ -176,8 +159,8 @@ def apply_parameters(
 
     σc sets the membrane's cell pressure and the platens' servo target σc (the ram force σc A₀); t_m sets
     the membrane's thickness and moves its rest geometry and clamp rings linearly from those at
-    ``thickness_mm`` along ``geometry`` (d field/d t_m per mm, :func:`_geometry_derivative`), the clamp
-    rings from ``clamp_position``; the friction angles set μ = tan φ; k_n sets k_t = k_n/2 and the
+    ``thickness_mm`` along ``geometry`` (d field/d t_m per mm, :func:`membrax.assemble.thickness_derivative`),
+    the clamp rings from ``clamp_position``; the friction angles set μ = tan φ; k_n sets k_t = k_n/2 and the
     platens' k_n, k_t alike (as :func:`membrax.assemble.build_test`).
     """
     membrane, dem_params = params.membrane, params.dem
@@ -219,15 +202,17 @@ class _System:
 
     def __init__(self, equilibrium: Equilibrium, wrt):
         config, test, state = equilibrium
-        self.config, self.test, self.state = config, test, state
+        self.test, self.state = test, state
         self.wrt = tuple(wrt)
-        self.theta0 = np.asarray([float(getattr(config, name)) for name in self.wrt])
+        self.theta0 = parameter_values(config, self.wrt)
+        self.thickness_mm = float(parameter_values(config, ["membrane_thickness_mm"])[0])
         self.free, bottom, top = _free_and_rings(test.mesh)
         self.rings = np.concatenate([bottom, top])
         self.ring_sizes = (bottom.size, top.size)
         self.num_spheres = int(state.dem.position.shape[0])
         self.size = 6 * self.num_spheres + 3 * self.free.size + 2
-        self.geometry = _geometry_derivative(config, test) if "membrane_thickness_mm" in self.wrt else None
+        moved_by_thickness = "membrane_thickness_mm" in self.wrt
+        self.geometry = thickness_derivative(config, test, GEOMETRY_FIELDS) if moved_by_thickness else None
         self.dt = test.dt
         self.node_mass_per_thickness = energies.lumped_mass(test.mesh, 1.0, LATEX_DENSITY)
 
@@ -243,7 +228,7 @@ class _System:
             self.test.params,
             self.test.mesh,
             state,
-            thickness_mm=self.config.membrane_thickness_mm,
+            thickness_mm=self.thickness_mm,
             geometry=self.geometry,
             clamp_position=self.state.membrane.clamp_position,
         )
@@ -411,17 +396,15 @@ def continuation_differences(
             theta = system.theta0.copy()
             theta[k] += sign * step_size
             theta = jnp.asarray(theta)
-            measured = []
 
             def chunk(state, left, _num_records, theta=theta):
                 return relax_chunk(state, theta), left - chunk_steps, None, None
 
-            def balanced(state, _records, _valid, _left, theta=theta, measured=measured):
-                residual, outputs_now = (np.asarray(a) for a in evaluate(state, theta))
-                measured[:] = [outputs_now]
+            def balanced(state, _records, _valid, _left, theta=theta):
+                residual = np.asarray(evaluate(state, theta)[0])
                 return [0] if np.max(np.abs(residual[:-2])) < tolerance * load else []
 
-            drive(
+            relaxed, _ = drive(
                 chunk,
                 equilibrium.state,
                 [max_chunks * chunk_steps],
@@ -432,7 +415,7 @@ def continuation_differences(
                 fail=functools.partial(_relaxation_failed, system.wrt[k], sign),
                 accept=balanced,
             )
-            outputs.append(measured[0])
+            outputs.append(np.asarray(evaluate(relaxed, theta)[1]))
         columns.append((outputs[0] - outputs[1]) / (2.0 * step_size))
     return np.stack(columns, axis=1)
 
@@ -491,10 +474,11 @@ def sensitivity(
             check = continuation_differences(equilibrium, wrt)
             seconds["finite_differences"] = time.perf_counter() - start
     rows = []
+    at = parameter_values(config, wrt)
     for name in outputs:
         i = OUTPUTS.index(name)
         for k, parameter in enumerate(wrt):
-            x = float(getattr(config, parameter))
+            x = float(at[k])
             y = float(values[i])
             rows.append(
                 {

@@ -15,7 +15,7 @@ from helpers import tolerance
 from membrax import assemble, batch
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.membrane import node_update
-from membrax.spheres import contact, fcc, integrate, neighbors
+from membrax.spheres import contact, fcc, integrate, neighbors, stability
 from membrax.spheres import walls as walls_lib
 from membrax.spheres.measure import measure
 from membrax.spheres.particles import GRANITE_DENSITY
@@ -206,7 +206,7 @@ def chain_excess(frame, num_spheres=8, speed=0.01, duration=0.003):
     stiffness, mass = float(law.normal_stiffness), float(particles.mass[0])
     damping = integrate.DampingParams.equivalent_viscous(stiffness, mass, frame=frame)
     params = integrate.DEMParams(law, damping)
-    dt = 0.5 * integrate.critical_time_step(state, particles, params)
+    dt = 0.5 * stability.critical_time_step(state, particles, params)
     _, step = integrate.sphere_dem(particles, frame_fn, dt, wall_friction=False)
     state = state.set(walls=walls_lib.set_control(state.walls, False, -speed, 0.0))  # both close
     end = jax.jit(lambda s: jax.lax.fori_loop(0, int(duration / dt), lambda _, x: step(x, params), s))(state)

@@ -9,7 +9,7 @@ import pytest
 from helpers import ACCUMULATED, tolerance
 
 from membrax import batch, compensated, theory
-from membrax.spheres import contact, fcc, integrate, neighbors
+from membrax.spheres import contact, fcc, integrate, neighbors, stability
 from membrax.spheres import walls as walls_lib
 from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.triaxial import rigid as triaxial
@@ -106,7 +106,7 @@ def total_energy_series(dt_fraction, num_steps=10_000, squeeze=1e-3, speed=0.05)
     contact_params = contact.ContactParams.paper(friction_angle_deg=0.0)
     params = integrate.DEMParams(contact_params, integrate.DampingParams.none())
     probe_init, _ = integrate.sphere_dem(particles, frame, 1.0)
-    critical = integrate.critical_time_step(
+    critical = stability.critical_time_step(
         probe_init(position, walls, frame.allocate(position)), particles, params
     )
     dt = dt_fraction * critical
@@ -420,8 +420,8 @@ def test_critical_time_step_of_a_dimer_includes_rotation():
     params = integrate.DEMParams(contact.ContactParams.paper(), integrate.DampingParams.none())
     state = init_fn(position, walls, frame.allocate(position))
     mass = float(particles.mass[0])
-    with_rotation = integrate.critical_time_step(state, particles, params)
-    without = integrate.critical_time_step(state, particles, params, include_rotation=False)
+    with_rotation = stability.critical_time_step(state, particles, params)
+    without = stability.critical_time_step(state, particles, params, include_rotation=False)
     assert with_rotation == pytest.approx(2 / math.sqrt(7 * 5e6 / mass), rel=1e-6)
     assert without == pytest.approx(2 / math.sqrt(2 * KN / mass), rel=1e-6)
 

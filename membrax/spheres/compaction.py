@@ -66,17 +66,16 @@ from membrax.spheres.grading import (
     sample_diameters,
 )
 from membrax.spheres.integrate import (
-    DEFAULT_SAFETY,
     DampingParams,
     DEMParams,
     compute_forces,
-    critical_time_step,
     make_particles,
     sphere_dem,
 )
 from membrax.spheres.mould import mould_energy, mould_mean_stress, mould_radial_load
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.particles import GRANITE_DENSITY
+from membrax.spheres.stability import DEFAULT_SAFETY, critical_time_step
 from membrax.spheres.walls import triaxial_walls
 from membrax.validation import check_range
 

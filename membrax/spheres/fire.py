@@ -72,6 +72,19 @@ __all__ = ["IDLE_CALLS", "FireRelaxer", "describe_search", "quench", "unbalanced
 IDLE_CALLS = 64
 
 
+class _FireCarry(NamedTuple):
+    """What FIRE carries from step to step: the spheres, its adaptive step and mixing, and the error bits."""
+
+    position: jax.Array
+    compensation: jax.Array
+    velocity: jax.Array
+    neighbors: object
+    step: jax.Array  # FIRE's Δt, s
+    alpha: jax.Array  # the velocity mixing α
+    downhill_steps: jax.Array  # downhill steps in a row (P > 0)
+    error: jax.Array  # ErrorCode bits at the chunk's end: the list's overflow, non-finite positions
+
+
 class _Spheres(NamedTuple):
     """FIRE's spheres as :func:`membrax.driver.grow_tables` sees them: frictionless, so no contact history."""
 
@@ -150,7 +163,7 @@ class FireRelaxer:
         largest_step = 1.8 * self.dt
 
         def fire_step(carry, _params):
-            position, compensation, velocity, neighbors, step, alpha, downhill_steps = carry
+            position, compensation, velocity, neighbors, step, alpha, downhill_steps, error = carry
             neighbors = self.frame.update(position, neighbors)
             force, _, _ = self._forces(position, compensation, neighbors, growth)
             power = jnp.sum(force * velocity)
@@ -166,11 +179,14 @@ class FireRelaxer:
             velocity = jnp.where(downhill, mixed, 0.0) + step * force / mass
             # Compensated: a step moves a sphere ~1e-9 m, below float32's resolution at 0.1 m.
             position, compensation = compensated_add(position, compensation, step * velocity)
-            return position, compensation, velocity, neighbors, step, alpha, downhill_steps
+            return _FireCarry(position, compensation, velocity, neighbors, step, alpha, downhill_steps, error)
 
         carry = advance(fire_step, carry, None, self.chunk_steps)
         # The list at the end positions, so that its overflow bit covers the state the search measures.
-        return (*carry[:3], self.frame.update(carry[0], carry[3]), *carry[4:])
+        neighbors = self.frame.update(carry.position, carry.neighbors)
+        overflow = jnp.where(neighbors.did_buffer_overflow, ErrorCode.NEIGHBOR_OVERFLOW, 0)
+        error = (overflow | not_finite_bit(carry.position)).astype(jnp.int32)
+        return carry._replace(neighbors=neighbors, error=error)
 
     def _measure_impl(self, position, compensation, neighbors, growth):
         """(σ = (σ_a + 2σ_r)/3 in Pa, unbalanced-force ratio, neighbour overflow) of the spheres at rest."""
@@ -200,24 +216,25 @@ class FireRelaxer:
         # One list for every relaxation (a new allocation may change its capacity and recompile the chunk).
         if self.neighbors is None:
             self.neighbors = self.frame.allocate(position)
-        carry = (
-            position,
-            compensation,
-            jnp.zeros_like(position),
-            self.neighbors,
-            jnp.asarray(self.dt, dtype),
-            jnp.asarray(0.1, dtype),
-            jnp.asarray(0, jnp.int32),
+        carry = _FireCarry(
+            position=position,
+            compensation=compensation,
+            velocity=jnp.zeros_like(position),
+            neighbors=self.neighbors,
+            step=jnp.asarray(self.dt, dtype),
+            alpha=jnp.asarray(0.1, dtype),
+            downhill_steps=jnp.asarray(0, jnp.int32),
+            error=jnp.asarray(0, jnp.int32),
         )
         growth = jnp.asarray(growth, dtype)
-        stress, ratio, overflow = (float(x) for x in self._measure(*carry[:2], carry[3], growth))
+        stress, ratio, overflow = self._measured(carry, growth)
         if overflow:  # the list of an earlier relaxation is too small for these positions
             carry = self._grow(carry, ErrorCode.NEIGHBOR_OVERFLOW)
-            stress, ratio, overflow = (float(x) for x in self._measure(*carry[:2], carry[3], growth))
+            stress, ratio, overflow = self._measured(carry, growth)
             if overflow:
                 # A list allocated at these very positions holds their pairs: overflowing again, it never
                 # will (non-finite positions, or a sphere outside the list's box).
-                finite = bool(np.isfinite(np.asarray(carry[0])).all())
+                finite = bool(np.isfinite(np.asarray(carry.position)).all())
                 raise SimulationError(
                     f"compaction: the FIRE relaxation at growth factor s = {float(growth)!r} overflowed "
                     f"its neighbour list again right after allocating it for the same positions (stress "
@@ -255,14 +272,14 @@ class FireRelaxer:
             return ratio < tolerance or unjammed or stalled or settled or not math.isfinite(ratio)
 
         if finished(stress, ratio) or max_steps <= 0:
-            return carry[:2], stress, ratio, 0
+            return (carry.position, carry.compensation), stress, ratio, 0
 
         def chunk(current, left, _num_records):
             return self._chunk(current, growth), left - self.chunk_steps, None, None
 
         def accept(current, _records, _valid, _left):
             track["steps"] += self.chunk_steps
-            stress, ratio, _ = (float(x) for x in self._measure(*current[:2], current[3], growth))
+            stress, ratio, _ = self._measured(current, growth)
             track["stress"], track["ratio"] = stress, ratio
             if on_chunk is not None:
                 on_chunk(
@@ -290,22 +307,24 @@ class FireRelaxer:
             [max_steps],
             self.chunk_steps,
             self.chunk_steps,
-            errors=lambda current: np.atleast_1d(
-                np.where(current[3].did_buffer_overflow > 0, ErrorCode.NEIGHBOR_OVERFLOW, 0)
-                | np.asarray(not_finite_bit(current[0]))
-            ),
+            errors=lambda current: np.atleast_1d(np.asarray(current.error)),
             grow=lambda current, error, _overflowed: self._grow(current, int(error[0])),
             fail=failed,
             accept=accept,
         )
-        return carry[:2], track["stress"], track["ratio"], track["steps"]
+        return (carry.position, carry.compensation), track["stress"], track["ratio"], track["steps"]
 
     def _grow(self, carry, error):
         """The FIRE carry with a larger neighbour list at its positions (``grow_tables``)."""
-        spheres = _Spheres(carry[0], carry[3])
+        spheres = _Spheres(carry.position, carry.neighbors)
         ((_, neighbors, _),) = grow_tables([spheres], error, self.frame)
         self.neighbors = neighbors  # later relaxations start from it
-        return (*carry[:3], neighbors, *carry[4:])
+        return carry._replace(neighbors=neighbors)
+
+    def _measured(self, carry: _FireCarry, growth) -> tuple[float, float, bool]:
+        """(σ in Pa, unbalanced-force ratio, list overflow) of the carry's spheres at rest, on the host."""
+        stress, ratio, overflow = self._measure(carry.position, carry.compensation, carry.neighbors, growth)
+        return float(stress), float(ratio), bool(overflow)
 
     def relax_to_stress(
         self,

@@ -54,15 +54,14 @@ from membrax.spheres.contact import ContactParams
 from membrax.spheres.fcc import Specimen
 from membrax.spheres.grading import RandomSpecimen
 from membrax.spheres.integrate import (
-    DEFAULT_SAFETY,
     DampingParams,
     DEMParams,
-    critical_time_step,
     make_particles,
     sphere_dem,
 )
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.particles import GRANITE_DENSITY
+from membrax.spheres.stability import DEFAULT_SAFETY, critical_time_step
 from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
 from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
