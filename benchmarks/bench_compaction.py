@@ -16,11 +16,9 @@ Run: ``python benchmarks/bench_compaction.py [--across 10 --high 20 --friction 0
 --seed 0]``.
 """
 
-import argparse
-import json
 import time
 
-from harness import print_table, run_each_dtype
+from harness import benchmark_parser, benchmark_rows, print_table
 
 
 def measure(dtype: str, across: float, high: float, friction: float, max_steps: int, seed: int) -> dict:
@@ -64,26 +62,15 @@ def measure(dtype: str, across: float, high: float, friction: float, max_steps: 
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = benchmark_parser(__doc__)
     parser.add_argument("--across", type=float, default=10.0, help="specimen diameter in sphere diameters")
     parser.add_argument("--high", type=float, default=20.0, help="specimen height in sphere diameters")
     parser.add_argument("--friction", type=float, default=0.0, help="μ between spheres during compaction")
     parser.add_argument("--max-steps", type=int, default=400_000)
     parser.add_argument("--seed", type=int, default=0, help="the packing seed (the loose cloud's)")
-    parser.add_argument("--dtypes", default="float32,float64")
-    parser.add_argument("--child", help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    options = {
-        "across": args.across,
-        "high": args.high,
-        "friction": args.friction,
-        "max_steps": args.max_steps,
-        "seed": args.seed,
-    }
-    if args.child:
-        print(json.dumps(measure(args.child, **options)))
+    args, rows = benchmark_rows(__file__, parser, measure)
+    if rows is None:
         return
-    rows = run_each_dtype(__file__, options, dtypes=tuple(args.dtypes.split(",")))
     print(
         f"Compaction: {args.across:g} × {args.high:g} sphere diameters, μ = {args.friction:g}, to 10 kPa, "
         f"seed {args.seed}"

@@ -13,11 +13,9 @@ and float64, each in a fresh process, prints:
 Run: ``python benchmarks/bench_dem.py [--width 10 --layers 25 --steps 500]`` (≈ 4 minutes on 2 cores).
 """
 
-import argparse
-import json
 import resource
 
-from harness import print_table, run_each_dtype, timed
+from harness import benchmark_parser, benchmark_rows, print_table, timed
 
 CASES = 9
 
@@ -124,16 +122,13 @@ def measure(dtype: str, width: int, layers: int, steps: int) -> dict:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = benchmark_parser(__doc__)
     parser.add_argument("--width", type=int, default=10)
     parser.add_argument("--layers", type=int, default=25)
     parser.add_argument("--steps", type=int, default=500)
-    parser.add_argument("--child", help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.child:
-        print(json.dumps(measure(args.child, args.width, args.layers, args.steps)))
+    _, rows = benchmark_rows(__file__, parser, measure)
+    if rows is None:
         return
-    rows = run_each_dtype(__file__, {"width": args.width, "layers": args.layers, "steps": args.steps})
     first = rows[0]
     print(
         f"DEM benchmark: {first['particles']} spheres, {first['pairs']} pair slots, "

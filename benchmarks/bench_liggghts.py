@@ -21,8 +21,6 @@ LIGGGHTS: the Debian package (``apt-get install liggghts``; ``mpirun`` comes wit
 Run: ``python benchmarks/bench_liggghts.py [--steps 2000] [--processes 2]`` (about 3 min on 2 cores).
 """
 
-import argparse
-import json
 import os
 import re
 import shutil
@@ -30,7 +28,7 @@ import subprocess
 import tempfile
 from pathlib import Path
 
-from harness import best_of, print_table, run_each_dtype, timed
+from harness import benchmark_parser, benchmark_rows, best_of, print_table, timed
 
 DIAMETER, DENSITY = 0.025, 2650.0
 NORMAL_STIFFNESS, TANGENTIAL_STIFFNESS, FRICTION_DEG = 1e7, 5e6, 25.0
@@ -185,16 +183,13 @@ def measure_liggghts(processes: int, steps: int, repeats: int, dt: float) -> dic
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = benchmark_parser(__doc__)
     parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--processes", type=int, default=2)
-    parser.add_argument("--child", help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.child:
-        print(json.dumps(measure_membrax(args.child, args.steps, args.repeats)))
+    args, rows = benchmark_rows(__file__, parser, measure_membrax, flags=("steps", "repeats"))
+    if rows is None:
         return
-    rows = run_each_dtype(__file__, {"steps": args.steps, "repeats": args.repeats})
     peers = []
     if shutil.which("liggghts") is None:
         print("LIGGGHTS is not installed (Debian: apt-get install liggghts); membrax only.")

@@ -30,14 +30,12 @@ with ``MEMBRAX_NATIVE=0`` the compiled CPU kernels (:mod:`membrax.native`) are o
 XLA's alone.
 """
 
-import argparse
-import json
 import resource
 
-from harness import best_of, print_table, run_each_dtype, time_coupled_steps, timed
+from harness import benchmark_parser, benchmark_rows, best_of, print_table, time_coupled_steps, timed
 
 
-def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: str = "fcc") -> dict:
+def measure(dtype: str, edges_per_diameter: float, repeats: int, packing: str = "fcc") -> dict:
     import jax
 
     if dtype == "float64":
@@ -52,7 +50,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
     from membrax.triaxial import membrane_cell as membrane_triaxial
 
     diameter, thickness, modulus, pressure = 0.025, 0.005, 1.4e6, 1e4
-    if packing_kind == "random":  # paper-like: 250 × 500 mm, compacted without friction (not timed)
+    if packing == "random":  # paper-like: 250 × 500 mm, compacted without friction (not timed)
         from membrax.spheres.compaction import random_packing
         from membrax.spheres.grading import Grading
 
@@ -143,7 +141,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing_kind: s
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = benchmark_parser(__doc__)
     parser.add_argument("--edges-per-diameter", type=float, default=5.0)
     parser.add_argument("--repeats", type=int, default=50)
     parser.add_argument(
@@ -152,17 +150,9 @@ def main():
         default="fcc",
         help="fcc: 10 across, 25 layers; random: 250 × 500 mm compacted (about 40 s, not timed)",
     )
-    parser.add_argument("--dtypes", default="float32,float64")
-    parser.add_argument("--child", help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.child:
-        print(json.dumps(measure(args.child, args.edges_per_diameter, args.repeats, args.packing)))
+    args, rows = benchmark_rows(__file__, parser, measure)
+    if rows is None:
         return
-    rows = run_each_dtype(
-        __file__,
-        {"edges_per_diameter": args.edges_per_diameter, "repeats": args.repeats, "packing": args.packing},
-        dtypes=tuple(args.dtypes.split(",")),
-    )
     first = rows[0]
     print(
         f"membrane benchmark ({args.packing}): {first['nodes']} nodes, {first['triangles']} triangles, "

@@ -22,12 +22,10 @@ Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mo
 [--cpu-devices N] [--batched-only 1] [--dtypes float32,float64]``.
 """
 
-import argparse
-import json
 import resource
 import time
 
-from harness import DTYPES, run_each_dtype, timed
+from harness import benchmark_parser, benchmark_rows, timed
 
 
 def measure(
@@ -125,8 +123,7 @@ def measure(
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--child", default=None)
+    parser = benchmark_parser(__doc__)
     parser.add_argument("--size", default="small", choices=("small", "paper"))
     parser.add_argument("--steps", type=int, default=500)
     parser.add_argument("--mode", default="", help="map or vmap (default: by backend)")
@@ -140,14 +137,10 @@ def main() -> None:
         default=0,
         help="1: skip the one-device and serial columns (on one GPU the same program, and nine compiles)",
     )
-    parser.add_argument("--dtypes", default=",".join(DTYPES), help="comma-separated dtypes to run")
-    args = parser.parse_args()
-    # measure's keywords: every option but the child's dtype and the dtypes to run
-    options = {name: value for name, value in vars(args).items() if name not in ("child", "dtypes")}
-    if args.child:
-        print(json.dumps(measure(args.child, **options)))
+    args, rows = benchmark_rows(__file__, parser, measure)
+    if rows is None:
         return
-    for row in run_each_dtype(__file__, options, dtypes=args.dtypes.split(",")):
+    for row in rows:
         print(
             f"{row['dtype']} {row['backend']} ×{row['devices']} ({row['mode']}), {row['members']} members of "
             f"{row['spheres']} spheres + {row['nodes']} nodes: build {row['build_s']:.1f} s\n"

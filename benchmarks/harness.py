@@ -1,5 +1,6 @@
 """Shared benchmark plumbing: one fresh process per dtype (x64 is process-global), a timer and the table."""
 
+import argparse
 import json
 import re
 import string
@@ -22,6 +23,35 @@ def run_child(script: str, child: list, options: dict) -> dict:
 def run_each_dtype(script: str, options: dict, dtypes=DTYPES) -> list[dict]:
     """Run ``script --child DTYPE --key value ...`` once per dtype; each child prints one JSON line."""
     return [run_child(script, [dtype], options) for dtype in dtypes]
+
+
+def benchmark_parser(doc: str) -> argparse.ArgumentParser:
+    """An argument parser (described by ``doc``'s first line) with the flags every benchmark takes.
+
+    ``--dtypes`` (comma-separated, default float32,float64) and the hidden ``--child DTYPE`` of
+    :func:`benchmark_rows`.
+    """
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--dtypes", default=",".join(DTYPES), help="comma-separated dtypes to run")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    return parser
+
+
+def benchmark_rows(script: str, parser: argparse.ArgumentParser, measure, flags=None):
+    """Every benchmark's child protocol: (its parsed arguments, its rows, one fresh process per dtype).
+
+    Run as ``script --child DTYPE --key value ...`` (``--child`` given), print ``measure(DTYPE, **options)``
+    as one JSON line and return rows None (the caller returns); otherwise run one child per dtype of
+    ``--dtypes`` (:func:`run_each_dtype`) and return their rows. ``options`` are the parsed ``flags`` (names;
+    default every flag but ``--child`` and ``--dtypes``): the flags are ``measure``'s keywords.
+    """
+    args = parser.parse_args()
+    names = [name for name in vars(args) if name not in ("child", "dtypes")] if flags is None else flags
+    options = {name: getattr(args, name) for name in names}
+    if args.child:
+        print(json.dumps(measure(args.child, **options)))
+        return args, None
+    return args, run_each_dtype(script, options, tuple(args.dtypes.split(",")))
 
 
 def timed(function, *args):
