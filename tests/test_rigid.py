@@ -114,7 +114,4 @@ def test_the_lateral_walls_hold_the_cell_pressure_while_a_dense_random_packing_d
     strain = np.asarray(records.axial_strain)[:, 0]
     assert float(np.asarray(records.volumetric_strain)[-1, 0]) < -0.003
     ratio = np.asarray(records.wall_radial_stress)[strain > 0.002, 0] / CELL_PRESSURE
-    print(
-        f"sigma3/sigmac {ratio.min():.4f}-{ratio.max():.4f}, ev {float(records.volumetric_strain[-1, 0]):.4f}"
-    )
     assert np.max(np.abs(ratio - 1.0)) <= 0.02, (ratio.min(), ratio.max())
