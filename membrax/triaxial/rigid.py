@@ -10,7 +10,8 @@ whose methods run the two stages with the chunk driver and return the state and 
    of σc;
 2. :meth:`RigidWallTest.shear`: the top platen moves down at constant velocity (or both platens close,
    ``symmetric=True``, as in the membrane cell; drained, strain controlled), lateral walls held at σc by
-   their servos, to a target axial strain. The strain rate comes
+   their servos (proportional-integral, so a dilating specimen does not raise σ3:
+   :mod:`membrax.spheres.walls`), to a target axial strain. The strain rate comes
    from an inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004, with the axial strain rate for the shear rate
    and the cell pressure for the confining stress). Records every ``record_every_fine`` steps below
    ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 % strain), coarser after.
