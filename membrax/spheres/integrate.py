@@ -68,7 +68,7 @@ from membrax.spheres.walls import (
     advance_walls,
     affine_velocity,
     ramped_velocity,
-    servo_velocity,
+    servo_control,
 )
 from membrax.vector import safe_norm, select
 
@@ -566,11 +566,7 @@ def sphere_dem(
         walls = advance_walls(walls, dt)
         # Without lateral walls the platen area must come from outside; with none given, no servo runs.
         if walls.num_lateral > 0 or platen_area is not None:
-            walls = walls.set(
-                velocity=servo_velocity(
-                    walls, dt, params.contact.wall_normal_stiffness, platen_area=platen_area
-                )
-            )
+            walls = servo_control(walls, dt, params.contact.wall_normal_stiffness, platen_area=platen_area)
         else:
             walls = walls.set(velocity=ramped_velocity(walls, dt))
 

@@ -7,13 +7,53 @@ member; it moves along e_k at velocity dh_k/dt. The layout is fixed: wall 0 is t
 none for a membrane test. Each wall is either position-controlled (constant velocity) or stress-controlled
 by a servo, chosen per wall and member by the traced mask ``servo``, so switching a stage never recompiles.
 
-Servo (the PFC/YADE ``TriaxialStressController`` scheme): the wall velocity is proportional to the force
-error, scaled so that one step closes a fraction α of it,
+Servo (the PFC/YADE ``TriaxialStressController`` scheme, with an integral term on the rigid cell's lateral
+walls): a proportional term, scaled so that one step closes a fraction α of the force error, plus an
+integral term u that accumulates a fraction β of it every step,
 
-    v = clip( α (F − σ_target A) / (k_n max(n_c, 1) Δt), −v_max, v_max ),
+    v_P = α (F − σ_target A) / (k_n max(n_c, 1) Δt),
+    u_{n+1} = clip(u_n + β v_P, −v_max, v_max),
+    v = clip(v_P + u_{n+1}, −v_max, v_max),
 
 F the normal force of the particles on the wall (compression positive), A the wall area, n_c the number of
-particles touching it. A positive v moves the wall outward (unloading).
+particles touching it. A positive v moves the wall outward (unloading). α and β are set per wall: the
+platens (every wall of the membrane cell) keep YADE's proportional servo, α = 0.1 and β = 0, to the bit
+(u stays 0); the rigid cell's lateral walls take α = :data:`LATERAL_SERVO_GAIN` and β = α/4
+(:data:`LATERAL_INTEGRAL_FRACTION`).
+
+Why the lateral walls need more (issue 63). A specimen that pushes a wall out at a velocity v_d (Poisson's
+expansion, then dilation, while shearing) is a ramp disturbance of the wall force, dF/dt = K_w (v_d − v),
+with K_w = r k_n n_c the wall's stiffness (its contact springs in series with whatever the spheres behind
+them do, 0 < r ≤ 1). A proportional servo moves at v_d only once v_P = v_d, a standing error
+
+    σ − σ_target = k_n (n_c/A) Δt v_d / α,
+
+independent of r: ~6 kPa at α = 0.1 with n_c/A ≈ 1/D² for spheres of D = 25 mm and k_n = 1e7 N/m,
+Δt = 1.4e-5 s and v_d ≈ ε̇ R/2 = 2.9 mm/s (ε̇ = 0.078 /s, I = 1e-3 at 10 kPa; R = 75 mm). Measured on 251
+dense equal spheres at σc = 10 kPa, I = 1e-3: σ3 = 15–21 kPa at α = 0.1 and 10.8–12.4 kPa at α = 0.5 while
+the specimen dilated. The integral term is the servo's own estimate of v_d (at rest u = v_d and v_P = 0): a
+ramp leaves no standing error, and a dilation rate that changes over a time t_d leaves a fraction ~T_I/t_d
+of it, T_I = Δt/β the integral time. Stability bounds α and β. The step moves the walls at the velocity
+set from the previous step's force (:func:`membrax.spheres.integrate.sphere_dem`: forces, walls advanced,
+then this servo), a delay of one step; per step, with g = α r and x = K_w Δt v,
+
+    e_{n+1} = e_n − x_{n−1} + K_w Δt v_d,   x_n = g e_n + βg Σ_{k≤n} e_k,
+
+whose characteristic polynomial is z³ − 2z² + (1 + g(1 + β)) z − g (β = 0: z² − z + g). The proportional
+servo is critically damped at g = 1/4 (a double root 1/2) and marginal at g = 1 (|z| = 1: the wall's force
+rings undamped). The integral root stays real and slow (the PI loop on an integrating process, T_I ≳ 4 τ_P,
+τ_P = Δt/g; Åström & Hägglund, *Advanced PID Control*, ISA 2006) for β ≲ g/4: β = α/4. r is the wall's
+stiffness on the loop's own time scale, a few steps against ~22 for a sphere's oscillation on its wall
+contact (2π √(m/k_n)/Δt at the default Δt), so the sphere barely moves while the servo corrects and r ≈ 1.
+α = 0.5 (roots 0.86 and 0.57 ± 0.51i with β = α/4) is underdamped: a kick to a wall's force overshoots once
+by about a third and has decayed to 10 % after one period of ~9 steps (0.12 ms at Δt = 1.4e-5 s), far
+inside the records (every 25–250 steps) and the ~0.1 s (1 % of axial strain at I = 1e-3) over which the
+dilation rate builds. It is the gain measured to hold σ3 best against the packing's own fluctuations
+(251 dense spheres, 64 faces of ~2 contacts each, I = 1e-3, β = α/4, records every 100 steps past 0.2 %
+axial strain: the largest |σ3/σc − 1| 2.6 % at α = 0.25, the critically damped gain, 2.0 % at 0.4, 1.9 %
+at 0.5; 15 % at α = 1 with β = α/16, each lateral wall off σc by a median 27 %, the marginal loop ringing).
+u is clipped to the speed limit (anti-windup) but not frozen while a wall touches nothing: frozen, u forgets
+the time a wall spends in the air, where the error is −σ_target A, and σ3 came out 5–14 % low.
 
 Ramp (YADE's ``UniaxialStrainer.initAccelTime``): a constant-velocity wall does not jump to its velocity;
 it approaches ``target_velocity`` at a bounded ``acceleration`` (m/s², per wall and member),
@@ -41,6 +81,8 @@ from membrax.validation import check_range
 
 __all__ = [
     "BOTTOM",
+    "LATERAL_INTEGRAL_FRACTION",
+    "LATERAL_SERVO_GAIN",
     "TOP",
     "WallState",
     "affine_velocity",
@@ -50,7 +92,7 @@ __all__ = [
     "platen_separation",
     "ramp_acceleration",
     "ramped_velocity",
-    "servo_velocity",
+    "servo_control",
     "set_control",
     "triaxial_walls",
     "wall_areas",
@@ -58,6 +100,10 @@ __all__ = [
 
 BOTTOM = 0
 TOP = 1
+#: α of the rigid cell's lateral servo walls (module docstring, "Why the lateral walls need more").
+LATERAL_SERVO_GAIN = 0.5
+#: β/α of the rigid cell's lateral servo walls: the integral root real and slow (module docstring).
+LATERAL_INTEGRAL_FRACTION = 0.25
 
 
 @pytree.dataclass
@@ -75,7 +121,10 @@ class WallState:
       servo: (B, W) bool, stress-controlled walls.
       target_stress: (B, W) servo target, Pa (compression positive).
       max_speed: (B, W) servo speed limit, m/s.
-      servo_gain: scalar α, the fraction of the force error closed per step.
+      servo_gain: (B, W) α, the fraction of the force error the proportional term closes per step.
+      servo_integral_gain: (B, W) β, the fraction of the proportional velocity the integral term adds per
+        step (0: a proportional servo; module docstring).
+      servo_integral_velocity: (B, W) the integral term u, m/s (0 at the start of every stage).
       force: (B, W) normal force of the particles on each wall at the last step, N.
       contacts: (B, W) number of particles touching each wall at the last step.
     """
@@ -90,6 +139,8 @@ class WallState:
     target_stress: jnp.ndarray
     max_speed: jnp.ndarray
     servo_gain: jnp.ndarray
+    servo_integral_gain: jnp.ndarray
+    servo_integral_velocity: jnp.ndarray
     force: jnp.ndarray
     contacts: jnp.ndarray
 
@@ -112,6 +163,8 @@ def triaxial_walls(
     target_stress: float = 0.0,
     max_speed: float = 1.0,
     servo_gain: float = 0.1,
+    lateral_servo_gain: float | None = None,
+    lateral_integral_gain: float = 0.0,
     dtype=None,
 ) -> WallState:
     """Platens at z = 0 and z = ``height`` and lateral planes at the given positions, all at rest.
@@ -123,12 +176,24 @@ def triaxial_walls(
       num_members: B, the batch size.
       target_stress: initial servo target for every wall, Pa.
       max_speed: servo speed limit, m/s, > 0.
-      servo_gain: α in (0, 1].
+      servo_gain: the platens' α, in (0, 1].
+      lateral_servo_gain: the lateral walls' α, in (0, 1] (default ``servo_gain``).
+      lateral_integral_gain: the lateral walls' β, in [0, α/4] (the integral root stays real, module
+        docstring); the platens' is 0, a proportional servo.
       dtype: float dtype of the arrays (default: JAX's default float).
     """
     check_range("height", height, lower=0.0, lower_open=True)
     check_range("max_speed", max_speed, lower=0.0, lower_open=True)
     check_range("servo_gain", servo_gain, lower=0.0, upper=1.0, lower_open=True)
+    lateral_servo_gain = servo_gain if lateral_servo_gain is None else lateral_servo_gain
+    check_range("lateral_servo_gain", lateral_servo_gain, lower=0.0, upper=1.0, lower_open=True)
+    check_range(
+        "lateral_integral_gain",
+        lateral_integral_gain,
+        lower=0.0,
+        upper=0.25 * lateral_servo_gain,
+        hint="above about α/4 the integral root turns complex and the wall rings (module docstring)",
+    )
     dtype = dtype or jnp.result_type(float)
     lateral_normals = np.asarray(lateral_normals, dtype=float).reshape(-1, 2)
     lateral_positions = np.asarray(lateral_positions, dtype=float).reshape(-1)
@@ -138,6 +203,10 @@ def triaxial_walls(
     normal[2:, :2] = lateral_normals
     position = np.concatenate([[0.0, height], lateral_positions])
     shape = (num_members, normal.shape[0])
+    gain = np.full(shape, servo_gain)
+    gain[:, 2:] = lateral_servo_gain
+    integral_gain = np.zeros(shape)
+    integral_gain[:, 2:] = lateral_integral_gain
     return WallState(
         normal=jnp.asarray(normal, dtype=dtype),
         position=jnp.asarray(np.broadcast_to(position, shape), dtype=dtype),
@@ -148,7 +217,9 @@ def triaxial_walls(
         servo=jnp.zeros(shape, dtype=bool),
         target_stress=jnp.full(shape, target_stress, dtype=dtype),
         max_speed=jnp.full(shape, max_speed, dtype=dtype),
-        servo_gain=jnp.asarray(servo_gain, dtype=dtype),
+        servo_gain=jnp.asarray(gain, dtype=dtype),
+        servo_integral_gain=jnp.asarray(integral_gain, dtype=dtype),
+        servo_integral_velocity=jnp.zeros(shape, dtype=dtype),
         force=jnp.zeros(shape, dtype=dtype),
         contacts=jnp.zeros(shape, dtype=jnp.int32),
     )
@@ -284,13 +355,27 @@ def wall_areas(walls: WallState, platen_area=None):
     return jnp.stack([platens, platens], axis=1)
 
 
-def servo_velocity(walls: WallState, dt, normal_stiffness, platen_area=None):
-    """New wall velocities (B, W): the servo law for servo walls, the ramp for the others (docstring)."""
+def servo_control(walls: WallState, dt, normal_stiffness, platen_area=None) -> WallState:
+    """``walls`` with new velocities and integral terms (B, W): the servo law, or the ramp (module docstring).
+
+    Args:
+      walls: the walls, with the particles' ``force`` and ``contacts`` of this step.
+      dt: Δt, s.
+      normal_stiffness: k_n of the sphere–wall contacts, N/m; a scalar or (B,).
+      platen_area: as in :func:`wall_areas`.
+    """
     area = wall_areas(walls, platen_area)
     error = walls.force - walls.target_stress * area
     stiffness = jnp.reshape(normal_stiffness, (-1, 1)) * jnp.maximum(walls.contacts, 1).astype(area.dtype)
-    servo = jnp.clip(walls.servo_gain * error / (stiffness * dt), -walls.max_speed, walls.max_speed)
-    return jnp.where(walls.servo, servo, ramped_velocity(walls, dt))
+    proportional = walls.servo_gain * error / (stiffness * dt)
+    # Anti-windup by the speed limit; u keeps counting while a wall touches nothing (module docstring).
+    accumulated = walls.servo_integral_velocity + walls.servo_integral_gain * proportional
+    integral = jnp.where(
+        walls.servo, jnp.clip(accumulated, -walls.max_speed, walls.max_speed), walls.servo_integral_velocity
+    )
+    servo = jnp.clip(proportional + integral, -walls.max_speed, walls.max_speed)
+    velocity = jnp.where(walls.servo, servo, ramped_velocity(walls, dt))
+    return walls.set(velocity=velocity, servo_integral_velocity=integral)
 
 
 def ramped_velocity(walls: WallState, dt):
@@ -345,6 +430,7 @@ def set_control(walls: WallState, servo, velocity, target_stress, acceleration=n
     acceleration = full(acceleration, walls.acceleration)
     return walls.set(
         servo=servo,
+        servo_integral_velocity=jnp.zeros_like(walls.servo_integral_velocity),  # a stage starts afresh
         velocity=jnp.where(jnp.isinf(acceleration), target_velocity, 0.0).astype(walls.velocity.dtype),
         target_velocity=target_velocity,
         acceleration=acceleration,

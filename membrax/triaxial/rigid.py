@@ -10,7 +10,8 @@ whose methods run the two stages with the chunk driver and return the state and 
    of σc;
 2. :meth:`RigidWallTest.shear`: the top platen moves down at constant velocity (or both platens close,
    ``symmetric=True``, as in the membrane cell; drained, strain controlled), lateral walls held at σc by
-   their servos, to a target axial strain. The strain rate comes
+   their servos (proportional-integral, so a dilating specimen does not raise σ3:
+   :mod:`membrax.spheres.walls`), to a target axial strain. The strain rate comes
    from an inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004, with the axial strain rate for the shear rate
    and the cell pressure for the confining stress). Records every ``record_every_fine`` steps below
    ``fine_until_strain`` (the FCC peak is a spike within 0.01–0.1 % strain), coarser after.
@@ -41,7 +42,15 @@ from membrax.spheres.measure import measure
 from membrax.spheres.neighbors import pair_neighbor_fn
 from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.spheres.stability import DEFAULT_SAFETY, critical_time_step
-from membrax.spheres.walls import BOTTOM, TOP, ramp_acceleration, set_control, triaxial_walls
+from membrax.spheres.walls import (
+    BOTTOM,
+    LATERAL_INTEGRAL_FRACTION,
+    LATERAL_SERVO_GAIN,
+    TOP,
+    ramp_acceleration,
+    set_control,
+    triaxial_walls,
+)
 from membrax.theory import strain_rate_from_inertial_number
 from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
@@ -152,6 +161,8 @@ def rigid_wall_test(
     dt_safety: float = DEFAULT_SAFETY,
     skin_fraction: float = 0.2,
     servo_gain: float = 0.1,
+    lateral_servo_gain: float = LATERAL_SERVO_GAIN,
+    lateral_integral_gain: float | None = None,
     max_wall_speed: float | None = None,
     time_step: float | None = None,
 ) -> RigidWallTest:
@@ -168,7 +179,12 @@ def rigid_wall_test(
       density: particle density, kg/m³ (granite by default; the paper gives none).
       dt_safety: Δt = dt_safety × Δt_crit.
       skin_fraction: neighbour skin as a fraction of the particle diameter.
-      servo_gain: the servo's α.
+      servo_gain: the platens' servo α (consolidation), a proportional servo.
+      lateral_servo_gain: the lateral walls' servo α.
+      lateral_integral_gain: the lateral walls' integral gain β (default
+        :data:`~membrax.spheres.walls.LATERAL_INTEGRAL_FRACTION` × α, the integral root real and slow; 0:
+        YADE's proportional servo), which holds σ3 at σc while the specimen dilates
+        (:mod:`membrax.spheres.walls`, "Why the lateral walls need more").
       max_wall_speed: servo speed limit, m/s (default: 1 % of a diameter per 1000 steps).
       time_step: Δt in s, overriding ``dt_safety`` × Δt_crit (e.g. to run cases with one step).
     """
@@ -191,6 +207,12 @@ def rigid_wall_test(
         specimen.height,
         num_members=num_members,
         servo_gain=servo_gain,
+        lateral_servo_gain=lateral_servo_gain,
+        lateral_integral_gain=(
+            LATERAL_INTEGRAL_FRACTION * lateral_servo_gain
+            if lateral_integral_gain is None
+            else lateral_integral_gain
+        ),
     )
     # Member b's planes pass through its shifted specimen: h_b = h + offset_b·e.
     shift = batch.member_offsets(num_members, spacing) @ np.asarray(walls.normal, dtype=float).T
