@@ -192,3 +192,54 @@ def test_vmap_over_two_cell_pressures_is_two_single_runs(precision):
     # The two pressures moved the boxes apart: the comparison is not of two copies.
     assert not np.allclose(np.asarray(singles[0].box_length), np.asarray(singles[1].box_length), rtol=1e-6)
     assert math.isfinite(float(singles[1].box_length[0]))
+
+
+def test_drained_compression_holds_the_lateral_stress_and_imposes_the_axial_strain(loose_packing):
+    """Drained compression of the loose packing with the paper's law (μ = tan 25°) at I = 5e-3: the axial
+    strain is the imposed log strain, 1 − exp(−ε̇ t) (to one step), the servo holds σ_xx and σ_yy within
+    2 % of σc throughout, and the loose packing contracts (ε_v > 0) while q rises above 0.2 σc."""
+    compaction, consolidated, _ = loose_packing
+    with jax.enable_x64(False):
+        state = consolidated
+        test = periodic_test(
+            state.fraction + state.fraction_compensation,
+            np.asarray(state.box_length, dtype=float),
+            compaction.particles.radius,
+            1e5,
+        )
+        state, _ = test.consolidate(tolerance=1e-3, max_steps=20_000)
+        rate = test.shear_rate(5e-3)
+        state, records = test.shear(state, target_axial_strain=0.03, inertial_number=5e-3, record_every=100)
+    steps = records.step - records.step[0] + 100
+    expected = 1.0 - np.exp(-rate * test.dt * steps)
+    np.testing.assert_allclose(records.axial_strain, expected, rtol=1e-3, atol=rate * test.dt)
+    assert records.axial_strain[-1] >= 0.03
+    lateral = np.stack([records.stress[:, 0, 0], records.stress[:, 1, 1]])
+    np.testing.assert_allclose(lateral, 1e5, rtol=0.02)
+    assert records.volumetric_strain[-1] > 0.0
+    assert records.deviator_stress[-1] > 0.2e5
+
+
+def test_an_overflowing_list_is_grown_and_the_chunk_rerun(precision):
+    """A list too small for its pairs (truncated to 40 slots, then rebuilt at the first step) sets the
+    overflow bit; the runner allocates a larger periodic list from the chunk's start and reruns it, and the
+    run ends where a run with an ample list ends (viscous damping: no sign flips on round-off)."""
+    fraction, length = _lattice(4, 0.97, jitter=0.03)
+    test = periodic_test(
+        jnp.asarray(fraction, precision),
+        length,
+        np.full(64, 0.5 * DIAMETER),
+        1e5,
+        damping=DampingParams.viscous(2000.0),
+    )
+    ample = test.initial_state.set(list_length=2.0 * test.initial_state.length)  # rebuild at the first step
+    short = ample.neighbors.set(idx=ample.neighbors.idx[:, :40], max_occupancy=40)
+    truncated = ample.set(neighbors=short, pair_spring=ample.pair_spring[:40])
+    reference, _ = test.runner.run(ample, test.params, 400, 200, 100)
+    assert test.runner.reallocations == 0
+    grown, records = test.runner.run(truncated, test.params, 400, 200, 100)
+    assert test.runner.reallocations >= 1 and int(grown.error) == 0
+    assert grown.neighbors.idx.shape[1] > 40 and records.step[-1] == 400
+    np.testing.assert_allclose(
+        np.asarray(grown.position), np.asarray(reference.position), atol=ROUNDOFF[precision] * length[0]
+    )

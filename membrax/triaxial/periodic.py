@@ -17,8 +17,9 @@ chunks through the chunk driver (:mod:`membrax.driver`) and return the state and
    inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004), x and y servo-held at σc, to a target axial strain.
 
 :func:`compact_periodic` makes random packings the same way: a random gas (:func:`random_gas`) compressed
-isotropically to σc with a compaction friction coefficient (0 gives the dense random packing; 0.5 a loose
-one), as the mould's compaction does (:mod:`membrax.spheres.compaction`) without its walls.
+isotropically to σc with a compaction friction coefficient (0.5 gives a loose packing; 0 a dense one, not
+yet at random close packing: see :func:`compact_periodic`), as the mould's compaction does
+(:mod:`membrax.spheres.compaction`) without its walls.
 
 One step (leapfrog, velocities at half steps; the spheres' velocities are the fluctuations u about the
 box's affine field v = u + ε̇ ⊙ (x − c), positions fractional, x = L ⊙ s):
@@ -109,7 +110,8 @@ class CellControl:
       target_stress: (3,) σ* of the stress-controlled axes, Pa.
       stress_controlled: (3,) bool: servo-held (True) or at ``imposed_strain_rate`` (False).
       imposed_strain_rate: (3,) ε̇ of the strain-controlled axes, 1/s.
-      servo_gain: the servo's α (:func:`servo_strain_rate`).
+      servo_gain: the servo's proportional gain α (:func:`servo_strain_rate`).
+      integral_gain: its integral gain β.
       max_strain_rate: the servo's |ε̇| limit, 1/s.
     """
 
@@ -117,6 +119,7 @@ class CellControl:
     stress_controlled: jnp.ndarray
     imposed_strain_rate: jnp.ndarray
     servo_gain: jnp.ndarray
+    integral_gain: jnp.ndarray
     max_strain_rate: jnp.ndarray
 
 
@@ -133,6 +136,7 @@ class PeriodicState:
       length: (3,) box lengths L (high part), m.
       length_compensation: (3,) their low parts, m.
       strain_rate: (3,) ε̇_{n−1/2} = L̇/L, 1/s.
+      servo_integral: (3,) the servo's integral term, 1/s (:func:`servo_strain_rate`).
       list_length: (3,) L at the neighbour list's last build, m.
       strain_origin: (3,) L from which the strains count (the start of shearing), m.
       control: the box's :class:`CellControl`.
@@ -149,6 +153,7 @@ class PeriodicState:
     length: jnp.ndarray
     length_compensation: jnp.ndarray
     strain_rate: jnp.ndarray
+    servo_integral: jnp.ndarray
     list_length: jnp.ndarray
     strain_origin: jnp.ndarray
     control: CellControl
@@ -167,28 +172,38 @@ class PeriodicState:
         return self.box_length[None, :] * (self.fraction + self.fraction_compensation)
 
 
-def servo_strain_rate(stress_diagonal, stiffness, control: CellControl, dt):
-    """ε̇_{n+1/2} per axis: the stress servo on stress-controlled axes, the imposed rate on the others.
+def servo_strain_rate(stress_diagonal, stiffness, control: CellControl, integral, dt):
+    """(ε̇_{n+1/2}, new integral) per axis: the stress servo on stress-controlled axes, else the imposed rate.
 
-    ε̇_k = clip(α (σ_kk − σ*_k) / (K_k Δt), −ε̇_max, ε̇_max), K_k the cell's stiffness
-    (:func:`membrax.spheres.periodic.cell_stiffness`): in an affine step the stress changes by −K_k ε̇_k Δt,
-    so the error shrinks by the factor (1 − α) per step (stable for 0 < α < 2; non-affine relaxation
-    only slows it). It is the wall servo's law (:func:`membrax.spheres.walls.servo_velocity`, α error /
-    (k_n n_c Δt)) with the cell's stiffness for the wall's; YADE's ``PeriTriaxController`` instead changes
-    ε̇ by a stiffness-scaled increment each step, an integral law. With no contact (a gas, K = 0) the
-    box moves at ±ε̇_max.
+    A proportional–integral law on the box strain rate, in units of the cell's stiffness K_k
+    (:func:`membrax.spheres.periodic.cell_stiffness`), e_k = (σ_kk − σ*_k) / (K_k Δt):
+
+        I_k ← clip(I_k + β e_k, ±ε̇_max),   ε̇_k = clip(α e_k + I_k, ±ε̇_max).
+
+    In an affine step the stress changes by −K_k ε̇_k Δt, so the error follows
+    e_{n+1} = e_n − α e_n − β Σ_{m<=n} e_m, whose characteristic roots solve λ² − (2 − α − β) λ + 1 − α = 0:
+    |λ|² = 1 − α < 1 (stable for 0 < α < 1), critically damped at β = α²/4 (the default, derived here).
+    The integral removes the proportional law's lag under a steady load: shearing at ε̇ pushes the lateral
+    stress up by ~K ε̇ Δt / 2 per step, which a proportional law (the wall servo's,
+    :func:`membrax.spheres.walls.servo_velocity`) holds only at an error of K ε̇ Δt / (2 α), ~5 % of σc at
+    I = 5e-3 (measured on 150 spheres). YADE's ``PeriTriaxController`` is an integral law with a cell mass.
+    With no contact (a gas, K = 0) the box moves at ±ε̇_max. Non-affine relaxation softens the real
+    response below K, which slows the loop.
 
     Args:
       stress_diagonal: (3,) σ_kk, Pa, compression positive.
       stiffness: (3,) K_k, Pa.
-      control: the box's controls.
+      control: the box's controls (α ``servo_gain``, β ``integral_gain``, ε̇_max).
+      integral: (3,) I_k, 1/s.
       dt: time step, s.
     """
-    error = stress_diagonal - control.target_stress
     tiny = jnp.finfo(stiffness.dtype).tiny
-    servo = control.servo_gain * error / (jnp.maximum(stiffness, tiny) * dt)
-    servo = jnp.clip(servo, -control.max_strain_rate, control.max_strain_rate)
-    return jnp.where(control.stress_controlled, servo, control.imposed_strain_rate)
+    error = (stress_diagonal - control.target_stress) / (jnp.maximum(stiffness, tiny) * dt)
+    limit = control.max_strain_rate
+    integral = jnp.clip(integral + control.integral_gain * error, -limit, limit)
+    integral = jnp.where(control.stress_controlled, integral, 0.0)
+    servo = jnp.clip(control.servo_gain * error + integral, -limit, limit)
+    return jnp.where(control.stress_controlled, servo, control.imposed_strain_rate), integral
 
 
 def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
@@ -215,6 +230,7 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
             length=length,
             length_compensation=jnp.zeros_like(length),
             strain_rate=jnp.zeros_like(length),
+            servo_integral=jnp.zeros_like(length),
             list_length=length,
             strain_origin=length,
             control=control,
@@ -239,7 +255,9 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
         forces = cell_forces(state, particles, params, dt)
         stress = love_weber_stress(forces, length)
         stiffness = cell_stiffness(forces, length, params.contact.normal_stiffness)
-        strain_rate = servo_strain_rate(jnp.diagonal(stress), stiffness, state.control, dt)
+        strain_rate, integral = servo_strain_rate(
+            jnp.diagonal(stress), stiffness, state.control, state.servo_integral, dt
+        )
         force = apply_damping(forces.force, state.velocity, particles.mass, params.damping, particles.member)
         torque = apply_damping(
             forces.torque, state.angular_velocity, particles.inertia, params.damping, particles.member
@@ -267,6 +285,7 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
             length=new_length,
             length_compensation=length_compensation,
             strain_rate=strain_rate,
+            servo_integral=integral,
             step=state.step + 1,
             error=error.astype(jnp.int32),
         )
@@ -512,6 +531,7 @@ def periodic_test(
     dt_safety: float = 0.25,
     skin_fraction: float = 0.2,
     servo_gain: float = 0.1,
+    integral_gain: float | None = None,
     max_inertial_number: float = 0.01,
     time_step: float | None = None,
     rattler_contacts: int | None = None,
@@ -528,7 +548,8 @@ def periodic_test(
       density: grain density, kg/m³.
       dt_safety: Δt = dt_safety √(m_min/k) (:func:`stable_time_step`).
       skin_fraction: neighbour skin as a fraction of the largest diameter.
-      servo_gain: the box servo's α (:func:`servo_strain_rate`).
+      servo_gain: the box servo's α (:func:`servo_strain_rate`), 0 < α < 1.
+      integral_gain: its β (default α²/4, critically damped in an affine step).
       max_inertial_number: the servo's rate limit as an inertial number at σc.
       time_step: Δt, s, overriding ``dt_safety``.
       rattler_contacts: the rattler rule of the recorded z* (default 4 for a frictionless law, Agnolin &
@@ -570,6 +591,7 @@ def periodic_test(
         stress_controlled=jnp.ones((3,), bool),
         imposed_strain_rate=jnp.zeros((3,), dtype),
         servo_gain=jnp.asarray(servo_gain, dtype),
+        integral_gain=jnp.asarray(0.25 * servo_gain**2 if integral_gain is None else integral_gain, dtype),
         max_strain_rate=jnp.asarray(max_rate, dtype),
     )
     init_fn, step_fn = periodic_cell(particles, frame, dt)
@@ -634,9 +656,17 @@ def compact_periodic(
 
     The gas (:func:`random_gas`) is compressed by the box servo (every axis to σc, at most
     ``options["max_inertial_number"]``) with the compaction friction μ_c in place of the contact law's
-    friction: μ_c = 0 gives the dense random packing (RCP, φ ≈ 0.639, z* ≈ 6 in the rigid limit; Agnolin &
-    Roux 2007), μ_c = 0.5 a loose one. Returns (test, state, records): ``test`` the compaction's cell,
-    ``state`` at equilibrium (unbalanced-force ratio below ``tolerance``, stresses within 1 % of σc).
+    friction. μ_c = 0.5 gives a loose packing at rest (150 spheres, d ± 20 %, 100 kPa: φ ≈ 0.56 and the
+    unbalanced-force ratio below 1e-3 within ~30,000 steps, ``tests/test_periodic.py``). μ_c = 0 should
+    approach random close packing (φ ≈ 0.639, z* ≈ 6 in the rigid limit; Agnolin & Roux 2007, Phys. Rev. E
+    76, 061302), but this servo-driven compression does not get there: a frictionless packing below
+    jamming carries σc only while it is compressed, so the servo keeps the box moving and the packing
+    creeps up slowly (300 spheres, d ± 10 %, 100 kPa, I_max = 0.01: φ = 0.628 after 30,000 steps with the
+    unbalanced-force ratio still ~0.1–0.2; held at that box the stress fell from 93 kPa to 1.3 kPa in
+    20,000 steps). A frictionless packing needs the mould's finish, a quench to rest at fixed box
+    (FIRE, :mod:`membrax.spheres.fire`) between small compressions; not done here. Returns
+    (test, state, records): ``test`` the compaction's cell, ``state`` where it stopped (unbalanced-force
+    ratio below ``tolerance`` and stresses within 1 % of σc, or ``max_steps``).
 
     Args:
       diameters: (N,) diameters, m.
