@@ -47,8 +47,9 @@ __all__ = [
 #: (:func:`coordination_numbers`' ``min_contacts``).
 RATTLER_CONTACTS = 4
 #: Passes of the rattler removal: removing a rattler can leave a neighbour with too few contacts, so it is
-#: repeated (a fixed count, unrolled under jit; 8 passes left none to remove in the packings of
-#: ``tests/test_periodic.py``).
+#: repeated (a fixed count, unrolled under jit). In the packings of ``tests/test_periodic.py`` (checked over
+#: 30 passes, 2026-11-29) the first pass removed 3 of 300 frictionless and 18 of 150 frictional spheres and
+#: every later pass none.
 RATTLER_PASSES = 8
 
 
@@ -170,8 +171,9 @@ def love_weber_stress(forces: PeriodicForces, length):
 
     The contact (Love–Weber) stress of a periodic cell (Love 1927; Weber 1966; Christoffersen, Mehrabadi
     & Nemat-Nasser 1981): f the force on j from i, d the minimum-image branch from i to j, so every
-    contact counts once and no boundary term exists. The kinetic term (1/V) Σ m u ⊗ u is left out: at the
-    quasi-static inertial numbers of a triaxial test it is below 1e-4 of the contact term.
+    contact counts once and no boundary term exists. The kinetic term (1/V) Σ m u ⊗ u is left out: with
+    fluctuations u ~ ε̇ d it is of order φ ρ (ε̇ d)² = φ I² σ (I = ε̇ d √(ρ/σ)), below 1e-5 σ at the
+    quasi-static I ≤ 1e-3 of a triaxial test.
     """
     total = jnp.einsum("ci,cj->ij", forces.pair_force, forces.pair_branch)
     stress = total / jnp.prod(length)

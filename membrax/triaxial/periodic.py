@@ -36,9 +36,11 @@ box's affine field v = u + ε̇ ⊙ (x − c), positions fractional, x = L ⊙ s
    s_{n+1} = s_n + Δt u_{n+1/2} / L_{n+1}, wrapped into [0, 1).
 
 The box deformation is imposed on the positions (YADE's ``homoDeform`` by position): a change of ε̇ moves
-every sphere with the box at once, with no inertial lag, and the fictitious forces of a changing frame,
-−m (ε̈ + ε̇²) ⊙ (x − c) and −2 m ε̇ ⊙ u, are left out: at a quasi-static ε̇ (I ≤ 1e-3) they are below
-1e-6 of the contact forces. Box lengths and fractional positions move by compensated summation (a
+every sphere with the box at once, with no inertial lag. Newton's law for v = u + ε̇ ⊙ (x − c) would give
+m u̇ = F − m (ε̈ + ε̇²) ⊙ (x − c) − m ε̇ ⊙ u (derived here: v̇ = u̇ + ε̈ ⊙ (x − c) + ε̇ ⊙ v); those terms
+are left out. Against a contact force σ d² (m ~ ρ d³, |x − c| ≤ L/2) the ε̇² term is of order I² L/d
+(I = ε̇ d √(ρ/σ)): ~1e-5 at I = 1e-3 in a cell of 10 d; ε̈ matters only while the servo changes the
+rate. Box lengths and fractional positions move by compensated summation (a
 quasi-static sphere moves ~1e-8 of the box per step, below float32 resolution).
 
 Cost: the pair forces run in JAX (the compiled pair kernel reads branches without images): 512 spheres
