@@ -11,7 +11,9 @@ spheres at fractional positions s ∈ [0, 1)³ (x = L ⊙ s), for :mod:`membrax.
   positions without images, so the periodic cell runs this path; its cost is in
   :mod:`membrax.triaxial.periodic`);
 - :func:`love_weber_stress`, :func:`cell_stiffness`, :func:`coordination_numbers` and
-  :func:`unbalanced_force_ratio`: what the cell measures and what its servo reads.
+  :func:`unbalanced_force_ratio`: what the cell measures and what its servo reads;
+- :func:`random_gas` (host side, numpy): spheres placed at random without overlap in a periodic box, the
+  start of a packing.
 
 Velocities are fluctuations u about the box's homogeneous deformation, v = u + ε̇ ⊙ (x − c), ε̇ = L̇/L
 per axis (extension positive): the image of j across the boundary moves with the field too, so the
@@ -21,12 +23,16 @@ Stresses are compression-positive, Pa, as in :mod:`membrax.spheres.measure`.
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from membrax import pytree
 from membrax.spheres import contact
 from membrax.spheres.contact import ContactParams
+from membrax.validation import check_range
 from membrax.vector import safe_norm, select
 
 __all__ = [
@@ -38,6 +44,7 @@ __all__ = [
     "love_weber_stress",
     "minimum_image_branch",
     "periodic_pair_forces",
+    "random_gas",
     "unbalanced_force_ratio",
 ]
 
@@ -237,3 +244,39 @@ def unbalanced_force_ratio(forces: PeriodicForces):
     count = jnp.sum(closed.astype(net.dtype))
     mean_contact = jnp.sum(forces.pair_normal_force) / jnp.maximum(count, 1.0)
     return jnp.where(count > 0, jnp.mean(net) / jnp.where(count > 0, mean_contact, 1.0), jnp.inf)
+
+
+def random_gas(diameters, solid_fraction: float, seed: int = 0, aspect=(1.0, 1.0, 1.0)):
+    """Spheres placed at random without overlap in a periodic box: (fractional positions (N, 3), L (3,)).
+
+    Random sequential addition (largest first, each tried at up to 1,000 uniform positions against the
+    minimum-image distances to those placed), in a box of the given aspect sized for ``solid_fraction``;
+    keep it below ~0.3 (random sequential addition jams near 0.38).
+
+    Args:
+      diameters: (N,) sphere diameters, m (e.g. :meth:`membrax.spheres.grading.Grading`'s sample).
+      solid_fraction: Σ π d³/6 / V of the gas.
+      seed: the random generator's seed.
+      aspect: relative box lengths.
+    """
+    check_range("solid_fraction", solid_fraction, lower=0.0, upper=0.35, lower_open=True)
+    diameters = np.sort(np.asarray(diameters, dtype=float))[::-1]
+    volume = np.sum(math.pi * diameters**3 / 6.0) / solid_fraction
+    aspect = np.asarray(aspect, dtype=float)
+    length = aspect * (volume / np.prod(aspect)) ** (1.0 / 3.0)
+    rng = np.random.default_rng(seed)
+    placed = np.zeros((0, 3))
+    for diameter in diameters:
+        for _ in range(1000):
+            trial = rng.random(3)
+            step = placed - trial[None, :]
+            branch = length[None, :] * (step - np.round(step))
+            # Sorted largest first, so a placed sphere's diameter is >= this one's: the sum of radii.
+            if not np.any(np.sum(branch**2, axis=1) < (0.5 * (diameters[: len(placed)] + diameter)) ** 2):
+                break
+        else:
+            raise ValueError(
+                f"random_gas: no room for a sphere at solid fraction {solid_fraction}; lower it."
+            )
+        placed = np.vstack([placed, trial])
+    return placed, length, diameters

@@ -16,10 +16,11 @@ chunks through the chunk driver (:mod:`membrax.driver`) and return the state and
 2. :meth:`PeriodicTest.shear`: drained compression, the z axis shortened at a constant ε̇ from the
    inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004), x and y servo-held at σc, to a target axial strain.
 
-:func:`compact_periodic` makes random packings the same way: a random gas (:func:`random_gas`) compressed
-isotropically to σc with a compaction friction coefficient (0.5 gives a loose packing; 0 a dense one,
-compressed to 10 σc and unloaded: see :func:`compact_periodic`), as the mould's compaction does
-(:mod:`membrax.spheres.compaction`) without its walls.
+:func:`compact_periodic` makes random packings the same way: a random gas
+(:func:`membrax.spheres.periodic.random_gas`) compressed isotropically to σc with a compaction friction
+coefficient (0.5 gives a loose packing; 0 a dense one, compressed to 10 σc and unloaded: see
+:func:`compact_periodic`), as the mould's compaction does (:mod:`membrax.spheres.compaction`) without its
+walls.
 
 One step (leapfrog, velocities at half steps; the spheres' velocities are the fluctuations u about the
 box's affine field v = u + ε̇ ⊙ (x − c), positions fractional, x = L ⊙ s):
@@ -75,6 +76,7 @@ from membrax.spheres.periodic import (
     coordination_numbers,
     love_weber_stress,
     periodic_pair_forces,
+    random_gas,
     unbalanced_force_ratio,
 )
 from membrax.theory import strain_rate_from_inertial_number
@@ -92,7 +94,6 @@ __all__ = [
     "measure_cell",
     "periodic_cell",
     "periodic_test",
-    "random_gas",
     "servo_strain_rate",
     "stable_time_step",
 ]
@@ -606,42 +607,6 @@ def periodic_test(
     )
 
 
-def random_gas(diameters, solid_fraction: float, seed: int = 0, aspect=(1.0, 1.0, 1.0)):
-    """Spheres placed at random without overlap in a periodic box: (fractional positions (N, 3), L (3,)).
-
-    Random sequential addition (largest first, each tried at up to 1,000 uniform positions against the
-    minimum-image distances to those placed), in a box of the given aspect sized for ``solid_fraction``;
-    keep it below ~0.3 (random sequential addition jams near 0.38).
-
-    Args:
-      diameters: (N,) sphere diameters, m (e.g. :meth:`membrax.spheres.grading.Grading`'s sample).
-      solid_fraction: Σ π d³/6 / V of the gas.
-      seed: the random generator's seed.
-      aspect: relative box lengths.
-    """
-    check_range("solid_fraction", solid_fraction, lower=0.0, upper=0.35, lower_open=True)
-    diameters = np.sort(np.asarray(diameters, dtype=float))[::-1]
-    volume = np.sum(math.pi * diameters**3 / 6.0) / solid_fraction
-    aspect = np.asarray(aspect, dtype=float)
-    length = aspect * (volume / np.prod(aspect)) ** (1.0 / 3.0)
-    rng = np.random.default_rng(seed)
-    placed = np.zeros((0, 3))
-    for diameter in diameters:
-        for _ in range(1000):
-            trial = rng.random(3)
-            step = placed - trial[None, :]
-            branch = length[None, :] * (step - np.round(step))
-            # Sorted largest first, so a placed sphere's diameter is >= this one's: the sum of radii.
-            if not np.any(np.sum(branch**2, axis=1) < (0.5 * (diameters[: len(placed)] + diameter)) ** 2):
-                break
-        else:
-            raise ValueError(
-                f"random_gas: no room for a sphere at solid fraction {solid_fraction}; lower it."
-            )
-        placed = np.vstack([placed, trial])
-    return placed, length, diameters
-
-
 def compact_periodic(
     diameters,
     cell_pressure: float,
@@ -656,8 +621,8 @@ def compact_periodic(
 ):
     """A random packing compressed isotropically to σc in a periodic cell (module docstring).
 
-    The gas (:func:`random_gas`) is compressed by the box servo (every axis to σc, at most
-    ``options["max_inertial_number"]``) with the compaction friction μ_c in place of the contact law's
+    The gas (:func:`membrax.spheres.periodic.random_gas`) is compressed by the box servo (every axis to σc,
+    at most ``options["max_inertial_number"]``) with the compaction friction μ_c in place of the contact law's
     friction. μ_c = 0.5 gives a loose packing at rest (150 spheres, d ± 20 %, 100 kPa: φ ≈ 0.56 and the
     unbalanced-force ratio below 1e-3 within ~30,000 steps, ``tests/test_periodic.py``).
 
