@@ -56,6 +56,7 @@ LAYERS = (
         "spheres.contact",
         "spheres._kernels",
         "spheres.walls",
+        "spheres.periodic",
         "membrane.energies",
         "membrane._kernels",
         "membrane.contact",
@@ -72,7 +73,7 @@ LAYERS = (
     ("spheres.compaction",),
     # protocol: consolidation and shearing
     ("triaxial.protocol",),
-    ("triaxial.rigid", "triaxial.membrane_cell"),
+    ("triaxial.rigid", "triaxial.periodic", "triaxial.membrane_cell"),
     # results
     (
         "triaxial.analysis",
@@ -103,7 +104,10 @@ LAYERS = (
 )
 #: Subpackages that are namespaces only: their __init__ imports nothing, so importing them is free.
 NAMESPACES = ("spheres", "membrane", "triaxial")
-DEM = {name for names in LAYERS for name in names if name.startswith("spheres.")} | {"triaxial.rigid"}
+DEM = {name for names in LAYERS for name in names if name.startswith("spheres.")} | {
+    "triaxial.rigid",
+    "triaxial.periodic",
+}
 MEMBRANE = {name for names in LAYERS for name in names if name.startswith("membrane.")} | {
     "triaxial.membrane_cell"
 }

@@ -38,7 +38,15 @@ import numpy as np
 with jax.numpy_dtype_promotion("standard"), jax.numpy_rank_promotion("allow"):
     from jax_md import partition, space
 
-__all__ = ["PairNeighborFn", "allocate_shared", "outside_box", "pair_neighbor_fn", "remap_pair_history"]
+__all__ = [
+    "PairNeighborFn",
+    "PeriodicNeighborFn",
+    "allocate_shared",
+    "outside_box",
+    "pair_neighbor_fn",
+    "periodic_neighbor_fn",
+    "remap_pair_history",
+]
 
 # Keys i·N + j must fit in int32 when x64 is off.
 _MAX_PARTICLES = 46_340
@@ -154,6 +162,103 @@ def outside_box(position, neighbor_frame: PairNeighborFn):
     shifted = position + jnp.asarray(neighbor_frame.origin, dtype=position.dtype)[None, :]
     box = jnp.asarray(neighbor_frame.box, dtype=position.dtype)[None, :]
     return jnp.any(shifted < 0.0) | jnp.any(shifted >= box)
+
+
+class PeriodicNeighborFn(NamedTuple):
+    """A neighbour-list factory for an orthorhombic periodic cell whose box lengths change in time.
+
+    Positions are fractional, s ∈ [0, 1)³ (x = L ⊙ s), and every call takes the current box lengths L
+    (jax-md's ``periodic_general`` space with ``fractional_coordinates=True``, its box a (3,) diagonal), so
+    candidates are found with the minimum image at the current L.
+
+    Rebuilds. A pair is a candidate when closer than cutoff + skin at the last build. Two motions eat the
+    skin: each sphere's own motion in the cell's frame (jax-md rebuilds when one moved more than skin/4 in
+    fractional coordinates measured at the current L, so a pair closes by at most skin/2 that way), and
+    the box's homogeneous deformation, which changes every distance with no motion in fractional
+    coordinates: a pair within cutoff + skin closes by at most (cutoff + skin) max_k |L_k/L_k,ref − 1|, so
+    :meth:`update` forces a rebuild when that passes skin/2 (``reference_length``: L at the last build).
+
+    Attributes:
+      neighbor_fn: the jax-md ``NeighborListFns``.
+      cutoff: contact distance (the largest diameter), m.
+      skin: extra distance of the candidates, m.
+    """
+
+    neighbor_fn: partition.NeighborListFns
+    cutoff: float
+    skin: float
+
+    def allocate(self, fraction, length, extra_capacity: int = 0):
+        """Build a new list on the host at fractional positions ``fraction`` (N, 3), box lengths ``length``.
+
+        The cell list's cells are sized for ``length`` (in fractional units cutoff/min L): a box that later
+        shrinks makes them too small (jax-md's ``cell_size_too_small``; :meth:`needs_new_list`).
+        """
+        with _jax_md_promotion():
+            return self.neighbor_fn.allocate(
+                fraction, box=jnp.asarray(length, fraction.dtype), extra_capacity=extra_capacity
+            )
+
+    def update(self, fraction, neighbors, length, reference_length):
+        """Update under jit at box lengths ``length``: (list, rebuilt).
+
+        A rebuild is forced when the box deformed too far since ``reference_length`` (class docstring).
+        """
+        length = jnp.asarray(length, fraction.dtype)
+        strain = jnp.max(jnp.abs(length / reference_length - 1.0))
+        deformed = (self.cutoff + self.skin) * strain > 0.5 * self.skin
+        # Half a cell away in fractional coordinates is half a box away at any L: jax-md then rebuilds.
+        away = jnp.where(deformed, neighbors.reference_position + 0.5, neighbors.reference_position)
+        with _jax_md_promotion():
+            new = neighbors.set(reference_position=away).update(fraction, box=length)
+        # A forced rebuild of spheres that did not move in the cell's frame leaves the reference as it was.
+        rebuilt = deformed | jnp.any(new.reference_position != neighbors.reference_position)
+        return new, rebuilt
+
+    def reallocate(self, fraction, length, cell_length, capacity: int = 0):
+        """A new list at box lengths ``length`` whose cells fit any box down to ``cell_length`` (host side).
+
+        Allocated at ``cell_length`` (<= ``length``: every distance is smaller there, so the capacity found
+        holds the pairs at ``length``), padded to at least ``capacity`` slots, then rebuilt at ``length``.
+        """
+        template = self.allocate(fraction, cell_length)
+        occupancy = max(int(capacity), int(template.max_occupancy))
+        padding = occupancy - template.idx.shape[-1]
+        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=fraction.shape[0])
+        # The overflow bits are sticky (jax-md ORs them into every update): start clean.
+        error = partition.PartitionError(jnp.zeros_like(template.error.code))
+        template = template.set(idx=idx, max_occupancy=occupancy, error=error)
+        length = jnp.asarray(length, fraction.dtype)
+        new, _ = self.update(fraction, template, length, 2.0 * length)
+        return new
+
+    @staticmethod
+    def needs_new_list(neighbors):
+        """True where the list overflowed or the box shrank below its cells: allocate a new list."""
+        return (neighbors.did_buffer_overflow | neighbors.cell_size_too_small) > 0
+
+
+def periodic_neighbor_fn(cutoff: float, skin: float, capacity_multiplier: float = 1.5) -> PeriodicNeighborFn:
+    """Neighbour-list factory for an orthorhombic periodic cell (:class:`PeriodicNeighborFn`).
+
+    Args:
+      cutoff: contact distance (the largest particle diameter), m.
+      skin: neighbour skin, m: half for the spheres' own motion, half for the box's deformation.
+      capacity_multiplier: spare capacity over the pairs found at allocation.
+    """
+    # jax-md probes the displacement with float32 arrays: under local standard promotion, as its calls.
+    with _jax_md_promotion():
+        displacement, _ = space.periodic_general(jnp.ones(3), fractional_coordinates=True)
+        neighbor_fn = partition.neighbor_list(
+            displacement,
+            box=jnp.ones(3),
+            r_cutoff=cutoff + 0.5 * skin,
+            dr_threshold=0.5 * skin,
+            capacity_multiplier=capacity_multiplier,
+            format=partition.OrderedSparse,
+            fractional_coordinates=True,
+        )
+    return PeriodicNeighborFn(neighbor_fn=neighbor_fn, cutoff=cutoff, skin=skin)
 
 
 def remap_pair_history(old_idx, new_idx, old_history, num_particles: int):
