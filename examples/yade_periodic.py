@@ -91,6 +91,7 @@ def record():
 while not phase["done"] and O.iter < spec["consolidation_max_steps"]:
     O.run(spec["record_every"], True)
 consolidated = phase["done"]
+record()  # the end of consolidation (the recorder may not have run: a packing already at rest)
 phase["name"] = "shear"
 size0 = None
 record()
@@ -101,7 +102,8 @@ triax.stressMask = 3
 triax.goal = (-sigma, -sigma, triax.strain[2] - 2.0 * spec["target_axial_strain"])
 triax.maxStrainRate = (spec["max_servo_rate"], spec["max_servo_rate"], rate)
 triax.doneHook = ""
-steps = int(math.ceil(spec["target_axial_strain"] / (rate * O.dt)))
+# the box shortens at L̇/L = −ε̇: the steps to the engineering strain 1 − L/L0 = target
+steps = int(math.ceil(-math.log(1.0 - spec["target_axial_strain"]) / (rate * O.dt)))
 O.run(steps, True)
 json.dump({"consolidated": consolidated, "records": records}, open(folder + "records.json", "w"))
 """
@@ -134,7 +136,7 @@ def run_yade(
       box: (Lx, Ly, Lz), m.
       cell_pressure: σc, Pa (> 0, compression).
       strain_rate: ε̇ of the axial shortening, 1/s.
-      target_axial_strain: ε_a at the end of shearing.
+      target_axial_strain: ε_a = 1 − L_z/L_z0 at the end of shearing.
       time_step: Δt, s (membrax's, so both codes take the same steps).
       normal_stiffness: k_n, N/m.
       friction_deg: φ_μ, degrees.
