@@ -82,18 +82,19 @@ def _lattice(cells: int, spacing: float, jitter: float = 0.0, seed: int = 0):
     return grid, np.full(3, cells * spacing * DIAMETER)
 
 
+def _compressed_lattice_test(precision, damping):
+    """A 4³ simple cubic lattice compressed to 0.97 of touching and jittered, in a cell at 100 kPa."""
+    fraction, length = _lattice(4, 0.97, jitter=0.03)
+    return periodic_test(
+        jnp.asarray(fraction, precision), length, np.full(64, 0.5 * DIAMETER), 1e5, damping=damping
+    )
+
+
 def test_momentum_is_conserved_without_damping(precision):
     """Σ m u is conserved to round-off over 300 undamped steps of a compressed, jittered lattice whose
     spheres move at random (pair forces are equal and opposite across the boundary too), while the contact
     forces are large: the check is not trivially zero."""
-    fraction, length = _lattice(4, 0.97, jitter=0.03)
-    test = periodic_test(
-        jnp.asarray(fraction, precision),
-        length,
-        np.full(64, 0.5 * DIAMETER),
-        1e5,
-        damping=DampingParams.none(),
-    )
+    test = _compressed_lattice_test(precision, DampingParams.none())
     velocity = np.random.default_rng(1).normal(0.0, 0.05, (64, 3))
     state = test.control(test.initial_state, False)  # the box at rest: strain control at ε̇ = 0
     state = state.set(velocity=jnp.asarray(velocity, precision))
@@ -225,14 +226,7 @@ def test_an_overflowing_list_is_grown_and_the_chunk_rerun(precision):
     """A list too small for its pairs (truncated to 40 slots, then rebuilt at the first step) sets the
     overflow bit; the runner allocates a larger periodic list from the chunk's start and reruns it, and the
     run ends where a run with an ample list ends (viscous damping: no sign flips on round-off)."""
-    fraction, length = _lattice(4, 0.97, jitter=0.03)
-    test = periodic_test(
-        jnp.asarray(fraction, precision),
-        length,
-        np.full(64, 0.5 * DIAMETER),
-        1e5,
-        damping=DampingParams.viscous(2000.0),
-    )
+    test = _compressed_lattice_test(precision, DampingParams.viscous(2000.0))
     ample = test.initial_state.set(list_length=2.0 * test.initial_state.length)  # rebuild at the first step
     short = ample.neighbors.set(idx=ample.neighbors.idx[:, :40], max_occupancy=40)
     truncated = ample.set(neighbors=short, pair_spring=ample.pair_spring[:40])
@@ -241,8 +235,9 @@ def test_an_overflowing_list_is_grown_and_the_chunk_rerun(precision):
     grown, records = test.runner.run(truncated, test.params, 400, 200, 100)
     assert test.runner.reallocations >= 1 and int(grown.error) == 0
     assert grown.neighbors.idx.shape[1] > 40 and records.step[-1] == 400
+    box = float(test.initial_state.length[0])
     np.testing.assert_allclose(
-        np.asarray(grown.position), np.asarray(reference.position), atol=ROUNDOFF[precision] * length[0]
+        np.asarray(grown.position), np.asarray(reference.position), atol=ROUNDOFF[precision] * box
     )
 
 

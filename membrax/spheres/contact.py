@@ -45,6 +45,7 @@ from membrax.fusion import materialize
 from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 
 __all__ = [
+    "pair_totals",
     "ContactParams",
     "PairContact",
     "PairSpheres",
@@ -233,6 +234,26 @@ def pair_contact(
         overlap=overlap,
         branch=branch,
     )
+
+
+def pair_totals(pairs: PairContact, valid, i, j, num_particles: int):
+    """Each sphere's force and torque from its pair slots' contacts: ((N, 6) totals, (3, C) forces on j).
+
+    Sphere j of a slot receives (F, T_j) and sphere i (−F, T_i), F = ``pairs.force_on_j``; padded slots
+    (``valid`` False) carry zeros into a dropped segment N. One row scatter (``segment_sum`` of (2C, 6)
+    rows; about 10× faster on XLA-CPU than scattering the (3, C) columns one by one).
+    """
+    pair_force = select(valid, pairs.force_on_j)
+    stacked = jnp.concatenate(
+        [
+            jnp.concatenate([pair_force, select(valid, pairs.torque_on_j)], axis=0),
+            jnp.concatenate([-pair_force, select(valid, pairs.torque_on_i)], axis=0),
+        ],
+        axis=1,
+    ).T
+    segments = jnp.concatenate([jnp.where(valid, j, num_particles), jnp.where(valid, i, num_particles)])
+    totals = jax.ops.segment_sum(stacked, segments, num_segments=num_particles + 1)[:num_particles]
+    return totals, pair_force
 
 
 # The sphere–sphere contacts of a neighbour list: its pair slots (i, j), padded with i = N, read as the

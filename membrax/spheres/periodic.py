@@ -150,16 +150,7 @@ def periodic_pair_forces(
         law.tangential_stiffness,
         law.friction_coefficient,
     )
-    pair_force = select(valid, pairs.force_on_j)
-    stacked = jnp.concatenate(
-        [
-            jnp.concatenate([pair_force, select(valid, pairs.torque_on_j)], axis=0),
-            jnp.concatenate([-pair_force, select(valid, pairs.torque_on_i)], axis=0),
-        ],
-        axis=1,
-    ).T
-    segments = jnp.concatenate([jnp.where(valid, gj, n), jnp.where(valid, gi, n)])
-    totals = jax.ops.segment_sum(stacked, segments, num_segments=n + 1)[:n]
+    totals, pair_force = contact.pair_totals(pairs, valid, gi, gj, n)
     distance = safe_norm(branch)
     overlap = radius[gi] + radius[gj] - distance
     normal_force = jnp.where(valid & (distance > 0.0), law.normal_stiffness * jnp.maximum(overlap, 0.0), 0.0)
