@@ -368,7 +368,7 @@ def test_every_runaway_of_a_host_loop_is_a_simulation_error():
     assert offenders == []
 
 
-#: Where a configuration's fields are read (issue 62, "Done when"): the configuration itself, the assembly
+#: Where a configuration's fields are read: the configuration itself, the assembly
 #: module that turns it into a test and into the plain values below it (:class:`membrax.assemble.RunSettings`,
 #: :func:`membrax.assemble.report_values`), and :mod:`membrax.run`, the one test's entry point (folder,
 #: precision, VTK cadence, summary). Everything else takes plain values: the executor and the runner, and

@@ -253,7 +253,7 @@ def test_local_damping_drag_on_the_platens_of_a_rigid_box_is_what_the_affine_fra
     # drags the spheres against the platens' motion; the affine frame removes that part, leaving the
     # damping of the non-affine motion (measured here 0.58 % of σ1 against 1.03 %; 0.34 % against 0.68 %
     # while the lateral walls' proportional servo let σ3, and with it σ1, run well above σc (1.37–1.45 σc
-    # past 0.1 % strain in a 6 × 10 box at 40 kPa): about the same drag over a smaller stress, issue 63).
+    # past 0.1 % strain in a 6 × 10 box at 40 kPa): about the same drag over a smaller stress).
     test = rigid.rigid_wall_test(fcc.fcc_specimen(D, 6, 10), 1e4)
     state, _ = test.consolidate()
     member = test.particles.member

@@ -21,7 +21,7 @@ platens (every wall of the membrane cell) keep YADE's proportional servo, α = 0
 (u stays 0); the rigid cell's lateral walls take α = :data:`LATERAL_SERVO_GAIN` and β = α/4
 (:data:`LATERAL_INTEGRAL_FRACTION`).
 
-Why the lateral walls need more (issue 63). A specimen that pushes a wall out at a velocity v_d (Poisson's
+Why the lateral walls need more. A specimen that pushes a wall out at a velocity v_d (Poisson's
 expansion, then dilation, while shearing) is a ramp disturbance of the wall force, dF/dt = K_w (v_d − v),
 with K_w = r k_n n_c the wall's stiffness (its contact springs in series with whatever the spheres behind
 them do, 0 < r ≤ 1). A proportional servo moves at v_d only once v_P = v_d, a standing error
