@@ -326,7 +326,7 @@ class _OverflowingRelaxer(FireRelaxer):
 
     def _grow(self, carry, error):
         assert error == ErrorCode.NEIGHBOR_OVERFLOW
-        return (*carry[:3], self.allocate(carry[0]), *carry[4:])
+        return carry._replace(neighbors=self.allocate(carry.position))
 
     def _measure(self, position, compensation, neighbors, growth):
         return jnp.asarray(1e4), jnp.asarray(5e-4), jnp.asarray(True)
