@@ -56,6 +56,7 @@ def run_case(spheres: int, seed: int, state: str, strain: float, inertial_number
 
     from membrax.spheres.contact import ContactParams
     from membrax.spheres.integrate import DampingParams
+    from membrax.theory import mobilised_friction_angle_deg
     from membrax.triaxial.periodic import compact_periodic, periodic_test
 
     diameters = np.full(spheres, DIAMETER)
@@ -80,12 +81,7 @@ def run_case(spheres: int, seed: int, state: str, strain: float, inertial_number
     seconds = time.perf_counter() - start
     ours = summary(
         records.axial_strain,
-        np.degrees(
-            np.arcsin(
-                (np.asarray(records.axial_stress) - np.asarray(records.lateral_stress))
-                / (np.asarray(records.axial_stress) + np.asarray(records.lateral_stress))
-            )
-        ),
+        np.asarray(mobilised_friction_angle_deg(records.axial_stress, records.lateral_stress)),
         records.volumetric_strain,
     )
     ours["solid_fraction"] = float(np.asarray(records.solid_fraction)[0])

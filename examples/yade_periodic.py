@@ -198,9 +198,11 @@ def run_yade(
 
 def friction_angle_deg(stress) -> np.ndarray:
     """φ' = asin((σ1 − σ3)/(σ1 + σ3)) of (R, 3) stresses, σ1 the axial (z), σ3 the lateral mean, degrees."""
+    from membrax.theory import mobilised_friction_angle_deg
+
     stress = np.asarray(stress)
     axial, lateral = stress[:, 2], 0.5 * (stress[:, 0] + stress[:, 1])
-    return np.degrees(np.arcsin((axial - lateral) / (axial + lateral)))
+    return np.asarray(mobilised_friction_angle_deg(axial, lateral))
 
 
 def main() -> None:
