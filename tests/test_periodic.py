@@ -211,7 +211,9 @@ def test_drained_compression_holds_the_lateral_stress_and_imposes_the_axial_stra
         )
         state, _ = test.consolidate(tolerance=1e-3, max_steps=20_000)
         rate = test.shear_rate(5e-3)
-        state, records = test.shear(state, target_axial_strain=0.03, inertial_number=5e-3, record_every=100)
+        state, records = test.shear(
+            state, 0.03, 5e-3, record_every_fine=100, record_every_coarse=100, chunk_steps=4000
+        )
     steps = records.step - records.step[0] + 100
     expected = 1.0 - np.exp(-rate * test.dt * steps)
     np.testing.assert_allclose(records.axial_strain, expected, rtol=1e-3, atol=rate * test.dt)
@@ -253,3 +255,55 @@ def test_a_frictionless_packing_is_near_random_close_packing():
     assert records.unbalanced_force_ratio[-1] < 1e-3
     assert 0.630 < records.solid_fraction[-1] < 0.648
     assert 5.9 < records.rattler_free_coordination_number[-1] < 6.6
+
+
+def test_a_periodic_run_from_a_configuration_resumes_to_the_same_bits_and_sweeps(tmp_path):
+    """``run_test`` of a ``cell = "periodic"`` configuration (64 equal spheres compacted frictionless in the
+    cell, 40 kPa, I = 5e-3, to 1 %, float32): z shortens by the imposed log strain ε_a = 1 − exp(−ε̇ t) to
+    round-off; a run interrupted after 4 chunks and resumed from its checkpoint writes the same records,
+    to the bit, as one run straight through (the checkpoint holds the list's shape and the records)."""
+    from membrax.config import TriaxialConfig
+    from membrax.run import run_test
+
+    config = TriaxialConfig(
+        name="periodic_resume",
+        packing="random",
+        cell="periodic",
+        periodic_particles=64,
+        cell_pressure_kpa=40.0,
+        inertial_number=5e-3,
+        target_axial_strain=0.01,
+        fine_until_strain=0.005,
+        record_every_fine=50,
+        record_every_coarse=100,
+        consolidation_max_steps=3000,
+        chunk_steps=500,
+        checkpoint_every_chunks=1,
+    )
+    straight = run_test(config, tmp_path / "straight", progress=False)
+    with pytest.raises(KeyboardInterrupt):
+        run_test(config, tmp_path / "resumed", progress=False, interrupt_after_chunks=4)
+    resumed = run_test(config, tmp_path / "resumed", resume=True, progress=False)
+    for name in ("step", "axial_strain", "volumetric_strain", "stress", "length"):
+        np.testing.assert_array_equal(resumed.results[name].values, straight.results[name].values)
+    np.testing.assert_array_equal(
+        resumed.consolidation["stress"].values, straight.consolidation["stress"].values
+    )
+    shear = straight.results
+    rate = 5e-3 / (DIAMETER * math.sqrt(2650.0 / 4e4))  # ε̇ = I / (d √(ρ/σc))
+    elapsed = (shear["step"].values - shear["step"].values[0]) * straight.metadata["dt_s"]
+    np.testing.assert_allclose(shear["axial_strain"].values, 1.0 - np.exp(-rate * elapsed), atol=2e-6)
+    assert shear["axial_strain"].values[-1] >= 0.01
+    # A sweep runs its members one after another through the same path: its 40 kPa member is the run above,
+    # to the bit, and its 20 kPa member consolidated to its own σc (the servo's 1 % criterion).
+    from membrax.sweep import run_sweep
+
+    sweep = run_sweep(config, {"cell_pressure_kpa": [20.0, 40.0]}, tmp_path / "sweep", progress=False)
+    member = sweep.member(cell_pressure_kpa=40.0)
+    np.testing.assert_array_equal(member["stress"].values, shear["stress"].values)
+    # The peak from the member's stresses (float64) and the run's stored φ' column (float32): 1e-5° apart.
+    assert float(sweep.dataset["peak_friction_angle_deg"].sel(cell_pressure_kpa=40.0)) == pytest.approx(
+        float(np.nanmax(shear["love_weber_friction_angle_deg"].values)), abs=1e-4
+    )
+    start = sweep.member(cell_pressure_kpa=20.0)["stress"].values[0]
+    np.testing.assert_allclose(np.diagonal(start), 2e4, rtol=0.011)
