@@ -238,8 +238,8 @@ class ChunkRunner:
         self.num_particles = num_particles
         self.capacity_growth = capacity_growth
         self.grow_membrane = grow_membrane
-        self.dem_of = (lambda state: state) if dem_of is None else dem_of
-        self.with_dem = (lambda state, dem: dem) if with_dem is None else with_dem
+        self.dem_of = _itself if dem_of is None else dem_of
+        self.with_dem = _replaced if with_dem is None else with_dem
         self.allocate = allocate
         self.reallocations = 0
         self._chunk = jax.jit(
