@@ -2,8 +2,10 @@
 
 Each test checks a number against physics: the force of a pair across the boundary is that of the same pair
 inside the box; momentum is conserved without damping; an affine compression of a simple cubic lattice
-gives Δσ_xx = k_n Δε / d; the servo holds σc; a frictionless packing is near random close packing; and a
-vmap over two cell pressures is two single runs. Run in float64 and float32 (``precision`` fixture).
+gives Δσ_xx = k_n Δε / d; the servo holds σc; a frictionless packing is near random close packing; a
+vmap over two cell pressures is two single runs; and a list grown through the one table growth
+(``driver.grow_tables``) holds every minimum-image pair a brute force finds, with its spring. Run in
+float64 and float32 (``precision`` fixture).
 """
 
 import math
@@ -13,11 +15,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from membrax import driver
 from membrax.driver import advance
+from membrax.errors import ErrorCode
 from membrax.spheres.contact import ContactParams
-from membrax.spheres.integrate import DampingParams
+from membrax.spheres.integrate import DampingParams, make_particles
+from membrax.spheres.neighbors import periodic_neighbor_fn
 from membrax.spheres.periodic import cell_stiffness, love_weber_stress, periodic_pair_forces
-from membrax.triaxial.periodic import cell_forces, compact_periodic, periodic_test
+from membrax.triaxial.periodic import (
+    PeriodicRunner,
+    cell_forces,
+    compact_periodic,
+    periodic_cell,
+    periodic_test,
+)
 
 DIAMETER = 0.025  # m, the paper's spheres
 KN = 1e7  # N/m
@@ -80,6 +91,11 @@ def _lattice(cells: int, spacing: float, jitter: float = 0.0, seed: int = 0):
     if jitter:
         grid = (grid + jitter * np.random.default_rng(seed).uniform(-1, 1, grid.shape) / cells) % 1.0
     return grid, np.full(3, cells * spacing * DIAMETER)
+
+
+def _pairs(idx, count):
+    """The real pairs (i, j) of a pair table padded with ``count``."""
+    return {(int(i), int(j)) for i, j in np.asarray(idx).T if i < count}
 
 
 def _compressed_lattice_test(precision, damping):
@@ -241,6 +257,57 @@ def test_an_overflowing_list_is_grown_and_the_chunk_rerun(precision):
     np.testing.assert_allclose(
         np.asarray(grown.position), np.asarray(reference.position), atol=ROUNDOFF[precision] * box
     )
+
+
+def test_a_grown_periodic_list_holds_every_minimum_image_pair_and_carries_every_spring():
+    """The periodic runner grows through driver.grow_tables. A jittered 6³ lattice (648 nearest pairs, 108
+    across the boundary) whose list holds 80 % of its pairs (518 slots) and overflowed at the chunk's end,
+    the box 3 % smaller there: the grown list has ceil(1.5 × 518) = 777 slots, holds every pair whose
+    minimum-image distance is within the list's radius (brute force over all pairs), carries the spring
+    set on each old pair to the same pair, was built at the start's box (list_length) and fits the end's
+    box. A list whose cells alone the box outgrew is not grown by the factor (fewer than 1.5 × 648 slots)."""
+    fraction, length = _lattice(6, 1.0, jitter=0.03)
+    fraction, length = jnp.asarray(fraction), jnp.asarray(length)
+    count = fraction.shape[0]
+    frame = periodic_neighbor_fn(DIAMETER, 0.2 * DIAMETER, capacity_multiplier=1.0)
+    init_fn, step_fn = periodic_cell(make_particles(jnp.full(count, 0.5 * DIAMETER), 2650.0), frame, 1e-6)
+    runner = PeriodicRunner(step_fn, frame, None, count)
+    overflow = np.array([ErrorCode.NEIGHBOR_OVERFLOW])
+
+    def chunk_end(start):
+        """The start at a box 3 % smaller, its list rebuilt there (as a chunk's end would be)."""
+        neighbors, _ = frame.update(fraction, start.neighbors, 0.97 * length, 2.0 * length)
+        return start.set(length=0.97 * length, neighbors=neighbors)
+
+    full = frame.reallocate(fraction, length, length, 0)
+    assert len(_pairs(full.idx, count)) == int(full.max_occupancy) == 648
+    old = full.set(idx=full.idx[:, :518], max_occupancy=518)
+    # A spring per slot that encodes its pair: (i, j, 0).
+    spring = jnp.stack([old.idx[0], old.idx[1], jnp.zeros(518, old.idx.dtype)], axis=1).astype(float)
+    start = init_fn(fraction, length, old, None).set(pair_spring=spring, list_length=2.0 * length)
+    end = chunk_end(start)
+    assert bool(end.neighbors.did_buffer_overflow)
+    grown = runner.grow(start, overflow, end)
+    new = grown.neighbors
+    assert int(new.max_occupancy) == new.idx.shape[1] == math.ceil(driver.TABLE_GROWTH * 518) == 777
+    branch = np.asarray(fraction[:, None] - fraction[None])
+    distance = np.linalg.norm(np.asarray(length) * (branch - np.round(branch)), axis=-1)
+    near = {(i, j) for i, j in zip(*np.nonzero(distance < 1.1 * DIAMETER), strict=True) if i < j}
+    across = {(i, j) for i, j in near if np.linalg.norm(np.asarray(length) * branch[i, j]) > 1.1 * DIAMETER}
+    assert len(near) == 648 and len(across) == 108 and near <= _pairs(new.idx, count)
+    carried = np.asarray(grown.pair_spring)
+    for slot, (i, j) in enumerate(np.asarray(new.idx).T):
+        if (i, j) in _pairs(old.idx, count):
+            assert tuple(carried[slot, :2]) == (i, j)
+        else:
+            assert not np.any(carried[slot])  # a new pair starts without a spring
+    np.testing.assert_array_equal(grown.list_length, length)
+    assert not bool(chunk_end(grown).neighbors.cell_size_too_small)
+    start = start.set(neighbors=full, pair_spring=jnp.zeros((648, 3)))
+    end = chunk_end(start)
+    assert bool(end.neighbors.cell_size_too_small) and not bool(end.neighbors.did_buffer_overflow)
+    capacity = int(runner.grow(start, overflow, end).neighbors.max_occupancy)
+    assert 648 <= capacity < math.ceil(driver.TABLE_GROWTH * 648)
 
 
 def test_a_frictionless_packing_is_near_random_close_packing():

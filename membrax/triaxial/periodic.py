@@ -53,7 +53,8 @@ shared with other jobs (load average ~10; 2,000 steps in one compiled chunk, 202
 
 Errors ride in ``state.error`` (:class:`membrax.errors.ErrorCode`): a neighbour list that overflowed or
 whose cells the box outgrew sets ``NEIGHBOR_OVERFLOW``, and the runner allocates a new list from the
-chunk's starting state (:meth:`PeriodicRunner.grow`); non-finite positions or velocities set ``NOT_FINITE``.
+chunk's starting state (:func:`membrax.driver.grow_tables`, with the list allocated by
+:meth:`PeriodicRunner.allocate_list`); non-finite positions or velocities set ``NOT_FINITE``.
 """
 
 from __future__ import annotations
@@ -410,34 +411,62 @@ def measure_cell(
 
 
 class PeriodicRunner(ChunkRunner):
-    """The chunk runner of a periodic cell: its tables grow by a new periodic neighbour list.
+    """The chunk runner of a periodic cell: its tables grow through :func:`membrax.driver.grow_tables`.
 
     A list that overflowed, or whose cells the shrinking box outgrew, is allocated again at the chunk's
-    starting state with its cells sized for 0.9 × the smaller of the start's and the overflowing end's
-    box (so the rerun chunk fits) and at least the runner's growth × the old capacity where the pairs
-    overflowed; the springs move over by partner id.
+    starting state by :meth:`allocate_list` and the springs move over by partner id (``grow_tables``); the
+    state's ``list_length`` becomes its box, at which the new list was built.
+
+    Args:
+      step_fn: ``step_fn(state, params) -> state`` (:func:`periodic_cell`).
+      neighbor_frame: the cell's neighbour-list factory
+        (:func:`membrax.spheres.neighbors.periodic_neighbor_fn`).
+      record_fn: ``record_fn(state, params) -> pytree`` recorded every ``record_every`` steps.
+      num_particles: N.
+      capacity_growth: the pair capacity's growth factor where the pairs overflowed.
     """
 
-    def grow(self, state, error, overflowed):
-        """``state`` with a new neighbour list (class docstring), or None for other errors."""
-        if not int(error[0]) & ErrorCode.NEIGHBOR_OVERFLOW:
-            return None
+    def __init__(
+        self,
+        step_fn,
+        neighbor_frame: PeriodicNeighborFn,
+        record_fn,
+        num_particles: int,
+        capacity_growth: float = 1.5,
+    ):
+        super().__init__(
+            step_fn,
+            neighbor_frame,
+            record_fn,
+            num_particles,
+            capacity_growth,
+            with_dem=self._with_list_at_box,
+            allocate=self.allocate_list,
+        )
+
+    def allocate_list(self, states, capacity, overflowed):
+        """The new periodic list of the chunk's starting state (``grow_tables``' ``allocate``).
+
+        Its cells are sized for 0.9 × the smaller of the start's and the overflowing end's box, so the
+        rerun chunk fits; ``capacity`` (the growth × the old one) is asked for only where the pairs
+        overflowed, at the start or the end: a list whose cells alone were outgrown keeps its slots.
+        """
+        (state,) = states
         old = state.neighbors
-        capacity = int(old.max_occupancy)
-        if bool(old.did_buffer_overflow) or bool(overflowed.neighbors.did_buffer_overflow):
-            capacity = math.ceil(self.capacity_growth * capacity)
+        if not (bool(old.did_buffer_overflow) or bool(overflowed.neighbors.did_buffer_overflow)):
+            capacity = int(old.max_occupancy)
         length = state.box_length
         cells = 0.9 * jnp.minimum(length, overflowed.box_length)
-        new = self.neighbor_frame.reallocate(state.fraction, length, cells, capacity)
-        self.reallocations += 1
-        spring = remap_pair_history(old.idx, new.idx, state.pair_spring, self.num_particles)
-        return state.set(
-            neighbors=new,
-            pair_spring=spring,
-            list_length=length,
-            cell_length=cells.astype(length.dtype),
-            error=jnp.zeros_like(state.error),
-        )
+        self._cells = cells
+        return [self.neighbor_frame.reallocate(state.fraction, length, cells, capacity)]
+
+    def _with_list_at_box(self, _state, grown):
+        """``grown`` noted as listed at its box, with :meth:`allocate_list`'s cells (a template needs them).
+
+        The next update measures the box's strain from ``list_length``; ``cell_length`` fixes the list's
+        shape (:meth:`PeriodicTest.template`).
+        """
+        return grown.set(list_length=grown.box_length, cell_length=self._cells.astype(grown.length.dtype))
 
 
 #: Δt_crit ≥ CRITICAL_STEP_BOUND √(m_min/k) (:func:`stable_time_step`): 2/√24 ≈ 0.408.
