@@ -1,0 +1,75 @@
+"""The size effect a report quotes (calibrate.size_effect) against hand calculations on a small table.
+
+Each test checks numbers by hand: the specimen part is internal − element per σc, averaged over the
+membranes; between two diameter ratios it is linear in D/D_s; outside the table's ratios nothing is
+extrapolated; the shipped table's own rows give back their differences.
+"""
+
+import pytest
+
+from calibrate.size_effect import _rows, size_effect_note, size_effects
+
+
+def _row(cell, ratio, pressure, peak, late, thickness=""):
+    key = "lw" if cell == "periodic" else "int"
+    return {
+        "state": "dense",
+        "cell": cell,
+        "d_over_ds": str(ratio),
+        "pressure_kpa": str(pressure),
+        "thickness_mm": str(thickness),
+        f"peak_{key}": str(peak),
+        f"late_{key}": str(late),
+    }
+
+
+ROWS = [
+    _row("periodic", 0, 10, 28.0, 22.0),
+    _row("periodic", 0, 100, 27.0, 23.0),
+    _row("membrane", 6, 10, 32.0, 30.0, 2),
+    _row("membrane", 6, 10, 34.0, 30.0, 5),  # mean over the membranes: 33 → +5 at the peak
+    _row("membrane", 6, 100, 29.0, 26.0, 2),
+    _row("membrane", 12, 10, 30.0, 25.0, 2),
+    _row("membrane", 12, 100, 28.0, 24.0, 2),
+    _row("membrane", 8, 40, 30.0, 25.0, 2),  # no element at 40 kPa: left out
+]
+
+
+def test_the_specimen_part_is_internal_minus_element_averaged_over_membranes():
+    effects = size_effects("dense", ROWS)
+    assert [e.diameter_ratio for e in effects] == [6.0, 12.0]
+    six, twelve = effects
+    assert six.cell_pressures_kpa == (10.0, 100.0)
+    assert six.peak_deg == pytest.approx((5.0, 2.0))  # (32 + 34)/2 − 28; 29 − 27
+    assert six.late_deg == pytest.approx((8.0, 3.0))
+    assert twelve.peak_deg == pytest.approx((2.0, 1.0))
+    assert size_effects("loose", ROWS) == []
+
+
+def test_between_ratios_the_note_is_linear_in_the_boundary_share_and_outside_it_says_none():
+    # D_s/D = 8: D/D_s = 1/8 lies (1/6 − 1/8)/(1/6 − 1/12) = 1/2 of the way from 6 to 12.
+    note = size_effect_note(8.0, "dense", ROWS)
+    assert "+1.5 to +3.5° from the boundary-free element's at the peak" in note  # (2+1)/2, (5+2)/2
+    assert "+2.0 to +5.5° late" in note  # (1+3)/2, (3+8)/2
+    assert "σc 10–100 kPa" in note
+    exact = size_effect_note(6.0, "dense", ROWS)
+    assert "+2.0 to +5.0° from" in exact
+    assert "none simulated at D_s/D = 20" in size_effect_note(20.0, "dense", ROWS)
+    assert "no loose rows" in size_effect_note(8.0, "loose", ROWS)
+
+
+def test_the_shipped_table_gives_back_its_own_differences():
+    rows = _rows()
+    element = {
+        float(r["pressure_kpa"]): float(r["peak_lw"])
+        for r in rows
+        if r["state"] == "dense" and r["cell"] == "periodic"
+    }
+    membrane = [
+        r for r in rows if r["state"] == "dense" and r["cell"] == "membrane" and float(r["d_over_ds"]) == 6
+    ]
+    assert element and membrane
+    effect = next(e for e in size_effects("dense") if e.diameter_ratio == 6.0)
+    for pressure, part in zip(effect.cell_pressures_kpa, effect.peak_deg, strict=True):
+        internal = [float(r["peak_int"]) for r in membrane if float(r["pressure_kpa"]) == pressure]
+        assert part == pytest.approx(sum(internal) / len(internal) - element[pressure], abs=1e-9)
