@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BOUNDARY_SPLIT", "SizeEffect", "size_effect_note", "size_effects"]
+__all__ = ["BOUNDARY_SPLIT", "SizeEffect", "boundary_split_rows", "size_effect_note", "size_effects"]
 
 #: The boundary split's table, shipped with the correction (``examples/boundary_split.py`` writes it).
 BOUNDARY_SPLIT = "boundary_split.csv"
@@ -48,7 +48,8 @@ class SizeEffect(NamedTuple):
 
 
 @functools.cache
-def _rows() -> tuple:
+def boundary_split_rows() -> tuple:
+    """The rows of :data:`BOUNDARY_SPLIT` as dicts of strings (its header's columns)."""
     text = resources.files("calibrate").joinpath("data", BOUNDARY_SPLIT).read_text()
     return tuple(csv.DictReader(text.splitlines()))
 
@@ -69,7 +70,7 @@ def size_effects(state: str = "dense", rows=None) -> list[SizeEffect]:
       One :class:`SizeEffect` per diameter ratio with a membrane cell and a periodic element at the same σc,
       by increasing ratio (empty if none).
     """
-    rows = _rows() if rows is None else rows
+    rows = boundary_split_rows() if rows is None else rows
     mine = [row for row in rows if row["state"] == state]
     element = {_value(r, "pressure_kpa"): r for r in mine if r["cell"] == "periodic"}
     by_ratio: dict[float, dict[float, list]] = {}

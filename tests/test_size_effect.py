@@ -7,7 +7,7 @@ extrapolated; the shipped table's own rows give back their differences.
 
 import pytest
 
-from calibrate.size_effect import _rows, size_effect_note, size_effects
+from calibrate.size_effect import boundary_split_rows, size_effect_note, size_effects
 
 
 def _row(cell, ratio, pressure, peak, late, thickness=""):
@@ -59,7 +59,7 @@ def test_between_ratios_the_note_is_linear_in_the_boundary_share_and_outside_it_
 
 
 def test_the_shipped_table_gives_back_its_own_differences():
-    rows = _rows()
+    rows = boundary_split_rows()
     element = {
         float(r["pressure_kpa"]): float(r["peak_lw"])
         for r in rows
