@@ -34,6 +34,7 @@ __all__ = [
     "HEIGHT_FLAG",
     "corrected_csv_errors",
     "csv_columns",
+    "element_errors",
     "example_arguments",
     "example_argv",
     "example_void_ratio",
@@ -257,6 +258,64 @@ def held_out_errors(dataset, corrections=None, max_strain=0.10) -> dict:
         for method in correct.METHODS
     }
     return {"members": members, "pooled": pooled}
+
+
+def element_errors(dataset, element: dict, corrections=None, max_strain=0.10) -> dict:
+    """Each method's peak and late φ' against the internal ones and against the material's own (the element).
+
+    Every member of a sweep is corrected by every method (:func:`calibrate.correct.correct_record`); its peak
+    φ' (the largest over 0 < ε_a ≤ ``max_strain`` where the fitted correction is defined) and late φ'
+    (:func:`membrax.triaxial.analysis.late_mean`) are compared with the internal φ' (the correction's own
+    radial target) and with ``element``'s, the boundary-free periodic element of the same spheres, state and
+    σc (:mod:`calibrate.size_effect`'s table).
+
+    Args:
+      dataset: a ``sweep.nc`` of membrane cells.
+      element: {σc kPa: (peak φ', late φ')} of the periodic element, degrees.
+      corrections: the fitted correction (default the shipped one).
+      max_strain: the largest axial strain scored.
+
+    Returns:
+      {"members": [(fields, {method: {"peak_internal", "late_internal", "peak_element", "late_element"}})]}
+      with signed errors φ'_method − φ'_target in degrees; members at a σc ``element`` lacks are left out.
+    """
+    import warnings
+
+    from membrax.triaxial.analysis import friction_angle_deg, late_mean
+
+    corrections = correct.default_corrections() if corrections is None else corrections
+    members = []
+    for config, rows in datasets.sweep_members(dataset):
+        if config["cell_pressure_kpa"] not in element:
+            continue
+        record, specimen, internal_1, internal_3 = lab_record_of(config, rows, corrections.radial_target)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = correct.correct_record(record, specimen, corrections)
+        strain = record.axial_strain
+        scored = (
+            (strain > 0.0) & (strain <= max_strain + 1e-12) & np.isfinite(result.friction_angle["fitted"])
+        )
+        internal = friction_angle_deg(internal_1, internal_3)[scored]
+        element_peak, element_late = element[config["cell_pressure_kpa"]]
+        targets = {
+            "internal": (float(np.nanmax(internal)), late_mean(strain[scored], internal)),
+            "element": (element_peak, element_late),
+        }
+        errors = {}
+        for method in correct.METHODS:
+            angle = result.friction_angle[method][scored]
+            peak, late = float(np.nanmax(angle)), late_mean(strain[scored], angle)
+            errors[method] = {
+                f"{kind}_{target}": value - targets[target][k]
+                for target in targets
+                for k, (kind, value) in enumerate((("peak", peak), ("late", late)))
+            }
+        fields = {
+            k: config[k] for k in ("cell_pressure_kpa", "membrane_thickness_mm", "membrane_modulus_kpa")
+        }
+        members.append((fields, errors))
+    return {"members": members}
 
 
 def specimen_words(config: dict, rows=None) -> str:

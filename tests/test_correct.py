@@ -568,6 +568,14 @@ def test_on_a_fresh_held_out_random_simulation_the_fitted_correction_beats_none_
     errors = evaluate.held_out_errors(read_results(tmp_path / "sweep.nc"))["pooled"]
     for method in CLASSICAL:
         assert errors["fitted"][0] < errors[method][0], (method, errors)
+    # Scored against an element at 0° every method's error is its own φ'; against the internal φ' it is that
+    # less the one internal peak: the difference is the member's internal peak φ' for every method.
+    (_, against), *_ = evaluate.element_errors(read_results(tmp_path / "sweep.nc"), {55.0: (0.0, 0.0)})[
+        "members"
+    ]
+    internal_peaks = [against[m]["peak_element"] - against[m]["peak_internal"] for m in against]
+    np.testing.assert_allclose(internal_peaks, internal_peaks[0], atol=1e-9)
+    assert 20.0 < internal_peaks[0] < 45.0  # a random packing's peak, below Rowe's FCC bound (43.8°)
 
 
 def test_the_calibration_grid_spans_the_ranges_the_correction_is_for():
