@@ -76,7 +76,8 @@ def run_case(spheres: int, seed: int, state: str, strain: float, inertial_number
         damping=DampingParams.local(DAMPING),
     )
     start = time.perf_counter()
-    consolidated, _ = test.consolidate()
+    # The unbalanced-force ratio of the runs in docs/validation.md (the float32 default is now 5e-3).
+    consolidated, _ = test.consolidate(tolerance=1e-3)
     _, records = test.shear(consolidated, target_axial_strain=strain, inertial_number=inertial_number)
     seconds = time.perf_counter() - start
     ours = summary(
