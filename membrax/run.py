@@ -416,8 +416,8 @@ def _run_periodic(config, folder: Path, resume, progress, interrupt_after_chunks
                     index, state, phase_steps, *plan[PHASES[index]], consolidation_tolerance(config)
                 )
             except SimulationError as error:
-                records = {phase: join_records(chunks) for phase, chunks in run.parts.items()}
-                raise RunError(f"{error} Records so far are in {folder}.", records) from error
+                _write_partial(folder, run.parts, config)
+                raise RunError(f"{error} Records so far are in {folder}.", run.parts) from error
             phase_steps = 0
         return _finish_periodic(
             folder, config, test, run.parts, build_seconds, run.elapsed(), call_started, resume
