@@ -70,6 +70,9 @@ def parse_args(argv=None):
     )
     parser.add_argument("--skip-rigid", action="store_true")
     parser.add_argument("--skip-periodic", action="store_true")
+    parser.add_argument(
+        "--reload-only", action="store_true", help="run nothing: tabulate the runs already saved under --out"
+    )
     parser.add_argument("--x64", action="store_true", help="run the DEM in float64 (default float32)")
     return parser.parse_args(argv)
 
@@ -186,10 +189,13 @@ def lab_packing(lab: Path, group: str, config):
             count = int(np.ravel(ds.num_particles.values)[0])
             fraction = float(np.ravel(ds.solid_fraction.values)[0])
         for path in sorted((native.cache_dir() / "specimens").glob("compaction_*.npz")):
-            with np.load(path) as data:
-                if data["position"].shape[0] != count:
-                    continue
-                scalars = json.loads(str(data["scalars"]))
+            try:
+                with np.load(path) as data:
+                    if data["position"].shape[0] != count:
+                        continue
+                    scalars = json.loads(str(data["scalars"]))
+            except (OSError, ValueError, KeyError):  # a file being written, or another kind
+                continue
             measures = scalars.get("measures", {})
             if (
                 scalars.get("seed") == config.packing_seed
@@ -272,6 +278,8 @@ def rigid_rows(args, lab, states, pressures, seeds, out: Path, times: list):
             for pressure in pressures:
                 path = out / f"rigid_{group}_{pressure:g}kpa.npz"
                 if not path.exists():
+                    if args.reload_only:
+                        continue
                     if specimen is None:
                         start = time.perf_counter()
                         specimen, source = lab_packing(lab, group, config)
@@ -414,12 +422,16 @@ def periodic_rows(args, lab, states, pressures, seeds, out: Path, times: list):
     for state in states:
         for seed in seeds:
             config = group_config(lab, f"{groups.get(state, RIGID_GROUPS[state])}_s{seed}")
+            if args.reload_only and not (out / f"periodic_{state}_s{seed}_packing.npz").exists():
+                continue
             packing = periodic_packing(
                 config, args.periodic_spheres, seed, out / f"periodic_{state}_s{seed}_packing.npz"
             )
             for pressure in pressures:
                 path = out / f"periodic_{state}_s{seed}_{pressure:g}kpa.npz"
                 if not path.exists():
+                    if args.reload_only:
+                        continue
                     print(f"periodic {state} seed {seed} {pressure:g} kPa ...", flush=True)
                     run_periodic(config, packing, pressure, path)
                 data = np.load(path)
