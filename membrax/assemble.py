@@ -26,6 +26,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
@@ -47,13 +48,16 @@ from membrax.spheres.fcc import Specimen, fcc_specimen, with_imperfection
 from membrax.spheres.grading import RandomSpecimen
 from membrax.spheres.integrate import DampingParams
 from membrax.spheres.particles import particle_mass
+from membrax.spheres.periodic import sample_element
 from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
+from membrax.triaxial.periodic import CRITICAL_STEP_BOUND, PeriodicTest, compact_periodic, periodic_test
 from membrax.triaxial.protocol import Loading
 
 __all__ = [
     "BATCHED_FIELDS",
     "BOOKKEEPING_FIELDS",
     "RunSettings",
+    "build_periodic_test",
     "build_specimen",
     "build_test",
     "common_nodes_around",
@@ -244,28 +248,110 @@ def build_specimen(config: TriaxialConfig) -> Specimen | RandomSpecimen:
 _RANDOM_SPECIMENS: dict[tuple, RandomSpecimen] = {}
 
 
-#: The modules whose code makes a compacted packing (membrax/spheres/): their text is part of the cache key.
-_COMPACTION_SOURCES = (
-    "compaction.py",
-    "fire.py",
-    "mould.py",
-    "grading.py",
-    "contact.py",
-    "_kernels.py",
-    "integrate.py",
+#: The modules whose code makes a compacted packing in a mould (in membrax/): their text is part of the
+#: cache key.
+_COMPACTION_SOURCES = tuple(
+    f"spheres/{name}"
+    for name in (
+        "compaction.py",
+        "fire.py",
+        "mould.py",
+        "grading.py",
+        "contact.py",
+        "_kernels.py",
+        "integrate.py",
+    )
+)
+#: The same for a packing made in the periodic cell.
+_PERIODIC_COMPACTION_SOURCES = (
+    "triaxial/periodic.py",
+    "spheres/periodic.py",
+    "spheres/neighbors.py",
+    "spheres/grading.py",
+    "spheres/contact.py",
+    "spheres/integrate.py",
 )
 
 
-def _compaction_cache_path(key: tuple) -> Path:
+def _compaction_cache_path(key: tuple, sources: Sequence[str] = _COMPACTION_SOURCES) -> Path:
     """Where a compacted packing of ``key`` is kept between processes.
 
     ``specimens/`` in the cache folder (``$MEMBRAX_CACHE_DIR`` or ``~/.cache/membrax``), named by a hash of
     the key, the compaction stress and the sources of the compaction (changed code makes a new packing).
     """
     digest = hashlib.sha256(repr((key, COMPACTION_STRESS)).encode())
-    for name in _COMPACTION_SOURCES:
-        digest.update((Path(__file__).resolve().parent / "spheres" / name).read_bytes())
+    for name in sources:
+        digest.update((Path(__file__).resolve().parent / name).read_bytes())
     return native.cache_dir() / "specimens" / f"compaction_{digest.hexdigest()[:20]}.npz"
+
+
+def build_periodic_test(config: TriaxialConfig) -> PeriodicTest:
+    """The periodic element test of a configuration (``cell = "periodic"``; nothing compiled yet).
+
+    Its packing: ``periodic_particles`` diameters of the configuration's grading
+    (:func:`membrax.spheres.periodic.sample_element`, seed ``packing_seed``) compacted in the periodic cell
+    as a mould's are (:func:`membrax.triaxial.periodic.compact_periodic`: from a gas to
+    :data:`membrax.defaults.COMPACTION_STRESS` at the compaction friction; frictionless packings overloaded
+    and unloaded), once per set of the fields that make it, kept on disk as the mould's. The test holds it
+    at the cell pressure with the configuration's contact law, density and damping (the affine frame is
+    the cell's own: ``damping_frame`` is not read), its time step ``dt_safety`` × the closed-form bound on
+    the critical step (:data:`membrax.triaxial.periodic.CRITICAL_STEP_BOUND`).
+    """
+    dtype = np.float64 if config.float64 else np.float32
+    law = ContactParams.paper(
+        friction_angle_deg=config.friction_angle_deg,
+        normal_stiffness=config.particle_stiffness_n_m,
+        tangential_stiffness=0.5 * config.particle_stiffness_n_m,
+    )
+    fields = (
+        "periodic_particles",
+        "grading",
+        "particle_diameter_mm",
+        "packing_seed",
+        "compaction_friction_deg",
+        "particle_density_kg_m3",
+        "particle_stiffness_n_m",
+        "float64",
+    )
+    key = ("periodic", *(getattr(config, name) for name in fields))
+    cached = _compaction_cache_path(key, _PERIODIC_COMPACTION_SOURCES)
+    packing = None
+    if cached.exists():
+        try:
+            with np.load(cached) as data:
+                packing = {name: np.asarray(data[name]) for name in ("fraction", "length", "diameter")}
+        except (OSError, ValueError, KeyError):  # a partial or older file: compact afresh
+            packing = None
+    if packing is None:
+        diameters = sample_element(config.particle_grading, config.periodic_particles, config.packing_seed)
+        compaction, state, _ = compact_periodic(
+            diameters,
+            COMPACTION_STRESS,
+            friction_coefficient=config.compaction_friction_coefficient,
+            seed=config.packing_seed,
+            dtype=dtype,
+            contact_params=law,  # its friction replaced by the compaction's
+            density=config.particle_density_kg_m3,
+        )
+        packing = {
+            "fraction": np.asarray(state.fraction + state.fraction_compensation),
+            "length": np.asarray(state.box_length, dtype=float),
+            "diameter": 2.0 * np.asarray(compaction.particles.radius, dtype=float),
+        }
+        cached.parent.mkdir(parents=True, exist_ok=True)
+        partial = cached.with_suffix(f".{os.getpid()}.npz")
+        np.savez(partial, **packing)
+        os.replace(partial, cached)  # atomic: a concurrent reader sees the whole file or none
+    return periodic_test(
+        jnp.asarray(packing["fraction"], dtype),
+        packing["length"],
+        0.5 * packing["diameter"],
+        config.cell_pressure,
+        contact_params=law,
+        damping=damping_params(config),
+        density=config.particle_density_kg_m3,
+        dt_safety=config.dt_safety * CRITICAL_STEP_BOUND,
+    )
 
 
 def loading(config: TriaxialConfig) -> Loading:
@@ -286,12 +372,12 @@ def loading(config: TriaxialConfig) -> Loading:
 def consolidation_tolerance(config: TriaxialConfig) -> float:
     """The unbalanced-force ratio that ends consolidation.
 
-    The configuration's, else the membrane cell's default for its precision
+    The configuration's, else its cell's default for its precision
     (:func:`membrax.defaults.default_consolidation_tolerance`).
     """
     tolerance = config.consolidation_tolerance_or_none
     if tolerance is None:
-        tolerance = default_consolidation_tolerance("membrane", config.float64)
+        tolerance = default_consolidation_tolerance(config.cell, config.float64)
     return tolerance
 
 
@@ -310,6 +396,7 @@ class RunSettings:
       float64: consolidation (and, without ``float32_shearing``, everything) in float64.
       float32_shearing: with ``float64``, the shearing in float32.
       provenance: the configuration as written (:func:`membrax.config.config_to_dict`), for results.
+      cell: ``"membrane"`` or ``"periodic"`` (:func:`membrax.run.run_test` runs either).
     """
 
     name: str
@@ -321,6 +408,7 @@ class RunSettings:
     float64: bool
     float32_shearing: bool
     provenance: dict = pydataclasses.field(compare=False)
+    cell: str = "membrane"
 
     @property
     def precision(self) -> str:
@@ -342,6 +430,7 @@ def run_settings(config: TriaxialConfig) -> RunSettings:
         float64=config.float64,
         float32_shearing=config.float32_shearing,
         provenance=config_to_dict(config),
+        cell=config.cell,
     )
 
 

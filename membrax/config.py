@@ -61,11 +61,13 @@ __all__ = [
     "UNIT_SUFFIXES",
     "DEMO_CONFIG",
     "DEMO_RANDOM_CONFIG",
+    "PERIODIC_DEMO_CONFIG",
     "BALLAST_GRADING_MM",
     "scaled_grading",
     "characteristic_size_mm",
     "compaction_state",
     "PACKINGS",
+    "CELLS",
     "SMOKE_CONFIG",
     "SI_SCALE",
     "to_si",
@@ -96,6 +98,11 @@ DEMO_RANDOM_CONFIG = dict(
     specimen_diameter_mm=150.0,
     specimen_height_mm=250.0,
 )
+
+#: The periodic demo's changes to :data:`DEMO_RANDOM_CONFIG` (``examples/configs/periodic.toml``): the same
+#: spheres, compaction, pressure and rate as a boundary-free element of 500 of them (:mod:`membrax.triaxial.
+#: periodic`), the material's own response beside the random demo's specimen.
+PERIODIC_DEMO_CONFIG = dict(name="periodic", cell="periodic", periodic_particles=500)
 
 #: Railway ballast's grading at full size, [sieve size mm, percent passing by mass]: the midpoints of the
 #: envelope of BS EN 13450 grading category A (31.5–50 mm), the one Network Rail specifies (22.4 mm 0–3 %,
@@ -194,6 +201,14 @@ def to_si(field: str, value):
 #: Accepted values of ``packing``: the FCC lattice of ``particles_across`` × ``layers``, or a random packing
 #: compacted in a mould of ``specimen_diameter_mm`` × ``specimen_height_mm``.
 PACKINGS = ("fcc", "random")
+
+#: Accepted values of ``cell``: the membrane cell (the reference study's test) or the periodic element test
+#: (:mod:`membrax.triaxial.periodic`: no boundary, the material's own response).
+CELLS = ("membrane", "periodic")
+
+#: The fewest spheres of a periodic element: a box of about 4 diameters, twice the contact distance plus the
+#: neighbour skin (the minimum image needs more than that).
+SMALLEST_PERIODIC_ELEMENT = 64
 
 #: The fewest largest-particle diameters a random specimen's diameter and height may hold.
 SMALLEST_RANDOM_SPECIMEN = 4.0
@@ -342,6 +357,13 @@ _SPECS: dict[str, _Spec] = {
     "viscous_damping": _Spec(bool),
     "damping_frame": _Spec(str, choices=defaults.DAMPING_FRAMES),
     "dt_safety": _Spec(float, "(fraction of the critical time step)", **_FRACTION_OPEN, upper_open=False),
+    "cell": _Spec(str, choices=CELLS),
+    "periodic_particles": _Spec(
+        int,
+        "spheres",
+        lower=SMALLEST_PERIODIC_ELEMENT,
+        hint="the spheres of a periodic element (cell = 'periodic'); 500 hold about 7 diameters per side",
+    ),
 }
 
 
@@ -429,6 +451,14 @@ class TriaxialConfig:
         the platens), or ``"absolute"``, the velocity itself (the paper's practice, whose drag raised the
         platen stress 1.8 % above the Love–Weber stress in a paper-size rigid box at 10 kPa and I = 1e-3,
         ``examples/damping_artefact.py``). The same law in consolidation. Default ``"affine"``.
+      cell (str): ``"membrane"``, the membrane cell (the reference study's test), or ``"periodic"``, the
+        boundary-free element test of the same spheres (:mod:`membrax.triaxial.periodic`): a random packing
+        of ``periodic_particles`` spheres made in a periodic box as the mould's (same grading, seed and
+        compaction friction), consolidated to the cell pressure and compressed at the inertial number with
+        the lateral stresses servo-held; the membrane and mould fields are not used, and shearing needs no
+        start-up ramp (``shear_ramp_strain``) since the box moves every sphere with it. Default
+        ``"membrane"``.
+      periodic_particles (int): spheres of the periodic element, in [64, inf). Default 500.
 
     Raises:
       ConfigError: on construction, listing every field that is of the wrong type or out of range.
@@ -474,6 +504,8 @@ class TriaxialConfig:
     dt_safety: float = 0.5
     viscous_damping: bool = False
     damping_frame: str = defaults.DAMPING_FRAME
+    cell: str = "membrane"
+    periodic_particles: int = 500
 
     def __post_init__(self):
         values, errors = _check_fields({f.name: getattr(self, f.name) for f in dataclasses.fields(self)})
@@ -715,6 +747,13 @@ def _check_fields(values: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]
         normalised[key] = value
         if error is not None:
             errors.append(error)
+    if not errors and normalised["cell"] == "periodic":
+        if normalised["packing"] != "random":
+            errors.append(
+                f"cell = 'periodic' with packing = {normalised['packing']!r}: the periodic element is a "
+                "random packing made in its box; set packing = 'random'."
+            )
+        return normalised, errors  # no mould and no membrane to check
     if not errors and normalised["packing"] == "random":
         errors.extend(_random_specimen_errors(normalised))
     if not errors and not normalised["grading"] and inflation_ratio(normalised) >= 1.0:

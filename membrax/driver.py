@@ -14,14 +14,17 @@ the host:
   budgets early (a consolidation stop test).
 
 Its users, each handing it a chunk and callbacks: :class:`ChunkRunner` (one state: the stages of
-:class:`membrax.triaxial.protocol.StagedTest`, interactive use), :class:`membrax.executor.BatchedTest`
+:class:`membrax.triaxial.protocol.StagedTest` and of the periodic cell,
+:class:`membrax.triaxial.periodic.PeriodicRunner`; interactive use), :class:`membrax.executor.BatchedTest`
 (stacked members: every run of :mod:`membrax.run` and :mod:`membrax.sweep`), the compaction of a random
 packing and its FIRE relaxations (:mod:`membrax.spheres.compaction`, :mod:`membrax.spheres.fire`: a
 chunk, then a measure that may end the budget), the continuation differences of
 :mod:`membrax.sensitivities` (relax until balanced) and the gradient rollouts of :mod:`membrax.gradients`
 (the whole compiled rollout is one chunk: an overflow grows the start states' tables and runs it again).
 ``tests/test_architecture.py`` holds that no other loop launches a chunk or reads error bits. Every table
-grows through :func:`grow_tables`.
+grows through :func:`grow_tables`, which all of them call from :func:`drive`'s ``grow``; a periodic cell
+hands it the allocation of its list (``allocate``: cells sized for a shrinking box), not a growth of its
+own.
 
 The compiled chunk body is written once, here, and every loop over time steps in membrax is one of its
 two pieces: :func:`advance` (``num_steps`` steps, a ``lax.fori_loop``) and :func:`record_blocks`
@@ -119,16 +122,19 @@ def grow_tables(
     grow_membrane: Callable | None = None,
     overflowed=None,
     capacity_growth: float = TABLE_GROWTH,
+    allocate: Callable | None = None,
 ):
     """The one table growth of membrax: larger neighbour lists and node candidate tables for ``states``.
 
     On :attr:`ErrorCode.NEIGHBOR_OVERFLOW` every state's neighbour list is allocated afresh at its positions
     with one shared capacity, at least ``capacity_growth`` × the old one (:func:`allocate_shared`: the lists
-    of a batch's members keep one shape, so they stack), and the tangential springs move to the new slots by
-    partner id (:func:`remap_pair_history`); on :attr:`ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`
-    ``grow_membrane`` grows the node candidate tables (:func:`membrax.membrane.coupled.grow_candidates`).
-    The runs' drivers (:meth:`ChunkRunner.grow`, :meth:`membrax.executor.BatchedTest.grow`), FIRE's
-    relaxation and the compaction call it from :func:`drive`'s ``grow``.
+    of a batch's members keep one shape, so they stack; a periodic cell's ``allocate`` builds its own), and
+    the tangential springs move to the new slots by partner id (:func:`remap_pair_history`); on
+    :attr:`ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW` ``grow_membrane`` grows the node candidate tables
+    (:func:`membrax.membrane.coupled.grow_candidates`). The runs' drivers (:meth:`ChunkRunner.grow`, so
+    also the periodic cell's :class:`membrax.triaxial.periodic.PeriodicRunner`;
+    :meth:`membrax.executor.BatchedTest.grow`), FIRE's relaxation and the compaction call it from
+    :func:`drive`'s ``grow``.
 
     Args:
       states: the states to grow (a list: one state, or the members of a batch).
@@ -142,6 +148,9 @@ def grow_tables(
       overflowed: the overflowing chunk's end state (its tables say how large the new ones must be).
       capacity_growth: the pair capacity's growth factor; 1.0 rebuilds at the same capacity (the compiled
         chunk is reused).
+      allocate: ``allocate(dems, capacity, overflowed) -> lists``: new neighbour lists for the sphere
+        states ``dems`` with at least ``capacity`` pair slots (``overflowed`` as given here), or None:
+        :func:`allocate_shared` with ``frame`` at their positions.
 
     Returns:
       The grown states (a list), or None if a table cannot be grown.
@@ -152,12 +161,16 @@ def grow_tables(
     if error & ErrorCode.NEIGHBOR_OVERFLOW:
         dems = [dem_of(state) for state in states]
         old = dems[0].neighbors
-        lists = allocate_shared(
-            frame,
-            [dem.position for dem in dems],
-            capacity=math.ceil(capacity_growth * int(old.max_occupancy)),
-            cell_capacity=int(old.cell_list_capacity or 0),
-        )
+        capacity = math.ceil(capacity_growth * int(old.max_occupancy))
+        if allocate is None:
+            lists = allocate_shared(
+                frame,
+                [dem.position for dem in dems],
+                capacity=capacity,
+                cell_capacity=int(old.cell_list_capacity or 0),
+            )
+        else:
+            lists = allocate(dems, capacity, overflowed)
         states = [
             with_dem(
                 state,
@@ -203,6 +216,8 @@ class ChunkRunner:
       with_dem: ``with_dem(state, dem) -> state``, the state with that sphere state put back (default: the
         sphere state itself). The test tells the runner where its spheres are; the runner never inspects
         the state's type.
+      allocate: the new neighbour lists of an overflow, :func:`grow_tables`' ``allocate`` (default
+        :func:`allocate_shared`; a periodic cell's runner passes its own).
     """
 
     def __init__(
@@ -215,6 +230,7 @@ class ChunkRunner:
         grow_membrane: Callable | None = None,
         dem_of: Callable | None = None,
         with_dem: Callable | None = None,
+        allocate: Callable | None = None,
     ):
         self.step_fn = step_fn
         self.neighbor_frame = neighbor_frame
@@ -222,8 +238,9 @@ class ChunkRunner:
         self.num_particles = num_particles
         self.capacity_growth = capacity_growth
         self.grow_membrane = grow_membrane
-        self.dem_of = (lambda state: state) if dem_of is None else dem_of
-        self.with_dem = (lambda state, dem: dem) if with_dem is None else with_dem
+        self.dem_of = _itself if dem_of is None else dem_of
+        self.with_dem = _replaced if with_dem is None else with_dem
+        self.allocate = allocate
         self.reallocations = 0
         self._chunk = jax.jit(
             self._chunk_impl,
@@ -253,7 +270,9 @@ class ChunkRunner:
             self.neighbor_frame,
             dem_of=self.dem_of,
             with_dem=self.with_dem,
+            overflowed=state,  # no chunk overflowed: the state's own list says how large
             capacity_growth=growth,
+            allocate=self.allocate,
         )
         self.reallocations += 1
         return state
@@ -278,6 +297,7 @@ class ChunkRunner:
             grow_membrane=grow_membrane,
             overflowed=overflowed,
             capacity_growth=self.capacity_growth,
+            allocate=self.allocate,
         )
         if grown is None:
             return None

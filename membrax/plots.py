@@ -62,6 +62,8 @@ __all__ = [
     "plot_axial_ratio_and_strain_ratio",
     "plot_radial_ratio_and_radial_strain",
     "save_test_figures",
+    "plot_element_figure",
+    "save_element_figure",
     "plot_fig9",
     "save_fig9",
 ]
@@ -489,6 +491,44 @@ def save_test_figures(records, folder, stem="fig", derived=None, dpi=120, title=
         figure.clear()
         paths.append(path)
     return paths
+
+
+def plot_element_figure(records) -> Figure:
+    """A periodic element test's shearing: φ' (left) and ε_v (right, compression +) against ε_a in %.
+
+    ``ax.lines[0]`` of the left Axes is φ' from the cell's Love–Weber stress (σ1 axial, σ3 the lateral
+    mean), of the right one ε_v; the late φ' (:func:`membrax.triaxial.analysis.late_mean`) is a dashed line.
+    """
+    strain_pct = analysis.record(records, "axial_strain") * PERCENT
+    angle = analysis.friction_angle_deg(
+        analysis.record(records, "axial_stress"), analysis.record(records, "lateral_stress")
+    )
+    figure = Figure(figsize=(9.6, 4.0), layout="constrained")
+    left, right = figure.subplots(1, 2)
+    left.plot(strain_pct, angle, color="0.2", label="Love–Weber φ'")
+    late = analysis.late_mean(strain_pct, angle)
+    left.axhline(late, color="tab:red", linestyle="--", linewidth=0.8, label=f"late {late:.1f}°")
+    left.set_ylabel("Mobilised friction angle φ' (°)")
+    left.legend()
+    right.plot(strain_pct, analysis.record(records, "volumetric_strain") * PERCENT, color="tab:blue")
+    right.set_ylabel("Volumetric strain εv (%, compression +)")
+    for ax in (left, right):
+        ax.set_xlabel("Axial strain εa (%)")
+        ax.grid(True, linewidth=0.5, alpha=0.5)
+    return figure
+
+
+def save_element_figure(records, folder, name="element.png", dpi=120, title=None) -> Path:
+    """Write :func:`plot_element_figure` to ``folder/name`` (created if missing) and release it."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    figure = plot_element_figure(records)
+    if title:
+        figure.suptitle(title, fontsize=9)
+    path = folder / name
+    figure.savefig(path, dpi=dpi)
+    figure.clear()
+    return path
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""One membrane triaxial test from a configuration to a results folder, with checkpoints and resume.
+"""One triaxial test from a configuration to a results folder, with checkpoints and resume.
 
 Contract. :func:`run_test` takes a :class:`membrax.config.TriaxialConfig` and a folder and runs the paper's
 protocol (:mod:`membrax.triaxial.membrane_cell`): stage 1, consolidation under the cell pressure until the
@@ -28,22 +28,47 @@ the remaining steps of the interrupted phase run in the same chunks as they woul
 the results are identical. A non-finite state (the driver's error bits) or a runaway kinetic energy
 (above :data:`membrax.runner.RUNAWAY_KINETIC_FRACTION` × σc V₀, the work scale of the cell pressure) stops
 the run with :class:`RunError`, naming the step and what to change; the records so far are written first.
+
+The periodic element. A configuration with ``cell = "periodic"`` runs the boundary-free element test of its
+spheres instead (:func:`membrax.assemble.build_periodic_test`, :class:`membrax.triaxial.periodic.
+PeriodicTest`): the same phases, one cell through its chunk runner, checkpointed every
+``checkpoint_every_chunks`` chunks and at each phase's end (a resumed run takes the same chunks and writes
+the same bits). The folder receives ``results.nc``/``.csv`` and ``consolidation.nc``/``.csv`` (the cell's
+records, :class:`membrax.triaxial.periodic.CellRecords`, with ``time``, ``radial_strain`` and
+``love_weber_friction_angle_deg``; the first shearing record the end of consolidation, strains from the
+start of shearing), ``element.png`` (:func:`membrax.plots.save_element_figure`), ``summary.md``
+(:func:`membrax.triaxial.analysis.element_summary_table`), ``config.toml`` and ``checkpoint.npz``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import platform
 import time
 from pathlib import Path
 
+import jax
 import numpy as np
 
-from membrax import __version__, plots
-from membrax.assemble import build_test, consolidation_tolerance, precision_scope
+from membrax import __version__, plots, theory
+from membrax.assemble import (
+    build_periodic_test,
+    build_test,
+    consolidation_tolerance,
+    loading,
+    precision_scope,
+)
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
-from membrax.errors import RunError
+from membrax.errors import RunError, SimulationError
 from membrax.executor import build_batch
-from membrax.io import VTKSeries, read_checkpoint_host, records_to_dataset, write_results
+from membrax.io import (
+    VTKSeries,
+    load_checkpoint,
+    read_checkpoint_host,
+    records_to_dataset,
+    save_checkpoint,
+    write_results,
+)
 from membrax.membrane.measure import triangle_stretches
 from membrax.paper import PAPER_10KPA_5MM, paper_key
 from membrax.runner import (
@@ -56,6 +81,7 @@ from membrax.runner import (
 )
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest
+from membrax.triaxial.protocol import PHASES
 
 __all__ = [
     "CHECKPOINT_NAME",
@@ -153,6 +179,8 @@ def run_test(
     folder.mkdir(parents=True, exist_ok=True)
     if not resume:
         (folder / "config.toml").write_text(dump_config_toml(config))
+    if config.cell == "periodic":
+        return _run_periodic(config, folder, resume, progress, interrupt_after_chunks, call_started)
     # The configuration's precision, scoped to this call (thread-local).
     with precision_scope(config):
         started = time.perf_counter()
@@ -261,3 +289,193 @@ def _finish(folder, config, test, metadata, records, shear_start, elapsed, resum
     (folder / "summary.md").write_text(summary + "\n")
     files["summary"] = folder / "summary.md"
     return RunResult(folder, shear, consolidation, summary, files, metadata)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# The periodic element test
+# ----------------------------------------------------------------------------------------------------------
+
+
+def _periodic_records(records) -> dict:
+    """A chunk's :class:`~membrax.triaxial.periodic.CellRecords` as a dict of numpy arrays."""
+    return {field.name: np.asarray(getattr(records, field.name)) for field in dataclasses.fields(records)}
+
+
+@dataclasses.dataclass
+class _PeriodicRun:
+    """A periodic element run in progress (:func:`_run_periodic`): records by phase, checkpoints, progress."""
+
+    config: TriaxialConfig
+    test: object  # membrax.triaxial.periodic.PeriodicTest
+    path: Path
+    progress: bool
+    interrupt_after_chunks: int | None
+    parts: dict = dataclasses.field(default_factory=lambda: {phase: [] for phase in PHASES})
+    chunks: int = 0
+    elapsed_before: float = 0.0
+    started: float = dataclasses.field(default_factory=time.perf_counter)
+
+    def elapsed(self) -> float:
+        return self.elapsed_before + time.perf_counter() - self.started
+
+    def save(self, state, phase_index: int, phase_steps: int) -> None:
+        """Checkpoint: the state, its place in :data:`PHASES`, the records so far and the list's shape."""
+        host = {
+            "phase": phase_index,
+            "phase_steps": phase_steps,
+            "elapsed": self.elapsed(),
+            "list_shape": self.test.list_shape(state),
+            "record_phases": [phase for phase in PHASES if self.parts[phase]],
+        }
+        for phase in host["record_phases"]:
+            for name, values in join_records(self.parts[phase]).items():
+                host[f"{phase}__{name}"] = values
+        save_checkpoint(self.path, state, host)
+
+    def restore(self):
+        """(state, phase index, steps done in it) from the checkpoint, the records so far put back."""
+        saved = read_checkpoint_host(self.path)
+        state, host = load_checkpoint(self.path, self.test.template(**saved["list_shape"]))
+        self.elapsed_before = host["elapsed"]
+        for phase in host["record_phases"]:
+            names = [key.split("__", 1)[1] for key in host if key.startswith(f"{phase}__")]
+            self.parts[phase].append({name: np.asarray(host[f"{phase}__{name}"]) for name in names})
+        return state, host["phase"], host["phase_steps"]
+
+    def run_phase(self, index: int, state, phase_steps: int, steps: int, record_every: int, tolerance: float):
+        """Phase ``index`` of :data:`PHASES` from ``phase_steps`` of its ``steps`` on; returns the state."""
+        from tqdm.auto import tqdm
+
+        phase = PHASES[index]
+        bar = tqdm(
+            total=None if phase == "consolidation" else steps,
+            initial=phase_steps,
+            desc=phase,
+            unit="step",
+            disable=not self.progress or steps == 0,
+            leave=False,
+        )
+        done_steps = [phase_steps]
+
+        def consolidated(_, records):
+            return phase == "consolidation" and self.test.is_consolidated(records, tolerance)
+
+        def on_chunk(new, records):
+            mine = _periodic_records(records)
+            self.parts[phase].append(mine)
+            self.chunks += 1
+            done_steps[0] += len(mine["step"]) * record_every
+            bar.update(len(mine["step"]) * record_every)
+            bar.set_postfix(
+                strain=f"{mine['axial_strain'][-1]:.4f}", ufr=f"{mine['unbalanced_force_ratio'][-1]:.1e}"
+            )
+            finished = done_steps[0] >= steps or consolidated(new, records)
+            if finished or self.chunks % self.config.checkpoint_every_chunks == 0:
+                self.save(new, *((index + 1, 0) if finished else (index, done_steps[0])))
+            if self.interrupt_after_chunks is not None and self.chunks >= self.interrupt_after_chunks:
+                raise KeyboardInterrupt(f"interrupted after {self.chunks} chunks (interrupt_after_chunks)")
+
+        try:
+            state, _ = self.test.runner.run(
+                state,
+                self.test.params,
+                steps - phase_steps,
+                self.config.chunk_steps,
+                record_every,
+                stop_fn=consolidated,
+                on_chunk=on_chunk,
+            )
+        finally:
+            bar.close()
+        return state
+
+
+def _run_periodic(config, folder: Path, resume, progress, interrupt_after_chunks, call_started) -> RunResult:
+    """The periodic element test of ``config`` into ``folder`` (module docstring, "The periodic element").
+
+    The phases of :data:`membrax.triaxial.protocol.PHASES` run one after another on one cell
+    (:class:`membrax.triaxial.periodic.PeriodicTest`'s stages), each through its runner (the chunk driver);
+    every ``checkpoint_every_chunks`` chunks, and at the end of each phase, the state, the phase and the
+    records so far are saved, so a resumed run takes the same chunks as an uninterrupted one.
+    """
+    with precision_scope(config):
+        started = time.perf_counter()
+        test = build_periodic_test(config)
+        build_seconds = time.perf_counter() - started
+        programme = loading(config)
+        plan = test.phase_plan(programme)
+        run = _PeriodicRun(config, test, folder / CHECKPOINT_NAME, progress, interrupt_after_chunks)
+        state, first_phase, phase_steps = test.initial_state, 0, 0
+        if resume:
+            state, first_phase, phase_steps = run.restore()
+        for index in range(first_phase, len(PHASES)):
+            if phase_steps == 0:  # a resumed phase was switched before its checkpoint
+                state = test.start_phase(PHASES[index], state, programme)
+            try:
+                state = run.run_phase(
+                    index, state, phase_steps, *plan[PHASES[index]], consolidation_tolerance(config)
+                )
+            except SimulationError as error:
+                records = {phase: join_records(chunks) for phase, chunks in run.parts.items()}
+                raise RunError(f"{error} Records so far are in {folder}.", records) from error
+            phase_steps = 0
+        return _finish_periodic(
+            folder, config, test, run.parts, build_seconds, run.elapsed(), call_started, resume
+        )
+
+
+def _finish_periodic(folder, config, test, parts, build_seconds, elapsed, call_started, resumed) -> RunResult:
+    """Write a periodic run's results, figure and summary (module docstring)."""
+    consolidation = join_records(parts["consolidation"])
+    shear = join_records(parts["shear_fine"] + parts["shear_coarse"])
+    # The end of consolidation is the shearing's first record; its strains count from the shearing's box.
+    first = {name: values[-1:] for name, values in consolidation.items()}
+    first["axial_strain"] = np.zeros_like(first["axial_strain"])
+    first["volumetric_strain"] = np.zeros_like(first["volumetric_strain"])
+    shear = (
+        {name: np.concatenate([first[name], values]) for name, values in shear.items()} if shear else first
+    )
+    for records in (consolidation, shear):
+        records["time"] = records["step"] * test.dt
+        records["love_weber_friction_angle_deg"] = analysis.friction_angle_deg(
+            records["axial_stress"], records["lateral_stress"]
+        )
+        records["radial_strain"] = np.asarray(
+            theory.radial_strain(records["axial_strain"], records["volumetric_strain"])
+        )
+    metadata = {
+        "membrax_version": __version__,
+        "config": config_to_dict(config),
+        "cell": "periodic",
+        "num_particles": int(test.particles.num_particles),
+        "dt_s": test.dt,
+        "consolidation_steps": int(consolidation["step"][-1]),
+        "consolidation_tolerance": consolidation_tolerance(config),
+        "shear_steps": int(shear["step"][-1] - consolidation["step"][-1]),
+        "build_s": build_seconds,
+        "run_s": elapsed,
+        "dtype": "float64" if config.float64 else "float32",
+        "machine": platform.platform(),
+        "jax_backend": jax.default_backend(),
+    }
+    shear_data = records_to_dataset(shear, attrs=metadata)
+    consolidation_data = records_to_dataset(consolidation, attrs=metadata)
+    files = {"consolidation": write_results(consolidation_data, folder, "consolidation")}
+    files["results"] = write_results(shear_data, folder, "results")
+    title = (
+        f"{config.name}: periodic element of {metadata['num_particles']} spheres, "
+        f"σc {config.cell_pressure_kpa:g} kPa, seed {config.packing_seed}"
+    )
+    files["figures"] = [plots.save_element_figure(shear_data, folder, title=title)]
+    header = (
+        f"# membrax {__version__}: {config.name}\n\n"
+        f"Periodic element test: {metadata['num_particles']} spheres, σc = {config.cell_pressure_kpa:g} kPa, "
+        f"I = {config.inertial_number:g}, dt = {test.dt:.3g} s, {metadata['consolidation_steps']} + "
+        f"{metadata['shear_steps']} steps in {elapsed:.0f} s"
+        + (f" in all (resumed: this call {time.perf_counter() - call_started:.0f} s)" if resumed else "")
+        + f" ({metadata['dtype']}, {metadata['jax_backend']}).\n\n"
+    )
+    summary = header + analysis.element_summary_table(shear_data, config.cell_pressure)
+    (folder / "summary.md").write_text(summary + "\n")
+    files["summary"] = folder / "summary.md"
+    return RunResult(folder, shear_data, consolidation_data, summary, files, metadata)

@@ -42,6 +42,11 @@ into ``groups/group_{g}/task_{t}`` (the folder must be on a filesystem every wor
 its checkpoint when its worker died and the scheduler ran it again; ``resume=True`` reuses the plans and
 submits only the unfinished tasks. The client writes ``sweep.nc`` from the task folders as in-process.
 
+Periodic elements (``cell = "periodic"``) are not batched: the members run one after another through
+:func:`membrax.run.run_test`, each into ``members/member_{k}`` with its own checkpoint, and ``sweep.nc`` holds
+their records and figures (peak and late φ', ε_v, the lateral servo's error: :func:`membrax.triaxial.
+analysis.element_summary`) on the same grid; no Dask scheduler.
+
 Long runs. :func:`membrax.runner.run_group`'s progress bars, checkpoints and ``resume=True`` (results
 identical to an uninterrupted sweep), one checkpoint per group (per task in a campaign); finished groups
 are kept in ``groups/``. A member that fails is frozen at its last good records and marked in ``status``;
@@ -66,13 +71,21 @@ import numpy as np
 import xarray as xr
 
 from membrax import __version__, campaign, paper
-from membrax.assemble import grid_members, precision_scope, structure_key
-from membrax.config import ConfigError, TriaxialConfig, config_to_dict, dump_config_toml, parse_overrides
+from membrax.assemble import grid_members, precision_scope, run_settings, structure_key
+from membrax.config import (
+    ConfigError,
+    TriaxialConfig,
+    config_to_dict,
+    dump_config_toml,
+    parse_overrides,
+    to_si,
+)
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
 from membrax.executor import balanced_order, build_batch, describe_failure, plan_members
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
 from membrax.run import default_folder as run_folder
+from membrax.run import run_test
 from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata
 from membrax.triaxial import analysis
 
@@ -170,7 +183,24 @@ _SCALARS = (
 )
 
 
-def _member_scalars(shear: xr.Dataset) -> dict:
+#: A periodic element's per-member scalars (:func:`membrax.triaxial.analysis.element_summary`).
+_ELEMENT_SCALARS = (
+    "peak_friction_angle_deg",
+    "peak_axial_strain",
+    "late_friction_angle_deg",
+    "final_volumetric_strain",
+    "lateral_stress_error",
+    "solid_fraction",
+    "coordination_number",
+    "rattler_free_coordination_number",
+)
+
+
+def _member_scalars(shear: xr.Dataset, attrs: dict) -> dict:
+    """A member's scalars: the Table 2/3 numbers of a membrane cell, the element figures of a periodic one."""
+    if attrs.get("cell") == "periodic":
+        cell_pressure = to_si("cell_pressure_kpa", attrs["config"]["cell_pressure_kpa"])
+        return analysis.element_summary(shear, cell_pressure)
     values = {**analysis.initial_state(shear), **analysis.peak(shear)}
     return {name: float(values[name]) for name in _SCALARS}
 
@@ -210,8 +240,10 @@ def _member_label(coordinates: dict, index: tuple) -> str:
     return ", ".join(f"{dim}={coordinates[dim][i]:g}" for dim, i in zip(coordinates, index, strict=True))
 
 
-def _write_summary_csv(path: Path, coordinates: dict, configs_by_index: dict, dataset: xr.Dataset) -> None:
-    names = ["consolidation_steps", "shear_steps", "num_records", *_SCALARS]
+def _write_summary_csv(
+    path: Path, coordinates: dict, configs_by_index: dict, dataset: xr.Dataset, scalars=_SCALARS
+) -> None:
+    names = ["consolidation_steps", "shear_steps", "num_records", *scalars]
     lines = [",".join([*coordinates, *names, "status"])]
     for index in configs_by_index:
         point = {dim: coordinates[dim][i] for dim, i in zip(coordinates, index, strict=True)}
@@ -313,6 +345,29 @@ def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interr
                 chunk_counter=chunk_counter,
             )
         outcomes += _read_unit(group_folder, [group[i] for i in order])
+    return outcomes
+
+
+def _run_members_one_by_one(members, folder: Path, resume, progress, interrupt_after_chunks) -> list:
+    """Periodic elements, one :func:`membrax.run.run_test` after another, into ``members/member_{k}``.
+
+    In grid order; on ``resume`` finished members are read back and an interrupted one resumes from its
+    checkpoint (``interrupt_after_chunks`` counts each member's chunks).
+    """
+    outcomes = []
+    for k, (index, config) in enumerate(members):
+        member_folder = folder / "members" / f"member_{k}"
+        if not (resume and (member_folder / _DONE).exists()):
+            run_test(
+                config,
+                member_folder,
+                resume=resume and (member_folder / CHECKPOINT_NAME).exists(),
+                progress=progress,
+                interrupt_after_chunks=interrupt_after_chunks,
+            )
+        outcomes.append(
+            (index, read_results(member_folder / _DONE), read_results(member_folder / "consolidation.nc"))
+        )
     return outcomes
 
 
@@ -462,10 +517,18 @@ def run_sweep(
             + "\n[grid]\n"
             + "".join(f"{key} = {json.dumps(list(values))}\n" for key, values in coordinates.items())
         )
+    cells = {run_settings(config).cell for _, config in members}
+    if len(cells) > 1:
+        raise ConfigError(f"the grid mixes cells {sorted(cells)}; sweep one cell at a time.")
+    periodic = cells == {"periodic"}
+    if periodic and scheduler is not None:
+        raise ConfigError(
+            "cell = 'periodic' members run in this process, one after another; leave out --scheduler."
+        )
     # (A Dask client starts no JAX backend here: on a GPU machine that would hold the workers' memory.)
     in_process = scheduler is None
     one_cpu_device = in_process and jax.default_backend() == "cpu" and jax.local_device_count() == 1
-    if one_cpu_device and cpu_cores() > 1 < len(members):
+    if one_cpu_device and not periodic and cpu_cores() > 1 < len(members):
         warnings.warn(
             f"one CPU device on {cpu_cores()} cores: call membrax.devices.split_cpu_devices() before "
             "importing the rest of membrax (or any JAX operation) to run the members side by side, one "
@@ -477,7 +540,9 @@ def run_sweep(
         groups.setdefault(structure_key(config), []).append((index, config))
     # The base configuration's precision, scoped to this call (thread-local), as in run_test.
     with precision_scope(base):
-        if scheduler is None:
+        if periodic:
+            outcomes = _run_members_one_by_one(members, folder, resume, progress, interrupt_after_chunks)
+        elif scheduler is None:
             outcomes = _run_groups_here(
                 groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks
             )
@@ -493,11 +558,14 @@ def run_sweep(
         shear_sets.append(shear)
         consolidation_sets.append(consolidation)
         for name in ("consolidation_steps", "shear_steps", "dt_s", "nodes_around"):
-            extra.setdefault(name, []).append(attrs[name])
+            extra.setdefault(name, []).append(attrs.get(name, np.nan))
         # The specimen (a random packing differs between seeds): its sphere count and solid fraction.
         extra.setdefault("num_particles", []).append(attrs.get("num_particles", -1))
-        extra.setdefault("solid_fraction", []).append(attrs.get("specimen", {}).get("solid_fraction", np.nan))
-        for name, value in _member_scalars(shear).items():
+        if not periodic:  # the element's solid fraction is among its scalars
+            extra.setdefault("solid_fraction", []).append(
+                attrs.get("specimen", {}).get("solid_fraction", np.nan)
+            )
+        for name, value in _member_scalars(shear, attrs).items():
             extra.setdefault(name, []).append(value)
     attrs = {
         "membrax_version": __version__,
@@ -528,6 +596,12 @@ def run_sweep(
         "sweep": write_netcdf(dataset, folder / "sweep.nc"),
         "consolidation": write_netcdf(consolidation, folder / "sweep_consolidation.nc"),
     }
-    _write_summary_csv(folder / "summary.csv", coordinates, dict.fromkeys(statuses), dataset)
+    _write_summary_csv(
+        folder / "summary.csv",
+        coordinates,
+        dict.fromkeys(statuses),
+        dataset,
+        _ELEMENT_SCALARS if periodic else _SCALARS,
+    )
     files["summary"] = folder / "summary.csv"
     return SweepResult(folder, dataset, consolidation, files, seconds)

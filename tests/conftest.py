@@ -4,10 +4,10 @@ Library code never enables x64 on import; the tests do it here, before any array
 ``jax_numpy_rank_promotion="raise"`` turns silent broadcasting into errors and
 ``jax_numpy_dtype_promotion="strict"`` turns silent dtype promotion into errors (as in diffrax/equinox).
 
-jax-md fights strict promotion: importing it runs array code that mixes float32 and int64, and its cell
-list mixes dtypes and ranks when it builds. So jax-md is imported here before the strict settings, and
-membrax's neighbour-list wrapper (membrax.spheres.neighbors) calls jax-md under local standard promotion. All
-of membrax's own code runs strict.
+jax-md fights strict promotion: its package import runs array code that mixes float32 and int64, and its
+cell list mixes dtypes and ranks when it builds. membrax's neighbour-list wrapper (membrax.spheres.neighbors)
+loads only jax-md's ``space`` and ``partition`` (not the package's import) and calls them under local
+standard promotion. All of membrax's own code runs strict.
 """
 
 import os
@@ -29,8 +29,6 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 import jax
 
 jax.config.update("jax_enable_x64", True)
-import jax_md  # noqa: E402,F401  (imported before strict promotion, see above)
-
 jax.config.update("jax_numpy_rank_promotion", "raise")
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 

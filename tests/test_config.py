@@ -156,7 +156,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 40
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 42
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 
@@ -393,9 +393,10 @@ def test_triaxial_table_must_hold_everything(tmp_path):
 
 
 def test_one_consolidation_tolerance_rule_for_every_stage():
-    """One table: rigid 1e-3 / 5e-3 and membrane 2e-3 / 2e-2 (float64 / float32), the float32 values above
-    the round-off floors the table's comment cites (~2e-3 rigid; 1.1e-2 with the membrane at 10 kPa); runs
-    take the membrane's for their precision unless the configuration gives one."""
+    """One table: rigid 1e-3 / 5e-3, membrane 2e-3 / 2e-2 and periodic 1e-3 / 5e-3 (float64 / float32), the
+    float32 values above the round-off floors the table's comment cites (~2e-3 rigid; 1.1e-2 with the
+    membrane at 10 kPa; 1.6e-3 periodic); runs take their cell's for their precision unless the
+    configuration gives one."""
     from membrax.defaults import default_consolidation_tolerance
     from membrax.run import consolidation_tolerance
 
@@ -407,7 +408,12 @@ def test_one_consolidation_tolerance_rule_for_every_stage():
         config = TriaxialConfig(float64=float64)
         assert consolidation_tolerance(config) == default_consolidation_tolerance("membrane", float64)
     assert consolidation_tolerance(TriaxialConfig(consolidation_tolerance=1e-4)) == 1e-4
-    with pytest.raises(ValueError, match="'rigid' or 'membrane'"):
+    # The periodic element: float32's floor measured at 1.2e-3 to 1.6e-3 (defaults.py), under 5e-3.
+    assert default_consolidation_tolerance("periodic", True) == 1e-3
+    assert default_consolidation_tolerance("periodic", False) == 5e-3 > 1.6e-3
+    periodic = TriaxialConfig(packing="random", cell="periodic")
+    assert consolidation_tolerance(periodic) == default_consolidation_tolerance("periodic", False)
+    with pytest.raises(ValueError, match="'rigid', 'membrane' or 'periodic'"):
         default_consolidation_tolerance("membran", True)
 
 
@@ -511,17 +517,24 @@ def test_a_compaction_friction_names_its_packing_state():
 
 
 def test_the_shipped_configuration_files_are_the_presets_they_name():
-    """examples/configs/*.toml, which the README's commands use, load to the demo, random-demo and paper
-    configurations (the presets are the one source; the files must not drift from them)."""
+    """examples/configs/*.toml, which the README's commands use, load to the demo, random-demo, periodic-demo
+    and paper configurations (the presets are the one source; the files must not drift from them)."""
     from pathlib import Path
 
-    from membrax.config import DEMO_CONFIG, DEMO_RANDOM_CONFIG, TriaxialConfig, load_config
+    from membrax.config import (
+        DEMO_CONFIG,
+        DEMO_RANDOM_CONFIG,
+        PERIODIC_DEMO_CONFIG,
+        TriaxialConfig,
+        load_config,
+    )
     from membrax.reproduce import SIZES
 
     folder = Path(__file__).resolve().parents[1] / "examples" / "configs"
     expected = {
         "demo.toml": TriaxialConfig(**DEMO_CONFIG),
         "demo_random.toml": TriaxialConfig(**DEMO_RANDOM_CONFIG),
+        "periodic.toml": TriaxialConfig(**{**DEMO_RANDOM_CONFIG, **PERIODIC_DEMO_CONFIG}),
         "paper.toml": TriaxialConfig(name="paper", **SIZES["paper"]),
     }
     assert sorted(p.name for p in folder.glob("*.toml")) == sorted(expected)

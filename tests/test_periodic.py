@@ -2,8 +2,10 @@
 
 Each test checks a number against physics: the force of a pair across the boundary is that of the same pair
 inside the box; momentum is conserved without damping; an affine compression of a simple cubic lattice
-gives Δσ_xx = k_n Δε / d; the servo holds σc; a frictionless packing is near random close packing; and a
-vmap over two cell pressures is two single runs. Run in float64 and float32 (``precision`` fixture).
+gives Δσ_xx = k_n Δε / d; the servo holds σc; a frictionless packing is near random close packing; a
+vmap over two cell pressures is two single runs; and a list grown through the one table growth
+(``driver.grow_tables``) holds every minimum-image pair a brute force finds, with its spring. Run in
+float64 and float32 (``precision`` fixture).
 """
 
 import math
@@ -13,11 +15,20 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from membrax import driver
 from membrax.driver import advance
+from membrax.errors import ErrorCode
 from membrax.spheres.contact import ContactParams
-from membrax.spheres.integrate import DampingParams
+from membrax.spheres.integrate import DampingParams, make_particles
+from membrax.spheres.neighbors import periodic_neighbor_fn
 from membrax.spheres.periodic import cell_stiffness, love_weber_stress, periodic_pair_forces
-from membrax.triaxial.periodic import cell_forces, compact_periodic, periodic_test
+from membrax.triaxial.periodic import (
+    PeriodicRunner,
+    cell_forces,
+    compact_periodic,
+    periodic_cell,
+    periodic_test,
+)
 
 DIAMETER = 0.025  # m, the paper's spheres
 KN = 1e7  # N/m
@@ -80,6 +91,11 @@ def _lattice(cells: int, spacing: float, jitter: float = 0.0, seed: int = 0):
     if jitter:
         grid = (grid + jitter * np.random.default_rng(seed).uniform(-1, 1, grid.shape) / cells) % 1.0
     return grid, np.full(3, cells * spacing * DIAMETER)
+
+
+def _pairs(idx, count):
+    """The real pairs (i, j) of a pair table padded with ``count``."""
+    return {(int(i), int(j)) for i, j in np.asarray(idx).T if i < count}
 
 
 def _compressed_lattice_test(precision, damping):
@@ -211,7 +227,9 @@ def test_drained_compression_holds_the_lateral_stress_and_imposes_the_axial_stra
         )
         state, _ = test.consolidate(tolerance=1e-3, max_steps=20_000)
         rate = test.shear_rate(5e-3)
-        state, records = test.shear(state, target_axial_strain=0.03, inertial_number=5e-3, record_every=100)
+        state, records = test.shear(
+            state, 0.03, 5e-3, record_every_fine=100, record_every_coarse=100, chunk_steps=4000
+        )
     steps = records.step - records.step[0] + 100
     expected = 1.0 - np.exp(-rate * test.dt * steps)
     np.testing.assert_allclose(records.axial_strain, expected, rtol=1e-3, atol=rate * test.dt)
@@ -241,6 +259,57 @@ def test_an_overflowing_list_is_grown_and_the_chunk_rerun(precision):
     )
 
 
+def test_a_grown_periodic_list_holds_every_minimum_image_pair_and_carries_every_spring():
+    """The periodic runner grows through driver.grow_tables. A jittered 6³ lattice (648 nearest pairs, 108
+    across the boundary) whose list holds 80 % of its pairs (518 slots) and overflowed at the chunk's end,
+    the box 3 % smaller there: the grown list has ceil(1.5 × 518) = 777 slots, holds every pair whose
+    minimum-image distance is within the list's radius (brute force over all pairs), carries the spring
+    set on each old pair to the same pair, was built at the start's box (list_length) and fits the end's
+    box. A list whose cells alone the box outgrew is not grown by the factor (fewer than 1.5 × 648 slots)."""
+    fraction, length = _lattice(6, 1.0, jitter=0.03)
+    fraction, length = jnp.asarray(fraction), jnp.asarray(length)
+    count = fraction.shape[0]
+    frame = periodic_neighbor_fn(DIAMETER, 0.2 * DIAMETER, capacity_multiplier=1.0)
+    init_fn, step_fn = periodic_cell(make_particles(jnp.full(count, 0.5 * DIAMETER), 2650.0), frame, 1e-6)
+    runner = PeriodicRunner(step_fn, frame, None, count)
+    overflow = np.array([ErrorCode.NEIGHBOR_OVERFLOW])
+
+    def chunk_end(start):
+        """The start at a box 3 % smaller, its list rebuilt there (as a chunk's end would be)."""
+        neighbors, _ = frame.update(fraction, start.neighbors, 0.97 * length, 2.0 * length)
+        return start.set(length=0.97 * length, neighbors=neighbors)
+
+    full = frame.reallocate(fraction, length, length, 0)
+    assert len(_pairs(full.idx, count)) == int(full.max_occupancy) == 648
+    old = full.set(idx=full.idx[:, :518], max_occupancy=518)
+    # A spring per slot that encodes its pair: (i, j, 0).
+    spring = jnp.stack([old.idx[0], old.idx[1], jnp.zeros(518, old.idx.dtype)], axis=1).astype(float)
+    start = init_fn(fraction, length, old, None).set(pair_spring=spring, list_length=2.0 * length)
+    end = chunk_end(start)
+    assert bool(end.neighbors.did_buffer_overflow)
+    grown = runner.grow(start, overflow, end)
+    new = grown.neighbors
+    assert int(new.max_occupancy) == new.idx.shape[1] == math.ceil(driver.TABLE_GROWTH * 518) == 777
+    branch = np.asarray(fraction[:, None] - fraction[None])
+    distance = np.linalg.norm(np.asarray(length) * (branch - np.round(branch)), axis=-1)
+    near = {(i, j) for i, j in zip(*np.nonzero(distance < 1.1 * DIAMETER), strict=True) if i < j}
+    across = {(i, j) for i, j in near if np.linalg.norm(np.asarray(length) * branch[i, j]) > 1.1 * DIAMETER}
+    assert len(near) == 648 and len(across) == 108 and near <= _pairs(new.idx, count)
+    carried = np.asarray(grown.pair_spring)
+    for slot, (i, j) in enumerate(np.asarray(new.idx).T):
+        if (i, j) in _pairs(old.idx, count):
+            assert tuple(carried[slot, :2]) == (i, j)
+        else:
+            assert not np.any(carried[slot])  # a new pair starts without a spring
+    np.testing.assert_array_equal(grown.list_length, length)
+    assert not bool(chunk_end(grown).neighbors.cell_size_too_small)
+    start = start.set(neighbors=full, pair_spring=jnp.zeros((648, 3)))
+    end = chunk_end(start)
+    assert bool(end.neighbors.cell_size_too_small) and not bool(end.neighbors.did_buffer_overflow)
+    capacity = int(runner.grow(start, overflow, end).neighbors.max_occupancy)
+    assert 648 <= capacity < math.ceil(driver.TABLE_GROWTH * 648)
+
+
 def test_a_frictionless_packing_is_near_random_close_packing():
     """300 spheres (d ± 10 %) compressed frictionless from a gas to 10 σc and unloaded to σc = 100 kPa
     (float32): φ within 0.630–0.648 and the rattler-free z* within 5.9–6.6 of Agnolin & Roux's random close
@@ -253,3 +322,55 @@ def test_a_frictionless_packing_is_near_random_close_packing():
     assert records.unbalanced_force_ratio[-1] < 1e-3
     assert 0.630 < records.solid_fraction[-1] < 0.648
     assert 5.9 < records.rattler_free_coordination_number[-1] < 6.6
+
+
+def test_a_periodic_run_from_a_configuration_resumes_to_the_same_bits_and_sweeps(tmp_path):
+    """``run_test`` of a ``cell = "periodic"`` configuration (64 equal spheres compacted frictionless in the
+    cell, 40 kPa, I = 5e-3, to 1 %, float32): z shortens by the imposed log strain ε_a = 1 − exp(−ε̇ t) to
+    round-off; a run interrupted after 4 chunks and resumed from its checkpoint writes the same records,
+    to the bit, as one run straight through (the checkpoint holds the list's shape and the records)."""
+    from membrax.config import TriaxialConfig
+    from membrax.run import run_test
+
+    config = TriaxialConfig(
+        name="periodic_resume",
+        packing="random",
+        cell="periodic",
+        periodic_particles=64,
+        cell_pressure_kpa=40.0,
+        inertial_number=5e-3,
+        target_axial_strain=0.01,
+        fine_until_strain=0.005,
+        record_every_fine=50,
+        record_every_coarse=100,
+        consolidation_max_steps=3000,
+        chunk_steps=500,
+        checkpoint_every_chunks=1,
+    )
+    straight = run_test(config, tmp_path / "straight", progress=False)
+    with pytest.raises(KeyboardInterrupt):
+        run_test(config, tmp_path / "resumed", progress=False, interrupt_after_chunks=4)
+    resumed = run_test(config, tmp_path / "resumed", resume=True, progress=False)
+    for name in ("step", "axial_strain", "volumetric_strain", "stress", "length"):
+        np.testing.assert_array_equal(resumed.results[name].values, straight.results[name].values)
+    np.testing.assert_array_equal(
+        resumed.consolidation["stress"].values, straight.consolidation["stress"].values
+    )
+    shear = straight.results
+    rate = 5e-3 / (DIAMETER * math.sqrt(2650.0 / 4e4))  # ε̇ = I / (d √(ρ/σc))
+    elapsed = (shear["step"].values - shear["step"].values[0]) * straight.metadata["dt_s"]
+    np.testing.assert_allclose(shear["axial_strain"].values, 1.0 - np.exp(-rate * elapsed), atol=2e-6)
+    assert shear["axial_strain"].values[-1] >= 0.01
+    # A sweep runs its members one after another through the same path: its 40 kPa member is the run above,
+    # to the bit, and its 20 kPa member consolidated to its own σc (the servo's 1 % criterion).
+    from membrax.sweep import run_sweep
+
+    sweep = run_sweep(config, {"cell_pressure_kpa": [20.0, 40.0]}, tmp_path / "sweep", progress=False)
+    member = sweep.member(cell_pressure_kpa=40.0)
+    np.testing.assert_array_equal(member["stress"].values, shear["stress"].values)
+    # The peak from the member's stresses (float64) and the run's stored φ' column (float32): 1e-5° apart.
+    assert float(sweep.dataset["peak_friction_angle_deg"].sel(cell_pressure_kpa=40.0)) == pytest.approx(
+        float(np.nanmax(shear["love_weber_friction_angle_deg"].values)), abs=1e-4
+    )
+    start = sweep.member(cell_pressure_kpa=20.0)["stress"].values[0]
+    np.testing.assert_allclose(np.diagonal(start), 2e4, rtol=0.011)

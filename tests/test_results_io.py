@@ -16,9 +16,9 @@ import meshio
 import numpy as np
 import pytest
 import xarray as xr
-from jax_md import dataclasses as jdc
 
 from membrax import io
+from membrax import pytree as jdc
 
 T = 7  # records per run in these tests
 

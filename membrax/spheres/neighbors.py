@@ -25,18 +25,50 @@ dtypes and ranks internally, so its calls run under local standard promotion: me
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import math
+import sys
+import types
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-# jax_md runs array code when imported (rigid_body mixes float32 and int64), which fails under a caller's
-# strict dtype or rank promotion (the test suite's setting); import it under the standard rules. This is
-# membrax's only import of jax-md (its dataclasses are membrax.pytree's).
+
+def _jax_md_modules():
+    """jax-md's ``space`` and ``partition``, the two modules membrax uses, without its package's import.
+
+    ``import jax_md`` runs the package's ``__init__``, which imports every submodule: ``rigid_body`` (array
+    code at import, ~130 small compiled programs) and ``nn`` (flax, e3nn) took 14–16 s of a 2-core machine's
+    time, every process that imports membrax (measured 2026-11-29). Where the package is not imported yet,
+    a bare package module stands in for it while its two submodules load (their own imports, ``util`` and
+    ``dataclasses``, are light: 0.1 s in all), then is removed again, so that a later ``import jax_md``
+    runs the real ``__init__``, which finds the submodules already loaded and binds the same objects.
+    """
+    if "jax_md" in sys.modules:
+        from jax_md import partition, space
+
+        return space, partition
+    spec = importlib.util.find_spec("jax_md")
+    if spec is None or spec.submodule_search_locations is None:
+        raise ImportError("membrax needs jax-md (pip install 'jax-md>=0.2.29').")
+    stand_in = types.ModuleType("jax_md")
+    stand_in.__spec__, stand_in.__path__ = spec, list(spec.submodule_search_locations)
+    sys.modules["jax_md"] = stand_in
+    try:
+        from jax_md import partition, space
+    finally:
+        if sys.modules.get("jax_md") is stand_in:
+            del sys.modules["jax_md"]
+    return space, partition
+
+
+# This is membrax's only import of jax-md (its dataclasses are membrax.pytree's). jax-md's modules may run
+# array code when imported, which fails under a caller's strict dtype or rank promotion (the test suite's
+# setting): they are imported under the standard rules.
 with jax.numpy_dtype_promotion("standard"), jax.numpy_rank_promotion("allow"):
-    from jax_md import partition, space
+    space, partition = _jax_md_modules()
 
 __all__ = [
     "PairNeighborFn",

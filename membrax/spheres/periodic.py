@@ -32,6 +32,7 @@ import numpy as np
 from membrax import pytree
 from membrax.spheres import contact
 from membrax.spheres.contact import ContactParams
+from membrax.spheres.grading import Grading, _mean_bin_volume, sample_diameters
 from membrax.validation import check_range
 from membrax.vector import safe_norm, select
 
@@ -45,6 +46,7 @@ __all__ = [
     "minimum_image_branch",
     "periodic_pair_forces",
     "random_gas",
+    "sample_element",
     "unbalanced_force_ratio",
 ]
 
@@ -235,6 +237,18 @@ def unbalanced_force_ratio(forces: PeriodicForces):
     count = jnp.sum(closed.astype(net.dtype))
     mean_contact = jnp.sum(forces.pair_normal_force) / jnp.maximum(count, 1.0)
     return jnp.where(count > 0, jnp.mean(net) / jnp.where(count > 0, mean_contact, 1.0), jnp.inf)
+
+
+def sample_element(grading: Grading, count: int, seed: int = 0) -> np.ndarray:
+    """``count`` sphere diameters of ``grading`` for a periodic element, m, largest first.
+
+    :func:`membrax.spheres.grading.sample_diameters` (the mould's sampling: mass by the grading, one draw
+    per quantile stratum) in the solid volume that holds ``count`` spheres: bin i, of mass fraction f_i and
+    mean sphere volume v_i, holds f_i V / v_i of them in V of solid, so V = count / Σ f_i / v_i.
+    """
+    check_range("count", count, lower=2)
+    per_volume = sum(fraction / _mean_bin_volume(a, b) for a, b, fraction in grading.bins)
+    return sample_diameters(grading, count / per_volume, seed)
 
 
 def random_gas(diameters, solid_fraction: float, seed: int = 0, aspect=(1.0, 1.0, 1.0)):

@@ -52,6 +52,10 @@ __all__ = [
     "peak",
     "largest_overestimate",
     "summary_table",
+    "LATE_STRAIN_FRACTION",
+    "late_mean",
+    "element_summary",
+    "element_summary_table",
 ]
 
 KPA_PER_PA = 1e-3
@@ -406,3 +410,77 @@ def summary_table(records, paper: Mapping | None = None, *, min_strain: float = 
             cells.append(_cell(paper.get(key), scale, decimals))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The periodic element test (:mod:`membrax.triaxial.periodic`): one stress, the cell's Love–Weber stress
+# ---------------------------------------------------------------------------------------------------------
+
+#: "Late" (large-strain) values are means over the records at axial strains from this fraction of the last
+#: one on (the last fifth of the strain range): one record's scatter does not set them.
+LATE_STRAIN_FRACTION = 0.8
+
+
+def late_mean(axial_strain, values, fraction: float = LATE_STRAIN_FRACTION) -> float:
+    """The mean of ``values`` over the records with ε_a ≥ ``fraction`` × the last ε_a (NaN when none)."""
+    axial_strain, values = np.asarray(axial_strain, dtype=float), np.asarray(values, dtype=float)
+    late = axial_strain >= fraction * axial_strain[-1]
+    return float(np.nanmean(values[late])) if np.any(late) else float("nan")
+
+
+def element_summary(records, cell_pressure: float) -> dict:
+    """The figures of a periodic element test's shearing records (σ1 axial, σ3 the lateral mean).
+
+    Args:
+      records: the shearing records with ``axial_strain``, ``volumetric_strain``, ``axial_stress``,
+        ``lateral_stress`` (Pa), ``stress`` (R, 3, 3), ``solid_fraction``, ``coordination_number`` and
+        ``rattler_free_coordination_number``; the first record the start of shearing.
+      cell_pressure: σc, Pa (the lateral servo's target).
+
+    Returns:
+      ``peak_friction_angle_deg`` and its ``peak_axial_strain``, ``late_friction_angle_deg``
+      (:func:`late_mean`), ``final_volumetric_strain`` (compression positive), ``lateral_stress_error``
+      (the largest |σ_kk/σc − 1| of x and y over the records), and at the start of shearing
+      ``solid_fraction``, ``coordination_number`` and ``rattler_free_coordination_number``.
+    """
+    strain = record(records, "axial_strain")
+    angle = friction_angle_deg(record(records, "axial_stress"), record(records, "lateral_stress"))
+    stress = np.asarray(records["stress"], dtype=float)
+    lateral = np.stack([stress[:, 0, 0], stress[:, 1, 1]])
+    index = _nan_argmax(angle)
+    return {
+        "peak_friction_angle_deg": float("nan") if index is None else float(angle[index]),
+        "peak_axial_strain": float("nan") if index is None else float(strain[index]),
+        "late_friction_angle_deg": late_mean(strain, angle),
+        "final_volumetric_strain": float(record(records, "volumetric_strain")[-1]),
+        "lateral_stress_error": float(np.max(np.abs(lateral / cell_pressure - 1.0))),
+        "solid_fraction": float(record(records, "solid_fraction")[0]),
+        "coordination_number": float(record(records, "coordination_number")[0]),
+        "rattler_free_coordination_number": float(record(records, "rattler_free_coordination_number")[0]),
+    }
+
+
+def element_summary_table(records, cell_pressure: float) -> str:
+    """:func:`element_summary` as a Markdown table (degrees, %, kPa)."""
+    figures = element_summary(records, cell_pressure)
+    rows = [
+        ("Peak φ' (°)", f"{figures['peak_friction_angle_deg']:.2f}"),
+        ("at ε_a (%)", f"{100 * figures['peak_axial_strain']:.2f}"),
+        (
+            f"Late φ' (°), mean over ε_a ≥ {LATE_STRAIN_FRACTION:g} × the last",
+            f"{figures['late_friction_angle_deg']:.2f}",
+        ),
+        ("ε_v at the end (%, compression +)", f"{100 * figures['final_volumetric_strain']:.2f}"),
+        ("Largest lateral stress error (% of σc)", f"{100 * figures['lateral_stress_error']:.2f}"),
+        ("Solid fraction at the start of shearing", f"{figures['solid_fraction']:.4f}"),
+        (
+            "z, z* (rattlers removed) at the start",
+            f"{figures['coordination_number']:.2f}, {figures['rattler_free_coordination_number']:.2f}",
+        ),
+        ("σc (kPa)", f"{KPA_PER_PA * cell_pressure:g}"),
+    ]
+    return (
+        "| Quantity | membrax |\n|---|---|\n"
+        + "\n".join(f"| {name} | {value} |" for name, value in rows)
+        + "\n"
+    )

@@ -8,13 +8,16 @@ style for spheres in an orthorhombic periodic cell whose box lengths L = (Lx, Ly
 - ``step_fn(state, params) -> PeriodicState`` under ``jit`` and ``vmap`` (``params``: a
   :class:`membrax.spheres.integrate.DEMParams`, traced).
 
-:func:`periodic_test` builds one cell ready to run, a :class:`PeriodicTest` whose stages run in compiled
-chunks through the chunk driver (:mod:`membrax.driver`) and return the state and :class:`CellRecords`:
+:func:`periodic_test` builds one cell ready to run, a :class:`PeriodicTest`: a
+:class:`membrax.triaxial.protocol.StagedTest` like the rigid-wall and membrane cells, whose stages run in
+compiled chunks through the chunk driver (:mod:`membrax.driver`) and return the state and
+:class:`CellRecords`:
 
 1. :meth:`PeriodicTest.consolidate`: every axis servo-held to σc until the unbalanced-force ratio is below
-   a tolerance and each principal stress within ``stress_tolerance`` of σc;
+   a tolerance and each normal stress within ``stress_tolerance`` of σc;
 2. :meth:`PeriodicTest.shear`: drained compression, the z axis shortened at a constant ε̇ from the
-   inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004), x and y servo-held at σc, to a target axial strain.
+   inertial number I = ε̇ d √(ρ/σc) (GDR MiDi 2004), x and y servo-held at σc, to a target axial strain,
+   recorded at two rates as the other cells (:meth:`PeriodicTest.shear_plan`).
 
 :func:`compact_periodic` makes random packings the same way: a random gas
 (:func:`membrax.spheres.periodic.random_gas`) compressed isotropically to σc with a compaction friction
@@ -50,7 +53,8 @@ shared with other jobs (load average ~10; 2,000 steps in one compiled chunk, 202
 
 Errors ride in ``state.error`` (:class:`membrax.errors.ErrorCode`): a neighbour list that overflowed or
 whose cells the box outgrew sets ``NEIGHBOR_OVERFLOW``, and the runner allocates a new list from the
-chunk's starting state (:meth:`PeriodicRunner.grow`); non-finite positions or velocities set ``NOT_FINITE``.
+chunk's starting state (:func:`membrax.driver.grow_tables`, with the list allocated by
+:meth:`PeriodicRunner.allocate_list`); non-finite positions or velocities set ``NOT_FINITE``.
 """
 
 from __future__ import annotations
@@ -80,10 +84,12 @@ from membrax.spheres.periodic import (
     unbalanced_force_ratio,
 )
 from membrax.theory import strain_rate_from_inertial_number
+from membrax.triaxial.protocol import StagedTest
 from membrax.validation import check_range
 
 __all__ = [
     "AXIAL",
+    "CRITICAL_STEP_BOUND",
     "CellControl",
     "CellRecords",
     "PeriodicRunner",
@@ -141,6 +147,8 @@ class PeriodicState:
       strain_rate: (3,) ε̇_{n−1/2} = L̇/L, 1/s.
       servo_integral: (3,) the servo's integral term, 1/s (:func:`servo_strain_rate`).
       list_length: (3,) L at the neighbour list's last build, m.
+      cell_length: (3,) the box its cell list's cells were sized for at allocation, m (the list's shape
+        follows from it: a checkpoint's template is allocated there).
       strain_origin: (3,) L from which the strains count (the start of shearing), m.
       control: the box's :class:`CellControl`.
       neighbors: the jax-md neighbour list (fractional coordinates).
@@ -158,6 +166,7 @@ class PeriodicState:
     strain_rate: jnp.ndarray
     servo_integral: jnp.ndarray
     list_length: jnp.ndarray
+    cell_length: jnp.ndarray
     strain_origin: jnp.ndarray
     control: CellControl
     neighbors: object
@@ -219,7 +228,9 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
     """
     n = particles.num_particles
 
-    def init_fn(fraction, length, neighbors, control: CellControl, velocity=None) -> PeriodicState:
+    def init_fn(
+        fraction, length, neighbors, control: CellControl, velocity=None, cell_length=None
+    ) -> PeriodicState:
         fraction = jnp.asarray(fraction)
         dtype = fraction.dtype
         length = jnp.asarray(length, dtype)
@@ -235,6 +246,7 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
             strain_rate=jnp.zeros_like(length),
             servo_integral=jnp.zeros_like(length),
             list_length=length,
+            cell_length=length if cell_length is None else jnp.asarray(cell_length, dtype),
             strain_origin=length,
             control=control,
             neighbors=neighbors,
@@ -399,39 +411,76 @@ def measure_cell(
 
 
 class PeriodicRunner(ChunkRunner):
-    """The chunk runner of a periodic cell: its tables grow by a new periodic neighbour list.
+    """The chunk runner of a periodic cell: its tables grow through :func:`membrax.driver.grow_tables`.
 
     A list that overflowed, or whose cells the shrinking box outgrew, is allocated again at the chunk's
-    starting state with its cells sized for 0.9 × the smaller of the start's and the overflowing end's
-    box (so the rerun chunk fits) and at least the runner's growth × the old capacity where the pairs
-    overflowed; the springs move over by partner id.
+    starting state by :meth:`allocate_list` and the springs move over by partner id (``grow_tables``); the
+    state's ``list_length`` becomes its box, at which the new list was built.
+
+    Args:
+      step_fn: ``step_fn(state, params) -> state`` (:func:`periodic_cell`).
+      neighbor_frame: the cell's neighbour-list factory
+        (:func:`membrax.spheres.neighbors.periodic_neighbor_fn`).
+      record_fn: ``record_fn(state, params) -> pytree`` recorded every ``record_every`` steps.
+      num_particles: N.
+      capacity_growth: the pair capacity's growth factor where the pairs overflowed.
     """
 
-    def grow(self, state, error, overflowed):
-        """``state`` with a new neighbour list (class docstring), or None for other errors."""
-        if not int(error[0]) & ErrorCode.NEIGHBOR_OVERFLOW:
-            return None
+    def __init__(
+        self,
+        step_fn,
+        neighbor_frame: PeriodicNeighborFn,
+        record_fn,
+        num_particles: int,
+        capacity_growth: float = 1.5,
+    ):
+        super().__init__(
+            step_fn,
+            neighbor_frame,
+            record_fn,
+            num_particles,
+            capacity_growth,
+            with_dem=self._with_list_at_box,
+            allocate=self.allocate_list,
+        )
+
+    def allocate_list(self, states, capacity, overflowed):
+        """The new periodic list of the chunk's starting state (``grow_tables``' ``allocate``).
+
+        Its cells are sized for 0.9 × the smaller of the start's and the overflowing end's box, so the
+        rerun chunk fits; ``capacity`` (the growth × the old one) is asked for only where the pairs
+        overflowed, at the start or the end: a list whose cells alone were outgrown keeps its slots.
+        """
+        (state,) = states
         old = state.neighbors
-        capacity = int(old.max_occupancy)
-        if bool(old.did_buffer_overflow) or bool(overflowed.neighbors.did_buffer_overflow):
-            capacity = math.ceil(self.capacity_growth * capacity)
+        if not (bool(old.did_buffer_overflow) or bool(overflowed.neighbors.did_buffer_overflow)):
+            capacity = int(old.max_occupancy)
         length = state.box_length
         cells = 0.9 * jnp.minimum(length, overflowed.box_length)
-        new = self.neighbor_frame.reallocate(state.fraction, length, cells, capacity)
-        self.reallocations += 1
-        spring = remap_pair_history(old.idx, new.idx, state.pair_spring, self.num_particles)
-        return state.set(
-            neighbors=new, pair_spring=spring, list_length=length, error=jnp.zeros_like(state.error)
-        )
+        self._cells = cells
+        return [self.neighbor_frame.reallocate(state.fraction, length, cells, capacity)]
+
+    def _with_list_at_box(self, _state, grown):
+        """``grown`` noted as listed at its box, with :meth:`allocate_list`'s cells (a template needs them).
+
+        The next update measures the box's strain from ``list_length``; ``cell_length`` fixes the list's
+        shape (:meth:`PeriodicTest.template`).
+        """
+        return grown.set(list_length=grown.box_length, cell_length=self._cells.astype(grown.length.dtype))
+
+
+#: Δt_crit ≥ CRITICAL_STEP_BOUND √(m_min/k) (:func:`stable_time_step`): 2/√24 ≈ 0.408.
+CRITICAL_STEP_BOUND = 2.0 / math.sqrt(24.0)
 
 
 def stable_time_step(particles, contact_params: ContactParams, safety: float = 0.25) -> float:
     """Δt = safety × √(m_min / k), k = max(k_n, 3.5 k_s), s.
 
     A bound in closed form (a gas has no contact network for a Lanczos estimate,
-    :mod:`membrax.spheres.stability`): by Gershgorin, ω_max² of M⁻¹K is at most 2 z k/m over a sphere's z
-    contacts; with z ≤ 12 (a sphere's kissing number) and the rotational–tangential mode's 3.5 k_s/m per
-    contact, Δt_crit = 2/ω_max ≥ 2/√(24 k/m) ≈ 0.41 √(m/k); 0.25 keeps a margin.
+    :mod:`membrax.spheres.stability`, whose branch vectors would also miss the minimum image): by
+    Gershgorin, ω_max² of M⁻¹K is at most 2 z k/m over a sphere's z contacts; with z ≤ 12 (a sphere's
+    kissing number) and the rotational–tangential mode's 3.5 k_s/m per contact,
+    Δt_crit = 2/ω_max ≥ 2/√(24 k/m) = :data:`CRITICAL_STEP_BOUND` √(m/k) ≈ 0.41 √(m/k); 0.25 keeps a margin.
     """
     mass = float(np.min(np.asarray(particles.mass)))
     stiffness = max(
@@ -442,8 +491,18 @@ def stable_time_step(particles, contact_params: ContactParams, safety: float = 0
 
 
 @pydataclasses.dataclass
-class PeriodicTest:
-    """A periodic cell ready to run (built by :func:`periodic_test`)."""
+class PeriodicTest(StagedTest):
+    """A periodic cell ready to run (built by :func:`periodic_test`).
+
+    Its stages, :meth:`consolidate` and :meth:`shear`, are :class:`membrax.triaxial.protocol.StagedTest`'s
+    (the phases of :data:`membrax.triaxial.protocol.PHASES`), with the box in place of the platens and walls:
+    consolidation servo-holds every axis at σc; shearing shortens z at the constant ε̇ = L̇/L of the inertial
+    number (a constant rate of logarithmic strain: the box's deformation is imposed on the positions, so
+    there are no platens to bring up to speed and no start-up ramp) and servo-holds x and y at σc.
+    """
+
+    cell = "periodic"
+    default_ramp_strain = 0.0
 
     particles: object
     params: DEMParams
@@ -469,6 +528,29 @@ class PeriodicTest:
             control = control.set(max_strain_rate=jnp.asarray(max_strain_rate, dtype))
         return state.set(control=control)
 
+    def list_shape(self, state: PeriodicState) -> dict:
+        """What fixes the shape of ``state``'s neighbour list (:meth:`template`'s arguments), plain values."""
+        return {
+            "capacity": int(state.neighbors.idx.shape[1]),
+            "cell_length": [float(x) for x in np.asarray(state.cell_length)],
+            "cell_list_capacity": int(state.neighbors.cell_list_capacity or 0),
+        }
+
+    def template(self, capacity: int, cell_length, cell_list_capacity: int) -> PeriodicState:
+        """The initial state with a list shaped by :meth:`list_shape`'s values (a checkpoint's template).
+
+        The list is allocated with its cells sized for ``cell_length`` (its static cell grid, as the run's
+        was), ``capacity`` pair slots and ``cell_list_capacity``; its slots and the springs are the
+        checkpoint's to fill (:func:`membrax.io.load_checkpoint`).
+        """
+        state = self.initial_state
+        dtype = state.length.dtype
+        cells = jnp.asarray(cell_length, dtype)
+        listing = self.runner.neighbor_frame.reallocate(state.fraction, state.length, cells, 0)
+        idx = jnp.full((listing.idx.shape[0], capacity), state.fraction.shape[0], listing.idx.dtype)
+        listing = listing.set(idx=idx, max_occupancy=capacity, cell_list_capacity=cell_list_capacity or None)
+        return state.set(neighbors=listing, pair_spring=jnp.zeros((capacity, 3), dtype), cell_length=cells)
+
     def shear_rate(self, inertial_number: float) -> float:
         """ε̇ = I / (d √(ρ/σc)), 1/s (GDR MiDi 2004; d the mean diameter)."""
         check_range("inertial_number", inertial_number, lower=0.0, lower_open=True)
@@ -476,54 +558,57 @@ class PeriodicTest:
             inertial_number, self.particle_diameter, self.density, self.cell_pressure
         )
 
-    def consolidate(
-        self,
-        state=None,
-        tolerance: float = 1e-3,
-        stress_tolerance: float = 0.01,
-        max_steps: int = 200_000,
-        chunk_steps: int = 2000,
-        record_every: int = 100,
-        target_stress: float | None = None,
-    ):
-        """Stage 1: every axis servo-held to σc (module docstring).
+    def start_consolidation(self, state) -> PeriodicState:
+        """``state`` with every axis servo-held to σc."""
+        return self.control(state, True)
 
-        Until the last record's unbalanced-force ratio is below ``tolerance`` and each σ_kk within
-        ``stress_tolerance`` of the target (``target_stress``, default σc), or ``max_steps``.
-        Returns (state, records).
+    def is_consolidated(self, records, tolerance: float, stress_tolerance: float = 0.01) -> bool:
+        """The stop test: unbalanced-force ratio below ``tolerance``, each σ_kk within 1 % (default) of σc."""
+        diagonal = np.diagonal(np.asarray(records.stress[-1]))
+        close = np.all(np.abs(diagonal / self.cell_pressure - 1.0) < stress_tolerance)
+        return bool(close and records.unbalanced_force_ratio[-1] < tolerance)
+
+    def start_shear(self, state, inertial_number: float = 1e-3, ramp_strain: float = 0.0, symmetric=None):
+        """``state`` switched to drained compression: z at −ε̇ (``inertial_number``), x and y at σc.
+
+        Strains count from here (``strain_origin``). ``ramp_strain`` and ``symmetric`` are the platens'
+        and are not used: the box's rate changes at once, every sphere moved with it (module docstring).
         """
-        state = self.initial_state if state is None else state
-        target = self.cell_pressure if target_stress is None else float(target_stress)
-        state = self.control(state, True, target=target)
-
-        def stop(_, records):
-            diagonal = np.diagonal(np.asarray(records.stress[-1]))
-            close = np.all(np.abs(diagonal / target - 1.0) < stress_tolerance)
-            return bool(close and records.unbalanced_force_ratio[-1] < tolerance)
-
-        return self.runner.run(state, self.params, max_steps, chunk_steps, record_every, stop_fn=stop)
-
-    def shear(
-        self,
-        state,
-        target_axial_strain: float = 0.1,
-        inertial_number: float = 1e-3,
-        record_every: int = 200,
-        chunk_steps: int = 4000,
-    ):
-        """Stage 2: drained compression (module docstring).
-
-        z shortened at ε̇ (from ``inertial_number``), x and y servo-held at σc, to the target axial strain
-        counted from the start of this stage. Returns (state, records).
-        """
-        check_range("target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True)
+        del ramp_strain, symmetric
         rate = self.shear_rate(inertial_number)
-        state = self.control(state, [True, True, False], [0.0, 0.0, -rate]).set(
-            strain_origin=state.box_length
+        state = self.control(state, [True, True, False], [0.0, 0.0, -rate])
+        return state.set(strain_origin=state.box_length)
+
+    def change_shear_rate(self, state, inertial_number, coarse_inertial_number, ramp_strain=None):
+        """``state`` shortening z at the rate of ``coarse_inertial_number`` from now (no ramp)."""
+        del inertial_number, ramp_strain
+        rate = self.shear_rate(coarse_inertial_number)
+        return self.control(state, [True, True, False], [0.0, 0.0, -rate])
+
+    def shear_plan(
+        self,
+        target_axial_strain: float = 0.10,
+        inertial_number: float = 1e-3,
+        fine_until_strain: float = 0.01,
+        ramp_strain: float | None = None,
+        coarse_inertial_number: float | None = None,
+    ) -> tuple[int, int]:
+        """Steps of the two recording phases of stage 2: (fine, coarse).
+
+        At a constant ε̇ = L̇/L the engineering strain ε = 1 − Lz/Lz0 reaches ε after −ln(1 − ε)/(ε̇ Δt)
+        steps; the coarse phase runs at ``coarse_inertial_number``'s rate (None: ``inertial_number``'s).
+        ``ramp_strain`` is not used (class docstring).
+        """
+        del ramp_strain
+        check_range(
+            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
         )
-        # −ln(1 − ε) of log strain at ε̇ per unit time: the steps to the target engineering strain.
-        steps = math.ceil(-math.log1p(-target_axial_strain) / (rate * self.dt))
-        return self.runner.run(state, self.params, steps, chunk_steps, record_every)
+        fine_rate = self.shear_rate(inertial_number)
+        coarse_rate = fine_rate if coarse_inertial_number is None else self.shear_rate(coarse_inertial_number)
+        fine_strain = min(fine_until_strain, target_axial_strain)
+        fine = math.ceil(-math.log1p(-fine_strain) / (fine_rate * self.dt))
+        rest = -math.log1p(-target_axial_strain) + math.log1p(-fine_strain)
+        return fine, max(0, math.ceil(rest / (coarse_rate * self.dt)))
 
 
 def periodic_test(
@@ -601,7 +686,7 @@ def periodic_test(
         cell_pressure=float(cell_pressure),
         density=density,
         particle_diameter=mean_diameter,
-        initial_state=init_fn(fraction, length, neighbors, control),
+        initial_state=init_fn(fraction, length, neighbors, control, cell_length=cells),
         runner=PeriodicRunner(step_fn, frame, record, particles.num_particles),
         step_fn=step_fn,
     )
@@ -665,9 +750,8 @@ def compact_periodic(
     )
     if overload is None:
         overload = 10.0 if friction_coefficient == 0.0 else 1.0
-    state, records = test.consolidate(
-        tolerance=tolerance, max_steps=max_steps, target_stress=overload * cell_pressure
-    )
+    loaded = pydataclasses.replace(test, cell_pressure=overload * cell_pressure)
+    state, records = loaded.consolidate(tolerance=tolerance, max_steps=max_steps)
     if overload != 1.0:
         state, unloading = test.consolidate(state, tolerance=tolerance, max_steps=max_steps)
         records = concatenate_records([records, unloading])
