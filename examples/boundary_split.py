@@ -525,7 +525,7 @@ def figure(table, path: Path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    states = list(dict.fromkeys(table.state))
+    states = [state for state in MEMBRANE_GROUPS if state in set(table.state)]
     pressures = sorted(set(table.pressure_kpa))
     palette = ("tab:blue", "tab:orange", "tab:red", "tab:green", "tab:purple")
     colours = dict(zip(pressures, palette[: len(pressures)], strict=True))
