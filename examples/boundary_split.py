@@ -26,9 +26,10 @@ interrupted script resumes where it stopped (delete a file to rerun that case).
 
 Run: ``python examples/boundary_split.py [--out results/boundary_split] [--states dense,loose,ballast]
 [--pressures 10,40,100] [--seeds 0,2] [--periodic-spheres 500] [--skip-rigid] [--skip-periodic] [--x64]``.
-Cost on 2 shared CPU cores, float32: a periodic case (500 spheres) 2–6 min, a rigid case of the 150 × 375
-mould (470 spheres) 3–10 min, each slower at 10 kPa (the slowest strain rate); the ballast mould has
-1,853 spheres (about 4 × the cost).
+Cost, measured on 2 CPU cores shared with other jobs (load average 8–10), float32: the periodic dense
+compaction of 500 spheres 1,053 s per seed; a periodic case 150–489 s (10 kPa the slowest: the strain rate
+grows with √σc); a rigid case of the 150 × 375 mm mould (470 spheres) 73–320 s, of the loose 150 × 300 mm
+one (376 spheres) 82–274 s. The ballast mould has 1,853 spheres (not run here).
 """
 
 from __future__ import annotations
