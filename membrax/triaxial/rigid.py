@@ -217,10 +217,13 @@ def rigid_wall_test(
     # Member b's planes pass through its shifted specimen: h_b = h + offset_b·e.
     shift = batch.member_offsets(num_members, spacing) @ np.asarray(walls.normal, dtype=float).T
     walls = walls.set(position=walls.position + jnp.asarray(shift, walls.position.dtype))
-    lower = np.min(np.asarray(position), axis=0) - diameter
-    upper = np.max(np.asarray(position), axis=0) + diameter
+    # The cutoff is the largest sphere's diameter: with the mean's, two large graded spheres in contact
+    # could be farther apart than cutoff + skin and never enter the list (the membrane cell does the same).
+    largest = specimen.largest_diameter
+    lower = np.min(np.asarray(position), axis=0) - largest
+    upper = np.max(np.asarray(position), axis=0) + largest
     frame = pair_neighbor_fn(
-        lower, upper, cutoff=diameter, skin=skin_fraction * diameter, margin=0.5 * diameter
+        lower, upper, cutoff=largest, skin=skin_fraction * diameter, margin=0.5 * largest
     )
     neighbors = frame.allocate(position)
     probe_init, _ = sphere_dem(particles, frame, 1.0)
