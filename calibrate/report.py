@@ -27,7 +27,7 @@ from calibrate.correct import (
     correct_record,
     default_corrections,
 )
-from calibrate.size_effect import size_effect_note
+from calibrate.size_effect import size_effect_lines
 
 __all__ = [
     "PROGRESS_ROWS",
@@ -278,7 +278,7 @@ def correct_file(
         "widened by 1 + fitted_extrapolation outside the fitted range; fitted_shrink_axial/_radial: the "
         "factors the abstention rule scaled the fitted sigma_1/sigma_3 corrections by (1: kept)",
         target_words(result),
-        size_effect_note(specimen.specimen_diameter / specimen.particle_diameter),
+        *size_effect_lines(specimen.specimen_diameter / specimen.particle_diameter),
         "conventions: compression positive; strains in %, stresses in kPa",
         *(f"source: {line}" for line in record.comments),
         *(f"read: {line}" for line in record.notes),

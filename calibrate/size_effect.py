@@ -23,7 +23,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["BOUNDARY_SPLIT", "SizeEffect", "boundary_split_rows", "size_effect_note", "size_effects"]
+__all__ = [
+    "BOUNDARY_SPLIT",
+    "SizeEffect",
+    "boundary_split_rows",
+    "size_effect_lines",
+    "size_effect_note",
+    "size_effects",
+]
 
 #: The boundary split's table, shipped with the correction (``examples/boundary_split.py`` writes it).
 BOUNDARY_SPLIT = "boundary_split.csv"
@@ -142,3 +149,12 @@ def size_effect_note(diameter_ratio: float, state: str = "dense", rows=None) -> 
         f"the peak and {min(late):+.1f} to {max(late):+.1f}° late (σc {shared[0]:g}–{shared[-1]:g} kPa); "
         "the corrections correct to the internal φ', not to the material's own."
     )
+
+
+def size_effect_lines(diameter_ratio: float, rows=None) -> list[str]:
+    """:func:`size_effect_note` for every state of the table with a periodic element (dense first)."""
+    rows = boundary_split_rows() if rows is None else rows
+    states = sorted(
+        {row["state"] for row in rows if row["cell"] == "periodic"}, key=lambda s: (s != "dense", s)
+    )
+    return [size_effect_note(diameter_ratio, state, rows) for state in states]

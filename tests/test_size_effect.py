@@ -7,7 +7,7 @@ extrapolated; the shipped table's own rows give back their differences.
 
 import pytest
 
-from calibrate.size_effect import boundary_split_rows, size_effect_note, size_effects
+from calibrate.size_effect import boundary_split_rows, size_effect_lines, size_effect_note, size_effects
 
 
 def _row(cell, ratio, pressure, peak, late, thickness=""):
@@ -73,3 +73,11 @@ def test_the_shipped_table_gives_back_its_own_differences():
     for pressure, part in zip(effect.cell_pressures_kpa, effect.peak_deg, strict=True):
         internal = [float(r["peak_int"]) for r in membrane if float(r["pressure_kpa"]) == pressure]
         assert part == pytest.approx(sum(internal) / len(internal) - element[pressure], abs=1e-9)
+
+
+def test_the_report_quotes_every_state_with_an_element_dense_first():
+    lines = size_effect_lines(8.0, ROWS)
+    assert len(lines) == 1 and lines[0] == size_effect_note(8.0, "dense", ROWS)
+    loose = [{**row, "state": "loose"} for row in ROWS]
+    both = size_effect_lines(8.0, ROWS + loose)
+    assert [line.split(",")[1].strip() for line in both] == ["dense", "loose"]
