@@ -119,7 +119,7 @@ def size_effect_note(diameter_ratio: float, state: str = "dense", rows=None) -> 
     if not effects:
         return f"size effect: the boundary split has no {state} rows (calibrate/data/{BOUNDARY_SPLIT})."
     ratios = [e.diameter_ratio for e in effects]
-    span = f"{min(ratios):g}–{max(ratios):g}"
+    span = f"{min(ratios):g}" if min(ratios) == max(ratios) else f"{min(ratios):g}–{max(ratios):g}"
     if not (min(ratios) <= diameter_ratio <= max(ratios)):
         return (
             f"size effect: none simulated at D_s/D = {diameter_ratio:.3g} ({state} specimens were run at "
