@@ -15,10 +15,10 @@ k_t = k_n/2, 2650 kg/m³, Cundall local damping 0.3, I = 1e-3, σc 10/40/100 kPa
    per (state, seed) at :data:`membrax.defaults.COMPACTION_STRESS` (frictionless for dense and ballast,
    the state's compaction friction for loose), consolidated to each σc and sheared: the boundary-free φ'.
 
-For each (state, σc, cell, D/D_s, membrane thickness) it writes the peak φ', the late φ' (the mean over
+For each (state, σc, cell, D_s/D, membrane thickness) it writes the peak φ', the late φ' (the mean over
 axial strains ≥ 0.8 × the last, 8–10 %, as docs/validation.md's YADE table) and ε_v at the end
 (compression positive), averaged over the seeds with their spread (max − min), to ``boundary_split.csv``;
-the split at each D/D_s (gap = external − periodic; membrane part = external − internal; specimen part =
+the split at each D_s/D (gap = external − periodic; membrane part = external − internal; specimen part =
 internal − periodic) to ``boundary_split_parts.csv`` and the console; and ``boundary_split.png``.
 
 Each rigid and periodic run's records go to their own ``.npz`` under ``--out``; a rerun reloads them, so an
@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-#: Lab-grid groups of each state (D/D_s from the name: the mould diameter over the largest sieve).
+#: Lab-grid groups of each state (D_s/D from the name: the mould diameter D_s over the largest sieve D).
 MEMBRANE_GROUPS = {
     "dense": ("e6", "e6_h25", "e8", "e10", "e12"),
     "loose": ("e6_loose",),
@@ -89,7 +89,7 @@ def summary(axial_strain, angle, volumetric_strain=None) -> dict:
 
 
 def size_ratio(group: str) -> int:
-    """D/D_s of a lab group, from its name (``e6_h25`` → 6)."""
+    """D_s/D of a lab group (specimen over particle diameter), from its name (``e6_h25`` → 6)."""
     return int(re.match(r"[a-z]+(\d+)", group).group(1))
 
 
@@ -520,7 +520,10 @@ def split_table(table):
 
 
 def figure(table, path: Path):
-    """Peak and late φ' against D_s/D, one column per state, σc as colour (0 = the periodic element)."""
+    """Peak and late φ' against D/D_s (particle over specimen diameter), one column per state, σc as colour.
+
+    D/D_s = 0 is the periodic element.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
@@ -550,7 +553,7 @@ def figure(table, path: Path):
                     if not np.isfinite(value):
                         continue
                     x = 0.0 if cell == "periodic" else 1.0 / row.d_over_ds
-                    # Thin membranes drawn open; a small shift keeps cells at one D/D_s apart.
+                    # Thin membranes drawn open; a small shift keeps cells at one D_s/D apart.
                     shift = {"membrane": 0.0, "rigid": 0.006, "periodic": 0.0}[cell]
                     thin = cell == "membrane" and row.thickness_mm < 4.0
                     ax.plot(
@@ -561,7 +564,11 @@ def figure(table, path: Path):
                         mfc="none" if thin else colours[row.pressure_kpa],
                         ms=9 if marker == "*" else 6,
                     )
-            ax.set(title=f"{state}, {stage}", xlabel="D_s / D (0: periodic)", ylabel=f"{stage} φ' (°)")
+            ax.set(
+                title=f"{state}, {stage}",
+                xlabel="D/D_s, particle / specimen diameter (0: periodic)",
+                ylabel=f"{stage} φ' (°)",
+            )
             ax.grid(alpha=0.3)
     handles = [
         plt.Line2D([], [], ls="", marker=m, color="k", label=label) for (m, label) in markers.values()
