@@ -292,15 +292,7 @@ def rigid_rows(args, lab, states, pressures, seeds, out: Path, times: list):
                     print(f"rigid {group} {pressure:g} kPa ...", flush=True)
                     run_rigid(config, specimen, pressure, path)
                 data = np.load(path)
-                times.append(
-                    (
-                        f"rigid {group} {pressure:g} kPa",
-                        float(data["consolidation_seconds"]),
-                        float(data["seconds"]),
-                        int(data["shear_steps"]),
-                        int(data["num_particles"]),
-                    )
-                )
+                times.append(_time_row(f"rigid {group} {pressure:g} kPa", data, int(data["num_particles"])))
                 wall = summary(
                     data["axial_strain"], data["wall_friction_angle_deg"], data["volumetric_strain"]
                 )
@@ -333,19 +325,13 @@ def periodic_packing(config, spheres: int, seed: int, path: Path) -> dict:
     from membrax.assemble import damping_params
     from membrax.defaults import COMPACTION_STRESS
     from membrax.spheres.contact import ContactParams
-    from membrax.spheres.grading import sample_diameters
+    from membrax.spheres.periodic import sample_element
     from membrax.triaxial.periodic import compact_periodic
 
     if path.exists():
         return dict(np.load(path))
-    if config.grading:
-        # Scale the solid volume so the sample holds about ``spheres`` spheres of the grading.
-        grading = config.particle_grading
-        trial = 1e-2
-        count = len(sample_diameters(grading, trial, seed))
-        diameters = sample_diameters(grading, trial * spheres / count, seed)
-    else:
-        diameters = np.full(spheres, config.particle_diameter)
+    # The configuration path's sampler (assemble.build_periodic_test): ``spheres`` of the grading, by mass.
+    diameters = sample_element(config.particle_grading, spheres, seed)
     contact = ContactParams.paper(
         friction_angle_deg=config.friction_angle_deg,
         normal_stiffness=config.particle_stiffness_n_m,
@@ -370,6 +356,17 @@ def periodic_packing(config, spheres: int, seed: int, path: Path) -> dict:
     }
     np.savez(path, **out)
     return out
+
+
+def _time_row(label: str, data, spheres: int) -> tuple:
+    """A wall-time table row of one saved run: (label, consolidation s, total s, shear steps, spheres)."""
+    return (
+        label,
+        float(data["consolidation_seconds"]),
+        float(data["seconds"]),
+        int(data["shear_steps"]),
+        spheres,
+    )
 
 
 def run_periodic(config, packing: dict, pressure_kpa: float, path: Path) -> dict:
@@ -437,12 +434,8 @@ def periodic_rows(args, lab, states, pressures, seeds, out: Path, times: list):
                     run_periodic(config, packing, pressure, path)
                 data = np.load(path)
                 times.append(
-                    (
-                        f"periodic {state} s{seed} {pressure:g} kPa",
-                        float(data["consolidation_seconds"]),
-                        float(data["seconds"]),
-                        int(data["shear_steps"]),
-                        int(packing["radius"].shape[0]),
+                    _time_row(
+                        f"periodic {state} s{seed} {pressure:g} kPa", data, int(packing["radius"].shape[0])
                     )
                 )
                 lw = summary(

@@ -40,6 +40,7 @@ from membrax.config import (
 )
 from membrax.defaults import COMPACTION_STRESS, default_consolidation_tolerance
 from membrax.errors import ConfigError
+from membrax.io.files import atomic_write_file
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import rounded_offset_path
 from membrax.spheres.compaction import Compaction, random_packing
@@ -339,9 +340,8 @@ def build_periodic_test(config: TriaxialConfig) -> PeriodicTest:
             "diameter": 2.0 * np.asarray(compaction.particles.radius, dtype=float),
         }
         cached.parent.mkdir(parents=True, exist_ok=True)
-        partial = cached.with_suffix(f".{os.getpid()}.npz")
-        np.savez(partial, **packing)
-        os.replace(partial, cached)  # atomic: a concurrent reader sees the whole file or none
+        # Atomic: a concurrent reader sees the whole file or none.
+        atomic_write_file(cached, lambda handle: np.savez(handle, **packing))
     return periodic_test(
         jnp.asarray(packing["fraction"], dtype),
         packing["length"],
