@@ -10,7 +10,7 @@ within ±2 % of the target, ``jump`` the nearest state at a stress jump, with th
 side of it, ``no`` out of steps), the solid fractions (whole and core), the core's coordination number
 without rattlers, and the specimen's diameter.
 
-Issue targets: a paper-like specimen in under one minute on 2 cores (issue 45); every seed ends (issue 60).
+Targets: a paper-like specimen in under one minute on 2 cores; every seed ends.
 
 Run: ``python benchmarks/bench_compaction.py [--across 10 --high 20 --friction 0 --max-steps 400000
 --seed 0]``.

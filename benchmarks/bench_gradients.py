@@ -22,7 +22,7 @@ each in its own process, once per dtype, printing compile time (lowering and com
 of 3 after one warm-up), peak RSS, the compiled program's own buffers (XLA's ``memory_analysis``:
 temporaries, arguments and outputs; not the constants, such as the start state, nor the process's
 fixed ~1.2 GB that the RSS includes), on an accelerator its own peak memory (``memory_stats``), and the
-ratios reverse/forward. The issue's goals at paper size: memory ≤ 2×, time ≤ 4×.
+ratios reverse/forward. The goals at paper size: memory ≤ 2×, time ≤ 4×.
 
 This measures cost, not correctness, in the paper's mode (Cundall local damping), which has no derivative
 through this transient (its step jumps where a velocity changes sign; membrax.gradients): the gradient

@@ -17,12 +17,12 @@ Rates are the best of three timed runs (after a compiling one): on a shared mach
 ever lengthens a run.
 
 Each membrane step of the coupled simulation needs one membrane-force and one contact evaluation, so
-their combined rate bounds the membrane part of the DEM + membrane step (issue target: ≥ 500 steps/s in
+their combined rate bounds the membrane part of the DEM + membrane step (target: ≥ 500 steps/s in
 float32 for the whole step). The membrane-force rate includes bending (factor 1); the coupled step runs the
 paper's pure membrane (factor 0), whose compiled kernel skips the hinges.
 
 With ``--packing random`` the specimen is a random packing of the same spheres, 250 × 500 mm (about 1,740
-spheres, compacted first, about 40 s, not timed): its membrane is a cylinder (issue 45's target: coupled
+spheres, compacted first, about 40 s, not timed): its membrane is a cylinder (target: coupled
 steps/s within 1.5× of the FCC row's).
 
 Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--dtypes float32]``;

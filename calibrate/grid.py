@@ -4,8 +4,14 @@ Contract. :func:`run_grid` runs each group of a design with :func:`membrax.sweep
 ``membrax sweep`` runs) into ``folder/<group>/sweep.nc``, resuming a group interrupted part-way and
 skipping one that is done; :func:`sweep_commands` prints the equivalent ``membrax sweep`` command lines.
 
+Archive. A campaign longer than one machine's life (the lab design: about 12 h on 2 cores) keeps each
+finished group as ``archive/<group>.nc.gz`` (:func:`membrax.io.write_compressed_copy`; the repository's
+``data/sweeps/<design>/``): a group found there is done, on any machine, and its archived sweep is what
+:func:`run_grid` returns for it (``membrax fit`` and :func:`membrax.io.read_results` read it as the
+``sweep.nc``).
+
 Run: ``python -m calibrate.grid OUT [--design random|random_held_out|protocol_check|fcc|fcc_held_out|lab|
-lab_held_out]``
+lab_held_out] [--groups NAME,NAME] [--archive data/sweeps/lab]``
 (one JAX CPU device per core, as ``membrax sweep``), or ``python -m calibrate.grid OUT --scheduler
 local|ADDRESS`` to send every group's members to Dask workers at once (:mod:`membrax.campaign`). The lab
 design is meant to run so: it is resumable, group by group and member by member.
@@ -20,7 +26,7 @@ from pathlib import Path
 
 from calibrate.designs import CALIBRATION, DESIGNS, HELD_OUT, specimen_fields
 
-__all__ = ["main", "run_grid", "sweep_commands"]
+__all__ = ["find_sweep", "main", "run_grid", "sweep_commands"]
 
 
 def sweep_commands(groups=None, folder: str = "calibration") -> list[str]:
@@ -39,15 +45,20 @@ def sweep_commands(groups=None, folder: str = "calibration") -> list[str]:
     return lines
 
 
-def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list[Path]:
+def run_grid(folder, groups=None, progress: bool = True, scheduler=None, archive=None) -> list[Path]:
     """Run every group of ``groups`` (default :data:`CALIBRATION`) into ``folder/<group>/``.
 
     A group whose ``sweep.nc`` exists is skipped; one with a checkpoint resumes. With ``scheduler``
     (:func:`membrax.campaign.connect`: ``"local"``, an address or a scheduler file) every group's tasks go
-    to one Dask client at once, the groups' sweeps side by side (one thread each waits for its tasks).
+    to one Dask client at once, the groups' sweeps side by side (one thread each waits for its tasks);
+    without one the groups run one after another, so each is finished (and archived) before the next.
+
+    With ``archive`` (a folder, module docstring) a group whose ``archive/<group>.nc.gz`` exists is done,
+    and each group finished here (or found finished in ``folder``) is copied there compressed.
 
     Returns:
-      The ``sweep.nc`` paths, in the order of ``groups``.
+      The sweep paths, in the order of ``groups``: the archived copy where there is one, else
+      ``folder/<group>/sweep.nc``.
 
     Raises:
       RunError: naming each group whose sweep failed, after the others finished.
@@ -57,10 +68,11 @@ def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list
     from membrax import campaign
     from membrax.config import TriaxialConfig
     from membrax.errors import RunError
+    from membrax.io.results import write_compressed_copy
     from membrax.sweep import run_sweep
 
     groups = CALIBRATION if groups is None else groups
-    paths = [Path(folder) / name / "sweep.nc" for name in groups]
+    paths = [_sweep_path(folder, archive, name) for name in groups]
     todo = {name: item for (name, item), path in zip(groups.items(), paths, strict=True) if not path.exists()}
 
     def one(name, client=None):
@@ -70,11 +82,18 @@ def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list
         grid = {k: list(v) for k, v in grid.items()}
         alone = client is None  # side by side, the groups' bars would overwrite each other
         run_sweep(base, grid, out, resume=out.exists(), progress=progress and alone, scheduler=client)
+        if archive is not None:
+            write_compressed_copy(out / "sweep.nc", _archived(archive, name))
 
+    if archive is not None:  # finished here before an archive was named
+        for name in groups:
+            finished = Path(folder) / name / "sweep.nc"
+            if finished.exists() and not _archived(archive, name).exists():
+                write_compressed_copy(finished, _archived(archive, name))
     if scheduler is None:
         for name in todo:
             one(name)
-        return paths
+        return [_sweep_path(folder, archive, name) for name in groups]
     client, cluster, owned = campaign.connect(scheduler)
     try:
         with ThreadPoolExecutor(max_workers=max(1, len(todo))) as pool:
@@ -87,7 +106,30 @@ def run_grid(folder, groups=None, progress: bool = True, scheduler=None) -> list
             cluster.close()
     if errors:
         raise RunError("\n".join(f"calibration group {name}: {error}" for name, error in errors.items()))
-    return paths
+    return [_sweep_path(folder, archive, name) for name in groups]
+
+
+def find_sweep(folder, name: str) -> Path | None:
+    """Group ``name``'s sweep in ``folder`` (an archive or a run folder), or None where it has not run.
+
+    The archived copy ``<name>.nc.gz`` first, else the run's ``<name>/sweep.nc``.
+    """
+    for path in (_archived(folder, name), Path(folder) / name / "sweep.nc"):
+        if path.exists():
+            return path
+    return None
+
+
+def _archived(archive, name: str) -> Path:
+    """The compressed copy of group ``name``'s sweep in the folder ``archive``."""
+    return Path(archive) / f"{name}.nc.gz"
+
+
+def _sweep_path(folder, archive, name: str) -> Path:
+    """Group ``name``'s sweep: its archived copy if there is one, else ``folder/<name>/sweep.nc``."""
+    if archive is not None and _archived(archive, name).exists():
+        return _archived(archive, name)
+    return Path(folder) / name / "sweep.nc"
 
 
 def main(argv=None) -> int:
@@ -111,6 +153,19 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--commands", action="store_true", help="print the membrax sweep commands only")
     parser.add_argument(
+        "--groups",
+        default=None,
+        metavar="NAME,NAME",
+        help="run only these groups of the design, in this order (default: all, in the design's order)",
+    )
+    parser.add_argument(
+        "--archive",
+        default=None,
+        metavar="FOLDER",
+        help="keep each finished group as FOLDER/<group>.nc.gz, and count a group found there as done "
+        "(e.g. data/sweeps/lab)",
+    )
+    parser.add_argument(
         "--scheduler",
         default=None,
         metavar="ADDRESS|local",
@@ -118,6 +173,15 @@ def main(argv=None) -> int:
     )
     args = parser.parse_args(argv)
     groups = HELD_OUT if args.held_out else DESIGNS[args.design]
+    if args.groups is not None:
+        names = [name.strip() for name in args.groups.split(",") if name.strip()]
+        unknown = [name for name in names if name not in groups]
+        if unknown or not names:
+            parser.error(
+                f"--groups {args.groups!r}: {', '.join(unknown) or 'no names'} not in the design "
+                f"{args.design!r}; choose among {', '.join(groups)}"
+            )
+        groups = {name: groups[name] for name in names}
     if args.commands:
         print("\n".join(sweep_commands(groups, args.folder)))
         return 0
@@ -125,7 +189,7 @@ def main(argv=None) -> int:
         from membrax.devices import split_cpu_devices
 
         split_cpu_devices()
-    for path in run_grid(args.folder, groups, scheduler=args.scheduler):
+    for path in run_grid(args.folder, groups, scheduler=args.scheduler, archive=args.archive):
         print(path)
     return 0
 

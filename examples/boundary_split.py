@@ -42,6 +42,8 @@ from pathlib import Path
 
 import numpy as np
 
+from calibrate.grid import find_sweep
+
 #: Lab-grid groups of each state (D_s/D from the name: the mould diameter D_s over the largest sieve D).
 MEMBRANE_GROUPS = {
     "dense": ("e6", "e6_h25", "e8", "e10", "e12"),
@@ -59,7 +61,12 @@ LATE_FRACTION = 0.8
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="results/boundary_split", help="output folder")
-    parser.add_argument("--lab", default="/work/main/results/calibration_lab", help="the lab grid's folder")
+    parser.add_argument(
+        "--lab",
+        default=str(Path(__file__).resolve().parents[1] / "data" / "sweeps" / "lab"),
+        help="the lab grid's sweeps: its archive (<group>.nc.gz, the default: the repository's "
+        "data/sweeps/lab) or its run folder (<group>/sweep.nc)",
+    )
     parser.add_argument("--states", default="dense,loose,ballast")
     parser.add_argument("--pressures", default="10,40,100", help="σc, kPa")
     parser.add_argument("--seeds", default="0,2")
@@ -95,14 +102,12 @@ def size_ratio(group: str) -> int:
 
 def group_config(lab: Path, group: str):
     """The group's configuration: its sweep's base configuration, or the design's where it has not run."""
-    import xarray as xr
-
     from membrax.config import TriaxialConfig
+    from membrax.io import read_results
 
-    sweep = lab / group / "sweep.nc"
-    if sweep.exists():
-        with xr.open_dataset(sweep) as ds:
-            return TriaxialConfig(**json.loads(ds.attrs["base_config"]))
+    sweep = find_sweep(lab, group)
+    if sweep is not None:
+        return TriaxialConfig(**json.loads(read_results(sweep).attrs["base_config"]))
     from calibrate.designs import LAB_CALIBRATION, specimen_fields
 
     return TriaxialConfig(name=f"calibration_{group}", **specimen_fields(LAB_CALIBRATION[group][0]))
@@ -113,19 +118,19 @@ def group_config(lab: Path, group: str):
 
 def membrane_rows(lab: Path, states, pressures, seeds):
     """Per-seed summaries of the lab grid's members, and the groups found and missing."""
-    import xarray as xr
+    from membrax.io import read_results
 
     rows, used, missing = [], [], []
     for state in states:
         for base in MEMBRANE_GROUPS[state]:
             for seed in seeds:
                 group = f"{base}_s{seed}"
-                sweep = lab / group / "sweep.nc"
-                if not sweep.exists():
+                sweep = find_sweep(lab, group)
+                if sweep is None:
                     missing.append(group)
                     continue
                 used.append(group)
-                with xr.open_dataset(sweep) as ds:
+                with read_results(sweep) as ds:
                     config = json.loads(ds.attrs["base_config"])
                     for pressure in pressures:
                         if pressure not in ds.cell_pressure_kpa.values:
@@ -179,14 +184,13 @@ def lab_packing(lab: Path, group: str, config):
     match (or a sweep), ``build_specimen`` compacts it (deterministic: recompactions of one key in the
     cache agree to every printed digit).
     """
-    import xarray as xr
-
     from membrax import assemble, native
+    from membrax.io import read_results
     from membrax.spheres.compaction import Compaction
 
-    sweep = lab / group / "sweep.nc"
-    if sweep.exists():
-        with xr.open_dataset(sweep) as ds:
+    sweep = find_sweep(lab, group)
+    if sweep is not None:
+        with read_results(sweep) as ds:
             count = int(np.ravel(ds.num_particles.values)[0])
             fraction = float(np.ravel(ds.solid_fraction.values)[0])
         for path in sorted((native.cache_dir() / "specimens").glob("compaction_*.npz")):

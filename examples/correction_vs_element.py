@@ -2,15 +2,16 @@
 
 A correction maps a membrane specimen's external stresses to its internal ones; the internal φ' of a
 specimen 6–12 particles across is not the boundary-free material's (``examples/boundary_split.py``). This
-script corrects every member of the laboratory grid's membrane cells (``results/calibration_lab``, the
-groups of ``--groups`` whose ``sweep.nc`` exists; none of them is in the shipped correction's fit) by every
+script corrects every member of the laboratory grid's membrane cells (``--lab``: its archive, the
+repository's ``data/sweeps/lab``, or a run folder; the groups of ``--groups`` that have run; none of them
+is in the shipped correction's fit) by every
 method of ``membrax correct`` (:func:`calibrate.evaluate.element_errors`) and compares each method's peak
 and late φ' (the mean over ε_a ≥ 8 %) with the member's internal ones and with the periodic element's at
 the same state and σc (``calibrate/data/boundary_split.csv``). Prints, per group and pooled, the mean
 |error| and the mean signed error (a correction that removes only the membrane leaves the specimen's part
 as a positive bias against the element).
 
-Run: ``python examples/correction_vs_element.py [--lab results/calibration_lab] [--groups e6_h25,e8,...]
+Run: ``python examples/correction_vs_element.py [--lab data/sweeps/lab] [--groups e6_h25,e8,...]
 [--state dense] [--model corrections.json]``; a minute on 2 cores (no simulation).
 """
 
@@ -20,11 +21,16 @@ from pathlib import Path
 import numpy as np
 
 from calibrate import correct, evaluate, persistence
+from calibrate.grid import find_sweep
 from calibrate.size_effect import boundary_split_rows
 from membrax.io import read_results
 
 parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-parser.add_argument("--lab", default="results/calibration_lab", help="the laboratory grid's folder")
+parser.add_argument(
+    "--lab",
+    default=str(Path(__file__).resolve().parents[1] / "data" / "sweeps" / "lab"),
+    help="the laboratory grid's sweeps: its archive or its run folder",
+)
 parser.add_argument("--groups", default="e6,e6_h25,e8,e10,e12", help="group names (seeds _s0, _s2 read)")
 parser.add_argument("--state", default="dense", help="the element rows' state in the boundary split table")
 parser.add_argument("--model", default=None, help="corrections.json (default: the shipped correction)")
@@ -48,10 +54,10 @@ print(
 found, scored = [], []
 for group in args.groups.split(","):
     for seed in (0, 2):
-        path = Path(args.lab) / f"{group}_s{seed}" / "sweep.nc"
-        if not path.exists():
+        path = find_sweep(args.lab, f"{group}_s{seed}")
+        if path is None:
             continue
-        found.append(path.parent.name)
+        found.append(f"{group}_s{seed}")
         for fields, errors in evaluate.element_errors(read_results(path), element, corrections)["members"]:
             scored.append((group, seed, fields, errors))
 print(f"groups: {', '.join(found) or 'none'}; {len(scored)} members")

@@ -15,8 +15,11 @@ with its fitted column, the other with its alternate's. Prints per member the me
 |φ' − φ'_internal| over 0 < ε_a ≤ 10 % for no correction, the three classical corrections and the fitted
 one, and per target the members where the fitted one is worse than none (mean, and worst).
 
+Each group's sweep is kept compressed in the repository's ``data/sweeps/<design>/`` (``--archive``;
+:func:`calibrate.grid.run_grid`), so a group run once is not run again on another machine.
+
 Run: ``python examples/held_out_corrections.py [FOLDER] [--design lab_held_out|random_held_out|fcc_held_out]
-[--model corrections.json]``.
+[--model corrections.json] [--archive FOLDER]``.
 """
 
 import argparse
@@ -40,12 +43,14 @@ parser.add_argument(
     "--design", choices=("lab_held_out", "random_held_out", "fcc_held_out"), default="lab_held_out"
 )
 parser.add_argument("--model", default=None, help="corrections.json (default: the shipped correction)")
+parser.add_argument("--archive", default=None, help="the compressed sweeps (default: data/sweeps/DESIGN)")
 args = parser.parse_args()
+archive = args.archive or Path(__file__).resolve().parents[1] / "data" / "sweeps" / args.design
 corrections = (
     correct.default_corrections() if args.model is None else persistence.load_corrections(args.model)
 )
 groups = designs.DESIGNS[args.design]
-paths = grid.run_grid(args.folder, groups)
+paths = grid.run_grid(args.folder, groups, archive=archive)
 records = Path(args.folder) / "records"
 members = []  # (group, fields, {target: {method: (mean, worst)}})
 for name, path in zip(groups, paths, strict=True):

@@ -1,4 +1,4 @@
-"""What accounts for the paper's Δσ3 ≈ 0.1 σc? Table 3 at paper size under several readings (issue 16).
+"""What accounts for the paper's Δσ3 ≈ 0.1 σc? Table 3 at paper size under several readings.
 
 The paper's Table 3 has internal σ3 − σc = 1.2–1.8, 4.1–5.0 and 9.4–10.6 kPa at σc = 10, 40 and 100 kPa:
 close to 0.1 σc at every pressure and thickness, which points to a geometric factor rather than membrane

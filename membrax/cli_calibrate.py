@@ -73,7 +73,9 @@ def add_fit(commands) -> None:
     from calibrate.datasets import DEFAULT_RADIAL_TARGET, RADIAL_TARGETS
 
     fit = commands.add_parser("fit", help="fit a membrane correction on sweep results (calibrate)")
-    fit.add_argument("sweeps", nargs="+", help="sweep.nc files of membrax sweep or reproduce")
+    fit.add_argument(
+        "sweeps", nargs="+", help="sweep.nc files of membrax sweep or reproduce (or their .nc.gz copies)"
+    )
     fit.add_argument(
         "--out", default="corrections.json", help="JSON file to write (default corrections.json)"
     )

@@ -58,21 +58,21 @@ STRETCHING_MODELS = ("neo_hookean", "svk")
 SHEAR_RAMP_STRAIN = 1.0e-2
 
 #: The velocities Cundall's local damping (and the viscous term) act on, spheres and membrane nodes alike
-#: (:class:`membrax.spheres.integrate.DampingParams`): ``"affine"``, the velocity relative to the affine
-#: field of the strain-controlled walls, v_ref = (0, 0, v_b + (v_t − v_b)(z − z_b)/(z_t − z_b)) between
-#: the platens while they shear the specimen (:func:`membrax.spheres.walls.affine_velocity`; servo-held
-#: walls count as at rest), or ``"absolute"``, the velocity itself (the paper's and PFC's practice). The two
-#: are the same law while the platens stand still or are servo-held (consolidation: the same bits). While
-#: the platens close, absolute damping drags every sphere against the affine motion and the platens carry the
-#: drag. Measured (``examples/damping_artefact.py``, float32, 10 kPa, I = 1e-3, records over 1–2 % axial
-#: strain): in a rigid box, both platens closing, the platens' stress ran 1.82 % above the Love–Weber stress
-#: at paper size (10 × 25 spheres) and 0.67 % on 6 × 10, against 0.64 % and 0.34 % with the affine frame
-#: (what is left is the damping of the non-affine motion); the top platen alone closing, the top platen's
-#: stress 4.60 % and 1.44 % above, against 0.66 % and 0.38 %. In a membrane cell the membrane's nodes carried
-#: 0.61 % of σc onto the ram, against 0.15 %. Issue 60 had 3.6–5.1 % (both platens closing) worth 0.6–1.0°
-#: of wall-based φ', from membrax and an independent DEM code; a membrane calibration learning from the ram
-#: would count it as membrane. Periodic codes damp the fluctuation about the cell's homogeneous deformation
-#: for the same reason (YADE's ``NewtonIntegrator``), hence the default.
+#: (:class:`membrax.spheres.integrate.DampingParams`): ``"affine"``, the velocity relative to the affine field
+#: of the strain-controlled walls, v_ref = (0, 0, v_b + (v_t − v_b)(z − z_b)/(z_t − z_b)) between the platens
+#: while they shear the specimen (:func:`membrax.spheres.walls.affine_velocity`; servo-held walls count as at
+#: rest), or ``"absolute"``, the velocity itself (the paper's and PFC's practice). The two are the same law
+#: while the platens stand still or are servo-held (consolidation: the same bits). While the platens close,
+#: absolute damping drags every sphere against the affine motion and the platens carry the drag. Measured
+#: (``examples/damping_artefact.py``, float32, 10 kPa, I = 1e-3, records over 1–2 % axial strain): in a rigid
+#: box, both platens closing, the platens' stress ran 1.82 % above the Love–Weber stress at paper size (10 ×
+#: 25 spheres) and 0.67 % on 6 × 10, against 0.64 % and 0.34 % with the affine frame (what is left is the
+#: damping of the non-affine motion); the top platen alone closing, the top platen's stress 4.60 % and 1.44 %
+#: above, against 0.66 % and 0.38 %. In a membrane cell the membrane's nodes carried 0.61 % of σc onto the
+#: ram, against 0.15 %. Absolute-velocity damping gave 3.6–5.1 % (both platens closing) worth 0.6–1.0° of
+#: wall-based φ', from membrax and an independent DEM code; a membrane calibration learning from the ram would
+#: count it as membrane. Periodic codes damp the fluctuation about the cell's homogeneous deformation for the
+#: same reason (YADE's ``NewtonIntegrator``), hence the default.
 DAMPING_FRAME = "affine"
 #: The accepted values of :data:`DAMPING_FRAME`.
 DAMPING_FRAMES = ("affine", "absolute")

@@ -72,7 +72,7 @@ def _members(tree, count: int) -> list:
     The stacked arrays are copied to the host first, shard by shard: indexing a member out of an array
     sharded over devices would compile an SPMD gather with a cross-device all-reduce, which waits for every
     device, so a device still busy with its part of a chunk (launched asynchronously) stalls it, and XLA ends
-    the process after 40 s (issue 46). Host copies need no collective.
+    the process after 40 s. Host copies need no collective.
     """
     host = jax.device_get(tree)
     return [jax.tree_util.tree_map(lambda leaf, b=b: np.asarray(leaf)[b], host) for b in range(count)]

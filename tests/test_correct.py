@@ -815,8 +815,61 @@ def test_the_grid_s_sweep_commands_rebuild_its_configurations():
         assert rebuilt == TriaxialConfig(**designs.specimen_fields(designs.RANDOM_CALIBRATION[name][0])), name
 
 
+def test_an_archived_group_is_done_on_any_machine(tmp_path, monkeypatch):
+    """run_grid's archive: each group run is kept as <group>.nc.gz (the same dataset as its sweep.nc); on a
+    fresh folder (another machine) a group found in the archive is not run again and its copy is returned;
+    a group finished before the archive was named is archived without running."""
+    import numpy as np
+    import xarray as xr
+
+    import membrax.sweep
+    from calibrate import designs, grid
+    from membrax import io
+
+    groups = {name: designs.LAB_CALIBRATION[name] for name in ("e6_thin_s0", "e6_thin_s2", "n6_s0")}
+    ran = []
+
+    def fake_sweep(base, grid_values, out, **options):
+        ran.append(out.name)
+        pressures = np.asarray(grid_values["cell_pressure_kpa"], dtype=np.float64)
+        dataset = xr.Dataset({"cell_pressure": ("member", 1e3 * pressures)}, attrs={"group": out.name})
+        io.write_netcdf(dataset, out / "sweep.nc")
+
+    monkeypatch.setattr(membrax.sweep, "run_sweep", fake_sweep)
+    first, archive = tmp_path / "machine_1", tmp_path / "archive"
+    (first / "n6_s0").mkdir(parents=True)
+    fake_sweep(None, groups["n6_s0"][1], first / "n6_s0")  # finished before an archive was named
+    ran.clear()
+    paths = grid.run_grid(first, groups, progress=False, archive=archive)
+    assert ran == ["e6_thin_s0", "e6_thin_s2"]
+    assert paths == [archive / f"{name}.nc.gz" for name in groups]
+    for name, path in zip(groups, paths, strict=True):
+        xr.testing.assert_identical(io.read_results(path), io.read_results(first / name / "sweep.nc"))
+        assert io.read_results(path)["cell_pressure"].values.tolist() == [1e4, 4e4, 1e5]
+
+    ran.clear()
+    again = grid.run_grid(tmp_path / "machine_2", groups, progress=False, archive=archive)
+    assert ran == [] and again == paths
+    assert [grid.find_sweep(archive, name) for name in groups] == paths
+    assert grid.find_sweep(first, "e6_thin_s0") == first / "e6_thin_s0" / "sweep.nc"
+    assert grid.find_sweep(first, "e6_s0") is None
+
+
+def test_the_grid_runs_the_named_groups_in_the_order_given(capsys):
+    import pytest
+
+    from calibrate import grid
+
+    assert grid.main(["out", "--design", "lab", "--groups", "e6_s2,e6_thin_s0", "--commands"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.rsplit("/", 1)[1] for line in lines] == ["e6_s2", "e6_thin_s0"]
+    with pytest.raises(SystemExit):
+        grid.main(["out", "--design", "lab", "--groups", "e6_s1", "--commands"])
+    assert "e6_s1 not in the design 'lab'" in capsys.readouterr().err
+
+
 def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_members_lie_off_it():
-    """LAB_CALIBRATION (issue 60): every member in a mould of H/D 2 or 2.5, 150–300 mm (D/D_s 1/6–1/12 for
+    """LAB_CALIBRATION: every member in a mould of H/D 2 or 2.5, 150–300 mm (D/D_s 1/6–1/12 for
     equal 25 mm spheres), the paper's protocol (I = 1e-3, membrane edge D/5), two seeds per group, dense,
     medium and loose, equal, ballast and narrow gradings; each configuration valid (none refused for its
     inflation limit). LAB_HELD_OUT: seeds, cell pressures and thicknesses no training member has."""

@@ -1,4 +1,4 @@
-"""Start of shearing, load paths, areas and options of the membrane test (issue 16).
+"""Start of shearing, load paths, areas and options of the membrane test.
 
 Each test checks a closed form, a hand calculation or a symmetry: the platen ramp's velocity and travel,
 the step counts of a ramped stage, symmetric loading, the seeded imperfection, where nodes touch spheres,

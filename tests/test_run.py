@@ -372,7 +372,7 @@ def test_float32_shearing_keeps_the_float64_consolidation_and_resumes_in_float32
     error = float(np.max(np.abs(ram - parts)) / np.abs(ram).max())
     assert tolerance(np.float64) * 10 < error <= tolerance(np.float32)
     # Float32 noise only: the peak friction angles within 0.05° of float64's; after the peak the lattice's
-    # collapse amplifies round-off, so the records stay within issue 47's tolerance of 0.3°.
+    # collapse amplifies round-off, so the records stay within 0.3°.
     for name in ("external_friction_angle_deg", "internal_friction_angle_deg"):
         angle, reference = np.asarray(mixed.results[name]), np.asarray(double.results[name])
         assert abs(angle.max() - reference.max()) < 0.05, name

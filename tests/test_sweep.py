@@ -113,11 +113,11 @@ def test_initial_membrane_stresses_follow_the_papers_trends(grid_sweep):
     pressure and with membrane thickness, while their size relative to σc falls with cell pressure.
 
     Radial: internal σ3 over the cylinder through the boundary spheres' centres
-    (:func:`membrax.paper.centre_cylinder_radial_stress`, the reading issue 16 found to give the paper's
+    (:func:`membrax.paper.centre_cylinder_radial_stress`, the reading found to give the paper's
     Δσ3 ≈ 0.1 σc at paper size) minus σc. Over the platen's own cylinder (membrax's default internal σ3) the
     radial excess is the membrane's net radial load alone, hoop tension against indentation, and on this
     4 × 4 × 5 specimen it is −1.5 kPa at 40 kPa with the 2.5 mm membrane (paper size: −2.4 kPa at 100 kPa):
-    the shortfall issue 16 leaves open, so it is not asserted here.
+    a shortfall not explained yet, so it is not asserted here.
     """
     ds = grid_sweep.dataset.isel(record=0)
     pressure = 1e3 * ds["cell_pressure_kpa"].values[:, None]
@@ -208,7 +208,7 @@ COLLECTIVES = ("all-reduce", "all-gather", "collective-permute", "all-to-all", "
 
 def test_two_devices_give_the_results_of_one(tmp_path):
     """The member axis sharded over 2 (virtual CPU) devices with shard_map gives the unsharded results, and no
-    program the sweep compiles makes one device wait for the other (issue 46: XLA ends the process when a
+    program the sweep compiles makes one device wait for the other (XLA ends the process when a
     device reaches a cross-device all-reduce 40 s after the other). Every compiled module is dumped and read:
     none holds a collective; the 10 kPa member shears twice as long as the 40 kPa one, so its device works
     alone in the last chunks, under a collective timeout cut to 1 s."""

@@ -16,6 +16,7 @@ from membrax.io.results import (
     dataset_attrs_to_python,
     read_results,
     records_to_dataset,
+    write_compressed_copy,
     write_netcdf,
     write_results,
 )
@@ -29,6 +30,7 @@ __all__ = [
     "write_results",
     "write_netcdf",
     "read_results",
+    "write_compressed_copy",
     "VTKSeries",
     "read_pvd",
     "save_checkpoint",

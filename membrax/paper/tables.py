@@ -212,8 +212,8 @@ def centre_cylinder_radial_stress(records, particle_radius: float, index: int = 
     membrax's internal σ3 divides the radial load by the lateral area of the cylinder of the platen area
     A, 2 π r H with r = √(A/π) (:func:`membrax.membrane.records.right_cylinder_stresses`). The paper's
     "surface area of the right cylinder" (its §4.3) may be that of the cylinder through the centres of
-    the boundary spheres, r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); issue 16
-    found that reading reproduces the paper's Δσ3 ≈ 0.1 σc:
+    the boundary spheres, r_c = r − R, which scales σ3 by r / (r − R) (1.11 at paper size); that reading
+    reproduces the paper's Δσ3 ≈ 0.1 σc:
 
         σ3,c = σ3,int · r / (r − R)
 

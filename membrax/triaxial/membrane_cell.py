@@ -263,7 +263,7 @@ def membrane_test(
         default) a pure membrane, which the paper's mesh appears to have been: at paper size, 10 kPa, 5 mm,
         it ends consolidation (float64, unbalanced-force ratio 4e-5) with internal σ3 and σ1 of 10.86 and
         13.12 kPa (paper: 11.8, 14.6); plate bending spans the FCC faces' troughs stiffly and ends
-        consolidation in hoop compression, internal σ3 below σc (9.7 kPa, measured before issue 16).
+        consolidation in hoop compression, internal σ3 below σc (9.7 kPa).
       nodes_around: n_θ, membrane nodes per ring (default: perimeter / edge length); a batch over thickness
         fixes it so that all its meshes share one topology (:mod:`membrax.sweep`).
       contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the membrane's inner face on the
