@@ -62,6 +62,7 @@ __all__ = [
     "DEMO_CONFIG",
     "DEMO_RANDOM_CONFIG",
     "PERIODIC_DEMO_CONFIG",
+    "PERIODIC_SMOKE_CONFIG",
     "BALLAST_GRADING_MM",
     "scaled_grading",
     "characteristic_size_mm",
@@ -167,6 +168,25 @@ SMOKE_CONFIG = dict(
     record_every_fine=50,
     record_every_coarse=100,
     chunk_steps=1000,
+)
+
+
+#: The periodic element's smoke preset (``notebooks/08``, the periodic tests): 64 of the random demo's spheres
+#: at 40 kPa, sheared at I = 5e-3 to 1 % axial strain, recorded every 50 steps to 0.5 % and every 100 after;
+#: it checks the machinery, not the material's answer.
+PERIODIC_SMOKE_CONFIG = dict(
+    name="periodic_smoke",
+    packing="random",
+    cell="periodic",
+    periodic_particles=64,
+    cell_pressure_kpa=40.0,
+    inertial_number=5e-3,
+    target_axial_strain=0.01,
+    fine_until_strain=0.005,
+    record_every_fine=50,
+    record_every_coarse=100,
+    consolidation_max_steps=3000,
+    chunk_steps=500,
 )
 
 

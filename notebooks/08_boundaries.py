@@ -46,26 +46,13 @@ import numpy as np
 import membrax
 from calibrate.size_effect import boundary_split_rows, size_effect_note, size_effects
 from membrax import plots
-from membrax.config import DEMO_RANDOM_CONFIG, PERIODIC_DEMO_CONFIG
+from membrax.config import DEMO_RANDOM_CONFIG, PERIODIC_DEMO_CONFIG, PERIODIC_SMOKE_CONFIG
 from membrax.triaxial.analysis import element_summary
 
 SMOKE = os.environ.get("MEMBRAX_SMOKE") == "1"
 OUT = Path(tempfile.mkdtemp(prefix="membrax_08_"))
 if SMOKE:
-    CONFIG = membrax.TriaxialConfig(
-        name="periodic_smoke",
-        packing="random",
-        cell="periodic",
-        periodic_particles=64,
-        cell_pressure_kpa=40.0,
-        inertial_number=5e-3,
-        target_axial_strain=0.01,
-        fine_until_strain=0.005,
-        record_every_fine=50,
-        record_every_coarse=100,
-        consolidation_max_steps=3000,
-        chunk_steps=500,
-    )
+    CONFIG = membrax.TriaxialConfig(**PERIODIC_SMOKE_CONFIG)
 else:
     CONFIG = membrax.TriaxialConfig(**{**DEMO_RANDOM_CONFIG, **PERIODIC_DEMO_CONFIG})
 print(f"files in {OUT}")

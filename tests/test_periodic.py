@@ -329,23 +329,11 @@ def test_a_periodic_run_from_a_configuration_resumes_to_the_same_bits_and_sweeps
     cell, 40 kPa, I = 5e-3, to 1 %, float32): z shortens by the imposed log strain ε_a = 1 − exp(−ε̇ t) to
     round-off; a run interrupted after 4 chunks and resumed from its checkpoint writes the same records,
     to the bit, as one run straight through (the checkpoint holds the list's shape and the records)."""
-    from membrax.config import TriaxialConfig
+    from membrax.config import PERIODIC_SMOKE_CONFIG, TriaxialConfig
     from membrax.run import run_test
 
     config = TriaxialConfig(
-        name="periodic_resume",
-        packing="random",
-        cell="periodic",
-        periodic_particles=64,
-        cell_pressure_kpa=40.0,
-        inertial_number=5e-3,
-        target_axial_strain=0.01,
-        fine_until_strain=0.005,
-        record_every_fine=50,
-        record_every_coarse=100,
-        consolidation_max_steps=3000,
-        chunk_steps=500,
-        checkpoint_every_chunks=1,
+        **{**PERIODIC_SMOKE_CONFIG, "name": "periodic_resume", "checkpoint_every_chunks": 1}
     )
     straight = run_test(config, tmp_path / "straight", progress=False)
     with pytest.raises(KeyboardInterrupt):

@@ -11,26 +11,15 @@ checkpoint or results file, a damaged ``.npz``, or a checkpoint of another confi
 ``ValueError`` naming the path and the fix; a missing file raises ``FileNotFoundError``.
 """
 
+from membrax.io import results
 from membrax.io.checkpoint import load_checkpoint, read_checkpoint_host, save_checkpoint
-from membrax.io.results import (
-    dataset_attrs_to_python,
-    read_results,
-    records_to_dataset,
-    write_compressed_copy,
-    write_netcdf,
-    write_results,
-)
+from membrax.io.results import *  # noqa: F403  (re-exported: the names of results.__all__)
 from membrax.io.vtk import VTKSeries, read_pvd, write_membrane_vtk, write_particles_vtk
 
 __all__ = [
     "write_membrane_vtk",
     "write_particles_vtk",
-    "records_to_dataset",
-    "dataset_attrs_to_python",
-    "write_results",
-    "write_netcdf",
-    "read_results",
-    "write_compressed_copy",
+    *results.__all__,
     "VTKSeries",
     "read_pvd",
     "save_checkpoint",
