@@ -1,0 +1,373 @@
+"""Sphere–membrane contact on the mesh's faces, edges and vertices (the closest point of the mid-surface).
+
+Contract. :func:`feature_slots` turns the node–sphere candidate table (:mod:`membrax.membrane.candidates`)
+into candidate tables of the mesh's three kinds of feature: each triangle, each interior edge and each
+interior node against the spheres any of its nodes has as candidates. :func:`face_contact_energy` is the
+normal penalty energy of those contacts and :func:`face_contact_forces` the forces of one step (normal
+spring = −grad of the energy, Coulomb-capped tangential spring as an explicit force), on the nodes and on
+the spheres, with the carried springs. Pure functions of the kinematics and the tables: jittable,
+vmappable, the energy differentiable in positions, radii and thickness.
+
+Why. Node contact (:mod:`membrax.membrane.contact`) lets only the nodes meet the spheres, so a deeply
+indented sheet can pass between three nodes through the sphere behind them. Here a sphere meets the
+membrane's mid-surface wherever it is closest: the mesh is a surface, not a cloud of points.
+
+The law (Cundall & Strack 1979, linear, as the node law, with the contact point x_p on the mid-surface):
+
+- the closest point x_p of the sphere centre x_i on a feature: the foot of the perpendicular on a
+  triangle's plane, on an edge's line, or the node itself; the overlap δ = R_i + t_m/2 − |x_i − x_p|,
+  energy U = ½ k_n max(δ, 0)², force on the sphere k_n δ n, n = (x_i − x_p)/|x_i − x_p|;
+- the membrane's share of that force goes to the feature's nodes by the barycentric weights w_k of x_p
+  (face: the three area coordinates; edge: 1 − τ and τ; node: 1). This is −∂U/∂x_k exactly: the
+  distance from x_i to a plane (line) changes with a vertex's position as −w_k n (a rotation about the
+  foot point changes it to second order only), so the forces are conservative and sum to zero;
+- which feature: each feature counts only where the centre lies in its Voronoi region on the mesh, so a
+  sphere over a flat patch has exactly one contact (and a sphere that the sheet wraps has one per face
+  it touches). A face counts where the foot of the perpendicular lies inside the triangle (all w_k > 0);
+  an interior edge where 0 < τ < 1 and the centre lies beyond the edge as seen in both of its triangles
+  (the in-plane normal m_k of the edge in triangle k, pointing away from the opposite vertex:
+  (x_i − x_u)·m_k ≥ 0 for both); an interior node where, on every edge (v, w) it belongs to,
+  (x_i − x_v)·(x_w − x_v) ≤ 0. On the boundaries between regions the two distances are equal (the
+  foot of the perpendicular lies on the shared edge or node), so the energy is continuous; a centre on
+  a boundary belongs to one region only: a face's is open (w_k > β), an edge's is open at its ends
+  (β < τ < 1 − β) and closed toward its faces, a node's is closed (τ ≤ β along each of its edges), with a
+  band β of round-off's width (:func:`_tie_band`), so a sphere over a flat patch has exactly one contact,
+  over a face, an edge or a node, even at a lattice's symmetric places;
+- tangential: an incremental spring per (feature, candidate) slot, advanced by
+  :func:`membrax.spheres.contact.tangential_spring_update` with the slip velocity of x_p on the membrane
+  (Σ w_k v_k) relative to the sphere's material point under it (v_i + ω_i × b, b = x_p − x_i), capped at
+  μ F_n; the torque on the sphere is b × F_sphere (the node law's arm, so angular momentum is conserved).
+  A spring lives in its feature's slot: when the closest point moves to the next feature the spring
+  starts again from zero there (a tangential force drop of at most μ F_n at that step).
+
+Left out: the mesh's boundary edges and boundary nodes (the clamped end rings of a specimen's membrane,
+the sides of a flat sheet) have no edge or node contact; the triangles next to them have their face
+contact. Near a saddle-shaped node the regions of its edges and of the node itself may overlap or leave a
+sliver (the regions are exact for a convex or a concave patch).
+
+Layout: positions are rows (n, 3); per-slot quantities are component-first (3, F, M) (:mod:`membrax.vector`).
+SI units: m, s, N, N·m.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax.numpy as jnp
+
+from membrax import pytree
+from membrax.membrane.contact import ContactNodes, ContactSpheres, MembraneContactParams
+from membrax.membrane.mesh import MembraneMesh
+from membrax.spheres.contact import normal_energy, tangential_spring_update
+from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
+
+__all__ = [
+    "FEATURE_KINDS",
+    "FaceContactForces",
+    "FeatureSlots",
+    "face_contact_energy",
+    "face_contact_forces",
+    "feature_slots",
+    "closest_point_weights",
+    "interior_nodes",
+    "zero_springs",
+]
+
+#: The features a sphere meets, in the order of :class:`FeatureSlots` and of the springs.
+FEATURE_KINDS = ("face", "edge", "node")
+
+
+@pytree.dataclass
+class FeatureSlots:
+    """Candidate spheres of each feature (int ids padded with the sphere count N; distinct within a row).
+
+    Attributes:
+      face: (T, 3K) the spheres of a triangle's three nodes' candidate rows, repeats padded.
+      edge: (E, 2K) the spheres of an interior edge's two nodes' rows, repeats padded.
+      node: (n_nodes, K) the node's own row, padded where the node is on the mesh's boundary.
+    """
+
+    face: jnp.ndarray
+    edge: jnp.ndarray
+    node: jnp.ndarray
+
+
+class FaceContactForces(NamedTuple):
+    """Result of :func:`face_contact_forces`.
+
+    Attributes:
+      node_force: (n_nodes, 3) force on each node, N.
+      sphere_force: (N, 3) force on each sphere, N.
+      sphere_torque: (N, 3) torque on each sphere about its centre, N·m.
+      spring: tuple of the updated springs per feature kind (:data:`FEATURE_KINDS`), each (3, F, M), N
+        (force on the membrane).
+      normal_force: tuple of |F_n| per slot, (F, M) each, N (0 where not touching).
+    """
+
+    node_force: jnp.ndarray
+    sphere_force: jnp.ndarray
+    sphere_torque: jnp.ndarray
+    spring: tuple
+    normal_force: tuple
+
+
+# ----------------------------------------------------------------------------------------------- tables
+
+
+def _first_occurrences(ids, pad):
+    """``ids`` (F, M) with every repeat of an id within a row (after its first place) set to ``pad``."""
+    earlier = jnp.tril(jnp.ones((ids.shape[1], ids.shape[1]), dtype=bool), k=-1)  # [j, i]: i < j
+    repeat = jnp.any((ids[:, :, None] == ids[:, None, :]) & earlier[None], axis=-1)
+    return jnp.where(repeat | (ids >= pad), pad, ids)
+
+
+def _node_neighbours(mesh: MembraneMesh):
+    """Each node's neighbours along interior edges, (n_nodes, K_h) padded with n_nodes, and its mask."""
+    num_edges = mesh.edges.shape[0]
+    entry = mesh.hinge_incidence  # where the node stands in hinge_index: starts, ends, opposites
+    on_edge = entry < 2 * num_edges
+    safe = jnp.where(on_edge, entry, 0)
+    other_end = jnp.where(safe < num_edges, mesh.edges[safe % num_edges, 1], mesh.edges[safe % num_edges, 0])
+    return jnp.where(on_edge, other_end, mesh.num_nodes), on_edge
+
+
+def interior_nodes(mesh: MembraneMesh):
+    """(n_nodes,) bool: nodes off the mesh's boundary (as many interior edges as triangles around them)."""
+    _, on_edge = _node_neighbours(mesh)
+    triangles_around = jnp.sum(mesh.corner_incidence < 3 * mesh.num_triangles, axis=1)
+    return jnp.sum(on_edge, axis=1) == triangles_around
+
+
+def feature_slots(mesh: MembraneMesh, candidates, num_spheres: int) -> FeatureSlots:
+    """The features' candidate tables from the node–sphere table ``candidates`` (n_nodes, K), padded N.
+
+    A sphere the law could meet on a feature lies within reach of one of its nodes (the node table's
+    skin covers the mesh's edge length), so the union of the nodes' rows holds every such sphere.
+    """
+    face = candidates[mesh.triangles].reshape(mesh.num_triangles, -1)
+    edge = candidates[mesh.edges].reshape(mesh.edges.shape[0], -1)
+    node = jnp.where(interior_nodes(mesh)[:, None], candidates, num_spheres)
+    return FeatureSlots(
+        face=_first_occurrences(face, num_spheres),
+        edge=_first_occurrences(edge, num_spheres),
+        node=node,
+    )
+
+
+# -------------------------------------------------------------------------------------------- geometry
+
+
+def _rows(position, index):
+    """Component-first gather: (3, *index.shape) rows of ``position`` (n, 3)."""
+    return jnp.moveaxis(position[index], -1, 0)
+
+
+def closest_point_weights(kind: str, corners, centre, mesh_extras=None):
+    """Weights of the closest point on a feature and whether the centre lies in the feature's region.
+
+    Args:
+      kind: ``"face"``, ``"edge"`` or ``"node"``.
+      corners: the feature's node positions, component-first: face (a, b, c), edge (u, v, o₁, o₂) (the
+        opposite vertices of its two triangles), node (v,); each (3, F, 1), broadcasting against ``centre``.
+      centre: sphere centres (3, F, M).
+      mesh_extras: for ``"node"``, the neighbours' positions (3, F, 1, V) and their mask (F, 1, V).
+
+    Returns:
+      (weights, in_region): weights a tuple of (F, M) arrays, one per node of the feature (they sum to
+      1 and place the closest point x_p = Σ w_k x_k), and in_region (F, M) bool (module docstring).
+    """
+    band = _tie_band(centre.dtype)
+    if kind == "face":
+        a, b, c = corners
+        normal = cross(b - a, c - a)
+        twice_area = safe_norm(normal)
+        unit = scale(1.0 / jnp.where(twice_area > 0.0, twice_area, 1.0), normal)
+        foot = centre - scale(dot(centre - a, unit), unit)
+        inverse_area = 1.0 / jnp.where(twice_area > 0.0, twice_area, 1.0)
+        weight_a = dot(cross(c - b, foot - b), unit) * inverse_area
+        weight_b = dot(cross(a - c, foot - c), unit) * inverse_area
+        weight_c = 1.0 - weight_a - weight_b
+        inside = (weight_a > band) & (weight_b > band) & (weight_c > band) & (twice_area > 0.0)
+        return (weight_a, weight_b, weight_c), inside
+    if kind == "edge":
+        u, v, opposite_1, opposite_2 = corners
+        along = v - u
+        length_squared = dot(along, along)
+        safe_length_squared = jnp.where(length_squared > 0.0, length_squared, 1.0)
+        fraction = dot(centre - u, along) / safe_length_squared
+        in_region = (fraction > band) & (fraction < 1.0 - band) & (length_squared > 0.0)
+        for opposite in (opposite_1, opposite_2):
+            # The opposite vertex's area coordinate of the centre's foot: ≤ 0 beyond the edge.
+            inward = (opposite - u) - scale(dot(opposite - u, along) / safe_length_squared, along)
+            height_squared = dot(inward, inward)
+            coordinate = dot(centre - u, inward) / jnp.where(height_squared > 0.0, height_squared, 1.0)
+            in_region = in_region & (coordinate <= band)
+        return (1.0 - fraction, fraction), in_region
+    if kind == "node":
+        (vertex,) = corners
+        neighbours, mask = mesh_extras
+        spoke = neighbours - vertex[..., None]
+        spoke_squared = dot(spoke, spoke)
+        # The centre's place along each edge from the node, τ: the node's region where τ ≤ 0 on every one.
+        fraction = dot((centre - vertex)[..., None], spoke) / jnp.where(
+            spoke_squared > 0.0, spoke_squared, 1.0
+        )
+        in_region = jnp.all((fraction <= band) | ~mask, axis=-1)
+        return (jnp.ones_like(in_region, dtype=centre.dtype),), in_region
+    raise ValueError(f"kind must be one of {FEATURE_KINDS}, got {kind!r}")
+
+
+def _tie_band(dtype) -> float:
+    """The band, in the features' own coordinates (w_k, τ), within which a tie goes to the lower feature.
+
+    √ε of the dtype: 1.5e-8 in float64, 3.5e-4 in float32 (0.15 nm and 3.5 µm on a 10 mm mesh).
+
+    A centre exactly over an edge or a node (a lattice's symmetric places) has coordinates of 0 that the two
+    sides compute differently to round-off, which would give it two contacts or none; within the band it
+    has the edge's (or the node's) alone, whose distance differs from the face's by O(band²).
+    """
+    return math.sqrt(float(jnp.finfo(dtype).eps))
+
+
+def _feature_nodes(mesh: MembraneMesh, kind: str):
+    """The node ids (F, k) of each feature of ``kind`` whose positions :func:`closest_point_weights` takes."""
+    if kind == "face":
+        return mesh.triangles
+    if kind == "edge":
+        return jnp.concatenate([mesh.edges, mesh.edge_opposite], axis=1)
+    return jnp.arange(mesh.num_nodes)[:, None]
+
+
+def _slot_geometry(kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness):
+    """Per slot of ``kind``: the contact point, weights, node ids, branch, reach and validity."""
+    num_spheres = sphere_position.shape[0]
+    ids = getattr(slots, kind)
+    valid = ids < num_spheres
+    safe_ids = jnp.where(valid, ids, 0)
+    centre = _rows(sphere_position, safe_ids)  # (3, F, M)
+    nodes = _feature_nodes(mesh, kind)
+    corners = tuple(_rows(node_position, nodes[:, k])[:, :, None] for k in range(nodes.shape[1]))
+    extras = None
+    if kind == "node":
+        neighbours, mask = _node_neighbours(mesh)
+        padded = jnp.concatenate([node_position, jnp.zeros((1, 3), node_position.dtype)])
+        extras = (_rows(padded, neighbours)[:, :, None, :], mask[:, None, :])
+    weights, in_region = closest_point_weights(kind, corners, centre, extras)
+    contact_point = sum(scale(w, x) for w, x in zip(weights, corners, strict=False))
+    branch = contact_point - centre  # from the sphere centre to the membrane point (the node law's b)
+    reach = sphere_radius[safe_ids] + 0.5 * membrane_thickness
+    return weights, nodes[:, : len(weights)], branch, reach, valid & in_region, safe_ids
+
+
+def face_contact_energy(
+    node_position,
+    sphere_position,
+    sphere_radius,
+    mesh: MembraneMesh,
+    slots: FeatureSlots,
+    normal_stiffness,
+    membrane_thickness,
+):
+    """Normal penalty energy of the feature contacts, U = Σ ½ k_n max(δ, 0)², J (module docstring).
+
+    The regions are decided on the current positions and held fixed under differentiation (they are
+    piecewise constant), so −grad U is the normal force of :func:`face_contact_forces`.
+    """
+    total = 0.0
+    for kind in FEATURE_KINDS:
+        _, _, branch, reach, active, _ = _slot_geometry(
+            kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness
+        )
+        overlap = jnp.where(active, reach - safe_norm(branch), -1.0)
+        total = total + jnp.sum(normal_energy(overlap, normal_stiffness))
+    return total
+
+
+# --------------------------------------------------------------------------------------------- the law
+
+
+def face_contact_forces(
+    nodes: ContactNodes,
+    spheres: ContactSpheres,
+    mesh: MembraneMesh,
+    slots: FeatureSlots,
+    springs,
+    dt,
+    params: MembraneContactParams,
+    membrane_thickness,
+) -> FaceContactForces:
+    """Feature contact forces, torques and springs for one step (law in the module docstring).
+
+    F_membrane = k_n δ n_m + s',  n_m = b/|b| (from the sphere centre to x_p),  F_sphere = −F_membrane,
+    τ_sphere = b × F_sphere, node k of the feature gets w_k F_membrane;
+    s' = tangential_spring_update(s, n_m, Π_t[Σ w_k v_k − v_i − ω_i × b], Δt, k_t, μ, k_n δ, δ > 0).
+
+    Args:
+      nodes: positions and velocities of the nodes (:class:`~membrax.membrane.contact.ContactNodes`).
+      spheres: the spheres (:class:`~membrax.membrane.contact.ContactSpheres`).
+      mesh: the membrane.
+      slots: :func:`feature_slots`.
+      springs: the carried springs, a tuple (3, F, M) per kind of :data:`FEATURE_KINDS`.
+      dt: time step, s.
+      params: k_n, k_t and μ (:class:`~membrax.membrane.contact.MembraneContactParams`).
+      membrane_thickness: t_m, m.
+
+    Returns:
+      A :class:`FaceContactForces`.
+    """
+    num_nodes, num_spheres = nodes.position.shape[0], spheres.position.shape[0]
+    dtype = nodes.position.dtype
+    node_force = jnp.zeros((num_nodes + 1, 3), dtype)
+    sphere_force = jnp.zeros((num_spheres + 1, 3), dtype)
+    sphere_torque = jnp.zeros((num_spheres + 1, 3), dtype)
+    new_springs, normal_forces = [], []
+    for kind, spring in zip(FEATURE_KINDS, springs, strict=True):
+        weights, feature_nodes, branch, reach, active_slot, safe_ids = _slot_geometry(
+            kind, nodes.position, spheres.position, spheres.radius, mesh, slots, membrane_thickness
+        )
+        normal, distance = safe_normalize(branch)
+        overlap = jnp.where(active_slot, reach - distance, -1.0)
+        touching = (overlap > 0.0) & (distance > 0.0)
+        normal_force = jnp.where(touching, params.normal_stiffness * overlap, 0.0)
+        membrane_velocity = sum(
+            scale(w, _rows(nodes.velocity, feature_nodes[:, k])[:, :, None]) for k, w in enumerate(weights)
+        )
+        sphere_velocity = _rows(spheres.velocity, safe_ids) + cross(
+            _rows(spheres.angular_velocity, safe_ids), branch
+        )
+        relative = membrane_velocity - sphere_velocity
+        tangential = relative - scale(dot(relative, normal), normal)
+        spring = tangential_spring_update(
+            spring,
+            normal,
+            tangential,
+            dt,
+            params.tangential_stiffness,
+            params.friction_coefficient,
+            normal_force,
+            touching,
+        )
+        on_membrane = select(touching, scale(normal_force, normal) + spring)  # (3, F, M)
+        rows = jnp.moveaxis(on_membrane, 0, -1)  # (F, M, 3)
+        sphere_index = jnp.where(touching, safe_ids, num_spheres).reshape(-1)
+        sphere_force = sphere_force.at[sphere_index].add(-rows.reshape(-1, 3))
+        torque = jnp.moveaxis(cross(branch, -on_membrane), 0, -1)
+        sphere_torque = sphere_torque.at[sphere_index].add(torque.reshape(-1, 3))
+        for k, w in enumerate(weights):
+            share = jnp.sum(rows * w[..., None], axis=1)  # (F, 3)
+            node_force = node_force.at[feature_nodes[:, k]].add(share)
+        new_springs.append(spring)
+        normal_forces.append(normal_force)
+    return FaceContactForces(
+        node_force=node_force[:num_nodes],
+        sphere_force=sphere_force[:num_spheres],
+        sphere_torque=sphere_torque[:num_spheres],
+        spring=tuple(new_springs),
+        normal_force=tuple(normal_forces),
+    )
+
+
+def zero_springs(slots: FeatureSlots, dtype):
+    """Springs of no contact for ``slots``: a (3, F, M) zero array per kind of :data:`FEATURE_KINDS`."""
+    return tuple(jnp.zeros((3, *getattr(slots, kind).shape), dtype) for kind in FEATURE_KINDS)

@@ -1,0 +1,247 @@
+"""Sphere–membrane contact on faces, edges and nodes (membrax.membrane.face_contact) against hand values,
+the energy's gradient, finite differences and the conservation laws."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from membrax.membrane import face_contact
+from membrax.membrane.contact import (
+    ContactNodes,
+    ContactSpheres,
+    MembraneContactParams,
+    node_sphere_normal_energy,
+)
+from membrax.membrane.mesh import flat_mesh
+
+RADIUS = 0.0125  # m, a 25 mm sphere
+THICKNESS = 0.002  # m
+REACH = RADIUS + 0.5 * THICKNESS
+STIFFNESS = 1e5  # N/m
+DEPTH = 1e-4  # m, the overlap δ the hand cases press to
+
+
+def _sheet(dtype=jnp.float64):
+    """A flat 60 × 60 mm sheet of 10 mm triangles in z = 0 (normal +z)."""
+    return flat_mesh(0.06, 0.06, 0.01, dtype=dtype)
+
+
+def _one_sphere_slots(mesh):
+    """Every node lists sphere 0 as its one candidate."""
+    return face_contact.feature_slots(mesh, jnp.zeros((mesh.num_nodes, 1), jnp.int32), 1)
+
+
+def _interior_triangle(mesh):
+    interior = np.asarray(face_contact.interior_nodes(mesh))
+    triangles = np.asarray(mesh.triangles)
+    middle = np.asarray(mesh.reference_position).mean(axis=0)
+    candidates = [t for t in range(len(triangles)) if interior[triangles[t]].all()]
+    centroids = np.asarray(mesh.reference_position)[triangles[candidates]].mean(axis=1)
+    return candidates[int(np.argmin(np.linalg.norm(centroids - middle, axis=1)))]
+
+
+def _forces(mesh, node_position, sphere_centre, node_velocity=None, sphere_velocity=None, springs=None):
+    dtype = node_position.dtype
+    slots = _one_sphere_slots(mesh)
+    nodes = ContactNodes(
+        position=node_position,
+        velocity=jnp.zeros_like(node_position) if node_velocity is None else node_velocity,
+    )
+    spheres = ContactSpheres(
+        position=sphere_centre[None],
+        velocity=jnp.zeros((1, 3), dtype) if sphere_velocity is None else sphere_velocity,
+        angular_velocity=jnp.zeros((1, 3), dtype),
+        radius=jnp.full((1,), RADIUS, dtype),
+    )
+    springs = face_contact.zero_springs(slots, dtype) if springs is None else springs
+    params = MembraneContactParams.default(normal_stiffness=STIFFNESS)
+    params = jax.tree_util.tree_map(lambda x: jnp.asarray(x, dtype), params)
+    return (
+        face_contact.face_contact_forces(
+            nodes,
+            spheres,
+            mesh,
+            slots,
+            springs,
+            jnp.asarray(1e-5, dtype),
+            params,
+            jnp.asarray(THICKNESS, dtype),
+        ),
+        slots,
+    )
+
+
+def _active(result):
+    return {
+        kind: int(jnp.sum(force > 0.0))
+        for kind, force in zip(face_contact.FEATURE_KINDS, result.normal_force, strict=True)
+    }
+
+
+@pytest.mark.parametrize("feature", ["face", "edge", "node"])
+def test_a_sphere_pressed_on_a_face_an_edge_or_a_node_gets_k_delta_once(feature, precision):
+    """A sphere under a triangle's centroid, an edge's midpoint or a node, δ = 0.1 mm: one contact of that
+    feature, k δ = 10 N on the sphere along −z, the nodes' shares by hand (⅓ each, ½ each, all) summing to
+    its opposite. At the centroid no node is within reach (node contact misses the sphere)."""
+    mesh = _sheet(precision)
+    position = mesh.reference_position
+    triangle = np.asarray(mesh.triangles)[_interior_triangle(mesh)]
+    corners = np.asarray(position)[triangle]
+    point, share = {
+        "face": (corners.mean(axis=0), dict(zip(triangle, [1 / 3] * 3, strict=True))),
+        "edge": (corners[:2].mean(axis=0), dict(zip(triangle[:2], [0.5, 0.5], strict=True))),
+        "node": (corners[0], {triangle[0]: 1.0}),
+    }[feature]
+    centre = jnp.asarray(point - np.array([0.0, 0.0, REACH - DEPTH]), precision)
+    result, _ = _forces(mesh, position, centre)
+    expected = {kind: int(kind == feature) for kind in face_contact.FEATURE_KINDS}
+    assert _active(result) == expected
+    force = STIFFNESS * DEPTH
+    rtol = 1e-9 if precision == jnp.float64 else 2e-3  # δ/reach = 7e-3: float32 keeps 4 digits of δ
+    np.testing.assert_allclose(result.sphere_force[0], [0.0, 0.0, -force], rtol=rtol, atol=rtol * force)
+    expected_nodes = np.zeros((mesh.num_nodes, 3))
+    for node, weight in share.items():
+        expected_nodes[node, 2] = weight * force
+    np.testing.assert_allclose(result.node_force, expected_nodes, rtol=rtol, atol=rtol * force)
+    np.testing.assert_allclose(jnp.sum(result.node_force, axis=0), -result.sphere_force[0], atol=1e-6 * force)
+    if feature == "face":
+        missed = node_sphere_normal_energy(
+            position,
+            centre[None],
+            jnp.full((1,), RADIUS, precision),
+            jnp.zeros((mesh.num_nodes, 1), jnp.int32),
+            STIFFNESS,
+            THICKNESS,
+        )
+        assert float(missed) == 0.0
+
+
+def test_under_a_flat_sheet_every_point_has_exactly_one_contact():
+    """A sphere slid under a flat sheet at a constant depth meets it once everywhere (no double count where
+    regions meet, no gap): the energy is ½ k δ² at every point of a fine grid over the interior."""
+    mesh = _sheet()
+    slots = _one_sphere_slots(mesh)
+    xs = np.linspace(0.02, 0.04, 41)
+    grid = np.array([[x, y, -(REACH - DEPTH)] for x in xs for y in xs])
+
+    def energy(centre):
+        return face_contact.face_contact_energy(
+            mesh.reference_position, centre[None], jnp.full((1,), RADIUS), mesh, slots, STIFFNESS, THICKNESS
+        )
+
+    energies = np.asarray(jax.vmap(energy)(jnp.asarray(grid)))
+    np.testing.assert_allclose(energies, 0.5 * STIFFNESS * DEPTH**2, rtol=1e-9)
+
+
+def _wrinkled(mesh, amplitude=0.003, seed=0):
+    position = np.asarray(mesh.reference_position).copy()
+    rng = np.random.default_rng(seed)
+    position[:, 2] += amplitude * rng.standard_normal(len(position))
+    return jnp.asarray(position)
+
+
+def _under(position, x, y, depth=0.001):
+    """A sphere centre under (x, y), pressed ``depth`` into the sheet at its nearest node's height."""
+    nearest = int(np.argmin(np.sum((np.asarray(position)[:, :2] - np.array([x, y])) ** 2, axis=1)))
+    return jnp.asarray([x, y, float(position[nearest, 2]) - REACH + depth])
+
+
+def test_the_normal_forces_are_minus_the_gradient_of_the_energy_and_it_matches_differences():
+    """On a wrinkled sheet (nodes moved ±3 mm out of plane) with the sphere at several places: the law's
+    forces (no slip velocity, so no friction) equal −∂U/∂x of face_contact_energy for nodes and sphere, and
+    ∂U/∂x matches central differences."""
+    mesh = _sheet()
+    position = _wrinkled(mesh)
+    slots = _one_sphere_slots(mesh)
+    radius = jnp.full((1,), RADIUS)
+
+    def energy(node_position, sphere_position):
+        return face_contact.face_contact_energy(
+            node_position, sphere_position, radius, mesh, slots, STIFFNESS, THICKNESS
+        )
+
+    checked = 0
+    for x, y in [(0.03, 0.03), (0.027, 0.034), (0.033, 0.026), (0.025, 0.031)]:
+        centre = _under(position, x, y)
+        result, _ = _forces(mesh, position, centre)
+        if float(energy(position, centre[None])) == 0.0:
+            continue
+        checked += 1
+        node_grad, sphere_grad = jax.grad(energy, argnums=(0, 1))(position, centre[None])
+        scale_n = float(jnp.max(jnp.abs(result.node_force)))
+        np.testing.assert_allclose(result.node_force, -node_grad, atol=1e-9 * scale_n)
+        np.testing.assert_allclose(result.sphere_force, -sphere_grad, atol=1e-9 * scale_n)
+        step = 1e-8
+        for axis in range(3):
+            shift = jnp.zeros((1, 3)).at[0, axis].set(step)
+            difference = (energy(position, centre[None] + shift) - energy(position, centre[None] - shift)) / (
+                2 * step
+            )
+            np.testing.assert_allclose(
+                float(difference), float(sphere_grad[0, axis]), rtol=1e-5, atol=1e-6 * scale_n
+            )
+    assert checked >= 3
+
+
+def test_momentum_and_angular_momentum_are_conserved_with_friction():
+    """With slip (the sphere sliding and spinning under a wrinkled sheet, springs carried three steps):
+    Σ F = 0 and Σ x × F + Σ τ = 0 over nodes and sphere, to round-off."""
+    mesh = _sheet()
+    position = _wrinkled(mesh, seed=1)
+    centre = _under(position, 0.03, 0.03)
+    velocity = jnp.asarray([[0.02, -0.01, 0.0]])
+    springs = None
+    for _ in range(3):
+        result, _ = _forces(mesh, position, centre, sphere_velocity=velocity, springs=springs)
+        springs = result.spring
+    assert any(float(jnp.max(jnp.abs(s))) > 0.0 for s in result.spring)
+    total = jnp.sum(result.node_force, axis=0) + result.sphere_force[0]
+    moment = (
+        jnp.sum(jnp.cross(position, result.node_force), axis=0)
+        + jnp.cross(centre, result.sphere_force[0])
+        + result.sphere_torque[0]
+    )
+    scale_f = float(jnp.max(jnp.abs(result.sphere_force)))
+    np.testing.assert_allclose(total, 0.0, atol=1e-12 * scale_f)
+    np.testing.assert_allclose(moment, 0.0, atol=1e-12 * scale_f * 0.06)
+
+
+def test_the_law_jits_vmaps_and_differentiates_in_the_stiffness():
+    """Under jit and vmap over k_n the sphere's force is k_n δ for each; ∂U/∂k_n = ½ δ² (U linear in k_n)."""
+    mesh = _sheet()
+    slots = _one_sphere_slots(mesh)
+    triangle = np.asarray(mesh.triangles)[_interior_triangle(mesh)]
+    centre = np.asarray(mesh.reference_position)[triangle].mean(axis=0) - np.array([0, 0, REACH - DEPTH])
+
+    @jax.jit
+    def energy(stiffness):
+        return face_contact.face_contact_energy(
+            mesh.reference_position,
+            jnp.asarray(centre)[None],
+            jnp.full((1,), RADIUS),
+            mesh,
+            slots,
+            stiffness,
+            THICKNESS,
+        )
+
+    stiffnesses = jnp.asarray([1e4, 1e5, 1e6])
+    np.testing.assert_allclose(jax.vmap(energy)(stiffnesses), 0.5 * stiffnesses * DEPTH**2, rtol=1e-9)
+    np.testing.assert_allclose(jax.grad(energy)(1e5), 0.5 * DEPTH**2, rtol=1e-9)
+
+
+def test_feature_slots_hold_each_sphere_once_per_feature():
+    """Candidate rows [0, 1] and [1, 2] on a triangle's nodes give the triangle spheres {0, 1, 2} once each;
+    boundary nodes have no node slots."""
+    mesh = _sheet()
+    candidates = np.full((mesh.num_nodes, 2), 3, dtype=np.int32)
+    triangle = np.asarray(mesh.triangles)[_interior_triangle(mesh)]
+    candidates[triangle[0]] = [0, 1]
+    candidates[triangle[1]] = [1, 2]
+    slots = face_contact.feature_slots(mesh, jnp.asarray(candidates), 3)
+    row = np.asarray(slots.face)[_interior_triangle(mesh)]
+    assert sorted(row[row < 3].tolist()) == [0, 1, 2]
+    interior = np.asarray(face_contact.interior_nodes(mesh))
+    assert 0 < interior.sum() < mesh.num_nodes
+    assert np.all(np.asarray(slots.node)[~interior] == 3)
