@@ -60,6 +60,7 @@ LAYERS = (
         "membrane.energies",
         "membrane._kernels",
         "membrane.contact",
+        "membrane.face_contact",
     ),
     # step
     ("spheres.integrate", "membrane.node_update", "membrane.coupled", "membrane.indentation"),
