@@ -137,6 +137,7 @@ def build_test(
         time_step=time_step,
         nodes_around=nodes_around,
         contact_offset_factor=config.membrane_contact_offset_factor,
+        contact_model=config.membrane_contact_model,
     )
 
 

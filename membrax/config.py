@@ -337,6 +337,7 @@ _SPECS: dict[str, _Spec] = {
         upper_open=False,
         hint="0: nodes touch the sphere surface (the paper); 1: the membrane's inner face does",
     ),
+    "membrane_contact_model": _Spec(str, choices=defaults.MEMBRANE_CONTACT_MODELS),
     "imperfection_fraction": _Spec(
         float,
         "(fraction of the particle diameter)",
@@ -428,6 +429,10 @@ class TriaxialConfig:
         t_m/2 outside the sphere surface, in [0, 1]: 0 the sphere surface (the paper's nodes "lie on the
         surface of the respective particle"), 1 the membrane's inner face touches it (nodes on the
         mid-surface, t_m/2 off). Default 1.
+      membrane_contact_model (str): where the spheres meet the membrane: "nodes" (its nodes, the
+        paper's) or "faces" (its faces, edges and nodes: the closest point of its mid-surface, so a
+        deeply indented sheet cannot pass between its nodes through a sphere; runs in JAX, not the CPU
+        kernels). Default "nodes".
       imperfection_fraction (float): seeded imperfection, the largest radius reduction as a fraction of
         the particle diameter, in [0, 0.01]; each sphere's radius is reduced by a uniform random fraction
         of it (the lattice's centres stay). Default 0 (a perfect lattice).
@@ -503,6 +508,7 @@ class TriaxialConfig:
     shear_ramp_strain: float = defaults.SHEAR_RAMP_STRAIN
     symmetric_loading: bool = True
     membrane_contact_offset_factor: float = 1.0
+    membrane_contact_model: str = "nodes"
     imperfection_fraction: float = 0.0
     imperfection_seed: int = 0
     packing: str = "fcc"

@@ -19,6 +19,7 @@ __all__ = [
     "FRICTION_ANGLE_DEG",
     "LATEX_POISSON_RATIO",
     "LAYERS",
+    "MEMBRANE_CONTACT_MODELS",
     "MEMBRANE_MODULUS",
     "PARTICLES_ACROSS",
     "PARTICLE_DIAMETER",
@@ -43,6 +44,10 @@ LATEX_POISSON_RATIO = 0.5
 #: The membrane's stretching laws (:func:`membrax.membrane.energies.stretching_energy`), in the order the
 #: compiled kernel numbers them (``membrane_forces.cc``).
 STRETCHING_MODELS = ("neo_hookean", "svk")
+#: Where the spheres meet the membrane (:func:`membrax.membrane.coupled.membrane_dem`): its nodes (the
+#: paper's "node–particle contact", the default) or its faces, edges and nodes
+#: (:mod:`membrax.membrane.face_contact`).
+MEMBRANE_CONTACT_MODELS = ("nodes", "faces")
 
 #: Axial strain at which the platens reach full speed after a linear ramp from rest
 #: (:meth:`membrax.triaxial.membrane_cell.MembraneTest.start_shear`; YADE's

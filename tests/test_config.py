@@ -136,6 +136,7 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         grading=((9.5, 0.0), (12.5, 37.5), (19.0, 100.0)),
         compaction_friction_deg=26.5,
         damping_frame="absolute",
+        membrane_contact_model="faces",
     )
     text = dump_config_toml(cfg, table=table)
     assert text.count("[triaxial]") == int(table)
@@ -156,7 +157,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 42
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 43
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 
@@ -541,3 +542,13 @@ def test_the_shipped_configuration_files_are_the_presets_they_name():
     for name, config in expected.items():
         assert load_config(folder / name) == config, name
     assert expected["paper.toml"].particles_across == 10 and expected["paper.toml"].layers == 25  # Table 1
+
+
+def test_the_membrane_contact_model_is_one_of_the_two_and_a_typo_names_the_field():
+    """membrane_contact_model: "nodes" (default) or "faces"; anything else is refused with the choices."""
+    from membrax.defaults import MEMBRANE_CONTACT_MODELS
+
+    assert TriaxialConfig().membrane_contact_model == "nodes" == MEMBRANE_CONTACT_MODELS[0]
+    assert TriaxialConfig(membrane_contact_model="faces").membrane_contact_model == "faces"
+    with pytest.raises(ValueError, match=r"membrane_contact_model must be one of 'nodes', 'faces'"):
+        TriaxialConfig(membrane_contact_model="triangles")

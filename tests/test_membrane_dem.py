@@ -124,8 +124,12 @@ def test_gradient_and_vmap_of_coupled_steps_match_finite_differences_and_a_loop(
 
 
 @pytest.mark.slow
-def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_membrane():
-    """A 4 × 4 × 5-layer FCC specimen in a 5 mm membrane, consolidated at 10 kPa (f64).
+@pytest.mark.parametrize(("contact_model", "edges_per_diameter"), [("nodes", 5.0), ("faces", 3.0)])
+def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_membrane(
+    contact_model, edges_per_diameter
+):
+    """A 4 × 4 × 5-layer FCC specimen in a 5 mm membrane, consolidated at 10 kPa (f64), the spheres meeting
+    the membrane's nodes (mesh edge D/5) or its faces, edges and nodes (edge D/3, cheaper in JAX).
 
     - Newton's third law and rest: the membrane's reactions on both platens plus its forces on the spheres
       sum to zero (the cell pressure sums to zero over the closed surface, the clamps and the spheres hold
@@ -138,7 +142,14 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
       grows it on the overflow bit and reruns, so the final table holds every node's candidates.
     """
     specimen = fcc.fcc_specimen(0.025, 4, 5)
-    test = membrane_test(specimen, cell_pressure=1e4, membrane_thickness=5e-3, candidate_capacity=1)
+    test = membrane_test(
+        specimen,
+        cell_pressure=1e4,
+        membrane_thickness=5e-3,
+        candidate_capacity=1,
+        contact_model=contact_model,
+        edges_per_diameter=edges_per_diameter,
+    )
     state, records = test.consolidate(max_steps=3000, chunk_steps=1000, record_every=100, tolerance=0.01)
     assert int(state.error) == 0
     candidates = state.membrane.candidates

@@ -131,6 +131,9 @@ class NodeCandidates:
       max_sphere_count: int32, the largest number of slots of one sphere at the last build.
       max_cell_count: int32, the largest number of spheres in one cell at the last build.
       grid: the cell list's :class:`CellGrid` (static).
+      extra_reach: m (static, default 0): sphere i is a candidate of a node within R_i + t_m/2 +
+        ``extra_reach`` + skin, so that a table for contacts anywhere on the node's triangles
+        (:mod:`membrax.membrane.face_contact`) holds every sphere within reach of any point of them.
     """
 
     idx: jnp.ndarray
@@ -143,6 +146,7 @@ class NodeCandidates:
     max_sphere_count: jnp.ndarray
     max_cell_count: jnp.ndarray
     grid: CellGrid = pytree.static_field()
+    extra_reach: float = pytree.static_field(default=0.0)
 
     @property
     def capacity(self) -> int:
@@ -185,9 +189,16 @@ def _cell_table(grid: CellGrid, sphere_position):
 
 
 def _select_candidates(
-    node_position, sphere_position, sphere_radius, grid: CellGrid, membrane_thickness, skin, capacity: int
+    node_position,
+    sphere_position,
+    sphere_radius,
+    grid: CellGrid,
+    membrane_thickness,
+    skin,
+    capacity: int,
+    extra_reach: float = 0.0,
 ):
-    """Per node the K smallest sphere ids within R + t_m/2 + skin, from the 27 cells around it.
+    """Per node the K smallest sphere ids within R + t_m/2 (+ extra_reach) + skin, from the 27 cells around.
 
     Returns (idx, max_count, max_cell_count).
     """
@@ -202,6 +213,8 @@ def _select_candidates(
     valid = ids < num_spheres
     safe = jnp.where(valid, ids, 0)
     reach = sphere_radius[safe] + 0.5 * membrane_thickness + skin
+    if extra_reach:  # static: a node table's arithmetic stays as it was
+        reach = reach + extra_reach
     squared = jnp.zeros(ids.shape, dtype=node_position.dtype)
     for axis in range(3):  # written out: no reduction over a size-3 axis
         difference = node_position[:, axis][:, None] - sphere_position[:, axis][safe]
@@ -248,11 +261,19 @@ def sphere_slot_table(idx, num_spheres: int, sphere_capacity: int):
 
 
 def _build(
-    node_position, sphere_position, sphere_radius, grid, membrane_thickness, skin, capacity, sphere_capacity
+    node_position,
+    sphere_position,
+    sphere_radius,
+    grid,
+    membrane_thickness,
+    skin,
+    capacity,
+    sphere_capacity,
+    extra_reach: float = 0.0,
 ):
     """A fresh table's fields (everything but the sticky overflow flag, which the callers combine)."""
     idx, max_count, max_cell_count = _select_candidates(
-        node_position, sphere_position, sphere_radius, grid, membrane_thickness, skin, capacity
+        node_position, sphere_position, sphere_radius, grid, membrane_thickness, skin, capacity, extra_reach
     )
     slots, max_sphere_count = sphere_slot_table(idx, sphere_position.shape[0], sphere_capacity)
     overflow = (
@@ -269,6 +290,7 @@ def _build(
         max_sphere_count=max_sphere_count,
         max_cell_count=max_cell_count,
         grid=grid,
+        extra_reach=extra_reach,
     )
 
 
@@ -281,8 +303,9 @@ def build_candidates(
     capacity: int,
     sphere_capacity: int = 64,
     grid: CellGrid | None = None,
+    extra_reach: float = 0.0,
 ) -> NodeCandidates:
-    """Build the dense candidate table (jittable with the capacities and ``grid`` static).
+    """Build the dense candidate table (jittable with the capacities, ``grid`` and ``extra_reach`` static).
 
     Args:
       node_position: (n_nodes, 3), m.
@@ -293,8 +316,9 @@ def build_candidates(
       capacity: K, candidates per node (static). Must not exceed N.
       sphere_capacity: M, slots per sphere in the incidence table (static). A 25 mm sphere behind a mesh of
         5 mm edges with a 5 mm skin holds about 25–50 slots.
-      grid: the cell list's grid (default :func:`cell_grid` of the spheres and ``skin``: concrete
-        positions and skin are then needed, i.e. not under ``jit``).
+      grid: the cell list's grid (default :func:`cell_grid` of the spheres and ``skin`` + ``extra_reach``:
+        concrete positions and skin are then needed, i.e. not under ``jit``).
+      extra_reach: m, added to every sphere's reach (:class:`NodeCandidates`); a Python float.
 
     Returns:
       A :class:`NodeCandidates`; ``did_overflow`` is set if some node had more than K candidates, some
@@ -303,8 +327,9 @@ def build_candidates(
     num_spheres = sphere_position.shape[0]
     if capacity > num_spheres:
         raise ValueError(f"capacity {capacity} exceeds the {num_spheres} spheres.")
+    extra_reach = float(extra_reach)
     if grid is None:
-        grid = cell_grid(sphere_position, sphere_radius, skin)
+        grid = cell_grid(sphere_position, sphere_radius, float(skin) + extra_reach)
     if not any(isinstance(x, jax.core.Tracer) for x in (membrane_thickness, sphere_radius)):
         largest = float(np.max(np.asarray(sphere_radius)))
         if float(np.max(np.asarray(membrane_thickness))) > 2.0 * largest:
@@ -315,7 +340,7 @@ def build_candidates(
             )
     skin = jnp.asarray(skin, dtype=node_position.dtype)
     arrays = (node_position, sphere_position, sphere_radius)
-    return _build(*arrays, grid, membrane_thickness, skin, capacity, sphere_capacity)
+    return _build(*arrays, grid, membrane_thickness, skin, capacity, sphere_capacity, extra_reach)
 
 
 def _max_displacement(position, reference):
@@ -422,6 +447,7 @@ def update_candidates(
             candidates.skin,
             candidates.capacity,
             candidates.sphere_capacity,
+            candidates.extra_reach,
         )
         new = new.set(did_overflow=candidates.did_overflow | new.did_overflow)
         return new, remap_node_history(candidates.idx, new.idx, spring, num_spheres, components_first=True)

@@ -14,7 +14,11 @@ jax-md style, composed from :func:`membrax.spheres.integrate.sphere_dem` and the
 One step (explicit central differences, as the DEM; velocities at half steps):
 
 1. node–sphere contacts at (y_n, x_n) with the velocities of the previous half step
-   (:func:`membrax.membrane.contact.node_sphere_forces`);
+   (:func:`membrax.membrane.contact.node_sphere_forces`), or with ``contact_model="faces"`` the
+   contacts of the spheres with the mesh's faces, edges and nodes
+   (:func:`membrax.membrane.face_contact.face_contact_forces`: the mesh cannot pass between its nodes
+   through a sphere; JAX only, so steps 1, 2 and 4 run as written rather than in the CPU kernels; the
+   node table then reaches one rest edge further, :func:`membrax.membrane.face_contact.longest_edge`);
 2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.energies.nodal_forces`);
 3. the DEM step with the contacts' reactions added to the spheres (forces and torques);
 4. free nodes (:mod:`membrax.membrane.node_update`): damped leapfrog with the lumped masses (area × t_m
@@ -69,7 +73,7 @@ import numpy as np
 import scipy.sparse.linalg
 
 from membrax import native, pytree
-from membrax.defaults import MEMBRANE_MODULUS
+from membrax.defaults import MEMBRANE_CONTACT_MODELS, MEMBRANE_MODULUS
 from membrax.errors import not_finite_bit
 from membrax.membrane import energies
 from membrax.membrane.candidates import (
@@ -85,6 +89,15 @@ from membrax.membrane.contact import (
     MembraneContactParams,
     node_sphere_forces,
 )
+from membrax.membrane.face_contact import (
+    FeatureContactState,
+    carry_springs,
+    face_contact_forces,
+    feature_slots,
+    longest_edge,
+    widen,
+    zero_springs,
+)
 from membrax.membrane.mesh import MembraneMesh, free_node_mask
 from membrax.membrane.node_update import MembraneNodes, advance_nodes, node_step
 from membrax.spheres.integrate import DEMParams, DEMState, Particles, sphere_dem
@@ -92,8 +105,12 @@ from membrax.spheres.neighbors import PairNeighborFn
 from membrax.spheres.walls import BOTTOM, TOP, affine_velocity
 from membrax.validation import check_range
 
+#: The membrane–sphere contact models of :func:`membrane_dem` (``membrax.defaults.MEMBRANE_CONTACT_MODELS``).
+CONTACT_MODELS = MEMBRANE_CONTACT_MODELS
+
 __all__ = [
     "LATEX_DENSITY",
+    "CONTACT_MODELS",
     "CandidateCapacities",
     "candidate_capacities",
     "CoupledParams",
@@ -210,6 +227,8 @@ class MembraneState:
         docstring), N: the membrane's own pull plus the sphere contacts on the ring nodes.
       ring_contact_force: (2, 3) force of the spheres on the bottom and top ring nodes, N; the platens
         take it through the clamp, so it counts as force the spheres receive from the platens.
+      feature_contact: with ``contact_model="faces"``, the feature contacts' slots and springs
+        (:class:`~membrax.membrane.face_contact.FeatureContactState`; ``spring`` then stays zero); else None.
     """
 
     position: jnp.ndarray
@@ -223,6 +242,7 @@ class MembraneState:
     sphere_force: jnp.ndarray
     platen_reaction: jnp.ndarray
     ring_contact_force: jnp.ndarray
+    feature_contact: FeatureContactState | None = None
 
 
 @pytree.dataclass
@@ -309,12 +329,29 @@ def _contact_spheres(spheres: DEMState, particles: Particles) -> ContactSpheres:
     )
 
 
-def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt):
-    """The node–sphere contacts of a coupled state at its positions (step 1 of the module docstring).
+def contact_forces(state: CoupledState, particles: Particles, params: CoupledParams, dt, mesh=None):
+    """The membrane–sphere contacts of a coupled state at its positions (step 1 of the module docstring).
 
-    Returns the :class:`~membrax.membrane.contact.NodeSphereForces` (the springs advanced by one step).
+    Returns the :class:`~membrax.membrane.contact.NodeSphereForces` (the springs advanced by one step),
+    or for a state with feature contacts (``contact_model="faces"``; ``mesh`` needed) the
+    :class:`~membrax.membrane.face_contact.FaceContactForces` on the slots the node table gives now, the
+    carried springs moved onto them.
     """
     nodes = state.membrane
+    if nodes.feature_contact is not None:
+        if mesh is None:
+            raise ValueError("contact_forces: a state with feature contacts needs the mesh (mesh=...).")
+        slots = feature_slots(mesh, nodes.candidates.idx, particles.num_particles)
+        return face_contact_forces(
+            ContactNodes(position=nodes.position, velocity=nodes.velocity),
+            _contact_spheres(state.dem, particles),
+            mesh,
+            slots,
+            carry_springs(nodes.feature_contact, slots, particles.num_particles),
+            dt,
+            params.membrane.contact,
+            params.membrane.contact_thickness,
+        )
     return node_sphere_forces(
         ContactNodes(position=nodes.position, velocity=nodes.velocity),
         _contact_spheres(state.dem, particles),
@@ -336,6 +373,7 @@ def membrane_dem(
     latex_density: float = LATEX_DENSITY,
     stretching_model: str = "neo_hookean",
     wall_friction: bool = False,
+    contact_model: str = "nodes",
 ) -> tuple[Callable, Callable]:
     """The coupled DEM + membrane simulation as ``(init_fn, step_fn)`` (see the module docstring).
 
@@ -348,7 +386,12 @@ def membrane_dem(
       latex_density: ρ of the membrane, kg/m³, for the lumped node masses.
       stretching_model: ``"neo_hookean"`` or ``"svk"`` (:func:`membrax.membrane.energies.stretching_energy`).
       wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
+      contact_model: ``"nodes"`` (the spheres meet the mesh's nodes) or ``"faces"`` (its faces, edges
+        and nodes: :mod:`membrax.membrane.face_contact`), :data:`CONTACT_MODELS`.
     """
+    if contact_model not in CONTACT_MODELS:
+        raise ValueError(f"contact_model = {contact_model!r}; choose one of {CONTACT_MODELS}.")
+    faces = contact_model == "faces"
     if particles.num_members != 1:
         raise ValueError(
             f"membrane_dem couples one specimen, got {particles.num_members} members; batch with vmap."
@@ -376,8 +419,19 @@ def membrane_dem(
         if skin is None:
             skin = 0.2 * 2.0 * float(jnp.max(particles.radius))
         candidates = build_candidates(
-            position, dem_state.position, particles.radius, thickness, skin, capacity, sphere_capacity
+            position,
+            dem_state.position,
+            particles.radius,
+            thickness,
+            skin,
+            capacity,
+            sphere_capacity,
+            extra_reach=longest_edge(mesh) if faces else 0.0,
         )
+        feature_contact = None
+        if faces:
+            slots = feature_slots(mesh, candidates.idx, particles.num_particles)
+            feature_contact = FeatureContactState(slots=slots, spring=zero_springs(slots, position.dtype))
         zeros = jnp.zeros_like(position)
         return CoupledState(
             dem=dem_state,
@@ -393,6 +447,7 @@ def membrane_dem(
                 sphere_force=jnp.zeros_like(dem_state.position),
                 platen_reaction=jnp.zeros((2, 3), position.dtype),
                 ring_contact_force=jnp.zeros((2, 3), position.dtype),
+                feature_contact=feature_contact,
             ),
         )
 
@@ -410,7 +465,8 @@ def membrane_dem(
             free=free,
             reference_velocity=reference,
         )
-        if native.enabled_for(nodes.position.dtype):  # steps 1, 2 and 4 in one reverse-mode rule
+        feature_contact = nodes.feature_contact
+        if not faces and native.enabled_for(nodes.position.dtype):  # steps 1, 2 and 4 in one rule
             (
                 contact_node_force,
                 sphere_force,
@@ -432,9 +488,13 @@ def membrane_dem(
                 model=stretching_model,
             )
         else:
-            contact = contact_forces(state, particles, params, dt)
+            contact = contact_forces(state, particles, params, dt, mesh)
+            contact_spring = contact.spring
+            if faces:
+                feature_contact = FeatureContactState(slots=contact.slots, spring=contact.spring)
+                contact_spring = nodes.spring  # the node slots' springs, unused
             contact_node_force, sphere_force = contact.node_force, contact.sphere_force
-            sphere_torque, contact_spring = contact.sphere_torque, contact.spring
+            sphere_torque = contact.sphere_torque
             internal = energies.nodal_forces(
                 nodes.position,
                 mesh,
@@ -495,6 +555,7 @@ def membrane_dem(
                 ring_contact_force=jnp.stack(
                     [jnp.sum(contact_node_force[ring], axis=0) for ring in (mesh.bottom_ring, mesh.top_ring)]
                 ),
+                feature_contact=feature_contact,
             ),
         )
 
@@ -560,11 +621,15 @@ def grow_candidates(state: CoupledState, particles: Particles, capacities, thick
         capacities.capacity,
         capacities.sphere_capacity,
         grid=old.grid._replace(cell_capacity=capacities.cell_capacity),
+        extra_reach=old.extra_reach,
     )
     spring = remap_node_history(
         old.idx, new.idx, nodes.spring, particles.num_particles, components_first=True
     )
-    return state.set(membrane=nodes.set(candidates=new, spring=spring))
+    feature_contact = nodes.feature_contact
+    if feature_contact is not None:
+        feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
+    return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
 
 
 @functools.partial(jax.jit, static_argnames="model")

@@ -54,9 +54,12 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 
 from membrax import pytree
+from membrax.fusion import materialize
+from membrax.membrane.candidates import remap_node_history
 from membrax.membrane.contact import ContactNodes, ContactSpheres, MembraneContactParams
 from membrax.membrane.mesh import MembraneMesh
 from membrax.spheres.contact import normal_energy, tangential_spring_update
@@ -65,12 +68,16 @@ from membrax.vector import cross, dot, safe_norm, safe_normalize, scale, select
 __all__ = [
     "FEATURE_KINDS",
     "FaceContactForces",
+    "FeatureContactState",
     "FeatureSlots",
+    "carry_springs",
+    "widen",
     "face_contact_energy",
     "face_contact_forces",
     "feature_slots",
     "closest_point_weights",
     "interior_nodes",
+    "longest_edge",
     "zero_springs",
 ]
 
@@ -103,6 +110,11 @@ class FaceContactForces(NamedTuple):
       spring: tuple of the updated springs per feature kind (:data:`FEATURE_KINDS`), each (3, F, M), N
         (force on the membrane).
       normal_force: tuple of |F_n| per slot, (F, M) each, N (0 where not touching).
+      slot_force: (1, S, 3) force of the sphere on the membrane per slot of all kinds, N (zero if none),
+        laid out as the node law's (n_nodes, K, 3) for the Love–Weber sum.
+      branch: (1, S, 3) b = x_p − x_sphere per slot, m.
+      overlap: (S,) δ per slot, m (−1 where the slot is padded or out of its feature's region).
+      slots: the :class:`FeatureSlots` these forces are of.
     """
 
     node_force: jnp.ndarray
@@ -110,6 +122,10 @@ class FaceContactForces(NamedTuple):
     sphere_torque: jnp.ndarray
     spring: tuple
     normal_force: tuple
+    slot_force: jnp.ndarray
+    branch: jnp.ndarray
+    overlap: jnp.ndarray
+    slots: FeatureSlots
 
 
 # ----------------------------------------------------------------------------------------------- tables
@@ -254,6 +270,9 @@ def _slot_geometry(kind, node_position, sphere_position, sphere_radius, mesh, sl
         padded = jnp.concatenate([node_position, jnp.zeros((1, 3), node_position.dtype)])
         extras = (_rows(padded, neighbours)[:, :, None, :], mask[:, None, :])
     weights, in_region = closest_point_weights(kind, corners, centre, extras)
+    # Stored once: XLA-CPU would otherwise evaluate the region test again in each consumer (membrax.fusion).
+    *weights, in_region = materialize(*weights, in_region)
+    weights = tuple(weights)
     contact_point = sum(scale(w, x) for w, x in zip(weights, corners, strict=False))
     branch = contact_point - centre  # from the sphere centre to the membrane point (the node law's b)
     reach = sphere_radius[safe_ids] + 0.5 * membrane_thickness
@@ -321,7 +340,7 @@ def face_contact_forces(
     node_force = jnp.zeros((num_nodes + 1, 3), dtype)
     sphere_force = jnp.zeros((num_spheres + 1, 3), dtype)
     sphere_torque = jnp.zeros((num_spheres + 1, 3), dtype)
-    new_springs, normal_forces = [], []
+    new_springs, normal_forces, slot_forces, branches, overlaps = [], [], [], [], []
     for kind, spring in zip(FEATURE_KINDS, springs, strict=True):
         weights, feature_nodes, branch, reach, active_slot, safe_ids = _slot_geometry(
             kind, nodes.position, spheres.position, spheres.radius, mesh, slots, membrane_thickness
@@ -330,6 +349,9 @@ def face_contact_forces(
         overlap = jnp.where(active_slot, reach - distance, -1.0)
         touching = (overlap > 0.0) & (distance > 0.0)
         normal_force = jnp.where(touching, params.normal_stiffness * overlap, 0.0)
+        branch, normal, overlap, touching, normal_force = materialize(
+            branch, normal, overlap, touching, normal_force
+        )
         membrane_velocity = sum(
             scale(w, _rows(nodes.velocity, feature_nodes[:, k])[:, :, None]) for k, w in enumerate(weights)
         )
@@ -337,7 +359,7 @@ def face_contact_forces(
             _rows(spheres.angular_velocity, safe_ids), branch
         )
         relative = membrane_velocity - sphere_velocity
-        tangential = relative - scale(dot(relative, normal), normal)
+        tangential = materialize(relative - scale(dot(relative, normal), normal))
         spring = tangential_spring_update(
             spring,
             normal,
@@ -348,26 +370,101 @@ def face_contact_forces(
             normal_force,
             touching,
         )
-        on_membrane = select(touching, scale(normal_force, normal) + spring)  # (3, F, M)
+        spring = materialize(spring)
+        on_membrane = materialize(select(touching, scale(normal_force, normal) + spring))  # (3, F, M)
         rows = jnp.moveaxis(on_membrane, 0, -1)  # (F, M, 3)
         sphere_index = jnp.where(touching, safe_ids, num_spheres).reshape(-1)
         sphere_force = sphere_force.at[sphere_index].add(-rows.reshape(-1, 3))
         torque = jnp.moveaxis(cross(branch, -on_membrane), 0, -1)
         sphere_torque = sphere_torque.at[sphere_index].add(torque.reshape(-1, 3))
         for k, w in enumerate(weights):
-            share = jnp.sum(rows * w[..., None], axis=1)  # (F, 3)
-            node_force = node_force.at[feature_nodes[:, k]].add(share)
+            # One scatter of every slot's share: XLA-CPU sums over the short slot axis slowly.
+            node_index = jnp.broadcast_to(feature_nodes[:, k][:, None], w.shape).reshape(-1)
+            node_force = node_force.at[node_index].add((rows * w[..., None]).reshape(-1, 3))
         new_springs.append(spring)
         normal_forces.append(normal_force)
+        slot_forces.append(rows.reshape(-1, 3))
+        branches.append(jnp.moveaxis(branch, 0, -1).reshape(-1, 3))
+        overlaps.append(overlap.reshape(-1))
     return FaceContactForces(
         node_force=node_force[:num_nodes],
         sphere_force=sphere_force[:num_spheres],
         sphere_torque=sphere_torque[:num_spheres],
         spring=tuple(new_springs),
         normal_force=tuple(normal_forces),
+        slot_force=jnp.concatenate(slot_forces)[None],
+        branch=jnp.concatenate(branches)[None],
+        overlap=jnp.concatenate(overlaps),
+        slots=slots,
     )
 
 
 def zero_springs(slots: FeatureSlots, dtype):
     """Springs of no contact for ``slots``: a (3, F, M) zero array per kind of :data:`FEATURE_KINDS`."""
     return tuple(jnp.zeros((3, *getattr(slots, kind).shape), dtype) for kind in FEATURE_KINDS)
+
+
+@pytree.dataclass
+class FeatureContactState:
+    """What a step carries of the feature contacts: the slots' sphere ids and their springs.
+
+    Attributes:
+      slots: the :class:`FeatureSlots` the springs belong to (those of the step that made them).
+      spring: a (3, F, M) spring per kind of :data:`FEATURE_KINDS`, N.
+    """
+
+    slots: FeatureSlots
+    spring: tuple
+
+
+def carry_springs(state: FeatureContactState, slots: FeatureSlots, num_spheres: int) -> tuple:
+    """The springs of ``state`` moved onto ``slots`` by sphere id (zero for a pair new to a feature).
+
+    A step reads its slots from the node table (:func:`feature_slots`), which is rebuilt now and then and
+    grown on overflow; carrying by id keeps a (feature, sphere) pair's spring through both. Between
+    rebuilds the slots are the same and the springs pass as they are (the carry is skipped).
+    """
+    same = jnp.all(jnp.stack([jnp.all(getattr(state.slots, k) == getattr(slots, k)) for k in FEATURE_KINDS]))
+
+    def carry(springs):
+        return tuple(
+            remap_node_history(getattr(state.slots, kind), getattr(slots, kind), spring, num_spheres, True)
+            for kind, spring in zip(FEATURE_KINDS, springs, strict=True)
+        )
+
+    return jax.lax.cond(same, lambda springs: springs, carry, tuple(state.spring))
+
+
+def longest_edge(mesh: MembraneMesh) -> float:
+    """The mesh's longest rest edge, m (host; the node table's extra reach for feature contacts).
+
+    Any point of a triangle lies within its longest edge of its nearest vertex, so a node table that
+    reaches this much further lists every sphere within reach of the triangles around its nodes while no
+    edge stretches beyond √3 of its rest length (the farthest point from all three vertices of an
+    equilateral triangle of edge a is its centroid, a/√3 away).
+    """
+    import numpy as np
+
+    position = np.asarray(mesh.reference_position, dtype=np.float64)
+    triangles = np.asarray(mesh.triangles)
+    corners = position[triangles]
+    edges = corners - np.roll(corners, 1, axis=1)
+    return float(np.sqrt(np.max(np.sum(edges * edges, axis=-1))))
+
+
+def widen(state: FeatureContactState, capacity: int, num_spheres: int) -> FeatureContactState:
+    """``state`` padded to the slot widths of a node table of ``capacity`` K (3K, 2K, K).
+
+    The new slots are empty and their springs zero; after a node table grows, the next step's
+    :func:`carry_springs` moves the springs by id.
+    """
+    widths = {"face": 3 * capacity, "edge": 2 * capacity, "node": capacity}
+    slots, springs = {}, []
+    for kind, spring in zip(FEATURE_KINDS, state.spring, strict=True):
+        ids = getattr(state.slots, kind)
+        extra = widths[kind] - ids.shape[1]
+        if extra < 0:
+            raise ValueError(f"widen: the {kind} slots are {ids.shape[1]} wide, more than {widths[kind]}.")
+        slots[kind] = jnp.pad(ids, ((0, 0), (0, extra)), constant_values=num_spheres)
+        springs.append(jnp.pad(spring, ((0, 0), (0, 0), (0, extra))))
+    return FeatureContactState(slots=FeatureSlots(**slots), spring=tuple(springs))

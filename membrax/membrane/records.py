@@ -154,7 +154,7 @@ def measure_coupled(
     spheres, nodes = state.dem, state.membrane
     mp = params.membrane
     forces = compute_forces(spheres, particles, params.dem, dt, wall_friction)
-    contact = contact_forces(state, particles, params, dt)
+    contact = contact_forces(state, particles, params, dt, mesh)
     pair_member = jnp.zeros(spheres.neighbors.idx.shape[1], dtype=jnp.int32)
     walls = spheres.walls
     height = platen_separation(walls)

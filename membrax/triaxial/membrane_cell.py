@@ -235,6 +235,7 @@ def membrane_test(
     bending_factor: float = 0.0,
     nodes_around: int | None = None,
     contact_offset_factor: float = 1.0,
+    contact_model: str = "nodes",
 ) -> MembraneTest:
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
 
@@ -246,7 +247,7 @@ def membrane_test(
       membrane_thickness: t_m, m, > 0 (paper: 2.5e-3, 3.33e-3, 5e-3).
       membrane_modulus: E_m, Pa, > 0 (paper: 1.4e6, :data:`membrax.defaults.MEMBRANE_MODULUS`).
       contact_params: sphere contact law (default :meth:`ContactParams.paper`).
-      membrane_contact: node–sphere law (default :meth:`MembraneContactParams.default`).
+      membrane_contact: the membrane–sphere law's parameters (default :meth:`MembraneContactParams.default`).
       damping: default Cundall local 0.3 (paper), applied to spheres and membrane nodes alike, on their
         velocities relative to the platens' affine field (:data:`membrax.defaults.DAMPING_FRAME`).
       density: particle density, kg/m³.
@@ -269,6 +270,8 @@ def membrane_test(
       contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the membrane's inner face on the
         sphere; 0: its nodes on the sphere surface, the paper's; :class:`MembraneParams`). The mesh is
         built f t_m/2 outside the outer spheres, where its nodes would touch them.
+      contact_model: ``"nodes"`` (the spheres meet the membrane's nodes) or ``"faces"`` (its faces, edges
+        and nodes, :mod:`membrax.membrane.face_contact`; JAX only, not the CPU kernels).
     """
     check_range("cell_pressure", cell_pressure, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
     check_range("edges_per_diameter", edges_per_diameter, lower=0.0, lower_open=True)
@@ -336,7 +339,15 @@ def membrane_test(
     platen_area = float(specimen.cross_section_area)
 
     def make_step(member_mesh):
-        return membrane_dem(particles, frame, member_mesh, dt, platen_area, latex_density=latex_density)[1]
+        return membrane_dem(
+            particles,
+            frame,
+            member_mesh,
+            dt,
+            platen_area,
+            latex_density=latex_density,
+            contact_model=contact_model,
+        )[1]
 
     def make_record(member_mesh, member_volume):
         def record(s, p):
@@ -344,7 +355,9 @@ def membrane_test(
 
         return record
 
-    init_fn, step_fn = membrane_dem(particles, frame, mesh, dt, platen_area, latex_density=latex_density)
+    init_fn, step_fn = membrane_dem(
+        particles, frame, mesh, dt, platen_area, latex_density=latex_density, contact_model=contact_model
+    )
     state = init_fn(
         dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
     )
