@@ -25,7 +25,12 @@ With ``--packing random`` the specimen is a random packing of the same spheres, 
 spheres, compacted first, about 40 s, not timed): its membrane is a cylinder (target: coupled
 steps/s within 1.5× of the FCC row's).
 
-Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--dtypes float32]``;
+With ``--contact-model faces`` the coupled step's spheres meet the membrane's faces, edges and nodes
+(:mod:`membrax.membrane.face_contact`, in JAX: no CPU kernel) instead of its nodes; the other columns are
+the node law's.
+
+Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--contact-model faces]
+[--dtypes float32]``;
 with ``MEMBRAX_NATIVE=0`` the compiled CPU kernels (:mod:`membrax.native`) are off and every figure is
 XLA's alone.
 """
@@ -35,7 +40,9 @@ import resource
 from harness import benchmark_parser, benchmark_rows, best_of, print_table, time_coupled_steps, timed
 
 
-def measure(dtype: str, edges_per_diameter: float, repeats: int, packing: str = "fcc") -> dict:
+def measure(
+    dtype: str, edges_per_diameter: float, repeats: int, packing: str = "fcc", contact_model: str = "nodes"
+) -> dict:
     import jax
 
     if dtype == "float64":
@@ -63,6 +70,7 @@ def measure(dtype: str, edges_per_diameter: float, repeats: int, packing: str = 
         cell_pressure=pressure,
         membrane_thickness=thickness,
         edges_per_diameter=edges_per_diameter,
+        contact_model=contact_model,
     )
     mesh = test.mesh
     nodes = jnp.asarray(mesh.reference_position)
@@ -150,12 +158,19 @@ def main():
         default="fcc",
         help="fcc: 10 across, 25 layers; random: 250 × 500 mm compacted (about 40 s, not timed)",
     )
+    parser.add_argument(
+        "--contact-model",
+        choices=("nodes", "faces"),
+        default="nodes",
+        help="where the coupled step's spheres meet the membrane (the other columns: the node law's)",
+    )
     args, rows = benchmark_rows(__file__, parser, measure)
     if rows is None:
         return
     first = rows[0]
     print(
-        f"membrane benchmark ({args.packing}): {first['nodes']} nodes, {first['triangles']} triangles, "
+        f"membrane benchmark ({args.packing}, {args.contact_model} contact): {first['nodes']} nodes, "
+        f"{first['triangles']} triangles, "
         f"{first['spheres']} spheres (cell list: {first['cell_capacity']} per cell), K = {first['capacity']} "
         f"(max candidates found {first['max_candidates']}); CPU kernels: {first['kernels']}"
     )
