@@ -22,18 +22,15 @@ from membrax.defaults import GENT_LOCKING_JM, LATEX_POISSON_RATIO, STRETCHING_MO
 # The membrane forces (membrane_forces.cc): −∇ of the membrane's energy, on nodal_forces' arguments.
 
 
-def nodal_forces_kernel_inputs(
-    position,
-    mesh,
-    modulus,
-    thickness,
-    cell_pressure,
-    poisson_ratio,
-    bending_factor,
-    locking_jm=GENT_LOCKING_JM,
-):
-    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b, J_m)."""
-    scalars = (modulus, thickness, cell_pressure, poisson_ratio, bending_factor, locking_jm)
+def nodal_forces_kernel_inputs(position, mesh, *scalars):
+    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b, J_m) stacked.
+
+    ``scalars`` are nodal_forces' after the mesh, in that order; J_m may be left out (the neo-Hookean and
+    SVK laws do not read it): :data:`membrax.defaults.GENT_LOCKING_JM` then.
+    """
+    del mesh  # its arrays are the kernel's other inputs (_mesh_inputs), no cotangent
+    if len(scalars) == 5:
+        scalars = (*scalars, GENT_LOCKING_JM)
     return position, native.stack_scalars(position.dtype, *scalars)
 
 
@@ -51,25 +48,14 @@ def _mesh_inputs(mesh, dtype):
     )
 
 
-def nodal_forces_kernel(
-    position,
-    mesh,
-    modulus,
-    thickness,
-    cell_pressure,
-    poisson_ratio,
-    bending_factor,
-    locking_jm=GENT_LOCKING_JM,
-    *,
-    model,
-):
+def nodal_forces_kernel(*args, model):
     """The compiled kernel's forces (``membrane_forces.cc``).
 
-    The arguments are those of :func:`membrax.membrane.energies.reference_nodal_forces`.
+    ``args`` are those of :func:`nodal_forces_kernel_inputs` (of
+    :func:`membrax.membrane.energies.reference_nodal_forces` less the model, J_m last and optional).
     """
-    position, scalars = nodal_forces_kernel_inputs(
-        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, locking_jm
-    )
+    position, scalars = nodal_forces_kernel_inputs(*args)
+    mesh = args[1]
     dtype = position.dtype
     return native.call(
         "membrane_forces",

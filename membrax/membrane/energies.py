@@ -165,7 +165,8 @@ def locking_ratio(position, mesh: MembraneMesh, locking_jm):
     """The membrane's closest approach to Gent's lock: the largest (I₁ − 3)/J_m over its triangles.
 
     Past :data:`membrax.defaults.GENT_LOCK_FRACTION` the Gent energy is its continuation, no longer Gent's
-    (:func:`stretching_energy`); the coupled step checks this every step (``ErrorCode.MEMBRANE_LOCKED``).
+    (:func:`stretching_energy`); the coupled step checks it every ``LOCK_CHECK_EVERY`` steps
+    (:func:`membrax.membrane.coupled.locked_bit`, ``ErrorCode.MEMBRANE_LOCKED``).
 
     Args:
       position: (N, 3) node positions, m.
