@@ -137,6 +137,8 @@ def build_test(
         time_step=time_step,
         nodes_around=nodes_around,
         contact_offset_factor=config.membrane_contact_offset_factor,
+        stretching_model=config.stretching_model,
+        locking_jm=config.membrane_locking_jm,
         contact_model=config.membrane_contact_model,
     )
 

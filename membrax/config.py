@@ -307,6 +307,13 @@ _SPECS: dict[str, _Spec] = {
         **_NON_NEGATIVE,
         hint="1: plate bending E t³/12(1 − ν²); 0: a pure membrane (the signs of the paper's Table 3)",
     ),
+    "membrane_law": _Spec(str, choices=tuple(defaults.MEMBRANE_LAWS)),
+    "membrane_locking_jm": _Spec(
+        float,
+        "(dimensionless)",
+        **_POSITIVE,
+        hint="the Gent law's J_m, the largest I₁ − 3; natural rubber about 100 (Gent 1996)",
+    ),
     "target_axial_strain": _Spec(
         float, "(strain, dimensionless)", lower=0.0, lower_open=True, upper=1.0, hint="e.g. 0.10 for 10 %"
     ),
@@ -413,6 +420,14 @@ class TriaxialConfig:
       membrane_bending_factor (float): scale of the membrane's bending rigidity (dimensionless), in
         [0, inf): 1 the plate's E t³/12(1 − ν²), 0 a pure membrane. Default 0 (the paper's membrane: it
         reproduces the paper's Table 3 at paper size; plate bending does not).
+      membrane_law (str): the membrane's stretching law, ``"neo-hookean"`` (incompressible), ``"gent"``
+        (incompressible, strain-stiffening: it locks at I₁ − 3 = ``membrane_locking_jm``) or ``"svk"``
+        (St Venant–Kirchhoff, ν = ½, for small strains); all three have the small-strain modulus
+        ``membrane_modulus_kpa`` (:func:`membrax.membrane.energies.stretching_energy`). Default
+        ``"neo-hookean"``.
+      membrane_locking_jm (float): the Gent law's locking constant J_m (dimensionless), in (0, inf); read
+        only when ``membrane_law = "gent"``. Default 97.2 (Gent 1996's natural rubber,
+        :data:`membrax.defaults.GENT_LOCKING_JM`).
       target_axial_strain (float): axial strain at which shearing stops (dimensionless), in (0, 1).
         Default 0.10.
       inertial_number (float): inertial number setting the shear strain rate (dimensionless), in
@@ -502,6 +517,8 @@ class TriaxialConfig:
     membrane_friction_angle_deg: float = 25.0
     membrane_edges_per_diameter: float = 5.0
     membrane_bending_factor: float = 0.0
+    membrane_law: str = "neo-hookean"
+    membrane_locking_jm: float = defaults.GENT_LOCKING_JM
     target_axial_strain: float = 0.10
     inertial_number: float = 1.0e-3
     coarse_inertial_number: float = 0.0
@@ -599,6 +616,11 @@ class TriaxialConfig:
     def membrane_modulus(self) -> float:
         """Membrane Young's modulus, Pa."""
         return to_si("membrane_modulus_kpa", self.membrane_modulus_kpa)
+
+    @property
+    def stretching_model(self) -> str:
+        """The simulator's name of ``membrane_law`` (:data:`membrax.defaults.MEMBRANE_LAWS`)."""
+        return defaults.MEMBRANE_LAWS[self.membrane_law]
 
     @property
     def membrane_edge_length(self) -> float:
@@ -788,22 +810,28 @@ def _check_fields(values: Mapping[str, Any]) -> tuple[dict[str, Any], list[str]]
 
 
 def inflation_ratio(values: Mapping[str, Any]) -> float:
-    """σc over the membrane's limit pressure across a square window of the particles, p_max.
+    """σc over the membrane's limit pressure across a square window of the particles, p_max (0 if none).
 
-    p_max = :func:`membrax.theory.membrane_limit_pressure` (E_m, t_m, a), a = (√2 − 1) D/2 (the window
-    between four touching spheres, :data:`membrax.theory.SQUARE_WINDOW_RATIO`), D the particle diameter or,
-    for a grading, its largest size (an upper bound on the windows, which smaller particles partly fill).
+    p_max, by ``membrane_law``: :func:`membrax.theory.membrane_limit_pressure` (E_m, t_m, a) for the
+    neo-Hookean law, :func:`membrax.theory.gent_membrane_limit_pressure` (E_m, t_m, a, J_m) for Gent's
+    (infinite, so a ratio of 0, for J_m below :data:`membrax.theory.GENT_MONOTONIC_LOCKING_JM`); the SVK
+    law has no limit point (its bulge pressure rises monotonically), a ratio of 0. a = (√2 − 1) D/2 (the
+    window between four touching spheres, :data:`membrax.theory.SQUARE_WINDOW_RATIO`), D the particle
+    diameter or, for a grading, its largest size (an upper bound on the windows, which smaller particles
+    partly fill).
 
     Args:
       values: the configuration's fields (a mapping, or ``config_to_dict`` of a configuration).
     """
-    pairs = values["grading"]
-    diameter_mm = grading_of(pairs).largest * 1e3 if pairs else values["particle_diameter_mm"]
-    limit_kpa = theory.membrane_limit_pressure(
-        values["membrane_modulus_kpa"],
-        values["membrane_thickness_mm"],
-        0.5 * theory.SQUARE_WINDOW_RATIO * diameter_mm,
-    )
+    membrane = (values["membrane_modulus_kpa"], values["membrane_thickness_mm"])
+    aperture_mm = _window_radius_mm(values)
+    law = values["membrane_law"]
+    if law == "svk":
+        return 0.0
+    if law == "gent":
+        limit_kpa = theory.gent_membrane_limit_pressure(*membrane, aperture_mm, values["membrane_locking_jm"])
+    else:
+        limit_kpa = theory.membrane_limit_pressure(*membrane, aperture_mm)
     return float(values["cell_pressure_kpa"] / limit_kpa)
 
 
@@ -816,11 +844,31 @@ def _inflation_message(values: Mapping[str, Any]) -> str:
         f"cell_pressure_kpa = {values['cell_pressure_kpa']:g} exceeds {limit:.3g} kPa, the most that "
         f"membrane_thickness_mm = {values['membrane_thickness_mm']:g} of membrane_modulus_kpa = "
         f"{values['membrane_modulus_kpa']:g} can hold over the windows between "
-        f"{values['particle_diameter_mm']:g} mm spheres (a neo-Hookean sheet's inflation limit, "
-        "1.84 (E_m/3) t_m / a with a = 0.414 D/2; "
-        "docs/model.md): it would balloon into the specimen and the run go non-finite. Raise the membrane's "
-        f"thickness or modulus (E_m t_m above {stiffness * ratio:.3g} kPa·mm) or lower the cell pressure."
+        f"{values['particle_diameter_mm']:g} mm spheres ({_limit_statement(values, limit)}, with "
+        "a = 0.414 D/2; docs/model.md): it would balloon into the specimen and the run go non-finite. "
+        f"Raise the membrane's thickness or modulus (E_m t_m above {stiffness * ratio:.3g} kPa·mm) or lower "
+        "the cell pressure. (A latex measured to stiffen sooner may be given as membrane_law = 'gent' with "
+        f"its membrane_locking_jm: below J_m = {theory.GENT_MONOTONIC_LOCKING_JM:g} there is no inflation "
+        "limit.)"
     )
+
+
+def _window_radius_mm(values: Mapping[str, Any]) -> float:
+    """The radius a = (√2 − 1) D/2 of the particles' square window, mm (D: a grading's largest size)."""
+    pairs = values["grading"]
+    diameter_mm = grading_of(pairs).largest * 1e3 if pairs else values["particle_diameter_mm"]
+    return 0.5 * theory.SQUARE_WINDOW_RATIO * diameter_mm
+
+
+def _limit_statement(values: Mapping[str, Any], limit_kpa: float) -> str:
+    """The law's inflation limit as c (E_m/3) t_m / a, for the refusal."""
+    tension_scale = values["membrane_modulus_kpa"] / 3.0 * values["membrane_thickness_mm"]
+    coefficient = limit_kpa * _window_radius_mm(values) / tension_scale
+    if values["membrane_law"] == "gent":
+        law = f"a Gent sheet's inflation limit at J_m = {values['membrane_locking_jm']:g}"
+    else:
+        law = "a neo-Hookean sheet's inflation limit"
+    return f"{law}, {coefficient:.3g} (E_m/3) t_m / a"
 
 
 def _random_specimen_errors(values: Mapping[str, Any]) -> list[str]:

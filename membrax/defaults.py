@@ -17,9 +17,12 @@ __all__ = [
     "DAMPING_FRAME",
     "DAMPING_FRAMES",
     "FRICTION_ANGLE_DEG",
+    "GENT_LOCK_FRACTION",
+    "GENT_LOCKING_JM",
     "LATEX_POISSON_RATIO",
     "LAYERS",
     "MEMBRANE_CONTACT_MODELS",
+    "MEMBRANE_LAWS",
     "MEMBRANE_MODULUS",
     "PARTICLES_ACROSS",
     "PARTICLE_DIAMETER",
@@ -43,7 +46,18 @@ MEMBRANE_MODULUS = 1.4e6
 LATEX_POISSON_RATIO = 0.5
 #: The membrane's stretching laws (:func:`membrax.membrane.energies.stretching_energy`), in the order the
 #: compiled kernel numbers them (``membrane_forces.cc``).
-STRETCHING_MODELS = ("neo_hookean", "svk")
+STRETCHING_MODELS = ("neo_hookean", "svk", "gent")
+#: The configuration's spelling of each stretching law (``membrane_law``) → the simulator's: the one map.
+MEMBRANE_LAWS = {"neo-hookean": "neo_hookean", "gent": "gent", "svk": "svk"}
+#: Gent's locking constant J_m, dimensionless: the largest I₁ − 3 the rubber's chains allow. 97.2 is Gent's
+#: fit of Treloar's natural-rubber data (Gent 1996, Rubber Chem. Technol. 69, 59–61) [U: the value as later
+#: reviews of the Gent model quote it, not checked in the source]; latex is a natural rubber. Equibiaxially it
+#: locks at λ = 7.08 (2λ² + λ⁻⁴ − 3 = J_m).
+GENT_LOCKING_JM = 97.2
+#: The fraction of J_m past which the Gent energy is continued by its quadratic extension in I₁ − 3, so that
+#: forces stay finite (:func:`membrax.membrane.energies.stretching_energy`); a coupled step that stretches a
+#: triangle past it sets ``ErrorCode.MEMBRANE_LOCKED`` and the run stops there.
+GENT_LOCK_FRACTION = 0.9
 #: Where the spheres meet the membrane (:func:`membrax.membrane.coupled.membrane_dem`): its nodes (the
 #: paper's "node–particle contact", the default) or its faces, edges and nodes
 #: (:mod:`membrax.membrane.face_contact`).

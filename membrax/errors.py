@@ -48,6 +48,8 @@ class ErrorCode(enum.IntFlag):
       OUTSIDE_BOX: a sphere left the neighbour list's box.
       MEMBRANE_CANDIDATE_OVERFLOW: a membrane node had more candidate spheres than its table holds (the
         driver grows the table).
+      MEMBRANE_LOCKED: a membrane triangle under the Gent law was stretched past the fraction of its lock
+        beyond which the energy is continued, no longer Gent's (:mod:`membrax.membrane.energies`).
     """
 
     NONE = 0
@@ -55,6 +57,7 @@ class ErrorCode(enum.IntFlag):
     NOT_FINITE = 2
     OUTSIDE_BOX = 4
     MEMBRANE_CANDIDATE_OVERFLOW = 8
+    MEMBRANE_LOCKED = 16
 
 
 #: The bits a driver answers by growing a capacity and rerunning the chunk.
@@ -66,6 +69,10 @@ _MESSAGES = {
     ErrorCode.OUTSIDE_BOX: "a particle left the neighbour-list box (increase the margin)",
     ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW: (
         "membrane node candidate table overflow (give the chunk runner a grow_membrane function)"
+    ),
+    ErrorCode.MEMBRANE_LOCKED: (
+        "membrane stretched near its Gent lock (I1 - 3 past 0.9 J_m; raise membrane_locking_jm, the "
+        "membrane's thickness or modulus, or lower the cell pressure)"
     ),
 }
 

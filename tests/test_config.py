@@ -117,6 +117,8 @@ def test_toml_round_trip_every_field_changed(tmp_path, table):
         membrane_friction_angle_deg=1e-9,
         membrane_edges_per_diameter=2.5,
         membrane_bending_factor=0.5,
+        membrane_law="gent",
+        membrane_locking_jm=55.5,
         target_axial_strain=0.15,
         inertial_number=0.1,
         consolidation_tolerance=1e-17,
@@ -157,7 +159,7 @@ def test_config_to_dict_and_from_dict():
     cfg = TriaxialConfig(layers=7)
     mapping = config_to_dict(cfg)
     assert list(mapping)[:2] == ["name", "particle_diameter_mm"]
-    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 43
+    assert len(mapping) == len(dataclasses.fields(TriaxialConfig)) == 45
     assert config_from_dict(mapping) == cfg
     assert config_from_dict({}) == TriaxialConfig()
 
@@ -488,6 +490,37 @@ def test_a_membrane_beyond_its_inflation_limit_is_refused_with_the_limit_and_the
         membrane_modulus_kpa=700.0,
     )
     assert inflation_ratio(config_to_dict(graded)) > 1.0
+
+
+def test_the_inflation_refusal_follows_the_membrane_law():
+    """1 mm of 700 kPa over 25 mm spheres at 84 kPa: past the neo-Hookean limit, 82.7 kPa (refused), below
+    the Gent limit at J_m = 97.2, 1.8827 (700/3)(1)/5.178 = 84.8 kPa (accepted, warned at 0.99 of it); above
+    it Gent refuses too, naming J_m; below J_m = 32.62 Gent has no limit point and SVK none at all (a ratio
+    of 0). The unknown law and a non-finite or non-positive J_m are refused naming the field and its
+    choices."""
+    thin = dict(cell_pressure_kpa=84.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=700.0)
+    with pytest.raises(ConfigError, match=r"82\.7 kPa"):
+        TriaxialConfig(**thin)
+    gent = TriaxialConfig(**thin, membrane_law="gent")
+    assert gent.stretching_model == "gent"
+    assert inflation_ratio(config_to_dict(gent)) == pytest.approx(84.0 / 84.845, rel=1e-4)
+    assert "0.99 of the membrane's inflation limit" in assemble.inflation_warning(gent)
+    with pytest.raises(ConfigError) as error:
+        TriaxialConfig(**{**thin, "cell_pressure_kpa": 100.0}, membrane_law="gent")
+    for named in ("84.8 kPa", "Gent sheet's inflation limit at J_m = 97.2, 1.88 (E_m/3) t_m / a"):
+        assert named in str(error.value)
+    soft = dict(thin, cell_pressure_kpa=1000.0)
+    assert (
+        inflation_ratio(config_to_dict(TriaxialConfig(**soft, membrane_law="gent", membrane_locking_jm=30.0)))
+        == 0
+    )
+    assert inflation_ratio(config_to_dict(TriaxialConfig(**soft, membrane_law="svk"))) == 0
+    assert TriaxialConfig().stretching_model == "neo_hookean"
+    with pytest.raises(ConfigError, match="membrane_law must be one of 'neo-hookean', 'gent', 'svk'"):
+        TriaxialConfig(membrane_law="neo_hookean")
+    for bad in (0.0, -3.0, math.inf, math.nan):
+        with pytest.raises(ConfigError, match="membrane_locking_jm"):
+            TriaxialConfig(membrane_law="gent", membrane_locking_jm=bad)
 
 
 def test_the_ballast_grading_scales_parallel_and_its_d50_is_the_hand_value():

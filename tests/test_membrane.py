@@ -391,7 +391,7 @@ def test_parameter_gradients_match_central_differences():
     np.testing.assert_allclose(float(jnp.sum(grad_volume * direction)), finite, rtol=1e-6)
 
 
-@pytest.mark.parametrize("model", ["neo_hookean", "svk"])
+@pytest.mark.parametrize("model", ["neo_hookean", "svk", "gent"])
 def test_nodal_forces_and_hessian_match_central_differences(model):
     # The closed-form derivatives of the triangles and hinges against the energy itself: the directional
     # derivative of U is −F·v, and the Hessian–vector product that membrane_critical_time_step iterates on
@@ -403,20 +403,27 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
     direction = jax.random.normal(key2, position.shape)
     params = (1.4e6, 3e-3, 30e3)
     bending_factor = 1.0  # plate bending on, so the hinges' closed forms are checked too
+    locking_jm = 0.5  # s = (I₁ − 3)/J_m: 0.27 in the median triangle, past the lock fraction in the top 10 %
 
     def energy(x):
-        return energies.total_energy(x, mesh, *params, model=model, bending_factor=bending_factor)
+        return energies.total_energy(
+            x, mesh, *params, model=model, bending_factor=bending_factor, locking_jm=locking_jm
+        )
 
     def energy_at(s):
         return float(energy(position + s * direction))
 
     step = 1e-6
     force = jax.jit(
-        lambda x: energies.nodal_forces(x, mesh, *params, model=model, bending_factor=bending_factor)
+        lambda x: energies.nodal_forces(
+            x, mesh, *params, model=model, bending_factor=bending_factor, locking_jm=locking_jm
+        )
     )
     finite = (energy_at(step) - energy_at(-step)) / (2.0 * step)
     np.testing.assert_allclose(-float(jnp.sum(force(position) * direction)), finite, rtol=1e-6)
-    hvp = coupled._stiffness_product(direction, position, mesh, *params, bending_factor, model=model)
+    hvp = coupled._stiffness_product(
+        direction, position, mesh, *params, bending_factor, locking_jm, model=model
+    )
     finite_hvp = -(force(position + step * direction) - force(position - step * direction)) / (2.0 * step)
     scale_ = float(jnp.max(jnp.abs(hvp)))
     np.testing.assert_allclose(np.asarray(hvp), np.asarray(finite_hvp), rtol=0, atol=1e-5 * scale_)
@@ -424,7 +431,7 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
     # The derivative with respect to the rest frames D_m⁻¹ (a mesh quantity) is carried too.
     def energy_of_frames(inverse):
         return energies.stretching_energy(
-            position, mesh.set(reference_inverse=inverse), *params[:2], model=model
+            position, mesh.set(reference_inverse=inverse), *params[:2], model=model, locking_jm=locking_jm
         )
 
     frames_direction = jax.random.normal(jax.random.PRNGKey(4), mesh.reference_inverse.shape)

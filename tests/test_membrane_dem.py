@@ -205,6 +205,7 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
         params.membrane.thickness,
         params.membrane.cell_pressure,
         params.membrane.bending_factor,
+        params.membrane.locking_jm,
     )
     basis = jnp.asarray((np.eye(3 * mesh.num_nodes) * scale).reshape(-1, mesh.num_nodes, 3))
     products = jax.vmap(

@@ -61,13 +61,18 @@ def _deformed_cylinder(seed=0, dtype=jnp.float64, edge=0.02):
     return mesh, position
 
 
-@pytest.mark.parametrize("model", ["neo_hookean", "svk"])
+#: J_m of the Gent cases: the deformed cylinder's triangles have I₁ − 3 of 0.035 (median) to 0.3–0.5, so
+#: s = (I₁ − 3)/J_m is 0.24 in the median and the top few per cent pass the lock fraction (the continuation).
+_LOCKING_JM = 0.15
+
+
+@pytest.mark.parametrize("model", ["neo_hookean", "svk", "gent"])
 @pytest.mark.parametrize("bending_factor", [0.0, 1.0])
 def test_membrane_forces_kernel_matches_jax(model, bending_factor):
     mesh, position = _deformed_cylinder()
-    args = (position, mesh, 1.4e6, 0.005, 1e4, 0.45, bending_factor, model)
+    args = (position, mesh, 1.4e6, 0.005, 1e4, 0.45, bending_factor, model, _LOCKING_JM)
     compiled = jax.jit(energies.nodal_forces, static_argnums=(6,))(
-        position, mesh, 1.4e6, 0.005, 1e4, 0.45, model, bending_factor
+        position, mesh, 1.4e6, 0.005, 1e4, 0.45, model, bending_factor, _LOCKING_JM
     )
     reference = energies.reference_nodal_forces(*args)
     assert _relative_error(compiled, reference) < 1e-12
@@ -449,18 +454,21 @@ def _cotangent_cases(large=False):
     from membrax.spheres import integrate
 
     mesh, position = _deformed_cylinder(seed=1, edge=_LARGE["edge"] if large else 0.02)
-    forces = [
-        (
+    forces = {
+        model: (
             "membrane_forces_backward",
             lambda x, *scalars, model=model: energies._COMPILED_NODAL_FORCES[model](x, mesh, *scalars),
-            lambda x, *scalars, model=model: energies.reference_nodal_forces(x, mesh, *scalars, model),
-            (position, 1.4e6, 0.004, 2e4, 0.45, 0.7),  # x, E_m, t_m, p, ν, f_b
+            lambda x, *scalars, model=model: energies.reference_nodal_forces(
+                x, mesh, *scalars[:5], model, scalars[5]
+            ),
+            (position, 1.4e6, 0.004, 2e4, 0.45, 0.7, _LOCKING_JM),  # x, E_m, t_m, p, ν, f_b, J_m
         )
-        for model in ("neo_hookean", "svk")
-    ]
+        for model in ("neo_hookean", "svk", "gent")
+    }
     node_sphere = _node_sphere_case(**(_LARGE["node_sphere"] if large else {}))
     return [
-        *forces,
+        forces["neo_hookean"],
+        forces["svk"],
         (
             "node_sphere_backward",
             contact._compiled_node_sphere_forces,
@@ -479,10 +487,11 @@ def _cotangent_cases(large=False):
             integrate._pair_totals_reference,
             _dem_case(**(_LARGE["dem"] if large else {})),
         ),
+        forces["gent"],
     ]
 
 
-@pytest.mark.parametrize("case", range(5))
+@pytest.mark.parametrize("case", range(6))
 def test_compiled_backward_kernels_give_the_reference_cotangents(case):
     """Each compiled reverse-mode rule (``with_reference``'s ``backward``) against ``jax.vjp`` of the JAX
     definition, for every argument at once (positions, velocities, springs, radii, material scalars, time
@@ -511,7 +520,7 @@ def _check_cotangents(target, compiled, reference, values, seed):
     return pullback
 
 
-@pytest.mark.parametrize("case", [0, 2, 4])  # membrane forces, node–sphere, sphere pairs
+@pytest.mark.parametrize("case", [0, 2, 4, 5])  # membrane forces, node–sphere, pairs, Gent forces
 def test_backward_kernels_in_two_halves_give_the_reference_cotangents_and_the_same_bits_every_call(case):
     """Above 4,096 elements (parallel.h) the membrane, node–sphere and pair backward kernels run their
     element loops in two halves, the second offered to XLA's thread pool. Against ``jax.vjp`` of the JAX
@@ -631,13 +640,14 @@ def _node_step_case(seed=5, num_spheres=30, capacity=3):
         contact=MembraneContactParams.default(),
         bending_factor=jnp.asarray(0.7),
         contact_offset_factor=jnp.asarray(1.0),  # the contact's thickness is t_m
+        locking_jm=jnp.asarray(_LOCKING_JM),
     )
     damping = integrate.DampingParams(local_coefficient=jnp.asarray(0.3), viscous_rate=jnp.asarray(5.0))
     args = (nodes, spheres, jnp.asarray(candidates), spring, 1e-5, params, damping, mesh)
     return node_update, args
 
 
-@pytest.mark.parametrize("model", ["neo_hookean", "svk"])
+@pytest.mark.parametrize("model", ["neo_hookean", "svk", "gent"])
 def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_their_forward_bits(model):
     """``node_update.node_step`` runs the node–sphere law, the membrane forces and the node update as one
     reverse-mode rule whose three backward kernels add their shares of the nodes' cotangents in place.
@@ -659,7 +669,7 @@ def test_node_step_chains_the_three_backward_kernels_with_their_cotangents_and_t
     )[:4]
     material = (params.modulus, params.thickness, params.cell_pressure, LATEX_POISSON_RATIO)
     internal = jax.jit(energies.nodal_forces, static_argnums=6)(
-        nodes.position, mesh, *material, model, params.bending_factor
+        nodes.position, mesh, *material, model, params.bending_factor, params.locking_jm
     )
     update = jax.jit(node_update.advance_nodes)(internal, contact_outputs[0], nodes, dt, damping)
     for g, w in zip(got, (*contact_outputs, *update), strict=True):

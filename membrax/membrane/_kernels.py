@@ -17,16 +17,20 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
-from membrax.defaults import LATEX_POISSON_RATIO, STRETCHING_MODELS
+from membrax.defaults import GENT_LOCKING_JM, LATEX_POISSON_RATIO, STRETCHING_MODELS
 
 # The membrane forces (membrane_forces.cc): −∇ of the membrane's energy, on nodal_forces' arguments.
 
 
-def nodal_forces_kernel_inputs(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
-):
-    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b)."""
-    scalars = (modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+def nodal_forces_kernel_inputs(position, mesh, *scalars):
+    """The kernel's differentiable inputs: the positions and the scalars (E_m, t_m, p, ν, f_b, J_m) stacked.
+
+    ``scalars`` are nodal_forces' after the mesh, in that order; J_m may be left out (the neo-Hookean and
+    SVK laws do not read it): :data:`membrax.defaults.GENT_LOCKING_JM` then.
+    """
+    del mesh  # its arrays are the kernel's other inputs (_mesh_inputs), no cotangent
+    if len(scalars) == 5:
+        scalars = (*scalars, GENT_LOCKING_JM)
     return position, native.stack_scalars(position.dtype, *scalars)
 
 
@@ -44,16 +48,14 @@ def _mesh_inputs(mesh, dtype):
     )
 
 
-def nodal_forces_kernel(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
-):
+def nodal_forces_kernel(*args, model):
     """The compiled kernel's forces (``membrane_forces.cc``).
 
-    The arguments are those of :func:`membrax.membrane.energies.reference_nodal_forces`.
+    ``args`` are those of :func:`nodal_forces_kernel_inputs` (of
+    :func:`membrax.membrane.energies.reference_nodal_forces` less the model, J_m last and optional).
     """
-    position, scalars = nodal_forces_kernel_inputs(
-        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor
-    )
+    position, scalars = nodal_forces_kernel_inputs(*args)
+    mesh = args[1]
     dtype = position.dtype
     return native.call(
         "membrane_forces",
@@ -69,7 +71,7 @@ def nodal_forces_kernel(
 def nodal_forces_backward(args, perturbed, cotangent, model):
     """The compiled reverse-mode rule (``membrane_forces_backward``).
 
-    J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b); None
+    J ū for the positions (the forces are −∇Φ, so J is symmetric) and ū·∂F/∂(E_m, t_m, p, ν, f_b, J_m); None
     (the reference's rule) when the mesh's rest geometry is differentiated.
     """
     if any(jax.tree.leaves(perturbed[1])):
@@ -82,7 +84,7 @@ def nodal_forces_backward(args, perturbed, cotangent, model):
 def nodal_forces_backward_kernel(args, cotangent, addend, bending_derivative, model):
     """``membrane_forces_backward`` on ``args``, the arguments of ``energies.nodal_forces`` less the model.
 
-    Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b)) for ū = ``cotangent``; the first in the addend's
+    Returns (addend + J ū, ū·∂F/∂(E_m, t_m, p, ν, f_b, J_m)) for ū = ``cotangent``; the first in the addend's
     buffer (aliased), so a caller that passes the positions' cotangent so far has it updated in place.
     """
     position, scalars = nodal_forces_kernel_inputs(*args)
@@ -291,6 +293,7 @@ def node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mes
         params.cell_pressure,
         LATEX_POISSON_RATIO,
         params.bending_factor,
+        params.locking_jm,
     )
     return contact, membrane, (nodes, dt, damping)
 
@@ -298,7 +301,7 @@ def node_step_parts(nodes, spheres, candidates, spring, dt, params, damping, mes
 def node_step_kernel(*args, model):
     contact, membrane, update = node_step_parts(*args)
     contact_outputs = node_sphere_kernel(*contact)
-    internal = nodal_forces_kernel(*membrane, model)
+    internal = nodal_forces_kernel(*membrane, model=model)
     return (*contact_outputs, *advance_nodes_kernel(internal, contact_outputs[0], *update))
 
 

@@ -10,8 +10,8 @@ N, J, kg.
 
 Energies (reference: ``shared/reference/membrane-corrections.md`` §11):
 
-- stretching: constant-strain triangles (CST) with an incompressible neo-Hookean or a St Venant–Kirchhoff
-  law (:func:`stretching_energy`);
+- stretching: constant-strain triangles (CST) with an incompressible neo-Hookean or Gent law or a
+  St Venant–Kirchhoff law (:func:`stretching_energy`);
 - bending: Discrete Shells (Grinspun et al. 2003) calibrated to the plate rigidity, k_b = D/6
   (:func:`bending_energy`);
 - cell pressure: the load potential +p V, V the volume enclosed by the band closed with two flat caps
@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from membrax import native
-from membrax.defaults import LATEX_POISSON_RATIO, STRETCHING_MODELS
+from membrax.defaults import GENT_LOCK_FRACTION, GENT_LOCKING_JM, LATEX_POISSON_RATIO, STRETCHING_MODELS
 from membrax.membrane import _kernels
 from membrax.membrane.mesh import (
     MembraneMesh,
@@ -41,6 +41,7 @@ from membrax.membrane.mesh import (
 
 __all__ = [
     "stretching_energy",
+    "locking_ratio",
     "bending_rigidity",
     "bending_energy",
     "pressure_energy",
@@ -52,27 +53,51 @@ __all__ = [
 
 
 def stretching_energy(
-    position, mesh: MembraneMesh, modulus, thickness, model="neo_hookean", poisson_ratio=0.5
+    position,
+    mesh: MembraneMesh,
+    modulus,
+    thickness,
+    model="neo_hookean",
+    poisson_ratio=0.5,
+    locking_jm=GENT_LOCKING_JM,
 ):
     """In-plane strain energy of the membrane with constant-strain triangles, J.
 
     Per triangle, with D_m the rest edge matrix in the triangle's plane and D_s = [x₂ − x₁, x₃ − x₁] (3 × 2):
-    F = D_s D_m⁻¹, C = FᵀF, E = (C − I)/2 (reference §11; standard finite elements), and
+    F = D_s D_m⁻¹, C = FᵀF, E = (C − I)/2 (reference §11; standard finite elements), and, with
+    I₁ − 3 = tr C + 1/det C − 3 (incompressible: λ₃² = 1/det C, thickness t = t₀/√det C),
 
-    - ``"neo_hookean"`` (incompressible, plane stress, thickness t = t₀/√det C):
-      W = t₀ A₀ (μ/2)(tr C + 1/det C − 3), μ = E_m/3 (so ν = ½);
+    - ``"neo_hookean"`` (incompressible, plane stress): W = t₀ A₀ (μ/2)(I₁ − 3), μ = E_m/3;
+    - ``"gent"`` (incompressible, plane stress; Gent 1996, Rubber Chem. Technol. 69, 59–61):
+      W = −t₀ A₀ (μ J_m/2) ln(1 − (I₁ − 3)/J_m), μ = E_m/3, J_m the locking constant: the chains' limited
+      extensibility, the stress growing without bound as I₁ − 3 → J_m. It tends to the neo-Hookean law as
+      J_m → ∞ (relative difference (I₁ − 3)/(2 J_m) in the energy);
     - ``"svk"`` (St Venant–Kirchhoff, plane stress): W = t₀ A₀ [μ tr(E²) + (λ*/2)(tr E)²],
       μ = E_m/(2(1+ν)), λ* = E_m ν/(1−ν²).
 
+    Small strain: all three give plane stress of Young's modulus E_m, the two rubbers with Poisson's ratio
+    ν = ½ (incompressible: at small strain I₁ − 3 = 4(tr E)² − 4 det E = 4(ε₁₁² + ε₂₂² + ε₁₁ε₂₂ + ε₁₂²),
+    so (μ/2)(I₁ − 3) with μ = E_m/3 is E_m/(2(1 − ν²)) (ε₁₁² + ε₂₂² + 2ν ε₁₁ε₂₂) + 2G ε₁₂² at ν = ½), SVK
+    with its ``poisson_ratio``. So E_m means the same in all three.
+
     Why neo-Hookean: latex is a rubber, near incompressible, and the membrane reaches tens of percent
-    strain where bulging; the neo-Hookean law is the simplest finite-strain rubber law and reduces to
-    E_m, ν = ½ at small strain. SVK is kept for small strains (below ~10 %) and other ν.
+    strain where bulging; the neo-Hookean law is the simplest finite-strain rubber law. It has an inflation
+    limit (:func:`membrax.theory.membrane_limit_pressure`), which real latex passes by stiffening as its
+    chains near full extension: Gent's law adds that stiffening with one constant. SVK is kept for small
+    strains (below ~10 %) and other ν.
+
+    The Gent lock. Past I₁ − 3 = f J_m (f = :data:`membrax.defaults.GENT_LOCK_FRACTION`) the energy is
+    continued by its quadratic extension in I₁ − 3, so that it stays finite and its forces finite and
+    continuous (W is C² in I₁ − 3) however far a triangle is stretched: with s = (I₁ − 3)/J_m,
+    W/(t₀ A₀ μ J_m/2) = −ln(1 − s) below f and −ln(1 − f) + (s − f)/(1 − f) + (s − f)²/(2(1 − f)²) above.
+    The continued energy is not Gent's: the coupled step sets ``ErrorCode.MEMBRANE_LOCKED`` when a triangle
+    passes f (:func:`locking_ratio`), and the run stops there with a :class:`membrax.errors.SimulationError`.
 
     Wrinkling: a membrane cannot carry compression. Here compression resistance comes from the bending
     energy (:func:`bending_energy`), which lets the mesh wrinkle at its own resolution; a tension-field
     (relaxed) energy is not implemented, so wrinkles finer than the mesh are not resolved.
 
-    The neo-Hookean bracket is evaluated through E as (4(tr E)² + 8 tr E det E − 4 det E)/det C, an exact
+    The rubbers' bracket I₁ − 3 is evaluated through E as (4(tr E)² + 8 tr E det E − 4 det E)/det C, an exact
     rewriting that avoids the cancellation of tr C + 1/det C − 3 at small strain (≈ 10 % error in float32
     at 10⁻³ strain otherwise).
 
@@ -81,31 +106,74 @@ def stretching_energy(
       mesh: the membrane.
       modulus: E_m, Pa (scalar; traced, differentiable).
       thickness: t₀, m (scalar; traced, differentiable).
-      model: ``"neo_hookean"`` or ``"svk"`` (static).
-      poisson_ratio: ν of the SVK law (the neo-Hookean law is incompressible).
+      model: ``"neo_hookean"``, ``"gent"`` or ``"svk"`` (static).
+      poisson_ratio: ν of the SVK law (the rubbers are incompressible).
+      locking_jm: J_m of the Gent law, dimensionless, > 0 (traced, differentiable; unused by the others).
 
     Returns:
       Scalar energy, J.
     """
-    return _stretching_energy_of(green_strain(position, mesh), mesh, modulus, thickness, model, poisson_ratio)
+    return _stretching_energy_of(
+        green_strain(position, mesh), mesh, modulus, thickness, model, poisson_ratio, locking_jm
+    )
 
 
-def _stretching_energy_of(strain, mesh: MembraneMesh, modulus, thickness, model, poisson_ratio):
+def _first_invariant_excess(strain):
+    """I₁ − 3 = tr C + 1/det C − 3 of incompressible triangles from their Green strain (E₁₁, E₂₂, E₁₂).
+
+    Evaluated as (4(tr E)² + 8 tr E det E − 4 det E)/det C, det C = 1 + 2 tr E + 4 det E: exact, and free
+    of the cancellation of the direct form at small strain.
+    """
+    e11, e22, e12 = strain
+    trace = e11 + e22
+    determinant = e11 * e22 - e12 * e12
+    det_c = 1.0 + 2.0 * trace + 4.0 * determinant
+    return (4.0 * trace * trace + 8.0 * trace * determinant - 4.0 * determinant) / det_c
+
+
+def _gent_stiffening_integral(ratio):
+    """φ(s) = −ln(1 − s), continued past s = f by its quadratic extension (:func:`stretching_energy`).
+
+    φ'(s) = 1/(1 − s) below f and 1/(1 − f) + (s − f)/(1 − f)² above: the factor by which Gent's stress
+    exceeds the neo-Hookean one at the same strain.
+    """
+    below = jnp.minimum(ratio, GENT_LOCK_FRACTION)
+    past = jnp.maximum(ratio - GENT_LOCK_FRACTION, 0.0)
+    slack = 1.0 - GENT_LOCK_FRACTION
+    return -jnp.log1p(-below) + past / slack + 0.5 * (past / slack) ** 2
+
+
+def _stretching_energy_of(strain, mesh: MembraneMesh, modulus, thickness, model, poisson_ratio, locking_jm):
     """:func:`stretching_energy` from the triangles' Green–Lagrange strain (E₁₁, E₂₂, E₁₂), (T,) each."""
     if model not in STRETCHING_MODELS:
         raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
     e11, e22, e12 = strain
     trace = e11 + e22
     if model == "neo_hookean":
-        determinant = e11 * e22 - e12 * e12
-        det_c = 1.0 + 2.0 * trace + 4.0 * determinant
-        bracket = (4.0 * trace * trace + 8.0 * trace * determinant - 4.0 * determinant) / det_c
-        density = (modulus / 6.0) * bracket  # (μ/2)(...) with μ = E/3
+        density = (modulus / 6.0) * _first_invariant_excess(strain)  # (μ/2)(I₁ − 3) with μ = E/3
+    elif model == "gent":
+        ratio = _first_invariant_excess(strain) / locking_jm
+        density = (modulus / 6.0) * locking_jm * _gent_stiffening_integral(ratio)  # −(μ J_m/2) ln(1 − s)
     else:
         shear = modulus / (2.0 * (1.0 + poisson_ratio))
         lame = modulus * poisson_ratio / (1.0 - poisson_ratio * poisson_ratio)
         density = shear * (e11 * e11 + e22 * e22 + 2.0 * e12 * e12) + 0.5 * lame * trace * trace
     return thickness * jnp.sum(mesh.reference_area * density)
+
+
+def locking_ratio(position, mesh: MembraneMesh, locking_jm):
+    """The membrane's closest approach to Gent's lock: the largest (I₁ − 3)/J_m over its triangles.
+
+    Past :data:`membrax.defaults.GENT_LOCK_FRACTION` the Gent energy is its continuation, no longer Gent's
+    (:func:`stretching_energy`); the coupled step checks it every ``LOCK_CHECK_EVERY`` steps
+    (:func:`membrax.membrane.coupled.locked_bit`, ``ErrorCode.MEMBRANE_LOCKED``).
+
+    Args:
+      position: (N, 3) node positions, m.
+      mesh: the membrane.
+      locking_jm: J_m, dimensionless.
+    """
+    return jnp.max(_first_invariant_excess(green_strain(position, mesh))) / locking_jm
 
 
 def bending_rigidity(modulus, thickness, poisson_ratio=0.5):
@@ -164,16 +232,18 @@ def total_energy(
     poisson_ratio=0.5,
     model="neo_hookean",
     bending_factor=1.0,
+    locking_jm=GENT_LOCKING_JM,
 ):
     """Stretching + bending + pressure potential of the membrane, J (see the three terms).
 
     ``bending_factor`` scales the bending energy: 1 is the plate's E t³/12(1 − ν²), 0 a pure membrane
     (a mesh with no bending stiffness, which may be what the paper's finite-difference mesh was).
+    ``locking_jm`` is the Gent law's J_m (:func:`stretching_energy`).
     """
     # One pass over the triangles gives both the strain and the band's volume term.
     *strain, triple = triangle_invariants(gathered_corners(position, mesh), mesh.reference_inverse)
     return (
-        _stretching_energy_of(strain, mesh, modulus, thickness, model, poisson_ratio)
+        _stretching_energy_of(strain, mesh, modulus, thickness, model, poisson_ratio, locking_jm)
         + bending_factor * bending_energy(position, mesh, modulus, thickness, poisson_ratio)
         + cell_pressure * enclosed_volume_of(jnp.sum(triple) / 6.0, position, mesh)
     )
@@ -188,6 +258,7 @@ def nodal_forces(
     poisson_ratio=LATEX_POISSON_RATIO,
     model="neo_hookean",
     bending_factor=1.0,
+    locking_jm=GENT_LOCKING_JM,
 ):
     """Conservative nodal forces −∂(total energy)/∂x, (N, 3), N.
 
@@ -197,32 +268,49 @@ def nodal_forces(
     everywhere else and is the definition the tests hold the kernel to (agreement to round-off). Reverse
     mode (``jax.grad``, ``jax.vjp``) runs a compiled backward kernel on the CPU
     (``membrane_forces_backward``): the forces are −∇Φ, so their Jacobian is symmetric and Jᵀū is the
-    directional derivative J ū, evaluated on dual numbers, with ū·∂F/∂(E_m, t_m, p, ν, f_b) from the same
-    pass; it gives the JAX expression's derivatives to round-off (``tests/test_native.py``). When the
+    directional derivative J ū, evaluated on dual numbers, with ū·∂F/∂(E_m, t_m, p, ν, f_b, J_m) from the
+    same pass; it gives the JAX expression's derivatives to round-off (``tests/test_native.py``). When the
     mesh's rest geometry is differentiated, the JAX expression's own derivatives are used.
     """
     if model not in STRETCHING_MODELS:
         raise ValueError(f"model must be one of {STRETCHING_MODELS}, got {model!r}")
     position = jnp.asarray(position)
-    args = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor)
+    args = (position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, locking_jm)
     if native.enabled_for(position.dtype):
         return _COMPILED_NODAL_FORCES[model](*args)
-    return reference_nodal_forces(*args, model)
+    return reference_nodal_forces(*args[:7], model, locking_jm)
 
 
 def reference_nodal_forces(
-    position, mesh, modulus, thickness, cell_pressure, poisson_ratio, bending_factor, model
+    position,
+    mesh,
+    modulus,
+    thickness,
+    cell_pressure,
+    poisson_ratio,
+    bending_factor,
+    model,
+    locking_jm=GENT_LOCKING_JM,
 ):
     """−∇(total energy) by ``jax.grad``: the definition of :func:`nodal_forces`."""
     return -jax.grad(total_energy)(
-        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model, bending_factor
+        position, mesh, modulus, thickness, cell_pressure, poisson_ratio, model, bending_factor, locking_jm
     )
+
+
+def _reference_of(model):
+    """:func:`reference_nodal_forces` of one law, J_m last (as the kernel takes it) and optional."""
+
+    def reference(*args):
+        return reference_nodal_forces(*args[:7], model, *args[7:])
+
+    return reference
 
 
 _COMPILED_NODAL_FORCES = {
     model: native.with_reference(
         functools.partial(_kernels.nodal_forces_kernel, model=model),
-        functools.partial(reference_nodal_forces, model=model),
+        _reference_of(model),
         functools.partial(_kernels.nodal_forces_backward, model=model),
     )
     for model in STRETCHING_MODELS

@@ -115,7 +115,8 @@ def node_step(
     The same numbers as :func:`membrax.membrane.contact.node_sphere_forces` (``nodes.for_contact()``,
     ``spheres``, ``candidates``, ``spring``, ``dt``, ``params.contact``, ``params.contact_thickness``),
     :func:`membrax.membrane.energies.nodal_forces` (at ``nodes.position``, ``mesh``, ``params.modulus``,
-    ``params.thickness``, ``params.cell_pressure``, ν of latex, ``params.bending_factor``) and
+    ``params.thickness``, ``params.cell_pressure``, ν of latex, ``params.bending_factor``,
+    ``params.locking_jm``) and
     :func:`advance_nodes` (those forces, ``nodes``, ``dt``, ``damping``), from the same kernels, so the
     same bits. Reverse mode runs their three backward kernels one after the other, each adding its share of
     the nodes' cotangents to the last one's in place; it gives the three functions' derivatives to
@@ -145,7 +146,7 @@ def node_step(
 def _node_step_reference(*args, model):
     contact, membrane, update = _kernels.node_step_parts(*args)
     contact_outputs = node_sphere_reference(*contact)
-    internal = energies.reference_nodal_forces(*membrane, model)
+    internal = energies.reference_nodal_forces(*membrane[:7], model, *membrane[7:])  # J_m after the model
     return (*contact_outputs, *_advance_nodes_reference(internal, contact_outputs[0], *update))
 
 

@@ -16,8 +16,8 @@
 //   edge_weight    (E,) T      3|ē|²/Ā of Discrete Shells
 //   rest_dihedral  (E,) T      θ̄, rad
 //   bottom_ring, top_ring (n,) i32  the end rings, counter-clockwise seen from +z
-//   scalars        (5,) T      E_m (Pa), t_m (m), p (Pa), ν, f_b (bending factor)
-// Attribute: model (0 neo-Hookean, 1 St Venant–Kirchhoff).
+//   scalars        (6,) T      E_m (Pa), t_m (m), p (Pa), ν, f_b (bending factor), J_m (Gent's lock)
+// Attribute: model (0 neo-Hookean, 1 St Venant–Kirchhoff, 2 Gent: STRETCHING_MODELS of defaults.py).
 // Output: force (N, 3) T, N.
 
 #include <algorithm>
@@ -76,11 +76,25 @@ inline T atan2_branchless(T y, T x) {
   return y < T(0) ? -angle : angle;
 }
 
+// The stretching laws, numbered as the model attribute (STRETCHING_MODELS of defaults.py).
+constexpr int kNeoHookean = 0, kSaintVenantKirchhoff = 1, kGent = 2;
+// GENT_LOCK_FRACTION of defaults.py: past (I₁ − 3)/J_m = f the Gent energy is its quadratic extension.
+constexpr double kLockFraction = 0.9;
+
+// Gent's stress over the neo-Hookean one at s = (I₁ − 3)/J_m: φ'(s) = 1/(1 − s) below the lock fraction f,
+// 1/(1 − f) + (s − f)/(1 − f)² above (energies.py, _gent_stiffening_integral); generic in T so that the
+// backward kernel evaluates it on dual numbers. Branch-free: selects.
+template <typename T, typename S>
+__attribute__((always_inline)) inline S gent_stiffening(S below, S past) {
+  const T slack = T(1) - T(kLockFraction);
+  return T(1) / (T(1) - below) + past / (slack * slack);
+}
+
 // Stretching and cell pressure of each triangle: corner forces, component-first (corner, component, t).
-template <typename T>
+template <typename T, int kLaw>
 void triangle_forces(const T* __restrict x, const int32_t* __restrict corner, const T* __restrict inverse,
                      const T* __restrict area, int64_t num_triangles, T modulus, T thickness,
-                     T pressure, T poisson, int64_t model, T* __restrict out) {
+                     T pressure, T poisson, T locking, T* __restrict out) {
   const int64_t n = num_triangles;
   const T shear = modulus / (T(2) * (T(1) + poisson));
   const T lame = modulus * poisson / (T(1) - poisson * poisson);
@@ -105,14 +119,21 @@ void triangle_forces(const T* __restrict x, const int32_t* __restrict corner, co
     const T e12 = T(0.5) * (f1[0] * f2[0] + f1[1] * f2[1] + f1[2] * f2[2]);
     const T trace = e11 + e22;
     T d11, d22, d12;  // ∂w/∂E₁₁, ∂w/∂E₂₂, ∂w/∂E₁₂ of the energy density
-    if (model == 0) {
-      // w = (E_m/6)(4 tr² + 8 tr det − 4 det)/det C, det C = 1 + 2 tr + 4 det (membrane.py).
+    if constexpr (kLaw == kNeoHookean || kLaw == kGent) {
+      // w = (E_m/6)(4 tr² + 8 tr det − 4 det)/det C, det C = 1 + 2 tr + 4 det (energies.py); Gent's
+      // w = (E_m/6) J_m φ((I₁ − 3)/J_m) has the neo-Hookean derivative times φ'.
       const T det = e11 * e22 - e12 * e12;
       const T det_c = T(1) + T(2) * trace + T(4) * det;
       const T bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
       const T by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
       const T by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
-      const T k = modulus / T(6);
+      T k = modulus / T(6);
+      if constexpr (kLaw == kGent) {
+        const T ratio = bracket / locking;
+        const T below = std::min(ratio, T(kLockFraction));
+        const T past = std::max(ratio - T(kLockFraction), T(0));
+        k *= gent_stiffening<T, T>(below, past);
+      }
       d11 = k * (by_trace + by_det * e22);
       d22 = k * (by_trace + by_det * e11);
       d12 = k * (-T(2) * by_det * e12);
@@ -262,7 +283,7 @@ bool consistent_sizes(const ffi::Buffer<dtype>& position, const ffi::Buffer<ffi:
                       const ffi::Buffer<ffi::S32>& hinge_index, const ffi::Buffer<dtype>& edge_weight,
                       const ffi::Buffer<dtype>& rest_dihedral, const ffi::Buffer<dtype>& scalars) {
   const size_t num_triangles = area.element_count(), num_hinges = edge_weight.element_count();
-  return position.element_count() % 3 == 0 && scalars.element_count() == 5 &&
+  return position.element_count() % 3 == 0 && scalars.element_count() == 6 &&
          corner_index.element_count() == 3 * num_triangles && inverse.element_count() == 4 * num_triangles &&
          hinge_index.element_count() == 4 * num_hinges && rest_dihedral.element_count() == num_hinges;
 }
@@ -281,9 +302,13 @@ ffi::Future membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> c
   if (!consistent_sizes(position, corner_index, inverse, area, hinge_index, edge_weight, rest_dihedral, scalars)) {
     return membrax::failed(ffi::Error::InvalidArgument("membrane_forces: inconsistent array sizes"));
   }
+  if (model < kNeoHookean || model > kGent) {
+    return membrax::failed(ffi::Error::InvalidArgument("membrane_forces: unknown stretching model"));
+  }
   const T* x = position.typed_data();
   const T* s = scalars.typed_data();
-  const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4];
+  const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4],
+          locking = s[5];
   T* f = force->typed_data();
   const int32_t* corner = corner_index.typed_data();
   const int32_t* hinge = hinge_index.typed_data();
@@ -298,8 +323,11 @@ ffi::Future membrane_forces(ffi::Buffer<dtype> position, ffi::Buffer<ffi::S32> c
     std::fill(f, f + 3 * num_nodes, T(0));
     thread_local std::vector<T> scratch;
     scratch.resize(size_t(12 * std::max(num_triangles, num_hinges)));
-    triangle_forces<T>(x, corner, inverse_data, area_data, num_triangles, modulus, thickness, pressure, poisson,
-                       model, scratch.data());
+    const auto triangles = model == kNeoHookean             ? triangle_forces<T, kNeoHookean>
+                           : model == kSaintVenantKirchhoff ? triangle_forces<T, kSaintVenantKirchhoff>
+                                                            : triangle_forces<T, kGent>;
+    triangles(x, corner, inverse_data, area_data, num_triangles, modulus, thickness, pressure, poisson, locking,
+              scratch.data());
     add_to_nodes<T>(scratch.data(), corner, 3, num_triangles, f);
     if (bending_factor != T(0)) {  // a zero factor multiplies the whole bending term: nothing to add
       const T stiffness = bending_factor * modulus * thickness * thickness * thickness /
@@ -326,7 +354,7 @@ inline Dual<T> atan2_branchless(Dual<T> y, Dual<T> x) {
 // Sums of ū·∂F/∂(scalar) over the elements.
 template <typename T>
 struct ScalarSums {
-  T modulus = 0, thickness = 0, pressure = 0, poisson = 0, bending = 0;  // bending: ∂/∂k_b
+  T modulus = 0, thickness = 0, pressure = 0, poisson = 0, bending = 0, locking = 0;  // bending: ∂/∂k_b
 };
 
 // Vectors of dual numbers, as named fields (no indexed arrays), so that the element loops vectorise.
@@ -360,20 +388,21 @@ __attribute__((always_inline)) inline T tangent_dot_value(DualVec<T> a, DualVec<
 }
 
 // One range of triangles' sums, added in order: Σ A₀ (∂w/∂E per unit E):dE (stretch), Σ E_m t_m A₀
-// (its ν-derivative):dE (poisson), Σ ū·∂(6V)/∂x (volume); dE the strain's tangent along ū.
+// (its ν-derivative):dE (poisson), Σ ū·∂(6V)/∂x (volume), Σ A₀ (its J_m-derivative per unit E):dE
+// (locking); dE the strain's tangent along ū.
 template <typename T>
 struct TriangleSums {
-  T stretch = 0, poisson = 0, volume = 0;
+  T stretch = 0, poisson = 0, volume = 0, locking = 0;
 };
 
 // The triangles' corner forces on x + ū ε for triangles [begin, end): their tangents (J ū),
-// component-first, and the range's sums. The stretching model is a template argument, so that the loop
-// evaluates one model's formula. membrane_stiffness = E_m t_m.
-template <typename T, bool kNeoHookean>
+// component-first, and the range's sums. The stretching law is a template argument, so that the loop
+// evaluates one law's formula. membrane_stiffness = E_m t_m; partial holds 4 per-element sums.
+template <typename T, int kLaw>
 TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, const int32_t* __restrict corner,
                                   const T* __restrict inverse, const T* __restrict area, int64_t num_triangles,
                                   int64_t begin, int64_t end, T membrane_stiffness, T poisson, T pressure,
-                                  T* __restrict out, T* __restrict partial) {
+                                  T locking, T* __restrict out, T* __restrict partial) {
   using D = Dual<T>;
   using membrax::cross;
   using membrax::dot;
@@ -400,10 +429,12 @@ TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, 
     const D e22 = T(0.5) * (dot(f2, f2) - T(1));
     const D e12 = T(0.5) * dot(f1, f2);
     const D trace = e11 + e22;
-    // ∂w/∂E per unit E_m (triangle_forces' formulas) and its ν-derivative (St Venant–Kirchhoff only).
+    // ∂w/∂E per unit E_m (triangle_forces' formulas), its ν-derivative (St Venant–Kirchhoff only) and its
+    // J_m-derivative (Gent only; jm11 etc. its values).
     D u11, u22, u12;
     T nu11 = T(0), nu22 = T(0), nu12 = T(0);
-    if constexpr (kNeoHookean) {
+    T jm11 = T(0), jm22 = T(0), jm12 = T(0);
+    if constexpr (kLaw == kNeoHookean || kLaw == kGent) {
       const D det = e11 * e22 - e12 * e12;
       const D det_c = T(1) + T(2) * trace + T(4) * det;
       const D bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
@@ -412,6 +443,22 @@ TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, 
       u11 = (by_trace + by_det * e22) / T(6);
       u22 = (by_trace + by_det * e11) / T(6);
       u12 = (-T(2) * by_det * e12) / T(6);
+      if constexpr (kLaw == kGent) {
+        // φ'(s), s = (I₁ − 3)/J_m, on dual numbers; ∂φ'/∂J_m = −φ''(s) s/J_m, φ'' = 1/(1 − min(s, f))².
+        const D ratio = bracket / locking;
+        const bool locked = ratio.v > T(kLockFraction);
+        const D below = membrax::select(locked, membrax::constant(T(kLockFraction)), ratio);
+        const D past = membrax::select(locked, ratio - T(kLockFraction), membrax::constant(T(0)));
+        const D stiffening = gent_stiffening<T, D>(below, past);
+        const T curvature = T(1) / ((T(1) - below.v) * (T(1) - below.v));
+        const T by_locking = -curvature * ratio.v / locking;
+        jm11 = by_locking * u11.v;
+        jm22 = by_locking * u22.v;
+        jm12 = by_locking * u12.v;
+        u11 = stiffening * u11;
+        u22 = stiffening * u22;
+        u12 = stiffening * u12;
+      }
     } else {
       u11 = T(2) * shear_unit * e11 + lame_unit * trace;
       u22 = T(2) * shear_unit * e22 + lame_unit * trace;
@@ -437,12 +484,14 @@ TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, 
     partial[t] = area[t] * work_unit;
     partial[n + t] = scale * (nu11 * e11.d + nu22 * e22.d + nu12 * e12.d);
     partial[2 * n + t] = volume_rate;
+    partial[3 * n + t] = area[t] * (jm11 * e11.d + jm22 * e22.d + jm12 * e12.d);
   }
   TriangleSums<T> sums;
   for (int64_t t = begin; t < end; ++t) {
     sums.stretch += partial[t];
     sums.poisson += partial[n + t];
     sums.volume += partial[2 * n + t];
+    sums.locking += partial[3 * n + t];
   }
   return sums;
 }
@@ -538,7 +587,7 @@ void cap_tangents(const T* x, const T* u, const int32_t* ring, int64_t count, bo
 
 // Inputs: those of membrane_forces, then the forces' cotangent ū (N, 3) and an addend a (N, 3).
 // Attributes: model, and bending_derivative (1: ū·∂F/∂f_b is wanted, so the hinges run even at f_b = 0).
-// Outputs: the position's cotangent a + J ū (N, 3) and the scalars' (5,): ū·∂F/∂(E_m, t_m, p, ν, f_b).
+// Outputs: the position's cotangent a + J ū (N, 3) and the scalars' (6,): ū·∂F/∂(E_m, t_m, p, ν, f_b, J_m).
 // The addend is the positions' cotangent from the rest of the step: the caller may alias it to the
 // first output (XLA's input_output_aliases), and then J ū is added in place, with no separate sum.
 template <ffi::DataType dtype>
@@ -560,10 +609,14 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
       addend.element_count() != position.element_count()) {
     return ffi::Error::InvalidArgument("membrane_forces_backward: inconsistent array sizes");
   }
+  if (model < kNeoHookean || model > kGent) {
+    return ffi::Error::InvalidArgument("membrane_forces_backward: unknown stretching model");
+  }
   const T* x = position.typed_data();
   const T* u = cotangent.typed_data();
   const T* s = scalars.typed_data();
-  const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4];
+  const T modulus = s[0], thickness = s[1], pressure = s[2], poisson = s[3], bending_factor = s[4],
+          locking = s[5];
   T* tangent = position_cotangent->typed_data();
   const T* start = addend.typed_data();
   if (start != tangent) std::copy(start, start + 3 * num_nodes, tangent);  // else aliased: add in place
@@ -572,22 +625,25 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   const int64_t most = std::max(num_triangles, num_hinges);
   thread_local std::vector<T> scratch, partial_sums;
   scratch.resize(size_t(12 * most));
-  partial_sums.resize(size_t(3 * most));
+  partial_sums.resize(size_t(4 * most));
   T* partial = partial_sums.data();
   // The element loops in two halves on two threads (parallel.h); the sums added in the halves' order.
-  const auto triangles = model == 0 ? triangle_tangents<T, true> : triangle_tangents<T, false>;
+  const auto triangles = model == kNeoHookean             ? triangle_tangents<T, kNeoHookean>
+                         : model == kSaintVenantKirchhoff ? triangle_tangents<T, kSaintVenantKirchhoff>
+                                                          : triangle_tangents<T, kGent>;
   T* per_corner = scratch.data();
   TriangleSums<T> halves[2];
   membrax::two_halves(pool, num_triangles, [&](int half, int64_t begin, int64_t end) {
     halves[half] = triangles(x, u, corner_index.typed_data(), inverse.typed_data(), area.typed_data(),
-                             num_triangles, begin, end, modulus * thickness, poisson, pressure, per_corner,
-                             partial);
+                             num_triangles, begin, end, modulus * thickness, poisson, pressure, locking,
+                             per_corner, partial);
   });
   const T stretch = halves[0].stretch + halves[1].stretch;
   sums.modulus = -thickness * stretch;
   sums.thickness = -modulus * stretch;
   sums.poisson = -(halves[0].poisson + halves[1].poisson);
   sums.pressure = -(halves[0].volume + halves[1].volume) / T(6);
+  sums.locking = -modulus * thickness * (halves[0].locking + halves[1].locking);
   add_to_nodes<T>(scratch.data(), corner_index.typed_data(), 3, num_triangles, tangent);
   // k_b = f_b E t³/(72(1 − ν²)) (D/6). At f_b = 0 the hinges add nothing but ∂/∂f_b, so they run only
   // when that derivative is asked for (bending_derivative); every other output has the factor f_b.
@@ -614,6 +670,7 @@ ffi::Error membrane_forces_backward(ffi::Buffer<dtype> position, ffi::Buffer<ffi
   out[2] = sums.pressure;
   out[3] = sums.poisson + sums.bending * stiffness * T(2) * poisson / one_minus;
   out[4] = sums.bending * modulus * plate;
+  out[5] = sums.locking;
   return ffi::Error::Success();
 }
 

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax.defaults import MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
+from membrax.defaults import GENT_LOCKING_JM, MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
 from membrax.driver import ChunkRunner
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import (
@@ -235,6 +235,8 @@ def membrane_test(
     bending_factor: float = 0.0,
     nodes_around: int | None = None,
     contact_offset_factor: float = 1.0,
+    stretching_model: str = "neo_hookean",
+    locking_jm: float = GENT_LOCKING_JM,
     contact_model: str = "nodes",
 ) -> MembraneTest:
     """Build a membrane triaxial test on a specimen (module docstring); defaults are the paper's.
@@ -270,6 +272,9 @@ def membrane_test(
       contact_offset_factor: nodes touch spheres at R + f t_m/2 (1: the membrane's inner face on the
         sphere; 0: its nodes on the sphere surface, the paper's; :class:`MembraneParams`). The mesh is
         built f t_m/2 outside the outer spheres, where its nodes would touch them.
+      stretching_model: the membrane's stretching law, ``"neo_hookean"`` (the paper's), ``"gent"`` or
+        ``"svk"`` (:func:`membrax.membrane.energies.stretching_energy`).
+      locking_jm: the Gent law's J_m, > 0 (:data:`membrax.defaults.GENT_LOCKING_JM`).
       contact_model: ``"nodes"`` (the spheres meet the membrane's nodes) or ``"faces"`` (its faces, edges
         and nodes, :mod:`membrax.membrane.face_contact`; JAX only, not the CPU kernels).
     """
@@ -283,6 +288,7 @@ def membrane_test(
         contact=membrane_contact,
         bending_factor=bending_factor,
         contact_offset_factor=contact_offset_factor,
+        locking_jm=locking_jm,
     )
     contact_params = ContactParams.paper() if contact_params is None else contact_params
     damping = DampingParams.local(0.3) if damping is None else damping
@@ -330,7 +336,9 @@ def membrane_test(
     lattice = make_particles(nominal, density)
     dem_init, _ = sphere_dem(lattice, frame, 1.0)
     critical = {"dem": critical_time_step(dem_init(position, walls, neighbors), lattice, params.dem)}
-    membrane_steps = membrane_critical_time_step(mesh, membrane_params, latex_density)
+    membrane_steps = membrane_critical_time_step(
+        mesh, membrane_params, latex_density, stretching_model=stretching_model
+    )
     critical.update({f"membrane_{key}": value for key, value in membrane_steps.items()})
     dt = dt_safety * min(critical["dem"], critical["membrane_combined"]) if time_step is None else time_step
     if max_wall_speed is None:
@@ -338,16 +346,14 @@ def membrane_test(
     walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
     platen_area = float(specimen.cross_section_area)
 
+    law = {
+        "latex_density": latex_density,
+        "stretching_model": stretching_model,
+        "contact_model": contact_model,
+    }
+
     def make_step(member_mesh):
-        return membrane_dem(
-            particles,
-            frame,
-            member_mesh,
-            dt,
-            platen_area,
-            latex_density=latex_density,
-            contact_model=contact_model,
-        )[1]
+        return membrane_dem(particles, frame, member_mesh, dt, platen_area, **law)[1]
 
     def make_record(member_mesh, member_volume):
         def record(s, p):
@@ -355,9 +361,7 @@ def membrane_test(
 
         return record
 
-    init_fn, step_fn = membrane_dem(
-        particles, frame, mesh, dt, platen_area, latex_density=latex_density, contact_model=contact_model
-    )
+    init_fn, step_fn = membrane_dem(particles, frame, mesh, dt, platen_area, **law)
     state = init_fn(
         dem_init(position, walls, neighbors), params, candidate_capacity, skin=skin_fraction * diameter
     )
