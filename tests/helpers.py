@@ -15,6 +15,23 @@ SMALL_MEMBRANE_TEST = TriaxialConfig(
     **SMALL_SPECIMEN, membrane_edges_per_diameter=2.0, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0
 )
 
+#: The small periodic element of the run tests (test_periodic, test_periodic_batch): 64 equal spheres (the
+#: fewest), 40 kPa, I = 5e-3, to 1 % in two recording phases, 500-step chunks, a checkpoint after each.
+SMALL_ELEMENT = dict(
+    packing="random",
+    cell="periodic",
+    periodic_particles=64,
+    cell_pressure_kpa=40.0,
+    inertial_number=5e-3,
+    target_axial_strain=0.01,
+    fine_until_strain=0.005,
+    record_every_fine=50,
+    record_every_coarse=100,
+    consolidation_max_steps=3000,
+    chunk_steps=500,
+    checkpoint_every_chunks=1,
+)
+
 #: Round-off tolerances per dtype (jax-md's ``test_util`` is the model): ``ROUNDOFF`` for a few operations
 #: (a sum of forces, a ratio), ``ACCUMULATED`` for quantities through thousands of explicit steps.
 ROUNDOFF = {np.dtype(np.float32): 1e-5, np.dtype(np.float64): 1e-12}
