@@ -19,7 +19,7 @@ Run: ``python benchmarks/bench_periodic.py [--members 4] [--particles 500] [--st
 """
 
 import numpy as np
-from harness import benchmark_parser, benchmark_rows, print_table, time_one_by_one, timed
+from harness import batch_columns, benchmark_parser, benchmark_rows, print_table, time_one_by_one, timed
 
 
 def measure(dtype: str, members: int, particles: int, steps: int, mode: str, cpu_devices: int) -> dict:
@@ -63,12 +63,7 @@ def measure(dtype: str, members: int, particles: int, steps: int, mode: str, cpu
     )
     advanced = count * record_every
     return {
-        "dtype": dtype,
-        "backend": jax.default_backend(),
-        "devices": batch.num_devices,
-        "mode": batch.mode,
-        "members": real,
-        "spheres": int(batch.tests[0].particles.num_particles),
+        **batch_columns(dtype, batch),
         "steps": advanced,
         "batched_compile_s": first - batched_time,
         "batched_steps_per_s": advanced / batched_time,

@@ -25,7 +25,7 @@ Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mo
 import resource
 import time
 
-from harness import benchmark_parser, benchmark_rows, time_one_by_one, timed
+from harness import batch_columns, benchmark_parser, benchmark_rows, time_one_by_one, timed
 
 
 def measure(
@@ -91,12 +91,7 @@ def measure(
     member_steps = real * count * record_every
     bodies = batch.tests[0].particles.num_particles + batch.tests[0].mesh.num_nodes
     return {
-        "dtype": dtype,
-        "backend": jax.default_backend(),
-        "devices": batch.num_devices,
-        "mode": batch.mode,
-        "members": real,
-        "spheres": int(batch.tests[0].particles.num_particles),
+        **batch_columns(dtype, batch),
         "nodes": int(batch.tests[0].mesh.num_nodes),
         "build_s": build,
         "batched_compile_s": sharded_compile,

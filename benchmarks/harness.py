@@ -69,6 +69,20 @@ def best_of(function, *args, runs: int = 3) -> float:
     return min(timed(function, *args)[1] for _ in range(runs))
 
 
+def batch_columns(dtype: str, batch) -> dict:
+    """The columns a batch benchmark's row starts with: dtype, backend, devices, mode, members, spheres."""
+    import jax
+
+    return {
+        "dtype": dtype,
+        "backend": jax.default_backend(),
+        "devices": batch.num_devices,
+        "mode": batch.mode,
+        "members": batch.num_members,
+        "spheres": int(batch.tests[0].particles.num_particles),
+    }
+
+
 def time_one_by_one(tests, states, num_records: int, record_every: int) -> tuple[float, float]:
     """(compile, run) seconds summed over the tests, each its runner's own compiled chunk from its state.
 

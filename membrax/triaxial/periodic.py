@@ -54,7 +54,8 @@ shared with other jobs (load average ~10; 2,000 steps in one compiled chunk, 202
 Errors ride in ``state.error`` (:class:`membrax.errors.ErrorCode`): a neighbour list that overflowed or
 whose cells the box outgrew sets ``NEIGHBOR_OVERFLOW``, and the runner allocates a new list from the
 chunk's starting state (:func:`membrax.driver.grow_tables`, with the list allocated by
-:meth:`PeriodicRunner.allocate_list`); non-finite positions or velocities set ``NOT_FINITE``.
+:meth:`PeriodicRunner.allocate_list`; the members of a batch, :class:`membrax.executor.PeriodicBatch`, all
+together in one shape); non-finite positions or velocities set ``NOT_FINITE``.
 """
 
 from __future__ import annotations
