@@ -25,7 +25,7 @@ Run: ``python benchmarks/bench_sweep.py [--size small|paper] [--steps 500] [--mo
 import resource
 import time
 
-from harness import benchmark_parser, benchmark_rows, timed
+from harness import batch_columns, benchmark_parser, benchmark_rows, time_one_by_one, timed
 
 
 def measure(
@@ -86,26 +86,12 @@ def measure(
             one.initial_state,
             budgets[:real],
         )
-        serial_compile, serial_time = 0.0, 0.0
-        for test in batch.tests:
-            state = test.start_consolidation(test.initial_state)
-
-            def alone(s, test=test):
-                return test.runner._chunk(s, test.params, num_records=count, record_every=record_every)
-
-            _, compile_and_run = timed(alone, state)
-            _, run = timed(alone, state)
-            serial_compile += compile_and_run - run
-            serial_time += run
+        states = [test.start_consolidation(test.initial_state) for test in batch.tests]
+        serial_compile, serial_time = time_one_by_one(batch.tests, states, count, record_every)
     member_steps = real * count * record_every
     bodies = batch.tests[0].particles.num_particles + batch.tests[0].mesh.num_nodes
     return {
-        "dtype": dtype,
-        "backend": jax.default_backend(),
-        "devices": batch.num_devices,
-        "mode": batch.mode,
-        "members": real,
-        "spheres": int(batch.tests[0].particles.num_particles),
+        **batch_columns(dtype, batch),
         "nodes": int(batch.tests[0].mesh.num_nodes),
         "build_s": build,
         "batched_compile_s": sharded_compile,

@@ -69,6 +69,40 @@ def best_of(function, *args, runs: int = 3) -> float:
     return min(timed(function, *args)[1] for _ in range(runs))
 
 
+def batch_columns(dtype: str, batch) -> dict:
+    """The columns a batch benchmark's row starts with: dtype, backend, devices, mode, members, spheres."""
+    import jax
+
+    return {
+        "dtype": dtype,
+        "backend": jax.default_backend(),
+        "devices": batch.num_devices,
+        "mode": batch.mode,
+        "members": batch.num_members,
+        "spheres": int(batch.tests[0].particles.num_particles),
+    }
+
+
+def time_one_by_one(tests, states, num_records: int, record_every: int) -> tuple[float, float]:
+    """(compile, run) seconds summed over the tests, each its runner's own compiled chunk from its state.
+
+    Each test's chunk (:class:`membrax.driver.ChunkRunner`: ``num_records`` records every ``record_every``
+    steps) is called twice in turn, the tests one after another: the first call's excess over the second is
+    its compile time.
+    """
+    compile_time, run_time = 0.0, 0.0
+    for test, state in zip(tests, states, strict=True):
+
+        def alone(s, test=test):
+            return test.runner._chunk(s, test.params, num_records=num_records, record_every=record_every)
+
+        _, compile_and_run = timed(alone, state)
+        _, run = timed(alone, state)
+        compile_time += compile_and_run - run
+        run_time += run
+    return compile_time, run_time
+
+
 def time_coupled_steps(test, repeats: int) -> tuple[float, float]:
     """(first call, best of three) seconds of ``repeats`` coupled steps of a membrane test, s.
 

@@ -464,12 +464,22 @@ def precision_scope(config: TriaxialConfig):
 
 
 def structure_key(config: TriaxialConfig) -> tuple:
-    """The fields that must agree within one batch (everything not batched and not bookkeeping)."""
-    return tuple(
+    """The fields that must agree within one batch (everything not batched and not bookkeeping).
+
+    A periodic element's members also share the particle stiffness (it makes their packing and Δt) and
+    whether the spheres are frictionless (the rattler rule of z*, a compiled constant).
+    """
+    key = tuple(
         (field.name, getattr(config, field.name))
         for field in pydataclasses.fields(TriaxialConfig)
         if field.name not in BATCHED_FIELDS and field.name not in BOOKKEEPING_FIELDS
     )
+    if config.cell == "periodic":
+        key += (
+            ("particle_stiffness_n_m", config.particle_stiffness_n_m),
+            ("frictionless", config.friction_angle_deg == 0.0),
+        )
+    return key
 
 
 def grid_members(base: TriaxialConfig, grid: Mapping[str, Sequence]) -> tuple[dict, list]:

@@ -16,7 +16,8 @@ the host:
 Its users, each handing it a chunk and callbacks: :class:`ChunkRunner` (one state: the stages of
 :class:`membrax.triaxial.protocol.StagedTest` and of the periodic cell,
 :class:`membrax.triaxial.periodic.PeriodicRunner`; interactive use), :class:`membrax.executor.BatchedTest`
-(stacked members: every run of :mod:`membrax.run` and :mod:`membrax.sweep`), the compaction of a random
+and :class:`membrax.executor.PeriodicBatch` (stacked members: every run of :mod:`membrax.run` and
+:mod:`membrax.sweep`), the compaction of a random
 packing and its FIRE relaxations (:mod:`membrax.spheres.compaction`, :mod:`membrax.spheres.fire`: a
 chunk, then a measure that may end the budget), the continuation differences of
 :mod:`membrax.sensitivities` (relax until balanced) and the gradient rollouts of :mod:`membrax.gradients`

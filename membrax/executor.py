@@ -12,12 +12,28 @@ arrays stay in cache; :mod:`membrax.batch`) or ``vmap`` on a GPU, sharded over d
 ``jax.shard_map``. Each member carries a step budget for the current phase; a record block of a member whose
 budget is spent is skipped (``lax.cond``: no work on a CPU) and its state frozen, so every member takes
 exactly the steps it would take alone with the same Δt and mesh (tests/test_sweep.py checks batched =
-alone).
+alone). :class:`StackedMembers` holds what every batch shares (the chunk, the budgets, the driver's loop).
+
+Periodic elements. :func:`build_periodic_batch` stacks ``cell = "periodic"`` members of one packing
+(:class:`PeriodicBatch`: one cell, Δt and neighbour-list shape; each member its own σc, servo targets,
+rates, contact law, stage budgets and stop test); :func:`membrax.run.run_periodic_group` drives it through
+the protocol (a single element is a batch of one). Its records equal those of each member run alone to
+the bit on one device with ``lax.map`` (the same program per member: tests/test_periodic_batch.py). Under
+``vmap`` (the GPU's mode) the reductions over spheres and pairs are vectorised across members and sum in
+another order, and sharded over several CPU devices XLA compiles the per-device program otherwise (measured
+on 64 spheres in float64: 1e-12 of σc over 1,000 steps with viscous damping); either way the members
+start apart at round-off, which local damping's sign(u) (flipping on round-off where u ≈ 0) and the
+granular dynamics amplify over thousands of steps (1e-9 of σc after 100 steps, ~1e-4 after 2,000), as in a
+membrane sweep sharded over devices. A list that overflows in any member, or a box
+that outgrows its cells, grows every member's list together, from the chunk's start (one shape); a member
+whose list would not have grown alone then rebuilds its list at another step than alone, which reorders
+its pairs and sums: round-off again, not bits.
 """
 
 from __future__ import annotations
 
 import dataclasses as pydataclasses
+import functools
 import itertools
 import math
 import types
@@ -28,7 +44,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
-from membrax.assemble import BATCHED_FIELDS, build_test, common_nodes_around, run_settings, structure_key
+from membrax.assemble import (
+    BATCHED_FIELDS,
+    build_periodic_test,
+    build_test,
+    common_nodes_around,
+    run_settings,
+    structure_key,
+)
 from membrax.batch import stack
 from membrax.config import TriaxialConfig
 from membrax.driver import advance, drive, grow_tables, record_blocks
@@ -45,8 +68,11 @@ from membrax.triaxial.protocol import PHASES
 __all__ = [
     "GEOMETRY_FIELDS",
     "BatchedTest",
+    "PeriodicBatch",
+    "StackedMembers",
     "balanced_order",
     "build_batch",
+    "build_periodic_batch",
     "cast_state",
     "describe_failure",
     "batch_template",
@@ -83,30 +109,33 @@ def _members(tree, count: int) -> list:
 # ----------------------------------------------------------------------------------------------------------
 
 
-@pydataclasses.dataclass
-class BatchedTest:
-    """Members of one compiled batch (built by :func:`build_batch`); arrays stacked on a member axis.
+@pydataclasses.dataclass(kw_only=True)
+class StackedMembers:
+    """What every batch shares: members stacked on a leading axis, one compiled chunk, the driver's loop.
+
+    A batch (:class:`BatchedTest`, the membrane cell's; :class:`PeriodicBatch`, the periodic element's) says
+    what one member's chunk is (``_member_chunk``), how its tables grow (``grow``) and where a stacked state
+    keeps its steps and error bits (``member_steps``, ``member_errors``). The rest is written here once: the
+    chunk, ``lax.map`` (CPU) or ``vmap`` (GPU) over the members and sharded over devices with
+    ``jax.shard_map``, and :meth:`run_phase` through :func:`membrax.driver.drive`.
 
     Attributes:
-      configs: the members' configurations (handed to :mod:`membrax.assemble` only, never read here).
       settings: the members' :class:`membrax.assemble.RunSettings` (name, loading, chunk steps, ...).
-      tests: the members' :class:`MembraneTest` (built with the common Δt and n_θ: each one alone runs the
-        same steps as its member of the batch).
+      tests: the members' tests (built with the common Δt: each one alone runs the steps of its member).
       dt: the common time step, s.
-      nodes_around: the common n_θ.
       num_devices: devices the member axis is sharded over.
       mode: ``"map"`` (``lax.map``, CPU) or ``"vmap"`` (GPU).
-      params: stacked :class:`membrax.membrane.coupled.CoupledParams`, padded to a multiple of
-      ``num_devices``. members: stacked per-member constants: the mesh's rest geometry and the initial inner
-      volume. initial_state: stacked states at the start of consolidation (servo on).
-      order: member b of the batch is ``configs[order[b]]`` of :func:`build_batch`'s argument.
+      params: the members' stacked step parameters, padded to a multiple of ``num_devices``.
+      members: stacked per-member constants.
+      initial_state: stacked states at the start of consolidation.
+      order: member b of the batch is the ``order[b]``-th configuration its builder was given.
+      reallocations: table growths so far.
+      failures: member → {"error", "step", "phase"} of the members a run froze (``isolate_failures``).
     """
 
-    configs: list
     settings: list
     tests: list
     dt: float
-    nodes_around: int
     num_devices: int
     mode: str
     params: object
@@ -114,7 +143,6 @@ class BatchedTest:
     initial_state: object
     order: list = pydataclasses.field(default_factory=list)
     reallocations: int = 0
-    #: member → {"error", "step", "phase"} of the members :func:`run_group` froze (``isolate_failures``).
     failures: dict = pydataclasses.field(default_factory=dict)
 
     def __post_init__(self):
@@ -132,18 +160,22 @@ class BatchedTest:
     @property
     def num_padded(self) -> int:
         """Members including the frozen padding copies."""
-        return int(np.asarray(self.params.membrane.thickness).shape[0])
+        return int(np.shape(self.member_steps(self.initial_state))[0])
 
     def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
-        template = self.tests[0]
-        mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
-        step = template.make_step(mesh)
-        record = template.make_record(mesh, member["initial_volume"])
+        """One member's chunk: ``(state, left, records, valid)`` (a subclass's)."""
+        raise NotImplementedError
+
+    def _budgeted_chunk(self, step, record, state, params, left, num_records: int, record_every: int):
+        """``num_records`` blocks of ``record_every`` steps of ``step``, each recorded, within a step budget.
+
+        A spent budget freezes the member: ``lax.cond`` skips its work under ``lax.map`` (under ``vmap`` both
+        branches run and the frozen one is selected).
+        """
 
         def block(carry):
             s, budget = carry
             active = budget > 0
-            # A spent budget freezes the member: lax.cond skips its work under lax.map.
             s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
             budget = jnp.where(active, budget - record_every, budget)
             return (s, budget), (record(s, params), active)
@@ -183,35 +215,17 @@ class BatchedTest:
         """The real members' states of a stacked state."""
         return _members(states, self.num_members)
 
-    def grow(self, states, error, overflowed):
-        """Every member's tables that overflowed grown to one larger capacity (:func:`grow_tables`).
+    def member_steps(self, states):
+        """(B,) steps each member (padding included) of a stacked state has taken."""
+        return states.dem.step
 
-        Args:
-          states: the stacked states (padded) to grow.
-          error: the members' error bits, (B,) or ORed.
-          overflowed: the overflowing chunk's end candidate tables (stacked), or None.
+    def member_errors(self, states):
+        """(B,) error bits of each member (padding included) of a stacked state."""
+        return states.dem.error
 
-        Returns:
-          The grown stacked states.
-        """
-        particles = self.tests[0].particles
-        thickness = np.asarray(self.params.membrane.contact_thickness)
-
-        def grow_membrane(members, end):
-            capacities = grown_candidate_capacities(states.membrane.candidates, end)
-            return [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
-
-        members = grow_tables(
-            _members(states, self.num_padded),
-            int(np.bitwise_or.reduce(np.atleast_1d(error))),
-            self.tests[0].runner.neighbor_frame,
-            dem_of=lambda state: state.dem,
-            with_dem=lambda state, dem: state.set(dem=dem),
-            grow_membrane=grow_membrane,
-            overflowed=overflowed,
-        )
-        self.reallocations += 1
-        return stack(members)
+    def overflow_tables(self, states):
+        """What of an overflowing chunk's end states :meth:`grow` reads: the node candidate tables."""
+        return states.membrane.candidates
 
     def run_phase(
         self,
@@ -268,7 +282,7 @@ class BatchedTest:
             bad = int(np.flatnonzero(error[:num])[0])
             return SimulationError(
                 f"member {bad} ({self.settings[bad].name}) stopped in the chunk ending at step "
-                f"{int(np.asarray(new.dem.step)[bad])}: " + "; ".join(describe(error[bad])),
+                f"{int(np.asarray(self.member_steps(new))[bad])}: " + "; ".join(describe(error[bad])),
                 state=states,
             )
 
@@ -294,7 +308,7 @@ class BatchedTest:
             return stopped
 
         def isolate(error, new, left):
-            steps = np.asarray(new.dem.step)
+            steps = np.asarray(self.member_steps(new))
             left = np.asarray(left).copy()
             for b in np.flatnonzero(error[:num]):
                 left[b] = 0
@@ -309,13 +323,192 @@ class BatchedTest:
             record_every,
             chunk_steps,
             # Overflows anywhere (padding included) grow every member's tables; other errors of real members.
-            errors=lambda s: np.asarray(s.dem.error) & real_bits,
-            grow=lambda s, error, overflowed: self.grow(s, error, overflowed.membrane.candidates),
+            errors=lambda s: np.asarray(self.member_errors(s)) & real_bits,
+            grow=lambda s, error, overflowed: self.grow(s, error, self.overflow_tables(overflowed)),
             fail=fail,
             accept=accept,
             isolate=None if on_failure is None else isolate,
         )
         return states, left[:num]
+
+
+@pydataclasses.dataclass(kw_only=True)
+class BatchedTest(StackedMembers):
+    """Members of one compiled batch (built by :func:`build_batch`); arrays stacked on a member axis.
+
+    Attributes (beside :class:`StackedMembers`'):
+      configs: the members' configurations (handed to :mod:`membrax.assemble` only, never read here).
+      nodes_around: the common n_θ.
+
+    ``tests`` are the members' :class:`MembraneTest` (the common Δt and n_θ), ``params`` the stacked
+    :class:`membrax.membrane.coupled.CoupledParams`, ``members`` the mesh's rest geometry and the initial
+    inner volume of each, ``initial_state`` the stacked states at the start of consolidation (servo on);
+    member b is ``configs[order[b]]`` of :func:`build_batch`'s argument.
+    """
+
+    configs: list
+    nodes_around: int
+
+    def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
+        template = self.tests[0]
+        mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
+        step = template.make_step(mesh)
+        record = template.make_record(mesh, member["initial_volume"])
+        return self._budgeted_chunk(step, record, state, params, left, num_records, record_every)
+
+    def grow(self, states, error, overflowed):
+        """Every member's tables that overflowed grown to one larger capacity (:func:`grow_tables`).
+
+        Args:
+          states: the stacked states (padded) to grow.
+          error: the members' error bits, (B,) or ORed.
+          overflowed: the overflowing chunk's end candidate tables (stacked), or None.
+
+        Returns:
+          The grown stacked states.
+        """
+        particles = self.tests[0].particles
+        thickness = np.asarray(self.params.membrane.contact_thickness)
+
+        def grow_membrane(members, end):
+            capacities = grown_candidate_capacities(states.membrane.candidates, end)
+            return [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
+
+        members = grow_tables(
+            _members(states, self.num_padded),
+            int(np.bitwise_or.reduce(np.atleast_1d(error))),
+            self.tests[0].runner.neighbor_frame,
+            dem_of=lambda state: state.dem,
+            with_dem=lambda state, dem: state.set(dem=dem),
+            grow_membrane=grow_membrane,
+            overflowed=overflowed,
+        )
+        self.reallocations += 1
+        return stack(members)
+
+
+@pydataclasses.dataclass(kw_only=True)
+class PeriodicBatch(StackedMembers):
+    """Periodic elements of one packing stacked in one compiled batch (built by :func:`build_periodic_batch`).
+
+    Every member is the same cell (:class:`membrax.triaxial.periodic.PeriodicTest`: spheres, Δt, neighbour
+    frame) with its own parameters (contact law, damping: traced), its own box controls in its state (σc,
+    the servo's rate limit, the shearing rate) and its own stages' budgets and stop tests (its test's
+    ``phase_plan`` and ``is_consolidated``). The members' neighbour lists have one shape: one cell grid and
+    one capacity (:meth:`membrax.spheres.neighbors.PeriodicNeighborFn.reallocate_shared`), grown together
+    through :func:`membrax.driver.grow_tables` with the cell's ``allocate`` hook
+    (:meth:`membrax.triaxial.periodic.PeriodicRunner.allocate_list`) when any member's list overflows or its
+    box outgrows the cells.
+
+    :class:`StackedMembers`' attributes: ``tests`` the members'
+    :class:`~membrax.triaxial.periodic.PeriodicTest` (one packing), ``params`` their stacked
+    :class:`membrax.spheres.integrate.DEMParams`, ``members`` none (an empty dict), ``initial_state`` the
+    stacked :class:`~membrax.triaxial.periodic.PeriodicState` at the start of consolidation.
+    """
+
+    def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
+        del member
+        runner = self.tests[0].runner
+        return self._budgeted_chunk(
+            runner.step_fn, runner.record_fn, state, params, left, num_records, record_every
+        )
+
+    def member_steps(self, states):
+        """(B,) steps of each member: the cell's state holds them itself."""
+        return states.step
+
+    def member_errors(self, states):
+        """(B,) error bits of each member: the cell's state holds them itself."""
+        return states.error
+
+    def overflow_tables(self, states):
+        """The overflowing chunk's end states (their lists and boxes size the new lists)."""
+        return states
+
+    def grow(self, states, error, overflowed):
+        """Every member's list allocated afresh in one shape (:func:`grow_tables`, the cell's ``allocate``).
+
+        Args:
+          states: the stacked states (padded) at the chunk's start.
+          error: the members' error bits, (B,) or ORed.
+          overflowed: the overflowing chunk's end states (stacked).
+
+        Returns:
+          The grown stacked states.
+        """
+        runner = self.tests[0].runner
+        members = grow_tables(
+            _members(states, self.num_padded),
+            int(np.bitwise_or.reduce(np.atleast_1d(error))),
+            runner.neighbor_frame,
+            with_dem=runner.with_list_at_box,
+            overflowed=_members(overflowed, self.num_padded),
+            capacity_growth=runner.capacity_growth,
+            allocate=runner.allocate_list,
+        )
+        self.reallocations += 1
+        return stack(members)
+
+    def list_shape(self, states) -> dict:
+        """What fixes the shape of the members' lists (:meth:`template`'s argument), plain values."""
+        return self.tests[0].list_shape(_members(states, 1)[0])
+
+    def template(self, list_shape: dict):
+        """The stacked initial state with lists of ``list_shape`` (a checkpoint's template)."""
+        return stack([self.tests[0].template(**list_shape)] * self.num_padded)
+
+
+def build_periodic_batch(
+    configs: Sequence[TriaxialConfig],
+    num_devices: int | None = None,
+    mode: str | None = None,
+    order: Sequence[int] | None = None,
+) -> PeriodicBatch:
+    """Build the periodic elements of one batch: ``cell = "periodic"`` members of one packing.
+
+    The members may differ in :data:`membrax.assemble.BATCHED_FIELDS` but in neither the particle stiffness
+    (it makes the packing and Δt) nor whether the spheres are frictionless (the rattler rule of z*):
+    :func:`membrax.assemble.structure_key` holds both for a periodic cell.
+
+    Args:
+      configs: the members' configurations.
+      num_devices: devices to shard the member axis over (default: every local device, at most one a member).
+      mode: ``"map"`` or ``"vmap"`` (default: ``"vmap"`` on a GPU, ``"map"`` otherwise).
+      order: the members' order on the batch axis (default :func:`balanced_order` of their planned steps).
+
+    Raises:
+      ValueError: no members, members of different structure, a bad mode or device count.
+    """
+    configs = list(configs)
+    mode, num_devices = _check_batch(configs, num_devices, mode)
+    tests = [build_periodic_test(c) for c in configs]
+    settings = [run_settings(c) for c in configs]
+    if order is None:
+        order = balanced_order(
+            [_expected_steps(t, s) for t, s in zip(tests, settings, strict=True)], num_devices
+        )
+    order = _checked_order(order, len(configs))
+    tests, settings = [tests[i] for i in order], [settings[i] for i in order]
+    # The members start at the protocol's first phase, their lists rebuilt from one template.
+    states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]
+    cells = functools.reduce(jnp.minimum, [s.cell_length for s in states])
+    lists = tests[0].runner.neighbor_frame.reallocate_shared(
+        [s.fraction for s in states], [s.box_length for s in states], cells
+    )
+    states = [s.set(neighbors=nl, cell_length=cells) for s, nl in zip(states, lists, strict=True)]
+    num_padded = num_devices * math.ceil(len(tests) / num_devices)
+    slots = list(range(len(tests))) + [0] * (num_padded - len(tests))
+    return PeriodicBatch(
+        settings=settings,
+        tests=tests,
+        dt=float(tests[0].dt),
+        num_devices=num_devices,
+        mode=mode,
+        params=stack([tests[b].params for b in slots]),
+        members={},
+        initial_state=stack([states[b] for b in slots]),
+        order=order,
+    )
 
 
 def describe_failure(failure: dict) -> str:
@@ -401,6 +594,36 @@ def _expected_steps(test, settings) -> int:
     return consolidation + sum(plan[phase][0] for phase in PHASES[1:])
 
 
+def _check_batch(configs: list, num_devices: int | None, mode: str | None) -> tuple[str, int]:
+    """(mode, devices) of a batch of ``configs``, after checking they can share one compiled batch."""
+    if not configs:
+        raise ValueError("no members to batch; give at least one configuration.")
+    keys = {structure_key(c) for c in configs}
+    if len(keys) > 1:
+        first = dict(structure_key(configs[0]))
+        differing = sorted({name for key in keys for name, value in key if value != first.get(name)})
+        raise ValueError(
+            f"members differ in {differing}, which cannot vary within one batch; batch only members that "
+            f"differ in {sorted(BATCHED_FIELDS)} (run_sweep groups the rest)."
+        )
+    mode = mode or ("vmap" if jax.default_backend() == "gpu" else "map")
+    if mode not in ("map", "vmap"):
+        raise ValueError(f"mode = {mode!r}; give 'map' (CPU) or 'vmap' (GPU).")
+    available = jax.local_device_count()
+    num_devices = available if num_devices is None else int(num_devices)
+    if not 1 <= num_devices <= available:
+        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
+    return mode, min(num_devices, len(configs))
+
+
+def _checked_order(order: Sequence[int], count: int) -> list[int]:
+    """``order`` as a list of ints, checked to be a permutation of ``range(count)``."""
+    order = [int(i) for i in order]
+    if sorted(order) != list(range(count)):
+        raise ValueError(f"order = {order}; give a permutation of range({count}).")
+    return order
+
+
 def build_batch(
     configs: Sequence[TriaxialConfig],
     num_devices: int | None = None,
@@ -427,30 +650,11 @@ def build_batch(
         or device count.
     """
     configs = list(configs)
-    if not configs:
-        raise ValueError("no members to batch; give at least one configuration.")
-    keys = {structure_key(c) for c in configs}
-    if len(keys) > 1:
-        first = dict(structure_key(configs[0]))
-        differing = sorted({name for key in keys for name, value in key if value != first[name]})
-        raise ValueError(
-            f"members differ in {differing}, which cannot vary within one batch; batch only members that "
-            f"differ in {sorted(BATCHED_FIELDS)} (run_sweep groups the rest)."
-        )
-    mode = mode or ("vmap" if jax.default_backend() == "gpu" else "map")
-    if mode not in ("map", "vmap"):
-        raise ValueError(f"mode = {mode!r}; give 'map' (CPU) or 'vmap' (GPU).")
-    available = jax.local_device_count()
-    num_devices = available if num_devices is None else int(num_devices)
-    if not 1 <= num_devices <= available:
-        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
-    num_devices = min(num_devices, len(configs))
+    mode, num_devices = _check_batch(configs, num_devices, mode)
     tests, dt, nodes_around, work = plan_members(configs, time_step, nodes_around)
     if order is None:
         order = balanced_order(work, num_devices)
-    order = [int(i) for i in order]
-    if sorted(order) != list(range(len(configs))):
-        raise ValueError(f"order = {order}; give a permutation of range({len(configs)}).")
+    order = _checked_order(order, len(configs))
     configs, tests = [configs[i] for i in order], [tests[i] for i in order]
     # The members start at the protocol's first phase; membrax.runner.run_group enters the others.
     states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]

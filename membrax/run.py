@@ -31,7 +31,8 @@ the run with :class:`RunError`, naming the step and what to change; the records 
 
 The periodic element. A configuration with ``cell = "periodic"`` runs the boundary-free element test of its
 spheres instead (:func:`membrax.assemble.build_periodic_test`, :class:`membrax.triaxial.periodic.
-PeriodicTest`): the same phases, one cell through its chunk runner, checkpointed every
+PeriodicTest`): the same phases, the element a batch of one (:func:`membrax.executor.build_periodic_batch`)
+through :func:`run_periodic_group`, the loop a sweep's periodic batches share, checkpointed every
 ``checkpoint_every_chunks`` chunks and at each phase's end (a resumed run takes the same chunks and writes
 the same bits). The folder receives ``results.nc``/``.csv`` and ``consolidation.nc``/``.csv`` (the cell's
 records, :class:`membrax.triaxial.periodic.CellRecords`, with ``time``, ``radial_strain`` and
@@ -52,17 +53,16 @@ import numpy as np
 
 from membrax import __version__, plots, theory
 from membrax.assemble import (
-    build_periodic_test,
     build_test,
     consolidation_tolerance,
-    loading,
     precision_scope,
 )
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
 from membrax.errors import RunError, SimulationError
-from membrax.executor import build_batch
+from membrax.executor import PeriodicBatch, build_batch, build_periodic_batch
 from membrax.io import (
     VTKSeries,
+    dataset_attrs_to_python,
     load_checkpoint,
     read_checkpoint_host,
     records_to_dataset,
@@ -75,6 +75,9 @@ from membrax.runner import (
     CHECKPOINT_NAME,
     join_records,
     member_chunk_records,
+    phase_bar,
+    records_from_host,
+    records_to_host,
     results_datasets,
     run_group,
     run_metadata,
@@ -89,8 +92,10 @@ __all__ = [
     "build_test",
     "consolidation_tolerance",
     "default_folder",
-    "run_test",
     "figure_title",
+    "periodic_datasets",
+    "run_periodic_group",
+    "run_test",
 ]
 
 
@@ -296,170 +301,217 @@ def _finish(folder, config, test, metadata, records, shear_start, elapsed, resum
 # ----------------------------------------------------------------------------------------------------------
 
 
-def _periodic_records(records) -> dict:
-    """A chunk's :class:`~membrax.triaxial.periodic.CellRecords` as a dict of numpy arrays."""
-    return {field.name: np.asarray(getattr(records, field.name)) for field in dataclasses.fields(records)}
-
-
 @dataclasses.dataclass
-class _PeriodicRun:
-    """A periodic element run in progress (:func:`_run_periodic`): records by phase, checkpoints, progress."""
+class _PeriodicGroup:
+    """A batch of periodic elements in progress (:func:`run_periodic_group`): records, checkpoints, progress.
 
-    config: TriaxialConfig
-    test: object  # membrax.triaxial.periodic.PeriodicTest
+    ``records`` maps each phase of :data:`PHASES` to the chunks' stacked records ((B, T, ...) arrays and
+    ``valid``, as :meth:`membrax.executor.StackedMembers.run_phase` hands them over).
+    """
+
+    batch: PeriodicBatch
     path: Path
     progress: bool
     interrupt_after_chunks: int | None
-    parts: dict = dataclasses.field(default_factory=lambda: {phase: [] for phase in PHASES})
-    chunks: int = 0
+    chunk_counter: list
+    records: dict = dataclasses.field(default_factory=lambda: {phase: [] for phase in PHASES})
     elapsed_before: float = 0.0
     started: float = dataclasses.field(default_factory=time.perf_counter)
 
     def elapsed(self) -> float:
         return self.elapsed_before + time.perf_counter() - self.started
 
-    def save(self, state, phase_index: int, phase_steps: int) -> None:
-        """Checkpoint: the state, its place in :data:`PHASES`, the records so far and the list's shape."""
+    def save(self, states, phase_index: int, budgets) -> None:
+        """Checkpoint: the states, their phase and budgets, the records so far, the lists' shape."""
         host = {
             "phase": phase_index,
-            "phase_steps": phase_steps,
+            # None at a phase's end: the next phase is entered (and its budgets planned) on resume.
+            "budgets": None if budgets is None else [int(v) for v in budgets],
             "elapsed": self.elapsed(),
-            "list_shape": self.test.list_shape(state),
-            "record_phases": [phase for phase in PHASES if self.parts[phase]],
+            "list_shape": self.batch.list_shape(states),
+            "member_steps": [int(v) for v in np.asarray(states.step)[: self.batch.num_members]],
+            **records_to_host(self.records),
         }
-        for phase in host["record_phases"]:
-            for name, values in join_records(self.parts[phase]).items():
-                host[f"{phase}__{name}"] = values
-        save_checkpoint(self.path, state, host)
+        save_checkpoint(self.path, states, host)
 
     def restore(self):
-        """(state, phase index, steps done in it) from the checkpoint, the records so far put back."""
+        """(states, phase index, budgets or None) from the checkpoint, the records so far put back."""
         saved = read_checkpoint_host(self.path)
-        state, host = load_checkpoint(self.path, self.test.template(**saved["list_shape"]))
+        states, host = load_checkpoint(self.path, self.batch.template(saved["list_shape"]))
         self.elapsed_before = host["elapsed"]
-        for phase in host["record_phases"]:
-            names = [key.split("__", 1)[1] for key in host if key.startswith(f"{phase}__")]
-            self.parts[phase].append({name: np.asarray(host[f"{phase}__{name}"]) for name in names})
-        return state, host["phase"], host["phase_steps"]
+        self.records.update(records_from_host(host))
+        budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
+        return states, host["phase"], budgets
 
-    def run_phase(self, index: int, state, phase_steps: int, steps: int, record_every: int, tolerance: float):
-        """Phase ``index`` of :data:`PHASES` from ``phase_steps`` of its ``steps`` on; returns the state."""
-        from tqdm.auto import tqdm
+    def run_phase(self, index: int, states, budgets, plans):
+        """Phase ``index`` of :data:`PHASES` until every member's ``budgets`` is spent; returns the states."""
+        batch, phase = self.batch, PHASES[index]
+        settings = batch.settings[0]  # chunk steps, checkpoints: not batched fields
+        record_every = plans[0][phase][1]
+        total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
+        bar = phase_bar(phase, batch.num_members, total, self.progress)
+        tolerances = [s.consolidation_tolerance for s in batch.settings]
 
-        phase = PHASES[index]
-        bar = tqdm(
-            total=None if phase == "consolidation" else steps,
-            initial=phase_steps,
-            desc=phase,
-            unit="step",
-            disable=not self.progress or steps == 0,
-            leave=False,
-        )
-        done_steps = [phase_steps]
+        def consolidated(b, records):
+            return phase == "consolidation" and batch.tests[b].is_consolidated(records, tolerances[b])
 
-        def consolidated(_, records):
-            return phase == "consolidation" and self.test.is_consolidated(records, tolerance)
-
-        def on_chunk(new, records):
-            mine = _periodic_records(records)
-            self.parts[phase].append(mine)
-            self.chunks += 1
-            done_steps[0] += len(mine["step"]) * record_every
-            bar.update(len(mine["step"]) * record_every)
-            bar.set_postfix(
-                strain=f"{mine['axial_strain'][-1]:.4f}", ufr=f"{mine['unbalanced_force_ratio'][-1]:.1e}"
-            )
-            finished = done_steps[0] >= steps or consolidated(new, records)
-            if finished or self.chunks % self.config.checkpoint_every_chunks == 0:
-                self.save(new, *((index + 1, 0) if finished else (index, done_steps[0])))
-            if self.interrupt_after_chunks is not None and self.chunks >= self.interrupt_after_chunks:
-                raise KeyboardInterrupt(f"interrupted after {self.chunks} chunks (interrupt_after_chunks)")
+        def on_chunk(current, chunk, left):
+            self.records[phase].append(chunk)
+            bar.update(chunk["valid"].shape[1] * record_every)
+            ratio = chunk["unbalanced_force_ratio"][chunk["valid"]]
+            bar.set_postfix(ufr=f"{np.max(ratio, initial=0.0):.1e}", active=int(np.sum(left > 0)))
+            self.chunk_counter[0] += 1
+            if self.chunk_counter[0] % settings.checkpoint_every_chunks == 0:
+                self.save(current, index, left)
+            interrupt = self.interrupt_after_chunks
+            if interrupt is not None and self.chunk_counter[0] >= interrupt:
+                raise KeyboardInterrupt(f"interrupted after {self.chunk_counter[0]} chunks (testing aid)")
+            return []
 
         try:
-            state, _ = self.test.runner.run(
-                state,
-                self.test.params,
-                steps - phase_steps,
-                self.config.chunk_steps,
-                record_every,
-                stop_fn=consolidated,
-                on_chunk=on_chunk,
+            states, _ = batch.run_phase(
+                states, budgets, settings.chunk_steps, record_every, stop_fn=consolidated, on_chunk=on_chunk
             )
+        except SimulationError as error:
+            raise RunError(f"{error}.", self.records) from error
         finally:
             bar.close()
-        return state
+        return states
+
+
+def run_periodic_group(
+    batch: PeriodicBatch,
+    folder: Path,
+    resume: bool = False,
+    progress: bool = True,
+    interrupt_after_chunks: int | None = None,
+    chunk_counter: list | None = None,
+):
+    """Run a batch of periodic elements through the phases of :data:`PHASES` (module docstring).
+
+    Each phase is entered by every member's test (:meth:`~membrax.triaxial.protocol.StagedTest.start_phase`
+    under its own loading, its budget from its own ``phase_plan``) and advanced by
+    :meth:`membrax.executor.StackedMembers.run_phase` (the driver's loop: error bits, list growth, each
+    member's consolidation stop test); every ``checkpoint_every_chunks`` chunks, and at each phase's end,
+    the stacked states, the phase, the budgets and the records so far are saved, so a resumed run takes the
+    same chunks as an uninterrupted one.
+
+    Args:
+      batch: from :func:`membrax.executor.build_periodic_batch`.
+      folder: where ``checkpoint.npz`` is written (and read with ``resume``).
+      resume: continue from the folder's checkpoint, if there is one.
+      progress: a tqdm bar per phase.
+      interrupt_after_chunks: testing aid: ``KeyboardInterrupt`` after this many chunks (counted in
+        ``chunk_counter``, after that chunk's checkpoint).
+      chunk_counter: a one-element list counting chunks across groups (default: this call's own).
+
+    Returns:
+      (records by phase: lists of chunk dicts of stacked (B, T, ...) arrays with ``valid``, as
+      :func:`membrax.runner.member_chunk_records` takes them; the elapsed seconds).
+
+    Raises:
+      RunError: a member's error bits other than a list overflow; ``error.records`` holds the records so far.
+    """
+    group = _PeriodicGroup(
+        batch, folder / CHECKPOINT_NAME, progress, interrupt_after_chunks, chunk_counter or [0]
+    )
+    plans = [t.phase_plan(s.loading) for t, s in zip(batch.tests, batch.settings, strict=True)]
+    states, first, budgets = batch.initial_state, 0, None
+    if resume and group.path.exists():
+        states, first, budgets = group.restore()
+    for index in range(first, len(PHASES)):
+        phase = PHASES[index]
+        if budgets is None:  # entering the phase (the first is entered by build_periodic_batch)
+            if index > 0:
+                members = batch.unstack(states)
+                started = [
+                    test.start_phase(phase, member, s.loading)
+                    for member, test, s in zip(members, batch.tests, batch.settings, strict=True)
+                ]
+                if any(new is not old for new, old in zip(started, members, strict=True)):
+                    states = batch.restack(started)
+            budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
+        states = group.run_phase(index, states, budgets, plans)
+        budgets = None
+        group.save(states, index + 1, None)
+    return group.records, group.elapsed()
 
 
 def _run_periodic(config, folder: Path, resume, progress, interrupt_after_chunks, call_started) -> RunResult:
     """The periodic element test of ``config`` into ``folder`` (module docstring, "The periodic element").
 
-    The phases of :data:`membrax.triaxial.protocol.PHASES` run one after another on one cell
-    (:class:`membrax.triaxial.periodic.PeriodicTest`'s stages), each through its runner (the chunk driver);
-    every ``checkpoint_every_chunks`` chunks, and at the end of each phase, the state, the phase and the
-    records so far are saved, so a resumed run takes the same chunks as an uninterrupted one.
+    A batch of one (:func:`membrax.executor.build_periodic_batch` on one device) through
+    :func:`run_periodic_group`, as a sweep's batches.
     """
     with precision_scope(config):
         started = time.perf_counter()
-        test = build_periodic_test(config)
+        batch = build_periodic_batch([config], num_devices=1)
         build_seconds = time.perf_counter() - started
-        programme = loading(config)
-        plan = test.phase_plan(programme)
-        run = _PeriodicRun(config, test, folder / CHECKPOINT_NAME, progress, interrupt_after_chunks)
-        state, first_phase, phase_steps = test.initial_state, 0, 0
-        if resume:
-            state, first_phase, phase_steps = run.restore()
-        for index in range(first_phase, len(PHASES)):
-            if phase_steps == 0:  # a resumed phase was switched before its checkpoint
-                state = test.start_phase(PHASES[index], state, programme)
-            try:
-                state = run.run_phase(
-                    index, state, phase_steps, *plan[PHASES[index]], consolidation_tolerance(config)
-                )
-            except SimulationError as error:
-                _write_partial(folder, run.parts, config)
-                raise RunError(f"{error} Records so far are in {folder}.", run.parts) from error
-            phase_steps = 0
-        return _finish_periodic(
-            folder, config, test, run.parts, build_seconds, run.elapsed(), call_started, resume
+        try:
+            records, elapsed = run_periodic_group(batch, folder, resume, progress, interrupt_after_chunks)
+        except RunError as error:
+            _write_partial(folder, member_chunk_records(error.records, 0), config)
+            raise RunError(f"{error} Records so far are in {folder}.", error.records) from error
+        test = batch.tests[0]
+        shear, consolidation = periodic_datasets(
+            test, batch.settings[0], member_chunk_records(records, 0), build_seconds, elapsed
         )
+        return _finish_periodic(folder, config, test, shear, consolidation, call_started, resume)
 
 
-def _finish_periodic(folder, config, test, parts, build_seconds, elapsed, call_started, resumed) -> RunResult:
-    """Write a periodic run's results, figure and summary (module docstring)."""
-    consolidation = join_records(parts["consolidation"])
-    shear = join_records(parts["shear_fine"] + parts["shear_coarse"])
-    # The end of consolidation is the shearing's first record; its strains count from the shearing's box.
+def periodic_datasets(test, settings, records, build_seconds, elapsed, **attrs):
+    """(shear, consolidation) datasets of a periodic element from its records by phase.
+
+    The cell's records (:class:`membrax.triaxial.periodic.CellRecords`) with ``time``, ``radial_strain``
+    and ``love_weber_friction_angle_deg``; the end of consolidation is the shearing's first record, its
+    strains counted from the shearing's box.
+
+    Args:
+      test: the member's :class:`~membrax.triaxial.periodic.PeriodicTest`.
+      settings: its :class:`membrax.assemble.RunSettings`.
+      records: its records by phase (:func:`membrax.runner.member_chunk_records`).
+      build_seconds: the batch's build time, s.
+      elapsed: the run's time, s.
+      **attrs: further attributes (a sweep's batch size, status).
+    """
+    consolidation = join_records(records["consolidation"])
+    shear = join_records(records["shear_fine"] + records["shear_coarse"])
     first = {name: values[-1:] for name, values in consolidation.items()}
     first["axial_strain"] = np.zeros_like(first["axial_strain"])
     first["volumetric_strain"] = np.zeros_like(first["volumetric_strain"])
     shear = (
         {name: np.concatenate([first[name], values]) for name, values in shear.items()} if shear else first
     )
-    for records in (consolidation, shear):
-        records["time"] = records["step"] * test.dt
-        records["love_weber_friction_angle_deg"] = analysis.friction_angle_deg(
-            records["axial_stress"], records["lateral_stress"]
+    for values in (consolidation, shear):
+        values["time"] = values["step"] * test.dt
+        values["love_weber_friction_angle_deg"] = analysis.friction_angle_deg(
+            values["axial_stress"], values["lateral_stress"]
         )
-        records["radial_strain"] = np.asarray(
-            theory.radial_strain(records["axial_strain"], records["volumetric_strain"])
+        values["radial_strain"] = np.asarray(
+            theory.radial_strain(values["axial_strain"], values["volumetric_strain"])
         )
     metadata = {
         "membrax_version": __version__,
-        "config": config_to_dict(config),
+        "config": settings.provenance,
         "cell": "periodic",
         "num_particles": int(test.particles.num_particles),
         "dt_s": test.dt,
         "consolidation_steps": int(consolidation["step"][-1]),
-        "consolidation_tolerance": consolidation_tolerance(config),
+        "consolidation_tolerance": settings.consolidation_tolerance,
         "shear_steps": int(shear["step"][-1] - consolidation["step"][-1]),
         "build_s": build_seconds,
         "run_s": elapsed,
-        "dtype": "float64" if config.float64 else "float32",
+        "dtype": "float64" if settings.float64 else "float32",
         "machine": platform.platform(),
         "jax_backend": jax.default_backend(),
+        **attrs,
     }
-    shear_data = records_to_dataset(shear, attrs=metadata)
-    consolidation_data = records_to_dataset(consolidation, attrs=metadata)
+    return records_to_dataset(shear, attrs=metadata), records_to_dataset(consolidation, attrs=metadata)
+
+
+def _finish_periodic(folder, config, test, shear_data, consolidation_data, call_started, resumed):
+    """Write a periodic run's results, figure and summary (module docstring)."""
+    metadata = dataset_attrs_to_python(shear_data)
     files = {"consolidation": write_results(consolidation_data, folder, "consolidation")}
     files["results"] = write_results(shear_data, folder, "results")
     title = (
@@ -471,7 +523,7 @@ def _finish_periodic(folder, config, test, parts, build_seconds, elapsed, call_s
         f"# membrax {__version__}: {config.name}\n\n"
         f"Periodic element test: {metadata['num_particles']} spheres, σc = {config.cell_pressure_kpa:g} kPa, "
         f"I = {config.inertial_number:g}, dt = {test.dt:.3g} s, {metadata['consolidation_steps']} + "
-        f"{metadata['shear_steps']} steps in {elapsed:.0f} s"
+        f"{metadata['shear_steps']} steps in {metadata['run_s']:.0f} s"
         + (f" in all (resumed: this call {time.perf_counter() - call_started:.0f} s)" if resumed else "")
         + f" ({metadata['dtype']}, {metadata['jax_backend']}).\n\n"
     )

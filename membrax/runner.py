@@ -58,6 +58,8 @@ __all__ = [
     "member_chunk_records",
     "phase_bar",
     "rebase_to_shear_start",
+    "records_from_host",
+    "records_to_host",
     "results_datasets",
     "run_group",
     "run_metadata",
@@ -310,10 +312,7 @@ def _load(group: _Group, scope) -> None:
     group.shear_height = np.asarray(host["shear_height"])
     group.shear_volume = np.asarray(host["shear_volume"])
     group.failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
-    for phase in PHASES:
-        names = host.get(f"names_{phase}", [])
-        if names:
-            group.records[phase] = [{name: np.asarray(host[f"rec_{phase}_{name}"]) for name in names}]
+    group.records.update(records_from_host(host))
 
 
 def _save(group: _Group, current, budgets) -> None:
@@ -329,12 +328,29 @@ def _save(group: _Group, current, budgets) -> None:
         "member_steps": [int(step) for step in np.asarray(current.dem.step)[: group.batch.num_members]],
         "dtype": str(np.dtype(current.dem.position.dtype)),
         "failures": {str(b): failure for b, failure in group.failures.items()},
+        **records_to_host(group.records),
     }
+    save_checkpoint(group.checkpoint, current, host)
+
+
+def records_to_host(records: dict) -> dict:
+    """A batch's records by phase (stacked chunk dicts) as a checkpoint's host values, each phase joined."""
+    host = {}
     for phase in PHASES:
-        joined = join_records(group.records[phase], axis=1)
+        joined = join_records(records[phase], axis=1)
         host[f"names_{phase}"] = list(joined)
         host.update({f"rec_{phase}_{name}": value for name, value in joined.items()})
-    save_checkpoint(group.checkpoint, current, host)
+    return host
+
+
+def records_from_host(host: dict) -> dict:
+    """The records by phase a checkpoint's host values hold (:func:`records_to_host`): one chunk each."""
+    records = {}
+    for phase in PHASES:
+        names = host.get(f"names_{phase}", [])
+        if names:
+            records[phase] = [{name: np.asarray(host[f"rec_{phase}_{name}"]) for name in names}]
+    return records
 
 
 def _to_float32(group: _Group, scope) -> None:

@@ -42,10 +42,17 @@ into ``groups/group_{g}/task_{t}`` (the folder must be on a filesystem every wor
 its checkpoint when its worker died and the scheduler ran it again; ``resume=True`` reuses the plans and
 submits only the unfinished tasks. The client writes ``sweep.nc`` from the task folders as in-process.
 
-Periodic elements (``cell = "periodic"``) are not batched: the members run one after another through
-:func:`membrax.run.run_test`, each into ``members/member_{k}`` with its own checkpoint, and ``sweep.nc`` holds
-their records and figures (peak and late φ', ε_v, the lateral servo's error: :func:`membrax.triaxial.
-analysis.element_summary`) on the same grid; no Dask scheduler.
+Periodic elements (``cell = "periodic"``) batch too: members that share one packing and Δt (a grid over
+the cell pressure, the inertial numbers, the strain targets, the friction, the consolidation criteria:
+:func:`membrax.assemble.structure_key`) are one :class:`membrax.executor.PeriodicBatch`, stacked in one
+compiled chunk and sharded over the devices as above, run through the protocol's phases by
+:func:`membrax.run.run_periodic_group` into ``groups/group_{g}``; members that cannot stack (another
+particle count, seed, grading, particle stiffness or precision: another packing or Δt) are grouped by those
+fields and the groups run one after another. ``sweep.nc`` holds their records and figures (peak and late
+φ', ε_v, the lateral servo's error: :func:`membrax.triaxial.analysis.element_summary`) on the same grid.
+On one device each member's records are those of its element run alone, to the bit; sharded or vmapped,
+to round-off that the granular dynamics amplify (:mod:`membrax.executor`). No Dask scheduler; a member
+that fails stops the sweep with :class:`RunError`.
 
 Long runs. :func:`membrax.runner.run_group`'s progress bars, checkpoints and ``resume=True`` (results
 identical to an uninterrupted sweep), one checkpoint per group (per task in a campaign); finished groups
@@ -82,10 +89,16 @@ from membrax.config import (
 )
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
-from membrax.executor import balanced_order, build_batch, describe_failure, plan_members
+from membrax.executor import (
+    balanced_order,
+    build_batch,
+    build_periodic_batch,
+    describe_failure,
+    plan_members,
+)
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
 from membrax.run import default_folder as run_folder
-from membrax.run import run_test
+from membrax.run import periodic_datasets, run_periodic_group
 from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata
 from membrax.triaxial import analysis
 
@@ -281,24 +294,38 @@ def _run_unit(
     with its ``status`` (:func:`membrax.runner.run_group`'s ``isolate_failures``). Returns the order.
     """
     build_start = time.perf_counter()
-    batch = build_batch(configs, num_devices, mode, order, time_step, nodes_around)
+    periodic = run_settings(configs[0]).cell == "periodic"
+    if periodic:
+        batch = build_periodic_batch(configs, num_devices, mode, order)
+    else:
+        batch = build_batch(configs, num_devices, mode, order, time_step, nodes_around)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "members.json").write_text(json.dumps(batch.order))
     build_seconds = time.perf_counter() - build_start
-    records, shear_start, elapsed = run_group(
-        batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
-    )
+    if periodic:
+        records, elapsed = run_periodic_group(
+            batch, folder, resume, progress, interrupt_after_chunks, chunk_counter
+        )
+    else:
+        records, shear_start, elapsed = run_group(
+            batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
+        )
     for k, (settings, test) in enumerate(zip(batch.settings, batch.tests, strict=True)):
         mine = member_chunk_records(records, k)
-        metadata = run_metadata(settings, test, mine, build_seconds, elapsed)
         failure = batch.failures.get(k)
-        metadata.update(
-            batch_members=batch.num_members,
-            batch_devices=batch.num_devices,
-            nodes_around=batch.nodes_around,
-            status="completed" if failure is None else f"failed: {describe_failure(failure)}",
-        )
-        shear, consolidation = results_datasets(mine, shear_start[k], metadata)
+        batch_attrs = {
+            "batch_members": batch.num_members,
+            "batch_devices": batch.num_devices,
+            "status": "completed" if failure is None else f"failed: {describe_failure(failure)}",
+        }
+        if periodic:
+            shear, consolidation = periodic_datasets(
+                test, settings, mine, build_seconds, elapsed, **batch_attrs
+            )
+        else:
+            metadata = run_metadata(settings, test, mine, build_seconds, elapsed)
+            metadata.update(nodes_around=batch.nodes_around, **batch_attrs)
+            shear, consolidation = results_datasets(mine, shear_start[k], metadata)
         if shear is None:  # a member that failed before shearing
             shear = xr.Dataset(attrs=consolidation.attrs)
         write_netcdf(shear, folder / f"shear_{k}.nc")
@@ -318,6 +345,11 @@ def _read_unit(folder: Path, members: list) -> list:
 def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks) -> list:
     """Every group as one batch in this process, one after another (``groups/group_{g}``)."""
     outcomes, chunk_counter = [], [0]
+    if resume and (folder / "members").exists():
+        raise ConfigError(
+            f"{folder} holds periodic members run one after another (members/, an earlier membrax); they now "
+            "run as batches: give a new output folder."
+        )
     for g, group in enumerate(groups.values()):
         group_folder = folder / "groups" / f"group_{g}"
         # The batch order (balanced_order) depends on the device count: a resumed group keeps its own.
@@ -345,29 +377,6 @@ def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interr
                 chunk_counter=chunk_counter,
             )
         outcomes += _read_unit(group_folder, [group[i] for i in order])
-    return outcomes
-
-
-def _run_members_one_by_one(members, folder: Path, resume, progress, interrupt_after_chunks) -> list:
-    """Periodic elements, one :func:`membrax.run.run_test` after another, into ``members/member_{k}``.
-
-    In grid order; on ``resume`` finished members are read back and an interrupted one resumes from its
-    checkpoint (``interrupt_after_chunks`` counts each member's chunks).
-    """
-    outcomes = []
-    for k, (index, config) in enumerate(members):
-        member_folder = folder / "members" / f"member_{k}"
-        if not (resume and (member_folder / _DONE).exists()):
-            run_test(
-                config,
-                member_folder,
-                resume=resume and (member_folder / CHECKPOINT_NAME).exists(),
-                progress=progress,
-                interrupt_after_chunks=interrupt_after_chunks,
-            )
-        outcomes.append(
-            (index, read_results(member_folder / _DONE), read_results(member_folder / "consolidation.nc"))
-        )
     return outcomes
 
 
@@ -540,9 +549,7 @@ def run_sweep(
         groups.setdefault(structure_key(config), []).append((index, config))
     # The base configuration's precision, scoped to this call (thread-local), as in run_test.
     with precision_scope(base):
-        if periodic:
-            outcomes = _run_members_one_by_one(members, folder, resume, progress, interrupt_after_chunks)
-        elif scheduler is None:
+        if scheduler is None:
             outcomes = _run_groups_here(
                 groups, folder, resume, progress, num_devices, mode, interrupt_after_chunks
             )

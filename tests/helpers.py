@@ -3,7 +3,7 @@ small membrane test the derivative checks share."""
 
 import numpy as np
 
-from membrax.config import TriaxialConfig
+from membrax.config import PERIODIC_SMOKE_CONFIG, TriaxialConfig
 
 #: The small specimen of the run tests (test_run, test_sweep) and the derivative checks: 4 × 4 × 5 spheres,
 #: float64.
@@ -14,6 +14,13 @@ SMALL_SPECIMEN = dict(particles_across=4, layers=5, float64=True)
 SMALL_MEMBRANE_TEST = TriaxialConfig(
     **SMALL_SPECIMEN, membrane_edges_per_diameter=2.0, cell_pressure_kpa=10.0, membrane_thickness_mm=5.0
 )
+
+#: The small periodic element of the run tests (test_periodic, test_periodic_batch): 64 equal spheres (the
+#: fewest), 40 kPa, I = 5e-3, to 1 % in two recording phases, 500-step chunks, a checkpoint after each.
+SMALL_ELEMENT = {
+    **{key: value for key, value in PERIODIC_SMOKE_CONFIG.items() if key != "name"},
+    "checkpoint_every_chunks": 1,
+}
 
 #: Round-off tolerances per dtype (jax-md's ``test_util`` is the model): ``ROUNDOFF`` for a few operations
 #: (a sum of forces, a ratio), ``ACCUMULATED`` for quantities through thousands of explicit steps.

@@ -329,12 +329,12 @@ def test_a_periodic_run_from_a_configuration_resumes_to_the_same_bits_and_sweeps
     cell, 40 kPa, I = 5e-3, to 1 %, float32): z shortens by the imposed log strain ε_a = 1 − exp(−ε̇ t) to
     round-off; a run interrupted after 4 chunks and resumed from its checkpoint writes the same records,
     to the bit, as one run straight through (the checkpoint holds the list's shape and the records)."""
-    from membrax.config import PERIODIC_SMOKE_CONFIG, TriaxialConfig
+    from helpers import SMALL_ELEMENT
+
+    from membrax.config import TriaxialConfig
     from membrax.run import run_test
 
-    config = TriaxialConfig(
-        **{**PERIODIC_SMOKE_CONFIG, "name": "periodic_resume", "checkpoint_every_chunks": 1}
-    )
+    config = TriaxialConfig(name="periodic_resume", **SMALL_ELEMENT)
     straight = run_test(config, tmp_path / "straight", progress=False)
     with pytest.raises(KeyboardInterrupt):
         run_test(config, tmp_path / "resumed", progress=False, interrupt_after_chunks=4)
@@ -349,8 +349,8 @@ def test_a_periodic_run_from_a_configuration_resumes_to_the_same_bits_and_sweeps
     elapsed = (shear["step"].values - shear["step"].values[0]) * straight.metadata["dt_s"]
     np.testing.assert_allclose(shear["axial_strain"].values, 1.0 - np.exp(-rate * elapsed), atol=2e-6)
     assert shear["axial_strain"].values[-1] >= 0.01
-    # A sweep runs its members one after another through the same path: its 40 kPa member is the run above,
-    # to the bit, and its 20 kPa member consolidated to its own σc (the servo's 1 % criterion).
+    # A sweep runs its members as one batch through the same loop (a run is a batch of one): its 40 kPa
+    # member is the run above, to the bit, and its 20 kPa member consolidated to its own σc (the servo's 1 %).
     from membrax.sweep import run_sweep
 
     sweep = run_sweep(config, {"cell_pressure_kpa": [20.0, 40.0]}, tmp_path / "sweep", progress=False)

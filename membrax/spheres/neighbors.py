@@ -251,18 +251,35 @@ class PeriodicNeighborFn(NamedTuple):
         """A new list at box lengths ``length`` whose cells fit any box down to ``cell_length`` (host side).
 
         Allocated at ``cell_length`` (<= ``length``: every distance is smaller there, so the capacity found
-        holds the pairs at ``length``), padded to at least ``capacity`` slots, then rebuilt at ``length``.
+        holds the pairs at ``length``), padded to at least ``capacity`` slots, then rebuilt at ``length``:
+        :meth:`reallocate_shared` of one cell.
         """
-        template = self.allocate(fraction, cell_length)
-        occupancy = max(int(capacity), int(template.max_occupancy))
+        return self.reallocate_shared([fraction], [length], cell_length, capacity)[0]
+
+    def reallocate_shared(self, fractions, lengths, cell_length, capacity: int = 0) -> list:
+        """One list per cell with one static structure, so a batch's lists stack (host side).
+
+        Each cell (fractional positions ``fractions[b]``, box ``lengths[b]``) is allocated at the common
+        ``cell_length`` (one cell grid: jax-md keeps it in the list's static closure), the largest pair and
+        cell capacities taken (at least ``capacity`` pairs), and every cell's list rebuilt from the first
+        one's, padded to them (as :func:`allocate_shared`). A cell alone gets the list of its own allocation.
+        """
+        allocated = [self.allocate(fraction, cell_length) for fraction in fractions]
+        occupancy = max([int(capacity)] + [int(listing.max_occupancy) for listing in allocated])
+        cells = max(int(listing.cell_list_capacity or 0) for listing in allocated)
+        template = allocated[0]
         padding = occupancy - template.idx.shape[-1]
-        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=fraction.shape[0])
+        idx = jnp.pad(template.idx, ((0, 0), (0, max(padding, 0))), constant_values=fractions[0].shape[0])
         # The overflow bits are sticky (jax-md ORs them into every update): start clean.
         error = partition.PartitionError(jnp.zeros_like(template.error.code))
-        template = template.set(idx=idx, max_occupancy=occupancy, error=error)
-        length = jnp.asarray(length, fraction.dtype)
-        new, _ = self.update(fraction, template, length, 2.0 * length)
-        return new
+        template = template.set(
+            idx=idx, max_occupancy=occupancy, cell_list_capacity=cells or None, error=error
+        )
+        lists = []
+        for fraction, length in zip(fractions, lengths, strict=True):
+            length = jnp.asarray(length, fraction.dtype)
+            lists.append(self.update(fraction, template, length, 2.0 * length)[0])
+        return lists
 
     @staticmethod
     def needs_new_list(neighbors):

@@ -54,12 +54,14 @@ shared with other jobs (load average ~10; 2,000 steps in one compiled chunk, 202
 Errors ride in ``state.error`` (:class:`membrax.errors.ErrorCode`): a neighbour list that overflowed or
 whose cells the box outgrew sets ``NEIGHBOR_OVERFLOW``, and the runner allocates a new list from the
 chunk's starting state (:func:`membrax.driver.grow_tables`, with the list allocated by
-:meth:`PeriodicRunner.allocate_list`); non-finite positions or velocities set ``NOT_FINITE``.
+:meth:`PeriodicRunner.allocate_list`; the members of a batch, :class:`membrax.executor.PeriodicBatch`, all
+together in one shape); non-finite positions or velocities set ``NOT_FINITE``.
 """
 
 from __future__ import annotations
 
 import dataclasses as pydataclasses
+import functools
 import math
 
 import jax
@@ -440,31 +442,35 @@ class PeriodicRunner(ChunkRunner):
             record_fn,
             num_particles,
             capacity_growth,
-            with_dem=self._with_list_at_box,
+            with_dem=self.with_list_at_box,
             allocate=self.allocate_list,
         )
 
     def allocate_list(self, states, capacity, overflowed):
-        """The new periodic list of the chunk's starting state (``grow_tables``' ``allocate``).
+        """The new periodic lists of the chunk's starting states (``grow_tables``' ``allocate``).
 
-        Its cells are sized for 0.9 × the smaller of the start's and the overflowing end's box, so the
-        rerun chunk fits; ``capacity`` (the growth × the old one) is asked for only where the pairs
-        overflowed, at the start or the end: a list whose cells alone were outgrown keeps its slots.
+        Their cells are sized for 0.9 × the smallest of the starts' and the overflowing ends' boxes
+        (``overflowed``: the end state, or the members' end states of a batch), so the rerun chunk fits;
+        ``capacity`` (the growth × the old one) is asked for only where the pairs overflowed, at a start or
+        an end: a list whose cells alone were outgrown keeps its slots. The members of a batch get lists of
+        one shape (:meth:`membrax.spheres.neighbors.PeriodicNeighborFn.reallocate_shared`).
         """
-        (state,) = states
-        old = state.neighbors
-        if not (bool(old.did_buffer_overflow) or bool(overflowed.neighbors.did_buffer_overflow)):
-            capacity = int(old.max_occupancy)
-        length = state.box_length
-        cells = 0.9 * jnp.minimum(length, overflowed.box_length)
+        ends = list(overflowed) if isinstance(overflowed, (list, tuple)) else [overflowed]
+        listed = [state.neighbors for state in [*states, *ends]]
+        if not any(bool(listing.did_buffer_overflow) for listing in listed):
+            capacity = int(states[0].neighbors.max_occupancy)
+        boxes = [state.box_length for state in [*states, *ends]]
+        cells = 0.9 * functools.reduce(jnp.minimum, boxes)
         self._cells = cells
-        return [self.neighbor_frame.reallocate(state.fraction, length, cells, capacity)]
+        return self.neighbor_frame.reallocate_shared(
+            [state.fraction for state in states], [state.box_length for state in states], cells, capacity
+        )
 
-    def _with_list_at_box(self, _state, grown):
+    def with_list_at_box(self, _state, grown):
         """``grown`` noted as listed at its box, with :meth:`allocate_list`'s cells (a template needs them).
 
         The next update measures the box's strain from ``list_length``; ``cell_length`` fixes the list's
-        shape (:meth:`PeriodicTest.template`).
+        shape (:meth:`PeriodicTest.template`). ``grow_tables``' ``with_dem``.
         """
         return grown.set(list_length=grown.box_length, cell_length=self._cells.astype(grown.length.dtype))
 

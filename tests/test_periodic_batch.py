@@ -1,0 +1,187 @@
+"""Batched periodic elements against the same elements run one by one, the servo and the imposed strain.
+
+A sweep of ``cell = "periodic"`` members of one packing runs them stacked in one compiled chunk
+(:class:`membrax.executor.PeriodicBatch`). Each test checks a number: the batched members' records are those
+of :func:`membrax.run.run_test` of each member alone (to the bit: one device, ``lax.map``, the same
+arithmetic), each member's servo holds its own σc and its box shortens at its own imposed log strain rate;
+an interrupted batch resumes to the same bits; a step under ``jit(vmap(...))`` is the single steps, and the
+batch in ``vmap`` mode is the ``lax.map`` batch to round-off; lists grown together hold every member's pairs.
+"""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from helpers import SMALL_ELEMENT
+
+from membrax.assemble import precision_scope, run_settings
+from membrax.batch import stack
+from membrax.config import TriaxialConfig, with_overrides
+from membrax.driver import advance
+from membrax.executor import PeriodicBatch, build_periodic_batch
+from membrax.run import run_test
+from membrax.spheres.integrate import DampingParams
+from membrax.sweep import _ELEMENT_SCALARS, run_sweep
+from membrax.triaxial.periodic import periodic_test
+
+DIAMETER = 0.025  # m, the equal spheres of the configuration's default grading
+DENSITY = 2650.0  # kg/m³, the configuration's default
+PRESSURES_KPA = (20.0, 40.0)
+#: The small element (64 spheres, a short shear) in float64, two cell pressures.
+BASE = TriaxialConfig(name="periodic_batch", float64=True, **SMALL_ELEMENT)
+GRID = {"cell_pressure_kpa": list(PRESSURES_KPA)}
+COMPARED = ("step", "stress", "axial_strain", "volumetric_strain", "length", "unbalanced_force_ratio")
+
+
+@pytest.fixture(scope="module")
+def batched(tmp_path_factory):
+    """The two members as one batch (a sweep, one device: ``lax.map`` over the members)."""
+    return run_sweep(BASE, GRID, tmp_path_factory.mktemp("batched"), progress=False, num_devices=1)
+
+
+def test_a_batch_of_periodic_elements_is_its_members_run_one_by_one(batched, tmp_path):
+    """Each member of the batch writes the records of its element run alone (run_test), to the bit: one
+    packing and one list shape, the same step on one device (``lax.map`` runs each member's own program),
+    and each member ends consolidation at its own step (its stop test). Each one's servo held its own σc:
+    every σ_kk within 1 % at the end of consolidation; its box shortened at its own rate, ε̇ = I/(d √(ρ/σc))
+    (GDR MiDi): ε_a = 1 − exp(−ε̇ t) to round-off, faster at 40 kPa than at 20 by √2. The sweep's layout is
+    that of the element's (its scalars per member, ``summary.csv``'s columns)."""
+    assert batched.dataset.attrs["groups"] == 1
+    rates = []
+    for pressure in PRESSURES_KPA:
+        alone = run_test(
+            with_overrides(BASE, cell_pressure_kpa=pressure), tmp_path / f"{pressure:g}", progress=False
+        )
+        member = batched.member(cell_pressure_kpa=pressure)
+        for name in COMPARED:
+            np.testing.assert_array_equal(member[name].values, alone.results[name].values, err_msg=name)
+        consolidation = batched.consolidation.sel(cell_pressure_kpa=pressure)
+        count = alone.consolidation.sizes["record"]
+        np.testing.assert_array_equal(
+            consolidation["stress"].values[:count], alone.consolidation["stress"].values
+        )
+        assert int(consolidation["num_records"]) == count
+        start = np.diagonal(member["stress"].values[0])
+        np.testing.assert_allclose(start, 1e3 * pressure, rtol=0.01)
+        rate = 5e-3 / (DIAMETER * math.sqrt(DENSITY / (1e3 * pressure)))
+        steps = member["step"].values - member["step"].values[0]
+        # L_{n+1} = L_n (1 − ε̇ Δt) per step: the log strain ε̇ t, stepped.
+        imposed = 1.0 - (1.0 - rate * alone.metadata["dt_s"]) ** steps
+        np.testing.assert_allclose(member["axial_strain"].values, imposed, rtol=1e-9, atol=1e-15)
+        rates.append(rate)
+    assert rates[1] / rates[0] == pytest.approx(math.sqrt(2.0), rel=1e-12)
+    steps = batched.dataset["shear_steps"].values
+    assert steps[0] > steps[1]  # the slower member sheared for more steps
+    for name in _ELEMENT_SCALARS:
+        assert np.all(np.isfinite(batched.dataset[name].values)), name
+    header = (batched.folder / "summary.csv").read_text().splitlines()[0].split(",")
+    assert header == [
+        "cell_pressure_kpa",
+        "consolidation_steps",
+        "shear_steps",
+        "num_records",
+        *_ELEMENT_SCALARS,
+        "status",
+    ]
+
+
+def test_an_interrupted_batch_resumes_to_the_same_bits(batched, tmp_path):
+    """The batch killed after 3 chunks (a consolidation chunk's checkpoint: stacked states, budgets, the
+    lists' shape, the records so far) and resumed writes the records of the uninterrupted batch, to the
+    bit, in both phases."""
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(BASE, GRID, tmp_path, progress=False, num_devices=1, interrupt_after_chunks=3)
+    resumed = run_sweep(BASE, GRID, tmp_path, resume=True, progress=False, num_devices=1)
+    for name in (*COMPARED, "num_records", "consolidation_steps", "shear_steps"):
+        np.testing.assert_array_equal(
+            resumed.dataset[name].values, batched.dataset[name].values, err_msg=name
+        )
+    np.testing.assert_array_equal(
+        resumed.consolidation["stress"].values, batched.consolidation["stress"].values
+    )
+
+
+def test_the_batched_step_is_jit_of_vmap_of_the_cell_s_step():
+    """The batch in ``vmap`` mode (the GPU's) advances the stacked members as ``jit(vmap(step))``: after one
+    chunk of 300 steps (3 records) each member's stress is that of the single cell's ``jit`` of the same
+    steps from its own state, to round-off (the vmapped reductions sum in another order: within 1e-10 of σc,
+    measured 1e-12; viscous damping, since local damping's sign(u) flips on round-off where u ≈ 0 and
+    would part the two at once); the ``lax.map`` batch too (a program compiled around ``lax.map`` and
+    ``lax.cond`` may fuse the step's arithmetic otherwise than the bare ``jit``: 5e-12 of σc)."""
+    configs = [with_overrides(BASE, cell_pressure_kpa=p, viscous_damping=True) for p in PRESSURES_KPA]
+    with precision_scope(BASE):
+        mapped = build_periodic_batch(configs, num_devices=1, mode="map", order=[0, 1])
+        vmapped = build_periodic_batch(configs, num_devices=1, mode="vmap", order=[0, 1])
+        left = jnp.full((2,), 300)
+        ends = {}
+        for label, batch in (("map", mapped), ("vmap", vmapped)):
+            ends[label] = batch._chunk(
+                batch.initial_state, batch.params, batch.members, left, num_records=3, record_every=100
+            )
+        runner = mapped.tests[0].runner
+
+        @jax.jit
+        def single(state, params):
+            return runner.record_fn(advance(runner.step_fn, state, params, 300), params)
+
+        for b, state in enumerate(mapped.unstack(mapped.initial_state)):
+            expected = np.asarray(single(state, mapped.tests[b].params).stress)
+            for mode, end in ends.items():
+                stress = np.asarray(end[2].stress)[b, -1]
+                np.testing.assert_allclose(
+                    stress, expected, rtol=0, atol=1e-10 * 1e3 * PRESSURES_KPA[b], err_msg=mode
+                )
+            assert int(np.asarray(ends["vmap"][0].error)[b]) == 0
+        # The two members are apart: each servo works to its own target.
+        stress = np.asarray(ends["map"][2].stress)[:, -1]
+        assert not np.allclose(stress[0], stress[1], rtol=1e-3)
+
+
+def test_lists_grown_together_hold_every_member_s_pairs():
+    """Two cells of one jittered 4³ lattice at 100 and 300 kPa whose lists are cut to 40 slots and rebuilt
+    at the first step overflow; the batch grows both lists together (one shape, driver.grow_tables with the
+    cell's allocate hook) from the chunk's start and reruns it, and each member ends where its cell run with
+    an ample list ends (viscous damping: no sign flips on round-off; the rebuilt lists order the pairs
+    otherwise, so to round-off)."""
+    fraction = (np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), axis=-1).reshape(-1, 3) + 0.5) / 4
+    fraction = (fraction + 0.03 * np.random.default_rng(0).uniform(-1, 1, fraction.shape) / 4) % 1.0
+    length = np.full(3, 4 * 0.97 * DIAMETER)
+    tests = [
+        periodic_test(
+            jnp.asarray(fraction),
+            length,
+            np.full(64, 0.5 * DIAMETER),
+            p,
+            damping=DampingParams.viscous(2000.0),
+        )
+        for p in (1e5, 3e5)
+    ]
+    settings = [run_settings(BASE)] * 2
+    # Listed at twice the box: the first step rebuilds the list.
+    states = [test.initial_state.set(list_length=2.0 * test.initial_state.length) for test in tests]
+    template = tests[0].initial_state.neighbors
+    short = template.set(idx=template.idx[:, :40], max_occupancy=40)
+    cut = [s.set(neighbors=short, pair_spring=s.pair_spring[:40]) for s in states]
+    batch = PeriodicBatch(
+        settings=settings,
+        tests=tests,
+        dt=tests[0].dt,
+        num_devices=1,
+        mode="map",
+        params=stack([t.params for t in tests]),
+        members={},
+        initial_state=stack(cut),
+    )
+    grown, left = batch.run_phase(batch.initial_state, [400, 400], 200, 100)
+    assert batch.reallocations >= 1 and np.all(left == 0)
+    assert grown.neighbors.idx.shape[-1] > 40
+    # Each servo worked to its own target: the boxes parted.
+    assert not np.allclose(np.asarray(grown.length[0]), np.asarray(grown.length[1]), rtol=1e-6)
+    for b, (test, state) in enumerate(zip(tests, states, strict=True)):
+        reference, _ = test.runner.run(state.set(neighbors=template), test.params, 400, 200, 100)
+        box = float(test.initial_state.length[0])
+        np.testing.assert_allclose(
+            np.asarray(batch.unstack(grown)[b].position), np.asarray(reference.position), atol=1e-9 * box
+        )
