@@ -129,6 +129,33 @@ def theory_report() -> str:
     if any_invalid:
         lines.append("* outside the stated validity (t_m/D < 0.2 and alpha/D > 0.2).")
 
+    from membrax.defaults import GENT_LOCKING_JM
+
+    aperture_mm = 0.5 * theory.SQUARE_WINDOW_RATIO * paper.PARTICLE_DIAMETER_MM
+    soft_jm = 0.5 * theory.GENT_MONOTONIC_LOCKING_JM
+    lines.append(
+        _rule(
+            f"Inflation limit over the square window of {paper.PARTICLE_DIAMETER_MM:g} mm spheres, "
+            f"a = {aperture_mm:.2f} mm (kPa; none: the pressure-bulge curve has no maximum)"
+        )
+    )
+    lines.append(
+        f"{'t_m (mm)':>9}{'E_m (kPa)':>11}{'neo-Hookean':>13}{f'Gent J_m={GENT_LOCKING_JM:g}':>18}"
+        f"{f'Gent J_m={soft_jm:.3g}':>18}"
+    )
+    # The calibration grid's thin corners, then the paper's membranes.
+    paper_membranes = tuple((t, paper.MEMBRANE_MODULUS_KPA) for t in paper.PAPER_THICKNESSES_MM)
+    membranes = ((1.0, 700.0), (1.0, 1400.0), *paper_membranes)
+    for thickness, modulus in membranes:
+        cells = [theory.membrane_limit_pressure(modulus, thickness, aperture_mm)]
+        for locking in (GENT_LOCKING_JM, soft_jm):
+            cells.append(theory.gent_membrane_limit_pressure(modulus, thickness, aperture_mm, locking))
+        shown = "".join(
+            f"{(f'{float(c):.1f}' if np.isfinite(float(c)) else 'none'):>{w}}"
+            for c, w in zip(cells, (13, 18, 18), strict=True)
+        )
+        lines.append(f"{thickness:>9.2f}{modulus:>11g}{shown}")
+
     strain = 0.05
     lines.append(
         _rule(
