@@ -74,6 +74,9 @@ def run_grid(folder, groups=None, progress: bool = True, scheduler=None, archive
     groups = CALIBRATION if groups is None else groups
     paths = [_sweep_path(folder, archive, name) for name in groups]
     todo = {name: item for (name, item), path in zip(groups.items(), paths, strict=True) if not path.exists()}
+    for name, path in zip(groups, paths, strict=True):
+        if archive is not None and path == _archived(archive, name):
+            _check_archived(path, name, *groups[name])
 
     def one(name, client=None):
         specimen, grid = todo[name]
@@ -118,6 +121,33 @@ def find_sweep(folder, name: str) -> Path | None:
         if path.exists():
             return path
     return None
+
+
+def _check_archived(path: Path, name: str, specimen: dict, grid: dict) -> None:
+    """Refuse an archived sweep that the design no longer describes (its configuration or grid changed).
+
+    The archived configuration is read back through :class:`membrax.config.TriaxialConfig`, so a field
+    added to membrax since the group ran counts at its default, as it ran.
+
+    Raises:
+      ValueError: naming the group, the fields that differ and the fix.
+    """
+    from membrax.config import TriaxialConfig, config_to_dict
+    from membrax.io.results import dataset_attrs_to_python, read_results
+
+    attrs = dataset_attrs_to_python(read_results(path))
+    expected = config_to_dict(TriaxialConfig(name=f"calibration_{name}", **specimen_fields(specimen)))
+    archived = config_to_dict(TriaxialConfig(**attrs["base_config"]))
+    fields = sorted(key for key in expected if expected[key] != archived.get(key))
+    expected_grid = {key: [float(v) for v in values] for key, values in grid.items()}
+    archived_grid = {key: [float(v) for v in values] for key, values in attrs["grid"].items()}
+    if archived_grid != expected_grid:
+        fields.append("the grid")
+    if fields:
+        raise ValueError(
+            f"{path}: the archived sweep of group {name!r} differs from the design in {', '.join(fields)}; "
+            "delete the file to run the group again with the design as it is, or restore the design."
+        )
 
 
 def _archived(archive, name: str) -> Path:

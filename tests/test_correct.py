@@ -825,20 +825,25 @@ def test_an_archived_group_is_done_on_any_machine(tmp_path, monkeypatch):
     import membrax.sweep
     from calibrate import designs, grid
     from membrax import io
+    from membrax.config import TriaxialConfig
 
     groups = {name: designs.LAB_CALIBRATION[name] for name in ("e6_thin_s0", "e6_thin_s2", "n6_s0")}
     ran = []
 
     def fake_sweep(base, grid_values, out, **options):
+        from membrax.config import config_to_dict
+
         ran.append(out.name)
         pressures = np.asarray(grid_values["cell_pressure_kpa"], dtype=np.float64)
-        dataset = xr.Dataset({"cell_pressure": ("member", 1e3 * pressures)}, attrs={"group": out.name})
+        attrs = {"base_config": config_to_dict(base), "grid": grid_values}
+        dataset = xr.Dataset({"cell_pressure": ("member", 1e3 * pressures)}, attrs=attrs)
         io.write_netcdf(dataset, out / "sweep.nc")
 
     monkeypatch.setattr(membrax.sweep, "run_sweep", fake_sweep)
     first, archive = tmp_path / "machine_1", tmp_path / "archive"
     (first / "n6_s0").mkdir(parents=True)
-    fake_sweep(None, groups["n6_s0"][1], first / "n6_s0")  # finished before an archive was named
+    n6 = TriaxialConfig(name="calibration_n6_s0", **designs.specimen_fields(groups["n6_s0"][0]))
+    fake_sweep(n6, {k: list(v) for k, v in groups["n6_s0"][1].items()}, first / "n6_s0")  # before the archive
     ran.clear()
     paths = grid.run_grid(first, groups, progress=False, archive=archive)
     assert ran == ["e6_thin_s0", "e6_thin_s2"]
@@ -853,6 +858,11 @@ def test_an_archived_group_is_done_on_any_machine(tmp_path, monkeypatch):
     assert [grid.find_sweep(archive, name) for name in groups] == paths
     assert grid.find_sweep(first, "e6_thin_s0") == first / "e6_thin_s0" / "sweep.nc"
     assert grid.find_sweep(first, "e6_s0") is None
+
+    # The design changed since a group was archived: refused, naming the group and what differs.
+    changed = {**groups, "n6_s0": (groups["n6_s0"][0], {**groups["n6_s0"][1], "cell_pressure_kpa": (20.0,)})}
+    with pytest.raises(ValueError, match=r"group 'n6_s0' differs from the design in the grid; delete"):
+        grid.run_grid(tmp_path / "machine_3", changed, progress=False, archive=archive)
 
 
 def test_the_grid_runs_the_named_groups_in_the_order_given(capsys):
