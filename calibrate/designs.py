@@ -231,29 +231,31 @@ _LAB_GRID = {
 #: 25 mm spheres; ASTM D7181 and BS 1377-8 test at H/D 2–2.5), dense, medium (compaction friction 10°) and
 #: loose, equal spheres, railway ballast and a uniform narrow grading (:data:`membrax.reproduce.
 #: RANDOM_GRADINGS`, largest sieve D_s/6), seeds :data:`LAB_SEEDS`. The cost grows with the mould: a 300 ×
-#: 600 mm member has about 3,000 spheres, a graded one a smaller time step.
+#: 600 mm member has about 3,000 spheres, a graded one a smaller time step. The groups stand cheapest first,
+#: the order :func:`calibrate.grid.run_grid` runs them in, so that a sitting finishes (and archives) as many
+#: as it can.
 LAB_CALIBRATION = {
     f"{name}_s{seed}": item
     for name, groups in {
-        "e6": _lab_group(
-            (150.0, 300.0),
-            {**_LAB_GRID, "membrane_thickness_mm": (2.0, 3.0, 5.0), "membrane_modulus_kpa": (1400.0, 2800.0)},
-        ),
         # 1 mm of 2800 kPa: E_m t_m as 2 mm of 1400, half as thick (0.30 of the inflation limit at 100 kPa).
         "e6_thin": _lab_group(
             (150.0, 300.0), {**_LAB_GRID, "membrane_thickness_mm": (1.0,), "membrane_modulus_kpa": (2800.0,)}
         ),
-        "e6_h25": _lab_group((150.0, 375.0), _LAB_GRID),
-        "e6_medium": _lab_group((150.0, 300.0), _LAB_GRID, state="medium"),
-        "e6_loose": _lab_group((150.0, 300.0), _LAB_GRID, state=_LOOSE),
-        "e8": _lab_group((200.0, 400.0), _LAB_GRID),
-        "e10": _lab_group((250.0, 500.0), _LAB_GRID),
-        "e12": _lab_group((300.0, 600.0), _LAB_GRID),
         "n6": _lab_group((150.0, 300.0), _LAB_GRID, grading="narrow"),
         "n6_loose": _lab_group((150.0, 300.0), _LAB_GRID, grading="narrow", state=_LOOSE),
+        "e6_loose": _lab_group((150.0, 300.0), _LAB_GRID, state=_LOOSE),
+        "e6_medium": _lab_group((150.0, 300.0), _LAB_GRID, state="medium"),
+        "e6_h25": _lab_group((150.0, 375.0), _LAB_GRID),
+        "e8": _lab_group((200.0, 400.0), _LAB_GRID),
         "g6": _lab_group(
             (150.0, 300.0), {**_LAB_GRID, "membrane_thickness_mm": (2.5, 5.0)}, grading="ballast"
         ),
+        "e6": _lab_group(
+            (150.0, 300.0),
+            {**_LAB_GRID, "membrane_thickness_mm": (2.0, 3.0, 5.0), "membrane_modulus_kpa": (1400.0, 2800.0)},
+        ),
+        "e10": _lab_group((250.0, 500.0), _LAB_GRID),
+        "e12": _lab_group((300.0, 600.0), _LAB_GRID),
     }.items()
     for seed, item in groups.items()
 }
