@@ -78,6 +78,7 @@ __all__ = [
     "batch_template",
     "float32_batch",
     "plan_members",
+    "plan_periodic_members",
     "table_capacities",
 ]
 
@@ -481,12 +482,10 @@ def build_periodic_batch(
     """
     configs = list(configs)
     mode, num_devices = _check_batch(configs, num_devices, mode)
-    tests = [build_periodic_test(c) for c in configs]
+    tests, _, work = plan_periodic_members(configs)
     settings = [run_settings(c) for c in configs]
     if order is None:
-        order = balanced_order(
-            [_expected_steps(t, s) for t, s in zip(tests, settings, strict=True)], num_devices
-        )
+        order = balanced_order(work, num_devices)
     order = _checked_order(order, len(configs))
     tests, settings = [tests[i] for i in order], [settings[i] for i in order]
     # The members start at the protocol's first phase, their lists rebuilt from one template.
@@ -585,6 +584,20 @@ def plan_members(
     ]
     work = [_expected_steps(t, run_settings(c)) for t, c in zip(tests, configs, strict=True)]
     return tests, float(dt), nodes_around, work
+
+
+def plan_periodic_members(configs: Sequence[TriaxialConfig]) -> tuple[list, float, list[int]]:
+    """The periodic members' tests (one packing, one Δt) and each one's expected steps (its work).
+
+    Args:
+      configs: the members' configurations (``cell = "periodic"``, one structure).
+
+    Returns:
+      (tests, Δt, work), work as :func:`plan_members`'.
+    """
+    tests = [build_periodic_test(c) for c in configs]
+    work = [_expected_steps(t, run_settings(c)) for t, c in zip(tests, configs, strict=True)]
+    return tests, float(tests[0].dt), work
 
 
 def _expected_steps(test, settings) -> int:

@@ -81,6 +81,7 @@ from membrax.runner import (
     results_datasets,
     run_group,
     run_metadata,
+    stop_runaways,
 )
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest
@@ -306,7 +307,8 @@ class _PeriodicGroup:
     """A batch of periodic elements in progress (:func:`run_periodic_group`): records, checkpoints, progress.
 
     ``records`` maps each phase of :data:`PHASES` to the chunks' stacked records ((B, T, ...) arrays and
-    ``valid``, as :meth:`membrax.executor.StackedMembers.run_phase` hands them over).
+    ``valid``, as :meth:`membrax.executor.StackedMembers.run_phase` hands them over); ``failures`` is the
+    batch's (member → error, step, phase of the members frozen by ``isolate_failures``).
     """
 
     batch: PeriodicBatch
@@ -314,15 +316,27 @@ class _PeriodicGroup:
     progress: bool
     interrupt_after_chunks: int | None
     chunk_counter: list
+    isolate_failures: bool = False
     records: dict = dataclasses.field(default_factory=lambda: {phase: [] for phase in PHASES})
     elapsed_before: float = 0.0
     started: float = dataclasses.field(default_factory=time.perf_counter)
+
+    def __post_init__(self):
+        self.batch.failures = {}
+        # σc V₀ of each member: the runaway stop's scale (membrax.runner.stop_runaways).
+        self.volume_work = np.array(
+            [t.cell_pressure * float(np.prod(np.asarray(t.initial_state.length))) for t in self.batch.tests]
+        )
+
+    @property
+    def failures(self) -> dict:
+        return self.batch.failures
 
     def elapsed(self) -> float:
         return self.elapsed_before + time.perf_counter() - self.started
 
     def save(self, states, phase_index: int, budgets) -> None:
-        """Checkpoint: the states, their phase and budgets, the records so far, the lists' shape."""
+        """Checkpoint: the states, their phase and budgets, the records so far, the lists' shape, failures."""
         host = {
             "phase": phase_index,
             # None at a phase's end: the next phase is entered (and its budgets planned) on resume.
@@ -330,16 +344,18 @@ class _PeriodicGroup:
             "elapsed": self.elapsed(),
             "list_shape": self.batch.list_shape(states),
             "member_steps": [int(v) for v in np.asarray(states.step)[: self.batch.num_members]],
+            "failures": {str(b): failure for b, failure in self.failures.items()},
             **records_to_host(self.records),
         }
         save_checkpoint(self.path, states, host)
 
     def restore(self):
-        """(states, phase index, budgets or None) from the checkpoint, the records so far put back."""
+        """(states, phase index, budgets or None) from the checkpoint, the records and failures put back."""
         saved = read_checkpoint_host(self.path)
         states, host = load_checkpoint(self.path, self.batch.template(saved["list_shape"]))
         self.elapsed_before = host["elapsed"]
         self.records.update(records_from_host(host))
+        self.failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
         budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
         return states, host["phase"], budgets
 
@@ -355,25 +371,49 @@ class _PeriodicGroup:
         def consolidated(b, records):
             return phase == "consolidation" and batch.tests[b].is_consolidated(records, tolerances[b])
 
+        def on_failure(b, names, step):
+            self.failures[b] = {"error": names, "step": step, "phase": phase}
+
         def on_chunk(current, chunk, left):
+            stop = stop_runaways(
+                chunk,
+                self.volume_work,
+                self.failures,
+                [s.name for s in batch.settings],
+                np.asarray(current.step),
+                settings.dt_safety,
+                on_failure if self.isolate_failures else None,
+            )
             self.records[phase].append(chunk)
             bar.update(chunk["valid"].shape[1] * record_every)
             ratio = chunk["unbalanced_force_ratio"][chunk["valid"]]
             bar.set_postfix(ufr=f"{np.max(ratio, initial=0.0):.1e}", active=int(np.sum(left > 0)))
             self.chunk_counter[0] += 1
             if self.chunk_counter[0] % settings.checkpoint_every_chunks == 0:
+                left = left.copy()
+                left[stop] = 0
                 self.save(current, index, left)
             interrupt = self.interrupt_after_chunks
             if interrupt is not None and self.chunk_counter[0] >= interrupt:
                 raise KeyboardInterrupt(f"interrupted after {self.chunk_counter[0]} chunks (testing aid)")
-            return []
+            return stop
 
         try:
             states, _ = batch.run_phase(
-                states, budgets, settings.chunk_steps, record_every, stop_fn=consolidated, on_chunk=on_chunk
+                states,
+                budgets,
+                settings.chunk_steps,
+                record_every,
+                stop_fn=consolidated,
+                on_chunk=on_chunk,
+                on_failure=on_failure if self.isolate_failures else None,
             )
         except SimulationError as error:
-            raise RunError(f"{error}.", self.records) from error
+            hint = f"Lower dt_safety (now {settings.dt_safety}) or particle_stiffness_n_m."
+            raise RunError(f"{error}. {hint}", self.records) from error
+        except RunError as error:
+            error.records = self.records
+            raise
         finally:
             bar.close()
         return states
@@ -386,15 +426,17 @@ def run_periodic_group(
     progress: bool = True,
     interrupt_after_chunks: int | None = None,
     chunk_counter: list | None = None,
+    isolate_failures: bool = False,
 ):
     """Run a batch of periodic elements through the phases of :data:`PHASES` (module docstring).
 
     Each phase is entered by every member's test (:meth:`~membrax.triaxial.protocol.StagedTest.start_phase`
     under its own loading, its budget from its own ``phase_plan``) and advanced by
     :meth:`membrax.executor.StackedMembers.run_phase` (the driver's loop: error bits, list growth, each
-    member's consolidation stop test); every ``checkpoint_every_chunks`` chunks, and at each phase's end,
-    the stacked states, the phase, the budgets and the records so far are saved, so a resumed run takes the
-    same chunks as an uninterrupted one.
+    member's consolidation stop test); after each chunk the runaway-energy stop
+    (:func:`membrax.runner.stop_runaways`) as in a membrane run; every ``checkpoint_every_chunks`` chunks,
+    and at each phase's end, the stacked states, the phase, the budgets, the failures and the records so
+    far are saved, so a resumed run takes the same chunks as an uninterrupted one.
 
     Args:
       batch: from :func:`membrax.executor.build_periodic_batch`.
@@ -404,16 +446,25 @@ def run_periodic_group(
       interrupt_after_chunks: testing aid: ``KeyboardInterrupt`` after this many chunks (counted in
         ``chunk_counter``, after that chunk's checkpoint).
       chunk_counter: a one-element list counting chunks across groups (default: this call's own).
+      isolate_failures: a member that blows up (error bits other than a list overflow, or a runaway kinetic
+        energy) is frozen at its last good records (its budget ends, the chunk runs again without it, it
+        enters no later phase) and the others go on; ``batch.failures`` maps it to its error, step and
+        phase (kept in checkpoints). False: the first raises.
 
     Returns:
       (records by phase: lists of chunk dicts of stacked (B, T, ...) arrays with ``valid``, as
       :func:`membrax.runner.member_chunk_records` takes them; the elapsed seconds).
 
     Raises:
-      RunError: a member's error bits other than a list overflow; ``error.records`` holds the records so far.
+      RunError: a member blew up (without ``isolate_failures``); ``error.records`` holds the records so far.
     """
     group = _PeriodicGroup(
-        batch, folder / CHECKPOINT_NAME, progress, interrupt_after_chunks, chunk_counter or [0]
+        batch,
+        folder / CHECKPOINT_NAME,
+        progress,
+        interrupt_after_chunks,
+        chunk_counter or [0],
+        isolate_failures,
     )
     plans = [t.phase_plan(s.loading) for t, s in zip(batch.tests, batch.settings, strict=True)]
     states, first, budgets = batch.initial_state, 0, None
@@ -425,12 +476,15 @@ def run_periodic_group(
             if index > 0:
                 members = batch.unstack(states)
                 started = [
-                    test.start_phase(phase, member, s.loading)
-                    for member, test, s in zip(members, batch.tests, batch.settings, strict=True)
+                    member if b in group.failures else test.start_phase(phase, member, s.loading)
+                    for b, (member, test, s) in enumerate(
+                        zip(members, batch.tests, batch.settings, strict=True)
+                    )
                 ]
                 if any(new is not old for new, old in zip(started, members, strict=True)):
                     states = batch.restack(started)
             budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
+            budgets[list(group.failures)] = 0  # a failed member stays frozen
         states = group.run_phase(index, states, budgets, plans)
         budgets = None
         group.save(states, index + 1, None)
@@ -473,16 +527,20 @@ def periodic_datasets(test, settings, records, build_seconds, elapsed, **attrs):
       build_seconds: the batch's build time, s.
       elapsed: the run's time, s.
       **attrs: further attributes (a sweep's batch size, status).
+
+    A member frozen before its first record (``status`` failed) gets two datasets without records.
     """
     consolidation = join_records(records["consolidation"])
     shear = join_records(records["shear_fine"] + records["shear_coarse"])
     first = {name: values[-1:] for name, values in consolidation.items()}
-    first["axial_strain"] = np.zeros_like(first["axial_strain"])
-    first["volumetric_strain"] = np.zeros_like(first["volumetric_strain"])
+    if first:
+        first["axial_strain"] = np.zeros_like(first["axial_strain"])
+        first["volumetric_strain"] = np.zeros_like(first["volumetric_strain"])
     shear = (
         {name: np.concatenate([first[name], values]) for name, values in shear.items()} if shear else first
     )
-    for values in (consolidation, shear):
+    # A member frozen in its first chunk (a sweep's failure isolation) has no records at all.
+    for values in (consolidation, shear) if consolidation else ():
         values["time"] = values["step"] * test.dt
         values["love_weber_friction_angle_deg"] = analysis.friction_angle_deg(
             values["axial_stress"], values["lateral_stress"]
@@ -496,9 +554,9 @@ def periodic_datasets(test, settings, records, build_seconds, elapsed, **attrs):
         "cell": "periodic",
         "num_particles": int(test.particles.num_particles),
         "dt_s": test.dt,
-        "consolidation_steps": int(consolidation["step"][-1]),
+        "consolidation_steps": int(consolidation["step"][-1]) if consolidation else 0,
         "consolidation_tolerance": settings.consolidation_tolerance,
-        "shear_steps": int(shear["step"][-1] - consolidation["step"][-1]),
+        "shear_steps": int(shear["step"][-1] - consolidation["step"][-1]) if consolidation else 0,
         "build_s": build_seconds,
         "run_s": elapsed,
         "dtype": "float64" if settings.float64 else "float32",

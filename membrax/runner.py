@@ -64,6 +64,7 @@ __all__ = [
     "run_group",
     "run_metadata",
     "specimen_metadata",
+    "stop_runaways",
 ]
 
 
@@ -458,23 +459,59 @@ def _on_chunk(group: _Group, phase: str, hooks: _Hooks, bar, on_failure, current
 
 def _runaways(group: _Group, phase: str, hooks: _Hooks, on_failure, current, chunk) -> list[int]:
     """Members whose kinetic energy ran away in ``chunk``: frozen (``isolate_failures``) or raised."""
-    num = group.batch.num_members
+    return stop_runaways(
+        chunk,
+        group.volume_work,
+        group.failures,
+        [s.name for s in group.batch.settings],
+        np.asarray(current.dem.step),
+        group.settings.dt_safety,
+        on_failure if hooks.isolate_failures else None,
+    )
+
+
+def stop_runaways(chunk: dict, volume_work, frozen, names, steps, dt_safety: float, on_failure=None) -> list:
+    """The runaway-energy stop of a batch's chunk: members whose kinetic energy ran away, frozen or raised.
+
+    A member runs away when the kinetic energy of its chunk's last record is not finite or exceeds
+    :data:`RUNAWAY_KINETIC_FRACTION` × σc V₀ (the work scale of the cell pressure). Shared by the membrane
+    cell's runner and the periodic element's (:func:`membrax.run.run_periodic_group`).
+
+    Args:
+      chunk: the chunk's stacked records (``kinetic_energy`` (B, T, ...) and ``valid`` (B, T), writable).
+      volume_work: (B,) each member's σc V₀, J.
+      frozen: members already failed (not checked again).
+      names: the members' names, for the message.
+      steps: (B,) each member's steps at the chunk's end.
+      dt_safety: the members' ``dt_safety``, for the message's hint.
+      on_failure: ``on_failure(member, "RUNAWAY_KINETIC_ENERGY", step)``: failure isolation, the member's
+        records of the chunk are masked (``valid`` False: frozen at its last good records) and it is returned
+        to be stopped. None: the first runaway raises.
+
+    Returns:
+      The members to stop now.
+
+    Raises:
+      RunError: a runaway without ``on_failure``, naming the member, its energy and the bound.
+    """
+    volume_work = np.asarray(volume_work, dtype=np.float64)
+    num = volume_work.size
     kinetic = chunk["kinetic_energy"].reshape(num, chunk["valid"].shape[1], -1)[:, -1, 0]
-    limit = RUNAWAY_KINETIC_FRACTION * group.volume_work
+    limit = RUNAWAY_KINETIC_FRACTION * volume_work
     runaway = ~np.isfinite(kinetic) | (kinetic > limit)
-    runaway[list(group.failures)] = False
+    runaway[list(frozen)] = False
     stop = []
     for b in np.flatnonzero(runaway):
         message = (
-            f"member {b} ({group.batch.settings[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
+            f"member {b} ({names[b]}): kinetic energy {kinetic[b]:.3g} J exceeds "
             f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = {limit[b]:.3g} J: the run is unstable. Lower dt_safety "
-            f"(now {group.settings.dt_safety}) or the stiffness."
+            f"(now {dt_safety}) or the stiffness."
         )
-        if not hooks.isolate_failures:
+        if on_failure is None:
             raise RunError(message)
         chunk["valid"][b] = False  # frozen at its last good records
         stop.append(int(b))
-        on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]))
+        on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(steps)[b]))
     return stop
 
 

@@ -51,8 +51,9 @@ particle count, seed, grading, particle stiffness or precision: another packing 
 fields and the groups run one after another. ``sweep.nc`` holds their records and figures (peak and late
 φ', ε_v, the lateral servo's error: :func:`membrax.triaxial.analysis.element_summary`) on the same grid.
 On one device each member's records are those of its element run alone, to the bit; sharded or vmapped,
-to round-off that the granular dynamics amplify (:mod:`membrax.executor`). No Dask scheduler; a member
-that fails stops the sweep with :class:`RunError`.
+to round-off that the granular dynamics amplify (:mod:`membrax.executor`). On a Dask scheduler their groups
+split into tasks as above (a group's plan holds its packing's Δt and no n_θ), and a member that fails is
+frozen and marked as below.
 
 Long runs. :func:`membrax.runner.run_group`'s progress bars, checkpoints and ``resume=True`` (results
 identical to an uninterrupted sweep), one checkpoint per group (per task in a campaign); finished groups
@@ -95,6 +96,7 @@ from membrax.executor import (
     build_periodic_batch,
     describe_failure,
     plan_members,
+    plan_periodic_members,
 )
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
 from membrax.run import default_folder as run_folder
@@ -291,7 +293,8 @@ def _run_unit(
 
     Writes ``shear_{k}.nc``/``consolidation_{k}.nc`` for the batch's member k (``configs[order[k]]``),
     ``members.json`` (the order) and, last, ``results.nc``. A member that fails is frozen and written
-    with its ``status`` (:func:`membrax.runner.run_group`'s ``isolate_failures``). Returns the order.
+    with its ``status`` (``isolate_failures`` of :func:`membrax.runner.run_group`, or of
+    :func:`membrax.run.run_periodic_group` for periodic elements). Returns the order.
     """
     build_start = time.perf_counter()
     periodic = run_settings(configs[0]).cell == "periodic"
@@ -304,7 +307,7 @@ def _run_unit(
     build_seconds = time.perf_counter() - build_start
     if periodic:
         records, elapsed = run_periodic_group(
-            batch, folder, resume, progress, interrupt_after_chunks, chunk_counter
+            batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
         )
     else:
         records, shear_start, elapsed = run_group(
@@ -381,18 +384,26 @@ def _run_groups_here(groups, folder, resume, progress, num_devices, mode, interr
 
 
 def plan_group(configs: list) -> dict:
-    """A group's common Δt and n_θ and each member's expected steps (run on a worker: it builds the tests)."""
+    """A group's common Δt and n_θ and each member's expected steps (run on a worker: it builds the tests).
+
+    A group of periodic elements has its packing's Δt and no mesh (``nodes_around`` None).
+    """
     with precision_scope(configs[0]):
-        _, time_step, nodes_around, work = plan_members(configs)
+        if run_settings(configs[0]).cell == "periodic":
+            _, time_step, work = plan_periodic_members(configs)
+            nodes_around = None
+        else:
+            _, time_step, nodes_around, work = plan_members(configs)
     return {"time_step": time_step, "nodes_around": nodes_around, "work": work}
 
 
-def run_task(configs: list, folder: str, time_step: float, nodes_around: int) -> int:
+def run_task(configs: list, folder: str, time_step: float, nodes_around: int | None) -> int:
     """One task of a Dask campaign, run on a worker: ``configs`` as one batch, into ``folder``.
 
     The batch shards over the worker's devices, with the group's Δt and n_θ (so each member takes the
-    steps it takes in-process). Always resumes from the folder's checkpoint: a task whose worker died
-    goes on where it stopped; a finished folder is left as it is. Each start appends a line to
+    steps it takes in-process; periodic elements, :class:`membrax.executor.PeriodicBatch`, take their
+    packing's Δt, the plan's, and have no n_θ). Always resumes from the folder's checkpoint: a task whose
+    worker died goes on where it stopped; a finished folder is left as it is. Each start appends a line to
     ``attempts.jsonl`` (process, host, and the steps the checkpoint had reached). Returns the members.
     """
     folder = Path(folder)
@@ -530,10 +541,6 @@ def run_sweep(
     if len(cells) > 1:
         raise ConfigError(f"the grid mixes cells {sorted(cells)}; sweep one cell at a time.")
     periodic = cells == {"periodic"}
-    if periodic and scheduler is not None:
-        raise ConfigError(
-            "cell = 'periodic' members run in this process, one after another; leave out --scheduler."
-        )
     # (A Dask client starts no JAX backend here: on a GPU machine that would hold the workers' memory.)
     in_process = scheduler is None
     one_cpu_device = in_process and jax.default_backend() == "cpu" and jax.local_device_count() == 1

@@ -5,9 +5,12 @@ A sweep of ``cell = "periodic"`` members of one packing runs them stacked in one
 of :func:`membrax.run.run_test` of each member alone (to the bit: one device, ``lax.map``, the same
 arithmetic), each member's servo holds its own σc and its box shortens at its own imposed log strain rate;
 an interrupted batch resumes to the same bits; a step under ``jit(vmap(...))`` is the single steps, and the
-batch in ``vmap`` mode is the ``lax.map`` batch to round-off; lists grown together hold every member's pairs.
+batch in ``vmap`` mode is the ``lax.map`` batch to round-off; lists grown together hold every member's pairs;
+a member that blows up (error bits, runaway kinetic energy) is frozen and flagged while the others' records
+stay those of the sweep without it, and a single element that blows up raises with its records.
 """
 
+import json
 import math
 
 import jax
@@ -16,11 +19,13 @@ import numpy as np
 import pytest
 from helpers import SMALL_ELEMENT
 
-from membrax.assemble import precision_scope, run_settings
+from membrax.assemble import build_periodic_test, precision_scope, run_settings
 from membrax.batch import stack
 from membrax.config import TriaxialConfig, with_overrides
 from membrax.driver import advance
+from membrax.errors import RunError
 from membrax.executor import PeriodicBatch, build_periodic_batch
+from membrax.io import read_results
 from membrax.run import run_test
 from membrax.spheres.integrate import DampingParams
 from membrax.sweep import _ELEMENT_SCALARS, run_sweep
@@ -185,3 +190,103 @@ def test_lists_grown_together_hold_every_member_s_pairs():
         np.testing.assert_allclose(
             np.asarray(batch.unstack(grown)[b].position), np.asarray(reference.position), atol=1e-9 * box
         )
+
+
+def _sabotaged_builder(monkeypatch, module, pressure_pa: float):
+    """``module.build_periodic_batch`` whose member at ``pressure_pa`` starts shearing with NaN velocities
+    (a test-only sabotage: its first shearing chunk goes non-finite)."""
+    build = module.build_periodic_batch
+
+    def sabotaged(configs, *args, **kwargs):
+        batch = build(configs, *args, **kwargs)
+        test = batch.tests[[t.cell_pressure for t in batch.tests].index(pressure_pa)]
+        start_shear = test.start_shear
+
+        def poisoned(state, *options, **named):
+            state = start_shear(state, *options, **named)
+            return state.set(velocity=jnp.full_like(state.velocity, jnp.nan))
+
+        test.start_shear = poisoned
+        return batch
+
+    monkeypatch.setattr(module, "build_periodic_batch", sabotaged)
+
+
+def test_a_periodic_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchanged(
+    batched, tmp_path, monkeypatch
+):
+    """Failure isolation of periodic elements: the 60 kPa member of a 20/40/60 kPa sweep starts shearing
+    with NaN velocities (sabotage), so its first shearing chunk sets NOT_FINITE. It is frozen at its last
+    good records and flagged with the error, the phase and the step: the chunk ending at the end of its
+    consolidation plus one chunk (500 steps, or its whole fine phase rounded to records if shorter). Its
+    consolidation is kept (every σ_kk within 1 % of 60 kPa at its end), no shearing record. The 20 and 40
+    kPa members end bitwise equal to the sweep of them alone; the same sweep killed after 3 chunks and
+    resumed (the failure kept in the checkpoint) ends the same."""
+    from membrax import sweep
+
+    _sabotaged_builder(monkeypatch, sweep, 6e4)
+    grid = {"cell_pressure_kpa": [*PRESSURES_KPA, 60.0]}
+    with pytest.warns(UserWarning, match="1 of 3 members failed"):
+        mixed = run_sweep(BASE, grid, tmp_path / "mixed", progress=False, num_devices=1)
+        with pytest.raises(KeyboardInterrupt):
+            run_sweep(BASE, grid, tmp_path / "cut", progress=False, num_devices=1, interrupt_after_chunks=3)
+        resumed = run_sweep(BASE, grid, tmp_path / "cut", resume=True, progress=False, num_devices=1)
+    status = [str(value) for value in mixed.dataset["status"].values]
+    assert status[:2] == ["completed", "completed"]
+    np.testing.assert_array_equal(resumed.dataset["status"].values, mixed.dataset["status"].values)
+    for name in (*COMPARED, "num_records", "consolidation_steps", "shear_steps"):
+        np.testing.assert_array_equal(
+            mixed.dataset[name].values[:2], batched.dataset[name].values, err_msg=name
+        )
+        np.testing.assert_array_equal(resumed.dataset[name].values, mixed.dataset[name].values, err_msg=name)
+    assert np.all(np.isnan(mixed.dataset["peak_friction_angle_deg"].values[2]))
+    # The frozen member's records, in its group's folder: consolidation complete, then nothing.
+    group = tmp_path / "mixed" / "groups" / "group_0"
+    k = json.loads((group / "members.json").read_text()).index(2)
+    consolidation = read_results(group / f"consolidation_{k}.nc")
+    np.testing.assert_allclose(np.diagonal(consolidation["stress"].values[-1]), 6e4, rtol=0.01)
+    last = int(consolidation["step"].values[-1])
+    config = with_overrides(BASE, cell_pressure_kpa=60.0)
+    with precision_scope(config):
+        fine, every = build_periodic_test(config).phase_plan(run_settings(config).loading)["shear_fine"]
+    chunk = min(BASE.chunk_steps, every * math.ceil(fine / every))
+    assert status[2] == f"failed: NOT_FINITE in shear_fine (chunk ending at step {last + chunk})"
+    shear = read_results(group / f"shear_{k}.nc")
+    np.testing.assert_array_equal(shear["step"].values, [last])  # the end of consolidation only
+    assert (tmp_path / "mixed" / "summary.csv").read_text().splitlines()[3].endswith(json.dumps(status[2]))
+
+
+def test_a_single_periodic_run_that_blows_up_raises_with_its_records(tmp_path, monkeypatch):
+    """``run_test`` of one periodic element (a batch of one, no isolation) that goes non-finite in its
+    first shearing chunk raises a RunError naming the member, the step and the bit's message, with the
+    hint, and keeps its consolidation records in the folder (every σ_kk within 1 % of σc at the end)."""
+    from membrax import run
+
+    _sabotaged_builder(monkeypatch, run, 4e4)
+    stopped = r"member 0 \(periodic_batch\) stopped in the chunk ending at step"
+    with pytest.raises(RunError, match=stopped) as raised:
+        run_test(BASE, tmp_path, progress=False)
+    assert "non-finite position or velocity" in str(raised.value)
+    assert "Lower dt_safety" in str(raised.value)
+    consolidation = read_results(tmp_path / "consolidation.nc")
+    np.testing.assert_allclose(np.diagonal(consolidation["stress"].values[-1]), 4e4, rtol=0.01)
+
+
+def test_a_runaway_periodic_member_is_frozen_and_a_sweep_of_only_runaways_fails(tmp_path, monkeypatch):
+    """The kinetic-energy guard of the membrane cell (E_k > f σc V₀ after a chunk, V₀ the cell's volume)
+    guards the periodic elements too: with f = 0 every member trips it in its first chunk, each is frozen
+    before that chunk's records and named with RUNAWAY_KINETIC_ENERGY, its phase and step; with no member
+    left the sweep raises, listing both."""
+    from membrax import runner
+
+    monkeypatch.setattr(runner, "RUNAWAY_KINETIC_FRACTION", 0.0)
+    with pytest.raises(RunError, match="every member failed") as failed:
+        run_sweep(BASE, GRID, tmp_path, progress=False, num_devices=1)
+    lines = str(failed.value).splitlines()[1:]
+    assert len(lines) == 2
+    for line in lines:  # the cell's steps count from 0 at the start of consolidation
+        expected = f": RUNAWAY_KINETIC_ENERGY in consolidation (chunk ending at step {BASE.chunk_steps})"
+        assert line.endswith(expected), line
+    for k in range(2):
+        frozen = read_results(tmp_path / "groups" / "group_0" / f"consolidation_{k}.nc")
+        assert frozen.sizes.get("record", 0) == 0  # the chunk that tripped the guard is not kept
