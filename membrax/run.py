@@ -34,8 +34,10 @@ spheres instead (:func:`membrax.assemble.build_periodic_test`, :class:`membrax.t
 PeriodicTest`): the same phases, the element a batch of one (:func:`membrax.executor.build_periodic_batch`)
 through :func:`run_periodic_group`, the loop a sweep's periodic batches share, checkpointed every
 ``checkpoint_every_chunks`` chunks and at each phase's end (a resumed run takes the same chunks and writes
-the same bits). The folder receives ``results.nc``/``.csv`` and ``consolidation.nc``/``.csv`` (the cell's
-records, :class:`membrax.triaxial.periodic.CellRecords`, with ``time``, ``radial_strain`` and
+the same bits); error bits or a runaway kinetic energy (σc V₀ of the cell's first box the scale) stop it with
+:class:`RunError` as a membrane run, and in a sweep freeze and flag the member instead. The folder
+receives ``results.nc``/``.csv`` and ``consolidation.nc``/``.csv`` (the cell's records,
+:class:`membrax.triaxial.periodic.CellRecords`, with ``time``, ``radial_strain`` and
 ``love_weber_friction_angle_deg``; the first shearing record the end of consolidation, strains from the
 start of shearing), ``element.png`` (:func:`membrax.plots.save_element_figure`), ``summary.md``
 (:func:`membrax.triaxial.analysis.element_summary_table`), ``config.toml`` and ``checkpoint.npz``.

@@ -2,7 +2,7 @@
 
 The cluster is real: two worker processes of :func:`membrax.campaign.local_cluster` (one per core), a
 scheduler in this process. Each test runs the three-pressure grid as three one-member tasks, so with two
-workers the third task waits for a free one.
+workers the third task waits for a free one; one runs a grid of periodic elements as two tasks.
 """
 
 import json
@@ -86,6 +86,39 @@ def test_tasks_on_worker_processes_give_the_in_process_results(on_dask, tmp_path
         (attempt,) = _attempts(task)
         assert attempt["pid"] != os.getpid() and attempt["resumed_steps"] is None
     assert set(on_dask.dataset["status"].values.ravel()) == {"completed"}
+
+
+def test_periodic_elements_run_as_tasks_and_give_the_in_process_results(cluster, tmp_path):
+    """A grid of periodic elements (test_periodic_batch's 64-sphere element at 20 and 40 kPa, float64) as
+    two one-member tasks: the group is planned once on a worker (its packing's Δt, no n_θ) and each task is
+    one :class:`membrax.executor.PeriodicBatch` on its worker. On one device a member's records are those of
+    its element alone, to the bit, so every variable of ``sweep.nc`` and ``sweep_consolidation.nc`` equals
+    the in-process sweep's (one two-member batch); each task ran once, in a worker process."""
+    from test_periodic_batch import BASE as ELEMENT
+    from test_periodic_batch import GRID as ELEMENT_GRID
+
+    here = sweep.run_sweep(ELEMENT, ELEMENT_GRID, tmp_path / "here", progress=False, num_devices=1)
+    there = sweep.run_sweep(
+        ELEMENT,
+        ELEMENT_GRID,
+        tmp_path / "dask",
+        progress=False,
+        scheduler=cluster.scheduler_address,
+        members_per_task=1,
+    )
+    for ours, theirs in ((there.dataset, here.dataset), (there.consolidation, here.consolidation)):
+        assert set(ours.variables) == set(theirs.variables)
+        for name in theirs.variables:
+            np.testing.assert_array_equal(ours[name].values, theirs[name].values, err_msg=name)
+    assert set(there.dataset["status"].values.ravel()) == {"completed"}
+    plan = json.loads((there.folder / "groups" / "group_0" / "plan.json").read_text())
+    assert plan["nodes_around"] is None and sorted(i for task in plan["tasks"] for i in task) == [0, 1]
+    assert plan["time_step"] == float(here.dataset["dt_s"].values[0])
+    tasks = _task_folders(there.folder)
+    assert len(tasks) == 2
+    for task in tasks:
+        (attempt,) = _attempts(task)
+        assert attempt["pid"] != os.getpid() and attempt["resumed_steps"] is None
 
 
 def _wait_for(condition, seconds: float, what: str):
