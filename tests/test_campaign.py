@@ -2,7 +2,7 @@
 
 The cluster is real: two worker processes of :func:`membrax.campaign.local_cluster` (one per core), a
 scheduler in this process. Each test runs the three-pressure grid as three one-member tasks, so with two
-workers the third task waits for a free one; one runs a grid of periodic elements as two tasks.
+workers the third task waits for a free one; two run a grid of periodic elements as two tasks.
 """
 
 import json
@@ -18,11 +18,15 @@ import distributed  # noqa: F401  (its config defaults loaded before dask.config
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from test_periodic_batch import BASE as ELEMENT
+from test_periodic_batch import GRID as ELEMENT_GRID
 from test_sweep import COMPARED, SHORT
 
-from membrax import campaign, executor, sweep
+from membrax import assemble, campaign, executor, sweep
+from membrax.assemble import precision_scope
 from membrax.config import ConfigError, TriaxialConfig, dump_config_toml
 from membrax.errors import RunError
+from membrax.io import read_checkpoint_host
 
 # Every test here runs simulations on worker processes (the module's fixtures alone take about 2 min).
 pytestmark = pytest.mark.slow
@@ -88,37 +92,68 @@ def test_tasks_on_worker_processes_give_the_in_process_results(on_dask, tmp_path
     assert set(on_dask.dataset["status"].values.ravel()) == {"completed"}
 
 
-def test_periodic_elements_run_as_tasks_and_give_the_in_process_results(cluster, tmp_path):
-    """A grid of periodic elements (test_periodic_batch's 64-sphere element at 20 and 40 kPa, float64) as
-    two one-member tasks: the group is planned once on a worker (its packing's Δt, no n_θ) and each task is
-    one :class:`membrax.executor.PeriodicBatch` on its worker. On one device a member's records are those of
-    its element alone, to the bit, so every variable of ``sweep.nc`` and ``sweep_consolidation.nc`` equals
-    the in-process sweep's (one two-member batch); each task ran once, in a worker process."""
-    from test_periodic_batch import BASE as ELEMENT
-    from test_periodic_batch import GRID as ELEMENT_GRID
-
-    here = sweep.run_sweep(ELEMENT, ELEMENT_GRID, tmp_path / "here", progress=False, num_devices=1)
-    there = sweep.run_sweep(
-        ELEMENT,
-        ELEMENT_GRID,
-        tmp_path / "dask",
-        progress=False,
-        scheduler=cluster.scheduler_address,
-        members_per_task=1,
+@pytest.fixture(scope="module")
+def periodic_here(tmp_path_factory):
+    """test_periodic_batch's 64-sphere element at 20 and 40 kPa (float64), in process: one batch."""
+    return sweep.run_sweep(
+        ELEMENT, ELEMENT_GRID, tmp_path_factory.mktemp("periodic_here"), progress=False, num_devices=1
     )
-    for ours, theirs in ((there.dataset, here.dataset), (there.consolidation, here.consolidation)):
-        assert set(ours.variables) == set(theirs.variables)
-        for name in theirs.variables:
-            np.testing.assert_array_equal(ours[name].values, theirs[name].values, err_msg=name)
+
+
+def _periodic_campaign(folder, scheduler, resume: bool = False):
+    """The periodic grid as two one-member tasks on ``scheduler``, into ``folder``."""
+    return sweep.run_sweep(
+        ELEMENT, ELEMENT_GRID, folder, resume, progress=False, scheduler=scheduler, members_per_task=1
+    )
+
+
+def _assert_same_sweep(ours, theirs):
+    """Every variable of ``sweep.nc`` and ``sweep_consolidation.nc`` equal, to the bit."""
+    for mine, other in ((ours.dataset, theirs.dataset), (ours.consolidation, theirs.consolidation)):
+        assert set(mine.variables) == set(other.variables)
+        for name in other.variables:
+            np.testing.assert_array_equal(mine[name].values, other[name].values, err_msg=name)
+
+
+def test_periodic_elements_run_as_tasks_and_give_the_in_process_results(cluster, periodic_here, tmp_path):
+    """A grid of periodic elements as two one-member tasks: the group is planned once on a worker (its
+    packing's Δt, no n_θ) and each task is one :class:`membrax.executor.PeriodicBatch` on its worker. On one
+    device a member's records are those of its element alone, to the bit, so every variable of ``sweep.nc``
+    and ``sweep_consolidation.nc`` equals the in-process sweep's (one two-member batch); each task ran
+    once, in a worker process."""
+    there = _periodic_campaign(tmp_path, cluster.scheduler_address)
+    _assert_same_sweep(there, periodic_here)
     assert set(there.dataset["status"].values.ravel()) == {"completed"}
     plan = json.loads((there.folder / "groups" / "group_0" / "plan.json").read_text())
     assert plan["nodes_around"] is None and sorted(i for task in plan["tasks"] for i in task) == [0, 1]
-    assert plan["time_step"] == float(here.dataset["dt_s"].values[0])
+    assert plan["time_step"] == float(periodic_here.dataset["dt_s"].values[0])
     tasks = _task_folders(there.folder)
     assert len(tasks) == 2
     for task in tasks:
         (attempt,) = _attempts(task)
         assert attempt["pid"] != os.getpid() and attempt["resumed_steps"] is None
+
+
+def test_a_periodic_task_resumes_on_a_worker_from_its_checkpoint(cluster, periodic_here, tmp_path):
+    """A periodic campaign whose first task stopped after 3 chunks (its checkpoint: stacked states, budgets,
+    the lists' shape, the records so far; run here as a killed worker would leave it) and whose second never
+    started, resumed on the workers: the first task starts at its checkpoint's steps (past consolidation),
+    and the records equal the in-process sweep's to the bit."""
+    _, members = assemble.grid_members(ELEMENT, ELEMENT_GRID)
+    dt = float(periodic_here.dataset["dt_s"].values[0])
+    group = tmp_path / "groups" / "group_0"
+    group.mkdir(parents=True)
+    (group / "plan.json").write_text(json.dumps({"time_step": dt, "nodes_around": None, "tasks": [[0], [1]]}))
+    task = (group / "task_0").resolve()
+    with precision_scope(ELEMENT), pytest.raises(KeyboardInterrupt):
+        sweep._run_unit([members[0][1]], task, False, False, order=[0], interrupt_after_chunks=3)
+    checkpoint = read_checkpoint_host(task / "checkpoint.npz")
+    assert checkpoint["phase"] == 1  # in shear_fine: consolidation ended after its first chunk
+    resumed = _periodic_campaign(tmp_path, cluster.scheduler_address, resume=True)
+    _assert_same_sweep(resumed, periodic_here)
+    (attempt,) = _attempts(task)
+    assert attempt["resumed_steps"] == checkpoint["member_steps"]
+    assert attempt["resumed_steps"][0] > int(periodic_here.dataset["consolidation_steps"].values[0])
 
 
 def _wait_for(condition, seconds: float, what: str):
