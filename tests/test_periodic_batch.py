@@ -144,6 +144,46 @@ def test_the_batched_step_is_jit_of_vmap_of_the_cell_s_step():
         assert not np.allclose(stress[0], stress[1], rtol=1e-3)
 
 
+def test_a_member_in_error_is_frozen_and_its_neighbour_in_the_batch_goes_on_in_both_modes():
+    """The executor's isolation on a PeriodicBatch: of two cells (20 and 40 kPa, viscous damping), the
+    second starts with NaN velocities. One chunk of 300 steps sets its NOT_FINITE bit; ``on_failure`` names
+    it with the chunk's end (step 300), its budget ends and the chunk runs again without it: it stays at its
+    start (step 0), none of its records valid, while the first member's stress is that of the single cell's
+    ``jit`` of the same steps, within 1e-10 of σc, under ``lax.map`` (the CPU's mode) and ``vmap`` (the
+    GPU's: both branches run, the NaN member's discarded)."""
+    configs = [with_overrides(BASE, cell_pressure_kpa=p, viscous_damping=True) for p in PRESSURES_KPA]
+    with precision_scope(BASE):
+        for mode in ("map", "vmap"):
+            batch = build_periodic_batch(configs, num_devices=1, mode=mode, order=[0, 1])
+            members = batch.unstack(batch.initial_state)
+            healthy = members[0]
+            members[1] = members[1].set(velocity=np.full_like(members[1].velocity, np.nan))
+            failures, chunks = [], []
+
+            def on_chunk(states, chunk, left, chunks=chunks):
+                chunks.append(chunk)
+
+            end, left = batch.run_phase(
+                batch.restack(members),
+                [300, 300],
+                300,
+                100,
+                on_chunk=on_chunk,
+                on_failure=lambda b, names, step, failures=failures: failures.append((b, names, step)),
+            )
+            assert failures == [(1, "NOT_FINITE", 300)], mode
+            assert list(np.asarray(end.step)) == [300, 0] and list(left) == [0, 0]
+            (chunk,) = chunks
+            assert chunk["valid"][0].all() and not chunk["valid"][1].any()
+            runner = batch.tests[0].runner
+            expected = jax.jit(lambda s, p, r=runner: r.record_fn(advance(r.step_fn, s, p, 300), p))(
+                healthy, batch.tests[0].params
+            )
+            np.testing.assert_allclose(
+                chunk["stress"][0, -1], np.asarray(expected.stress), rtol=0, atol=1e-10 * 2e4, err_msg=mode
+            )
+
+
 def test_lists_grown_together_hold_every_member_s_pairs():
     """Two cells of one jittered 4³ lattice at 100 and 300 kPa whose lists are cut to 40 slots and rebuilt
     at the first step overflow; the batch grows both lists together (one shape, driver.grow_tables with the
