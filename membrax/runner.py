@@ -442,8 +442,11 @@ def _advance_phase(group: _Group, phase: str, hooks: _Hooks) -> None:
 
 def _on_chunk(group: _Group, phase: str, hooks: _Hooks, bar, on_failure, current, chunk, left) -> list:
     """After each accepted chunk: the runaway check, the records, the bar, the hook and the checkpoint."""
-    group.budgets = left
     stop = _runaways(group, phase, hooks, on_failure, current, chunk)
+    # A member frozen by this chunk has no steps left, in the checkpoint too: resumed, it stays frozen.
+    left = left.copy()
+    left[stop] = 0
+    group.budgets = left
     group.records[phase].append(chunk)
     bar.update(chunk["valid"].shape[1] * group.plans[0][phase][1])
     bar.set_postfix(**_postfix(group, phase, current, chunk, left))

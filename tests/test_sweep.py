@@ -1,5 +1,6 @@
 """Sweeps: a batch equals its members run alone, sharded equals unsharded, resume, the paper's trends."""
 
+import dataclasses
 import itertools
 import json
 import math
@@ -17,6 +18,7 @@ from membrax import assemble, executor, paper, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.errors import RunError
 from membrax.io import read_results
+from membrax.io.checkpoint import read_checkpoint_host
 from membrax.run import run_test
 from membrax.spheres.particles import GRANITE_DENSITY
 
@@ -395,3 +397,16 @@ def test_a_runaway_kinetic_energy_freezes_the_member_and_a_sweep_of_only_runaway
         assert frozen.sizes.get("record", 0) == 0  # the chunk that tripped the guard is not kept
     with pytest.raises(RunError, match=r"kinetic energy .* J exceeds 0\.0 σc V₀ = 0 J: the run is unstable"):
         run_test(base, tmp_path / "single", progress=False)
+    # Checkpointed in the chunk that froze them, the members have no steps left there: resumed, they stay
+    # frozen rather than run again.
+    with pytest.raises(KeyboardInterrupt):
+        sweep.run_sweep(
+            dataclasses.replace(base, checkpoint_every_chunks=1),
+            SHORT_GRID,
+            tmp_path / "cut",
+            progress=False,
+            num_devices=1,
+            interrupt_after_chunks=1,
+        )
+    host = read_checkpoint_host(tmp_path / "cut" / "groups" / "group_0" / runner.CHECKPOINT_NAME)
+    assert host["budgets"] == [0, 0] and sorted(host["failures"]) == ["0", "1"]
