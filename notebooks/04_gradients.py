@@ -6,7 +6,7 @@
 #       extension: .py
 #       format_name: percent
 #       format_version: '1.3'
-#       jupytext_version: 1.19.6
+#       jupytext_version: 1.19.7
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -218,3 +218,6 @@ plt.show()
 for result in (by_gradient, gradient_free):
     assert abs(result.parameters["membrane_modulus_kpa"] / 1400.0 - 1.0) < 0.02
     assert abs(result.parameters["membrane_friction_angle_deg"] / 25.0 - 1.0) < 0.02
+    assert result.history[0][1] > 1e-3 > result.history[-1][1]  # the misfit falls from J(start)
+# L-BFGS to the tolerance in few forward + reverse calls
+assert by_gradient.objective < 1e-10 and by_gradient.gradient_calls <= 30

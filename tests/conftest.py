@@ -54,9 +54,8 @@ def precision(request):
 #: order 15 min 48 s against 29 min 7 s).
 #: xdist hands each worker one file and then a second (``LoadScopeScheduling.schedule``), so the third
 #: file, the gradient notebook, queues behind the gradient tests on the first worker: it runs their rollout
-#: and inverse problem at the same sizes (on purpose) and, run after them, reads those programs from the
-#: persistent cache instead of compiling them beside them (alone: 5 min 38 s with a cold cache, 4 min 3 s
-#: after the tests).
+#: at the same sizes (on purpose) and, run after them, reads those programs from the persistent cache
+#: instead of compiling them beside them. The inverse problem is checked in the notebook alone.
 LONG_FIRST = (
     "tests/test_gradients.py",
     "tests/test_sweep.py",

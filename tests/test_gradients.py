@@ -1,4 +1,4 @@
-"""Gradients through rollouts (membrax.gradients), the smooth mode and the inverse problem (calibrate.inverse)
+"""Gradients through rollouts (membrax.gradients) and the smooth mode; the inverse problem: notebook 04
 
 Smoothness conditions of the gradient checks. Reverse mode through a rollout is the derivative of the map
 θ → final state where that map is smooth. In the smooth mode (``viscous_damping = true``) each step is
@@ -19,7 +19,6 @@ import numpy as np
 import pytest
 from helpers import SMALL_MEMBRANE_TEST
 
-from calibrate import inverse
 from membrax import gradients, sensitivities
 from membrax.assemble import build_test
 from membrax.spheres.contact import tangential_spring_update
@@ -176,19 +175,3 @@ def test_checkpointed_gradients_through_consolidation_and_shearing_match_central
             np.testing.assert_allclose(jacobian[b, row], differences[b, row], rtol=1e-3)
     # membrane friction acts along the path (the equilibrium's implicit derivative is 0): here it is not
     assert np.all(np.abs(jacobian[:, internal, 2]) > 1.0)  # Pa per degree
-
-
-@pytest.mark.slow
-def test_inverse_problem_recovers_modulus_and_friction_from_fifty_percent_off():
-    true = {"membrane_modulus_kpa": 1400.0, "membrane_friction_angle_deg": 25.0}
-    start = {"membrane_modulus_kpa": 2100.0, "membrane_friction_angle_deg": 12.5}
-    with jax.enable_x64(True):
-        problem = inverse.InverseProblem(SMOOTH, tuple(true), steps=2000)
-        observed = problem.observe()  # at the configuration's own E_m = 1400 kPa, φ_m = 25°
-        result = inverse.invert(problem, observed, start)
-    for name, value in true.items():
-        assert result.parameters[name] == pytest.approx(value, rel=0.02), name
-    assert result.objective < 1e-10
-    assert result.gradient_calls <= 30
-    # the misfit falls from the start: J(start) is the first of the history
-    assert result.history[0][1] > 1e-3 > result.history[-1][1]
