@@ -2,8 +2,8 @@
 
 Contract. :func:`build_batch` builds the members of a group (:class:`BatchedTest`: states stacked on a
 member axis, one Δt, one mesh topology, per-member budgets) from their configurations through
-:mod:`membrax.assemble`; :func:`plan_members` chooses the shared Δt and mesh, :func:`balanced_order` spreads
-members over devices by their work; :func:`float32_batch` and :func:`cast_state` change a batch's precision
+:mod:`membrax.assemble`, planned by :mod:`membrax.planning` (the shared Δt and mesh, each member's work,
+their order over devices); :func:`float32_batch` and :func:`cast_state` change a batch's precision
 for the shearing. It runs nothing: :func:`membrax.runner.run_group` drives a batch through the protocol.
 
 Batching. Members that differ only in :data:`membrax.assemble.BATCHED_FIELDS` (traced parameters) form one
@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import dataclasses as pydataclasses
 import functools
-import itertools
 import math
 import types
 from collections.abc import Callable, Sequence
@@ -44,14 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
-from membrax.assemble import (
-    BATCHED_FIELDS,
-    build_periodic_test,
-    build_test,
-    common_nodes_around,
-    run_settings,
-    structure_key,
-)
+from membrax.assemble import run_settings
 from membrax.batch import stack
 from membrax.config import TriaxialConfig
 from membrax.driver import advance, drive, grow_tables, record_blocks
@@ -62,6 +54,7 @@ from membrax.membrane.coupled import (
     grow_candidates,
     grown_candidate_capacities,
 )
+from membrax.planning import balanced_order, check_batch, checked_order, plan_members, plan_periodic_members
 from membrax.spheres.neighbors import allocate_shared
 from membrax.triaxial.protocol import PHASES
 
@@ -70,15 +63,12 @@ __all__ = [
     "BatchedTest",
     "PeriodicBatch",
     "StackedMembers",
-    "balanced_order",
     "build_batch",
     "build_periodic_batch",
     "cast_state",
     "describe_failure",
     "batch_template",
     "float32_batch",
-    "plan_members",
-    "plan_periodic_members",
     "table_capacities",
 ]
 
@@ -475,18 +465,19 @@ def build_periodic_batch(
       configs: the members' configurations.
       num_devices: devices to shard the member axis over (default: every local device, at most one a member).
       mode: ``"map"`` or ``"vmap"`` (default: ``"vmap"`` on a GPU, ``"map"`` otherwise).
-      order: the members' order on the batch axis (default :func:`balanced_order` of their planned steps).
+      order: the members' order on the batch axis (default :func:`membrax.planning.balanced_order` of their
+        planned steps).
 
     Raises:
       ValueError: no members, members of different structure, a bad mode or device count.
     """
     configs = list(configs)
-    mode, num_devices = _check_batch(configs, num_devices, mode)
+    mode, num_devices = check_batch(configs, num_devices, mode)
     tests, _, work = plan_periodic_members(configs)
     settings = [run_settings(c) for c in configs]
     if order is None:
         order = balanced_order(work, num_devices)
-    order = _checked_order(order, len(configs))
+    order = checked_order(order, len(configs))
     tests, settings = [tests[i] for i in order], [settings[i] for i in order]
     # The members start at the protocol's first phase, their lists rebuilt from one template.
     states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]
@@ -515,128 +506,6 @@ def describe_failure(failure: dict) -> str:
     return f"{failure['error']} in {failure['phase']} (chunk ending at step {failure['step']})"
 
 
-def balanced_order(work: Sequence[float], num_devices: int) -> list[int]:
-    """An order of the members whose contiguous device shares carry about equal work.
-
-    ``shard_map`` gives device d the d-th contiguous block of the (padded) member axis, and a chunk lasts
-    as long as its busiest device. Low-pressure members shear for the most steps (ε̇ ∝ √σc at a fixed
-    inertial number), so grid order would load one device with them. Greedy longest-first (each member,
-    heaviest first, to the least-loaded block with a free slot; the last block holds the padding), then
-    swaps between the busiest block and another while they lower the busiest load.
-
-    Args:
-      work: each member's expected steps.
-      num_devices: devices the member axis is split over.
-
-    Returns:
-      Member indices in batch order (a permutation of ``range(len(work))``).
-    """
-    count = len(work)
-    per_device = math.ceil(count / num_devices)
-    free = [per_device] * num_devices
-    free[-1] -= per_device * num_devices - count
-    blocks: list[list[int]] = [[] for _ in range(num_devices)]
-
-    def load(block):
-        return sum(work[i] for i in block)
-
-    for b in sorted(range(count), key=lambda i: (-work[i], i)):
-        d = min((d for d in range(num_devices) if free[d] > 0), key=lambda d: (load(blocks[d]), d))
-        blocks[d].append(b)
-        free[d] -= 1
-    improved = True
-    while improved:
-        improved = False
-        busiest = max(range(num_devices), key=lambda d: load(blocks[d]))
-        for d in range(num_devices):
-            for i, j in itertools.product(range(len(blocks[busiest])), range(len(blocks[d]))):
-                a, b = blocks[busiest][i], blocks[d][j]
-                gain = work[a] - work[b]
-                if gain > 0 and load(blocks[d]) + gain < load(blocks[busiest]):
-                    blocks[busiest][i], blocks[d][j] = b, a
-                    improved = True
-                    break
-            if improved:
-                break
-    return [b for block in blocks for b in sorted(block)]
-
-
-def plan_members(
-    configs: Sequence[TriaxialConfig], time_step: float | None = None, nodes_around: int | None = None
-) -> tuple[list, float, int, list[int]]:
-    """The members' tests on a common Δt and n_θ, and each member's expected steps (its work).
-
-    Args:
-      configs: the members' configurations (one structure).
-      time_step: the common Δt, s (default: the smallest of the members' own).
-      nodes_around: the common n_θ (default: :func:`common_nodes_around`).
-
-    Returns:
-      (tests, Δt, n_θ, work): shear steps are planned; consolidation stops when its test holds (unknown
-      beforehand, about alike for all members), so every member is charged two chunks of it.
-    """
-    nodes_around = common_nodes_around(configs) if nodes_around is None else int(nodes_around)
-    tests = [build_test(c, time_step, nodes_around) for c in configs]
-    dt = min(t.dt for t in tests)
-    tests = [
-        t if t.dt == dt else build_test(c, time_step=dt, nodes_around=nodes_around)
-        for t, c in zip(tests, configs, strict=True)
-    ]
-    work = [_expected_steps(t, run_settings(c)) for t, c in zip(tests, configs, strict=True)]
-    return tests, float(dt), nodes_around, work
-
-
-def plan_periodic_members(configs: Sequence[TriaxialConfig]) -> tuple[list, float, list[int]]:
-    """The periodic members' tests (one packing, one Δt) and each one's expected steps (its work).
-
-    Args:
-      configs: the members' configurations (``cell = "periodic"``, one structure).
-
-    Returns:
-      (tests, Δt, work), work as :func:`plan_members`'.
-    """
-    tests = [build_periodic_test(c) for c in configs]
-    work = [_expected_steps(t, run_settings(c)) for t, c in zip(tests, configs, strict=True)]
-    return tests, float(tests[0].dt), work
-
-
-def _expected_steps(test, settings) -> int:
-    """A member's work: its planned shearing steps and two chunks of consolidation (or its cap)."""
-    plan = test.phase_plan(settings.loading)
-    consolidation = min(settings.loading.consolidation_max_steps, 2 * settings.chunk_steps)
-    return consolidation + sum(plan[phase][0] for phase in PHASES[1:])
-
-
-def _check_batch(configs: list, num_devices: int | None, mode: str | None) -> tuple[str, int]:
-    """(mode, devices) of a batch of ``configs``, after checking they can share one compiled batch."""
-    if not configs:
-        raise ValueError("no members to batch; give at least one configuration.")
-    keys = {structure_key(c) for c in configs}
-    if len(keys) > 1:
-        first = dict(structure_key(configs[0]))
-        differing = sorted({name for key in keys for name, value in key if value != first.get(name)})
-        raise ValueError(
-            f"members differ in {differing}, which cannot vary within one batch; batch only members that "
-            f"differ in {sorted(BATCHED_FIELDS)} (run_sweep groups the rest)."
-        )
-    mode = mode or ("vmap" if jax.default_backend() == "gpu" else "map")
-    if mode not in ("map", "vmap"):
-        raise ValueError(f"mode = {mode!r}; give 'map' (CPU) or 'vmap' (GPU).")
-    available = jax.local_device_count()
-    num_devices = available if num_devices is None else int(num_devices)
-    if not 1 <= num_devices <= available:
-        raise ValueError(f"num_devices = {num_devices}; this process has {available} device(s).")
-    return mode, min(num_devices, len(configs))
-
-
-def _checked_order(order: Sequence[int], count: int) -> list[int]:
-    """``order`` as a list of ints, checked to be a permutation of ``range(count)``."""
-    order = [int(i) for i in order]
-    if sorted(order) != list(range(count)):
-        raise ValueError(f"order = {order}; give a permutation of range({count}).")
-    return order
-
-
 def build_batch(
     configs: Sequence[TriaxialConfig],
     num_devices: int | None = None,
@@ -653,21 +522,22 @@ def build_batch(
         backend).
       mode: ``"map"`` or ``"vmap"`` (default: ``"vmap"`` on a GPU, ``"map"`` otherwise).
       order: the members' order on the batch axis, indices into ``configs`` (default
-        :func:`balanced_order` of each member's planned shear steps plus two chunks of consolidation).
+        :func:`membrax.planning.balanced_order` of each member's planned shear steps plus two chunks of
+        consolidation).
         The batch's ``configs`` and ``tests`` are in this order, and ``BatchedTest.order`` keeps it.
       time_step: the common Δt, s (default: the smallest of the members' own).
-      nodes_around: the common n_θ (default: :func:`common_nodes_around`).
+      nodes_around: the common n_θ (default: :func:`membrax.assemble.common_nodes_around`).
 
     Raises:
       ValueError: no members, members that differ in a field outside :data:`BATCHED_FIELDS`, a bad mode
         or device count.
     """
     configs = list(configs)
-    mode, num_devices = _check_batch(configs, num_devices, mode)
+    mode, num_devices = check_batch(configs, num_devices, mode)
     tests, dt, nodes_around, work = plan_members(configs, time_step, nodes_around)
     if order is None:
         order = balanced_order(work, num_devices)
-    order = _checked_order(order, len(configs))
+    order = checked_order(order, len(configs))
     configs, tests = [configs[i] for i in order], [tests[i] for i in order]
     # The members start at the protocol's first phase; membrax.runner.run_group enters the others.
     states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]

@@ -36,7 +36,7 @@ workers (:mod:`membrax.campaign`): a worker process per core or GPU on this mach
 workers of a running scheduler (workstations, a SLURM allocation). Each group is planned once on a worker
 (its Δt, n_θ and each member's expected steps, kept in ``groups/group_{g}/plan.json``) and split into tasks
 of ``members_per_task`` members (default: the group shared evenly over the workers, by
-:func:`membrax.executor.balanced_order`); a task is one batch on its worker's devices, with the group's Δt
+:func:`membrax.planning.balanced_order`); a task is one batch on its worker's devices, with the group's Δt
 and n_θ, so every member takes the steps it takes in-process. A task writes its results and checkpoints
 into ``groups/group_{g}/task_{t}`` (the folder must be on a filesystem every worker sees) and resumes from
 its checkpoint when its worker died and the scheduler ran it again; ``resume=True`` reuses the plans and
@@ -90,15 +90,9 @@ from membrax.config import (
 )
 from membrax.devices import cpu_cores
 from membrax.errors import RunError
-from membrax.executor import (
-    balanced_order,
-    build_batch,
-    build_periodic_batch,
-    describe_failure,
-    plan_members,
-    plan_periodic_members,
-)
+from membrax.executor import build_batch, build_periodic_batch, describe_failure
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
+from membrax.planning import balanced_order, plan_members, plan_periodic_members
 from membrax.run import default_folder as run_folder
 from membrax.run import periodic_datasets, run_periodic_group
 from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata

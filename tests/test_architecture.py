@@ -94,6 +94,7 @@ LAYERS = (
     # runs: a configuration becomes a test, members become a batch, the stage loop every run and sweep
     # shares, then one test, a grid, the paper
     ("assemble",),
+    ("planning",),
     ("executor",),
     ("runner",),
     ("run", "sensitivities", "gradients"),

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from helpers import SMALL_SPECIMEN
 
-from membrax import assemble, executor, paper, runner, sweep
+from membrax import assemble, executor, paper, planning, runner, sweep
 from membrax.config import ConfigError, TriaxialConfig
 from membrax.errors import RunError
 from membrax.io import read_results
@@ -249,7 +249,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
     busiest device carries the least load any split into 5 + 4 members can (exhaustive search)."""
     steps_10, steps_40, steps_100 = 24150, 12200, 7775  # shear steps of the small reproduction
     work = [10000 + w for w in (steps_10,) * 3 + (steps_40,) * 3 + (steps_100,) * 3]
-    order = executor.balanced_order(work, 2)
+    order = planning.balanced_order(work, 2)
     assert sorted(order) == list(range(9))
     busiest = max(sum(work[i] for i in order[:5]), sum(work[i] for i in order[5:]))
     best = min(
@@ -258,7 +258,7 @@ def test_members_are_dealt_to_devices_with_balanced_work():
     )
     assert busiest == best == 112700  # 2 × 34150 + 2 × 22200 on the device with 4 members
     assert max(sum(work[:5]), sum(work[5:])) == 146850  # grid order: all three 10 kPa members on one device
-    assert executor.balanced_order(work, 1) == list(range(9))
+    assert planning.balanced_order(work, 1) == list(range(9))
 
 
 def test_grids_are_parsed_and_checked():
