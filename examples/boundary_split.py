@@ -330,7 +330,7 @@ def periodic_packing(config, spheres: int, seed: int, path: Path) -> dict:
     from membrax.defaults import COMPACTION_STRESS
     from membrax.spheres.contact import ContactParams
     from membrax.spheres.periodic import sample_element
-    from membrax.triaxial.periodic import compact_periodic
+    from membrax.triaxial.periodic_packing import compact_periodic
 
     if path.exists():
         return dict(np.load(path))

@@ -1,8 +1,8 @@
 """The periodic element test beside YADE: the same packing, contact law, damping, rate and protocol.
 
 For each seed and packing state, membrax compacts a random packing of equal spheres in a periodic cell
-(:func:`membrax.triaxial.periodic.compact_periodic`: frictionless for the dense state, compaction friction
-0.5 for the loose one) and hands the same centres, radii and box to both codes, which then run:
+(:func:`membrax.triaxial.periodic_packing.compact_periodic`: frictionless for the dense state, compaction
+friction 0.5 for the loose one) and hands the same centres, radii and box to both codes, which then run:
 
 1. isotropic consolidation at σc from those positions (every axis servo-held, contact friction on);
 2. drained compression: z shortened at ε̇ = I/(d √(ρ/σc)) to ``--strain``, x and y servo-held at σc.
@@ -57,7 +57,8 @@ def run_case(spheres: int, seed: int, state: str, strain: float, inertial_number
     from membrax.spheres.contact import ContactParams
     from membrax.spheres.integrate import DampingParams
     from membrax.theory import mobilised_friction_angle_deg
-    from membrax.triaxial.periodic import compact_periodic, periodic_test
+    from membrax.triaxial.periodic import periodic_test
+    from membrax.triaxial.periodic_packing import compact_periodic
 
     diameters = np.full(spheres, DIAMETER)
     law = ContactParams.paper(FRICTION_DEG, 0.0, NORMAL_STIFFNESS, TANGENTIAL_STIFFNESS)

@@ -51,7 +51,8 @@ from membrax.spheres.integrate import DampingParams
 from membrax.spheres.particles import particle_mass
 from membrax.spheres.periodic import sample_element
 from membrax.triaxial.membrane_cell import MembraneTest, membrane_test
-from membrax.triaxial.periodic import CRITICAL_STEP_BOUND, PeriodicTest, compact_periodic, periodic_test
+from membrax.triaxial.periodic import CRITICAL_STEP_BOUND, PeriodicTest, periodic_test
+from membrax.triaxial.periodic_packing import compact_periodic
 from membrax.triaxial.protocol import Loading
 
 __all__ = [
@@ -294,7 +295,7 @@ def build_periodic_test(config: TriaxialConfig) -> PeriodicTest:
 
     Its packing: ``periodic_particles`` diameters of the configuration's grading
     (:func:`membrax.spheres.periodic.sample_element`, seed ``packing_seed``) compacted in the periodic cell
-    as a mould's are (:func:`membrax.triaxial.periodic.compact_periodic`: from a gas to
+    as a mould's are (:func:`membrax.triaxial.periodic_packing.compact_periodic`: from a gas to
     :data:`membrax.defaults.COMPACTION_STRESS` at the compaction friction; frictionless packings overloaded
     and unloaded), once per set of the fields that make it, kept on disk as the mould's. The test holds it
     at the cell pressure with the configuration's contact law, density and damping (the affine frame is

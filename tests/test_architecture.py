@@ -75,6 +75,7 @@ LAYERS = (
     # protocol: consolidation and shearing
     ("triaxial.protocol",),
     ("triaxial.rigid", "triaxial.periodic", "triaxial.membrane_cell"),
+    ("triaxial.periodic_packing",),
     # results
     (
         "triaxial.analysis",
@@ -109,6 +110,7 @@ NAMESPACES = ("spheres", "membrane", "triaxial")
 DEM = {name for names in LAYERS for name in names if name.startswith("spheres.")} | {
     "triaxial.rigid",
     "triaxial.periodic",
+    "triaxial.periodic_packing",
 }
 MEMBRANE = {name for names in LAYERS for name in names if name.startswith("membrane.")} | {
     "triaxial.membrane_cell"

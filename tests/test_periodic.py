@@ -25,10 +25,10 @@ from membrax.spheres.periodic import cell_stiffness, love_weber_stress, periodic
 from membrax.triaxial.periodic import (
     PeriodicRunner,
     cell_forces,
-    compact_periodic,
     periodic_cell,
     periodic_test,
 )
+from membrax.triaxial.periodic_packing import compact_periodic
 
 DIAMETER = 0.025  # m, the paper's spheres
 KN = 1e7  # N/m
