@@ -352,7 +352,8 @@ class BatchedTest(StackedMembers):
     def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
         template = self.tests[0]
         mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
-        step = template.make_step(mesh)
+        # The Gent stiffening check at the strictest member's limit (each member's own Δt_crit, one Δt).
+        step = template.make_step(mesh, min(t.tangent_limit for t in self.tests))
         record = template.make_record(mesh, member["initial_volume"])
         return self._budgeted_chunk(step, record, state, params, left, num_records, record_every)
 

@@ -121,8 +121,11 @@ __all__ = [
     "MembraneState",
     "grow_candidates",
     "grown_candidate_capacities",
+    "gent_bits",
     "locked_bit",
+    "stiffened_bit",
     "membrane_critical_time_step",
+    "membrane_tangent_limit",
     "membrane_dem",
     "platen_heights",
     "platen_reaction",
@@ -389,6 +392,7 @@ def membrane_dem(
     stretching_model: str = "neo_hookean",
     wall_friction: bool = False,
     contact_model: str = "nodes",
+    tangent_limit: float = math.inf,
 ) -> tuple[Callable, Callable]:
     """The coupled DEM + membrane simulation as ``(init_fn, step_fn)`` (see the module docstring).
 
@@ -407,6 +411,10 @@ def membrane_dem(
       wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
       contact_model: ``"nodes"`` (the spheres meet the mesh's nodes) or ``"faces"`` (its faces, edges
         and nodes: :mod:`membrax.membrane.face_contact`), :data:`CONTACT_MODELS`.
+      tangent_limit: r_max, the largest Gent tangent ratio k_t/k_0 that ``dt`` tolerates
+        (:func:`membrane_tangent_limit`; static). Under ``"gent"`` the same check sets
+        ``ErrorCode.MEMBRANE_STIFFENED`` when the closest approach's ratio exceeds it
+        (:func:`stiffened_bit`); ``inf`` (the default) checks nothing.
     """
     if contact_model not in CONTACT_MODELS:
         raise ValueError(f"contact_model = {contact_model!r}; choose one of {CONTACT_MODELS}.")
@@ -564,7 +572,9 @@ def membrane_dem(
         if stretching_model == "gent":  # static: the other laws have no lock
             check = state.dem.step % LOCK_CHECK_EVERY == 0
             error = error | jax.lax.cond(
-                check, lambda: locked_bit(nodes.position, mesh, mp.locking_jm), lambda: jnp.int32(0)
+                check,
+                lambda: gent_bits(nodes.position, mesh, mp.locking_jm, tangent_limit),
+                lambda: jnp.int32(0),
             )
         return CoupledState(
             dem=spheres.set(error=error.astype(jnp.int32)),
@@ -655,6 +665,58 @@ def grow_candidates(state: CoupledState, particles: Particles, capacities, thick
     if feature_contact is not None:
         feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
+
+
+def stiffened_bit(ratio, locking_jm, tangent_limit):
+    """``ErrorCode.MEMBRANE_STIFFENED`` if Gent's tangent ratio at ``ratio`` exceeds the limit (jittable).
+
+    Else 0. ``ratio`` is the closest approach to the lock, ``tangent_limit`` the step's r_max.
+
+    The rule: Δt stays stable while k_t(s)/k_0 ≤ r_max (:func:`membrane_tangent_limit`), k_t/k_0 the
+    equibiaxial tangent ratio at the largest s = (I₁ − 3)/J_m over the triangles
+    (:func:`membrax.membrane.energies.gent_tangent_ratio`, which bounds the other tension states' there);
+    i.e. while s ≤ s_stable (:func:`membrax.membrane.energies.stable_locking_ratio`). Compared as ratios so
+    that J_m stays a traced parameter.
+
+    Args:
+      ratio: s at the closest approach (:func:`membrax.membrane.energies.locking_ratio`).
+      locking_jm: J_m.
+      tangent_limit: r_max (a float; ``inf``: never set).
+    """
+    if math.isinf(tangent_limit):
+        return jnp.int32(0)
+    tangent = energies.gent_tangent_ratio(ratio, locking_jm)
+    return jnp.where(tangent > tangent_limit, ErrorCode.MEMBRANE_STIFFENED, 0).astype(jnp.int32)
+
+
+def gent_bits(position, mesh: MembraneMesh, locking_jm, tangent_limit=math.inf):
+    """:func:`locked_bit` | :func:`stiffened_bit` of one pass over the triangles (jittable)."""
+    ratio = jax.lax.stop_gradient(energies.locking_ratio(position, mesh, locking_jm))
+    locked = jnp.where(ratio > GENT_LOCK_FRACTION, ErrorCode.MEMBRANE_LOCKED, 0).astype(jnp.int32)
+    return locked | stiffened_bit(ratio, jax.lax.stop_gradient(locking_jm), tangent_limit)
+
+
+def membrane_tangent_limit(dt, critical) -> float:
+    """r_max: the largest membrane tangent ratio k_t/k_0 the step ``dt`` tolerates (host).
+
+    The explicit step is stable while ω² ≤ (2/Δt)², ω² = ω²_mesh + ω²_contact (the bound of
+    :func:`membrane_critical_time_step` for the coupled node). Stiffening by k_t/k_0 multiplies ω²_mesh,
+    the mesh's rest stiffness with the rest masses, by at most that ratio
+    (:func:`membrax.membrane.energies.gent_tangent_ratio`), so
+
+        k_t/k_0 ≤ r_max = (Δt_crit,mesh/Δt)² − (Δt_crit,mesh/Δt_crit,contact)²,
+
+    ≥ 1 whenever Δt ≤ Δt_crit,combined. Chosen over a step taken from the tangent at the lock: that would
+    divide every Gent run's Δt by √32.7 = 5.7 (J_m = 97.2, s = 0.9) to cover stretches few runs reach;
+    the check costs one evaluation of the closed form every :data:`LOCK_CHECK_EVERY` steps, on the pass
+    the lock check makes anyway.
+
+    Args:
+      dt: Δt, s.
+      critical: :func:`membrane_critical_time_step`'s dict (``mesh`` and ``contact`` steps, s).
+    """
+    mesh_step, contact_step = float(critical["mesh"]), float(critical["contact"])
+    return (mesh_step / float(dt)) ** 2 - (mesh_step / contact_step) ** 2
 
 
 def locked_bit(position, mesh: MembraneMesh, locking_jm):
