@@ -373,7 +373,10 @@ class BatchedTest(StackedMembers):
 
         def grow_membrane(members, end):
             capacities = grown_candidate_capacities(states.membrane.candidates, end)
-            return [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
+            return [
+                grow_candidates(m, particles, capacities, thickness[b], self.tests[0].mesh)
+                for b, m in enumerate(members)
+            ]
 
         members = grow_tables(
             _members(states, self.num_padded),
@@ -718,7 +721,7 @@ def batch_template(batch: BatchedTest, capacities: dict):
     thickness = np.asarray(batch.params.membrane.contact_thickness)
     particles = batch.tests[0].particles
     members = [
-        grow_candidates(m, particles, _node_capacities(capacities), thickness[b])
+        grow_candidates(m, particles, _node_capacities(capacities), thickness[b], batch.tests[0].mesh)
         for b, m in enumerate(members)
     ]
     lists = allocate_shared(

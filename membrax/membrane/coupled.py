@@ -34,7 +34,9 @@ One step (explicit central differences, as the DEM; velocities at half steps):
    Clamped nodes (the two end rings, the O-rings) follow their platen rigidly:
    y = y_clamp + (z_platen − z_platen,0) e_z;
 5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
-   (:func:`membrax.membrane.candidates.update_candidates`); an overflow sets
+   (:func:`membrax.membrane.candidates.update_candidates`), and with it, under ``contact_model="faces"``,
+   the feature slots, the springs carried onto them by sphere id (:func:`refresh_feature_contact`; they
+   are a function of the table alone, so a state always holds its table's slots); an overflow sets
    ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) in the DEM state's error bitmask,
    and the chunk driver reallocates a larger table and reruns the chunk.
 
@@ -95,6 +97,7 @@ from membrax.membrane.face_contact import (
     face_contact_forces,
     feature_slots,
     longest_edge,
+    mesh_neighbours,
     widen,
     zero_springs,
 )
@@ -129,6 +132,7 @@ __all__ = [
     "membrane_dem",
     "platen_heights",
     "platen_reaction",
+    "refresh_feature_contact",
 ]
 
 #: Latex density, kg/m³ (920–1000; the issue's "about 1000").
@@ -419,6 +423,8 @@ def membrane_dem(
     if contact_model not in CONTACT_MODELS:
         raise ValueError(f"contact_model = {contact_model!r}; choose one of {CONTACT_MODELS}.")
     faces = contact_model == "faces"
+    # The mesh's neighbours and interior nodes, which the feature contacts read: built once, not every step.
+    neighbours = mesh_neighbours(mesh) if faces else None
     if particles.num_members != 1:
         raise ValueError(
             f"membrane_dem couples one specimen, got {particles.num_members} members; batch with vmap."
@@ -457,7 +463,7 @@ def membrane_dem(
         )
         feature_contact = None
         if faces:
-            slots = feature_slots(mesh, candidates.idx, particles.num_particles)
+            slots = feature_slots(mesh, candidates.idx, particles.num_particles, neighbours)
             feature_contact = FeatureContactState(slots=slots, spring=zero_springs(slots, position.dtype))
         zeros = jnp.zeros_like(position)
         return CoupledState(
@@ -515,11 +521,23 @@ def membrane_dem(
                 model=stretching_model,
             )
         else:
-            contact = contact_forces(state, particles, params, dt, mesh)
-            contact_spring = contact.spring
-            if faces:
+            if faces:  # the slots of the current table, carried with their springs (see step 5)
+                contact = face_contact_forces(
+                    ContactNodes(position=nodes.position, velocity=nodes.velocity),
+                    _contact_spheres(spheres, particles),
+                    mesh,
+                    feature_contact.slots,
+                    feature_contact.spring,
+                    dt,
+                    mp.contact,
+                    mp.contact_thickness,
+                    neighbours,
+                )
                 feature_contact = FeatureContactState(slots=contact.slots, spring=contact.spring)
                 contact_spring = nodes.spring  # the node slots' springs, unused
+            else:
+                contact = contact_forces(state, particles, params, dt, mesh)
+                contact_spring = contact.spring
             contact_node_force, sphere_force = contact.node_force, contact.sphere_force
             sphere_torque = contact.sphere_torque
             internal = energies.nodal_forces(
@@ -560,14 +578,24 @@ def membrane_dem(
         )
         velocity = velocity.at[rings].set(ring_velocity, unique_indices=True)
 
-        candidates, spring = update_candidates(
+        candidates, spring, rebuilt = update_candidates(
             nodes.candidates,
             contact_spring,
             position,
             spheres.position,
             particles.radius,
             mp.contact_thickness,
+            with_rebuilt=True,
         )
+        if faces:  # the feature slots change with the node table only: rebuilt with it, springs carried by id
+            feature_contact = jax.lax.cond(
+                rebuilt,
+                lambda fc: refresh_feature_contact(
+                    fc, mesh, candidates.idx, particles.num_particles, neighbours
+                ),
+                lambda fc: fc,
+                feature_contact,
+            )
         error = spheres.error | candidate_errors(candidates) | not_finite_bit(position, velocity)
         if stretching_model == "gent":  # static: the other laws have no lock
             check = state.dem.step % LOCK_CHECK_EVERY == 0
@@ -633,7 +661,9 @@ def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
     return CandidateCapacities(min(capacity, num_spheres), sphere_capacity, cell_capacity)
 
 
-def grow_candidates(state: CoupledState, particles: Particles, capacities, thickness) -> CoupledState:
+def grow_candidates(
+    state: CoupledState, particles: Particles, capacities, thickness, mesh: MembraneMesh | None = None
+) -> CoupledState:
     """A copy of ``state`` with a node candidate table of the given capacities, springs carried by sphere id.
 
     Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``.
@@ -643,6 +673,8 @@ def grow_candidates(state: CoupledState, particles: Particles, capacities, thick
       particles: sphere properties.
       capacities: the new :class:`CandidateCapacities` (e.g. :func:`grown_candidate_capacities`).
       thickness: the contact's thickness f t_m (:attr:`MembraneParams.contact_thickness`), m.
+      mesh: the membrane (its topology: any member's mesh of a batch), needed for a state with feature
+        contacts, whose slots are rebuilt from the new table (:func:`refresh_feature_contact`).
     """
     nodes = state.membrane
     old = nodes.candidates
@@ -663,7 +695,10 @@ def grow_candidates(state: CoupledState, particles: Particles, capacities, thick
     )
     feature_contact = nodes.feature_contact
     if feature_contact is not None:
+        if mesh is None:
+            raise ValueError("grow_candidates: a state with feature contacts needs the mesh (mesh=...).")
         feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
+        feature_contact = refresh_feature_contact(feature_contact, mesh, new.idx, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
 
 
@@ -717,6 +752,19 @@ def membrane_tangent_limit(dt, critical) -> float:
     """
     mesh_step, contact_step = float(critical["mesh"]), float(critical["contact"])
     return (mesh_step / float(dt)) ** 2 - (mesh_step / contact_step) ** 2
+
+
+def refresh_feature_contact(
+    feature_contact: FeatureContactState, mesh: MembraneMesh, candidates, num_spheres: int, neighbours=None
+) -> FeatureContactState:
+    """The feature slots of the node table ``candidates`` (n_nodes, K), the springs carried onto them by id.
+
+    The slots are a function of the node table alone (:func:`membrax.membrane.face_contact.feature_slots`),
+    so a state keeps those of its current table: the step rebuilds them when it rebuilds the table,
+    :func:`grow_candidates` when it grows it (:func:`membrax.membrane.face_contact.carry_springs`).
+    """
+    slots = feature_slots(mesh, candidates, num_spheres, neighbours)
+    return FeatureContactState(slots=slots, spring=carry_springs(feature_contact, slots, num_spheres))
 
 
 def locked_bit(position, mesh: MembraneMesh, locking_jm):

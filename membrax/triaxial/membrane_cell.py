@@ -394,7 +394,7 @@ def membrane_test(
 
     def grow(s, overflowed_state):
         capacities = grown_candidate_capacities(s.membrane.candidates, overflowed_state.membrane.candidates)
-        return grow_candidates(s, particles, capacities, contact_thickness)
+        return grow_candidates(s, particles, capacities, contact_thickness, mesh)
 
     def explain(error, end, start):
         """The stretch the membrane reached, for a Gent run stopped near its lock or on non-finite values."""
