@@ -219,8 +219,8 @@ class ChunkRunner:
         the state's type.
       allocate: the new neighbour lists of an overflow, :func:`grow_tables`' ``allocate`` (default
         :func:`allocate_shared`; a periodic cell's runner passes its own).
-      explain: ``explain(error, end_state, start_state) -> str``, appended to the message of a run stopped
-        on ``error`` (e.g. how far the membrane was stretched); default none.
+      explain: ``explain(error, end_state, start_state, params) -> str``, appended to the message of a run
+        stopped on ``error`` (e.g. how far the membrane was stretched); default none.
     """
 
     def __init__(
@@ -343,7 +343,7 @@ class ChunkRunner:
             return SimulationError(
                 f"simulation stopped in the chunk ending at step {int(new.step)}: "
                 + "; ".join(describe(error[0]))
-                + ("" if self.explain is None else self.explain(int(error[0]), new, current)),
+                + ("" if self.explain is None else self.explain(int(error[0]), new, current, params)),
                 state=current,
                 records=concatenate_records(chunks),
             )

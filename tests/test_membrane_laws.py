@@ -316,7 +316,7 @@ def test_a_gent_membrane_cell_with_a_remote_lock_runs_as_the_neo_hookean_one():
     membrane test consolidated 600 steps with membrane_law = "gent" and J_m = 1e10 (stresses within
     (I₁ − 3)/J_m ~ 1e-13 of the neo-Hookean ones) equals the neo-Hookean run to float64 round-off carried
     through the steps; with J_m = 1e-3 the same step (J_m is traced) stiffens the membrane and the driver
-    stops on the lock bit with a SimulationError that names it."""
+    stops on the lock bit with a SimulationError that names it and the largest (I₁ − 3)/J_m reached."""
     states = {}
     for law in ("neo-hookean", "gent"):
         config = with_overrides(SMALL_MEMBRANE_TEST, membrane_law=law, membrane_locking_jm=1e10)
@@ -340,7 +340,9 @@ def test_a_gent_membrane_cell_with_a_remote_lock_runs_as_the_neo_hookean_one():
     locked = dataclasses.replace(
         gent_test, params=params.set(membrane=params.membrane.set(locking_jm=jnp.asarray(1e-3)))
     )
-    with assemble.precision_scope(SMALL_MEMBRANE_TEST), pytest.raises(SimulationError, match="Gent lock"):
+    # The message names the lock and the stretch reached at the run's (traced) J_m.
+    named = r"Gent lock.*largest \(I1 - 3\)/J_m reached \d+\.\d{3} at J_m = 0\.001"
+    with assemble.precision_scope(SMALL_MEMBRANE_TEST), pytest.raises(SimulationError, match=named):
         locked.consolidate(max_steps=600, chunk_steps=300, record_every=100, tolerance=1e-12)
 
 

@@ -396,16 +396,18 @@ def membrane_test(
         capacities = grown_candidate_capacities(s.membrane.candidates, overflowed_state.membrane.candidates)
         return grow_candidates(s, particles, capacities, contact_thickness, mesh)
 
-    def explain(error, end, start):
+    def explain(error, end, start, run_params):
         """The stretch the membrane reached, for a Gent run stopped near its lock or on non-finite values."""
         watched = ErrorCode.MEMBRANE_STIFFENED | ErrorCode.MEMBRANE_LOCKED | ErrorCode.NOT_FINITE
         if not gent or not error & watched:
             return ""
-        reached = [float(locking_ratio(s.membrane.position, mesh, locking_jm)) for s in (end, start)]
+        jm = float(run_params.membrane.locking_jm)  # the run's J_m (traced: not necessarily the built one)
+        reached = [float(locking_ratio(s.membrane.position, mesh, jm)) for s in (end, start)]
         reached = reached[0] if math.isfinite(reached[0]) else reached[1]
         return (
-            f" (the membrane's largest (I1 - 3)/J_m reached {reached:.3f}; at dt = {dt:.3g} s it is stable "
-            f"to s_stable = {stable_ratio:.3f}, the Gent lock's continuation starts at 0.9)"
+            f" (the membrane's largest (I1 - 3)/J_m reached {reached:.3f} at J_m = {jm:.3g}; at dt = "
+            f"{dt:.3g} s its step is stable to s_stable = {stable_locking_ratio(tangent_limit, jm):.3f}, "
+            "and Gent's law is continued past 0.9)"
         )
 
     runner = ChunkRunner(
