@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import platform
 import time
 from collections.abc import Callable
@@ -468,7 +469,7 @@ def _runaways(group: _Group, phase: str, hooks: _Hooks, on_failure, current, chu
         message = (
             f"member {b} ({group.batch.settings[b].name}): kinetic energy {kinetic[b]:.3g} J exceeds "
             f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = {limit[b]:.3g} J: the run is unstable. Lower dt_safety "
-            f"(now {group.settings.dt_safety}) or the stiffness."
+            f"(now {group.settings.dt_safety}) or the stiffness." + _membrane_hint(group.batch.tests[b])
         )
         if not hooks.isolate_failures:
             raise RunError(message)
@@ -476,6 +477,17 @@ def _runaways(group: _Group, phase: str, hooks: _Hooks, on_failure, current, chu
         stop.append(int(b))
         on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(current.dem.step)[b]))
     return stop
+
+
+def _membrane_hint(test) -> str:
+    """For a Gent membrane, its stable stretch: the membrane stiffens toward its lock (docs/model.md)."""
+    stable = getattr(test, "stable_locking_ratio", math.inf)
+    if math.isinf(stable):
+        return ""
+    return (
+        f" The membrane (Gent) is stable to (I1 - 3)/J_m = {stable:.3f} at this step "
+        "(ErrorCode.MEMBRANE_STIFFENED past it): raise membrane_locking_jm or lower the cell pressure."
+    )
 
 
 def _postfix(group: _Group, phase: str, current, chunk, left) -> dict:

@@ -619,3 +619,17 @@ def test_a_coupled_gent_membrane_past_the_stable_stretch_stops_with_the_named_er
     assert int(end.error) == 0 and np.all(np.isfinite(np.asarray(end.membrane.position)))
     with pytest.raises(SimulationError, match=r"membrane stiffened.*dt_safety"):
         runner.run(state, with_lock(jnp.asarray(locking[1])), 40, chunk_steps=20, record_every=10)
+
+
+def test_the_runaway_guard_names_a_gent_membranes_stable_stretch():
+    """The kinetic-energy runaway message adds, for a Gent membrane test, its s_stable (0.727 at r_max = 4,
+    J_m = 97.2, from the closed form) and the fix; other tests (no s_stable) get nothing added."""
+    from types import SimpleNamespace
+
+    from membrax import runner
+
+    gent = SimpleNamespace(stable_locking_ratio=energies.stable_locking_ratio(4.0, 97.2))
+    hint = runner._membrane_hint(gent)
+    assert "(I1 - 3)/J_m = 0.727" in hint and "membrane_locking_jm" in hint
+    assert runner._membrane_hint(SimpleNamespace()) == ""
+    assert runner._membrane_hint(SimpleNamespace(stable_locking_ratio=math.inf)) == ""
