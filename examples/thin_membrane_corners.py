@@ -22,8 +22,16 @@ membrane's equilibrium ends, near the predicted limit; ``--law svk`` (St Venant�
 grows without a maximum) holds the full 100 kPa; ``--law gent`` (Gent, J_m = 97.2) has its limit 2.6 % above
 the neo-Hookean one.
 
-Run: ``python examples/thin_membrane_corners.py [--cases all|d6_1400,...] [--chunk-steps 1000]`` (about
-1 min per case on 2 CPU cores), ``python examples/thin_membrane_corners.py --ramp [--law svk|gent]`` (about
+``--law gent --contact faces`` runs the cases with Gent's law and the sphere–face contact
+(:mod:`membrax.membrane.face_contact`: the sheet cannot pass between its nodes through a sphere). Each case
+reports α/D at the end of consolidation, the largest inward displacement of a node from the mesh's rest
+surface (which rests on the outer spheres) over D, beside Molenkamp & Luger's eq. 2 for C = 0.15–0.4
+(:func:`membrax.theory.molenkamp_luger_indentation_ratio`; their range is for a triangular grid of
+spheres, the FCC faces here are square).
+
+Run: ``python examples/thin_membrane_corners.py [--cases all|d6_1400,...] [--chunk-steps 1000]
+[--law gent] [--contact faces]`` (about 1 min per case on 2 CPU cores with node contact),
+``python examples/thin_membrane_corners.py --ramp [--law svk|gent]`` (about
 1 min per specimen).
 """
 
@@ -69,7 +77,23 @@ def inward_displacement(states, test) -> float:
     return float(np.max(rest - radius(np.asarray(states.membrane.position)[0])))
 
 
-def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
+def molenkamp_luger_range(diameter: float, thickness: float, pressure: float, modulus: float):
+    """α/D of Molenkamp & Luger's eq. 2 (the paper's) at the FCC void ratio for C = 0.15 and 0.4."""
+    from membrax import theory
+
+    return tuple(
+        float(
+            theory.molenkamp_luger_indentation_ratio(
+                theory.FCC_VOID_RATIO, diameter, thickness, pressure, modulus, constant
+            )
+        )
+        for constant in (0.15, 0.4)
+    )
+
+
+def run_case(
+    name: str, chunk_steps: int, edges_per_diameter: float, law: str = "neo-hookean", contact: str = "nodes"
+) -> dict:
     import jax
     import numpy as np
 
@@ -91,6 +115,8 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
             "membrane_modulus_kpa": modulus,
             "chunk_steps": chunk_steps,
             "membrane_edges_per_diameter": edges_per_diameter,
+            "membrane_law": law,
+            "membrane_contact_model": contact,
         }
     )
     try:
@@ -103,16 +129,19 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
             "nodes": 0,
             "seconds": 0.0,
             "deepest_inner_reach_mm": float("nan"),
+            "alpha_over_d": float("nan"),
         }
     jax.config.update("jax_enable_x64", True)
     batch = executor.build_batch([config])
     test = batch.tests[0]
     start = time.perf_counter()
-    deepest = [np.inf]
+    deepest, consolidated_indentation = [np.inf], [float("nan")]
 
     def after_chunk(states, phase):
         reach, inside = inner_reach(states, test)
         deepest[0] = min(deepest[0], reach)
+        if phase == "consolidation":  # the last one is the end of consolidation
+            consolidated_indentation[0] = inward_displacement(states, test)
         print(
             f"  {name} {phase:<13} step {int(np.asarray(states.dem.step)[0]):>7}  deepest inner reach "
             f"{1e3 * reach:+7.3f} mm  nodes inside {inside:>4}  largest inward node displacement "
@@ -133,11 +162,16 @@ def run_case(name: str, chunk_steps: int, edges_per_diameter: float) -> dict:
         outcome.update(status="completed", **angles)
     except (RunError, SimulationError) as error:
         outcome.update(status=f"stopped: {str(error).splitlines()[0][:160]}")
-    outcome.update(seconds=time.perf_counter() - start, deepest_inner_reach_mm=1e3 * deepest[0])
+    diameter = float(config.particle_diameter)
+    outcome.update(
+        seconds=time.perf_counter() - start,
+        deepest_inner_reach_mm=1e3 * deepest[0],
+        alpha_over_d=consolidated_indentation[0] / diameter,
+    )
     return outcome
 
 
-def ramp_case(across: int, ramp_steps: int, law: str) -> None:
+def ramp_case(across: int, ramp_steps: int, law: str, contact: str = "nodes") -> None:
     """Raise the cell pressure on 1 mm of 700 kPa slowly to 100 kPa; print where the membrane runs away."""
     import math
 
@@ -152,12 +186,20 @@ def ramp_case(across: int, ramp_steps: int, law: str) -> None:
     jax.config.update("jax_enable_x64", True)
     layers = {6: 10, 8: 13}[across]
     fields = {**SIZES["small"], "particles_across": across, "layers": layers, "membrane_thickness_mm": 1.0}
-    config = TriaxialConfig(**fields, cell_pressure_kpa=50.0, membrane_modulus_kpa=700.0, membrane_law=law)
+    config = TriaxialConfig(
+        **fields,
+        cell_pressure_kpa=50.0,
+        membrane_modulus_kpa=700.0,
+        membrane_law=law,
+        membrane_contact_model=contact,
+    )
     test = assemble.build_test(config)
     ratio = inflation_ratio(config_to_dict(config))  # the law's limit over the square windows; 0: none
     limit = config.cell_pressure / ratio if ratio > 0.0 else math.inf
     print(
-        f"{across} across, {law}: predicted limit over the square windows {limit / 1e3:.1f} kPa", flush=True
+        f"{across} across, {law}, {contact} contact: predicted limit over the square windows "
+        f"{limit / 1e3:.1f} kPa",
+        flush=True,
     )
     rest = np.hypot(*np.asarray(test.mesh.reference_position)[:, :2].T)
     state, final, chunk = test.initial_state, 1e5, 100
@@ -189,19 +231,25 @@ def main() -> None:
     parser.add_argument("--ramp", action="store_true", help="the ramp study of 1 mm of 700 kPa (docstring)")
     parser.add_argument("--ramp-steps", type=int, default=2000)
     parser.add_argument("--law", default="neo-hookean", choices=("neo-hookean", "gent", "svk"))
+    parser.add_argument("--contact", default="nodes", choices=("nodes", "faces"), help="contact model")
     args = parser.parse_args()
     if args.ramp:
         for across in (6, 8):
-            ramp_case(across, args.ramp_steps, args.law)
+            ramp_case(across, args.ramp_steps, args.law, args.contact)
         return
     names = list(CASES) if args.cases == "all" else args.cases.split(",")
-    outcomes = [run_case(name, args.chunk_steps, args.edges_per_diameter) for name in names]
-    print("\ncase     | spheres | nodes | deepest inner reach mm |    s | outcome")
-    shown = ("name", "spheres", "nodes", "status", "seconds", "deepest_inner_reach_mm")
+    outcomes = [
+        run_case(name, args.chunk_steps, args.edges_per_diameter, args.law, args.contact) for name in names
+    ]
+    print(f"\n{args.law} law, {args.contact} contact; α/D at the end of consolidation (largest inward node")
+    print("displacement / D) beside Molenkamp & Luger's eq. 2 for C = 0.15–0.4 (FCC void ratio)")
+    print("case     | spheres | nodes | deepest inner reach mm |  α/D  | M&L α/D   |    s | outcome")
+    shown = ("name", "spheres", "nodes", "status", "seconds", "deepest_inner_reach_mm", "alpha_over_d")
     for o in outcomes:
+        low, high = molenkamp_luger_range(0.025, 1e-3, 1e5, 1e3 * CASES[o["name"]][2])
         print(
             f"{o['name']:<9}| {o['spheres']:>7} | {o['nodes']:>5} | {o['deepest_inner_reach_mm']:>+22.3f} |"
-            f" {o['seconds']:>4.0f} | {o['status']}"
+            f" {o['alpha_over_d']:.3f} | {low:.2f}–{high:.2f} | {o['seconds']:>4.0f} | {o['status']}"
         )
         peaks = {key: value for key, value in o.items() if key not in shown}
         if peaks:

@@ -219,6 +219,8 @@ class ChunkRunner:
         the state's type.
       allocate: the new neighbour lists of an overflow, :func:`grow_tables`' ``allocate`` (default
         :func:`allocate_shared`; a periodic cell's runner passes its own).
+      explain: ``explain(error, end_state, start_state, params) -> str``, appended to the message of a run
+        stopped on ``error`` (e.g. how far the membrane was stretched); default none.
     """
 
     def __init__(
@@ -232,8 +234,10 @@ class ChunkRunner:
         dem_of: Callable | None = None,
         with_dem: Callable | None = None,
         allocate: Callable | None = None,
+        explain: Callable | None = None,
     ):
         self.step_fn = step_fn
+        self.explain = explain
         self.neighbor_frame = neighbor_frame
         self.record_fn = record_fn
         self.num_particles = num_particles
@@ -338,7 +342,8 @@ class ChunkRunner:
         def fail(error, new, current):
             return SimulationError(
                 f"simulation stopped in the chunk ending at step {int(new.step)}: "
-                + "; ".join(describe(error[0])),
+                + "; ".join(describe(error[0]))
+                + ("" if self.explain is None else self.explain(int(error[0]), new, current, params)),
                 state=current,
                 records=concatenate_records(chunks),
             )

@@ -50,6 +50,10 @@ class ErrorCode(enum.IntFlag):
         driver grows the table).
       MEMBRANE_LOCKED: a membrane triangle under the Gent law was stretched past the fraction of its lock
         beyond which the energy is continued, no longer Gent's (:mod:`membrax.membrane.energies`).
+      MEMBRANE_STIFFENED: a membrane triangle under the Gent law was stretched past s_stable, where the
+        law's tangent stiffness has grown beyond what the time step tolerates, so that the explicit step
+        would blow up (:func:`membrax.membrane.energies.gent_tangent_ratio`,
+        :func:`membrax.membrane.coupled.stiffened_bit`).
     """
 
     NONE = 0
@@ -58,6 +62,7 @@ class ErrorCode(enum.IntFlag):
     OUTSIDE_BOX = 4
     MEMBRANE_CANDIDATE_OVERFLOW = 8
     MEMBRANE_LOCKED = 16
+    MEMBRANE_STIFFENED = 32
 
 
 #: The bits a driver answers by growing a capacity and rerunning the chunk.
@@ -73,6 +78,11 @@ _MESSAGES = {
     ErrorCode.MEMBRANE_LOCKED: (
         "membrane stretched near its Gent lock (I1 - 3 past 0.9 J_m; raise membrane_locking_jm, the "
         "membrane's thickness or modulus, or lower the cell pressure)"
+    ),
+    ErrorCode.MEMBRANE_STIFFENED: (
+        "membrane stiffened past its stable step: a triangle's (I1 - 3)/J_m passed s_stable, where the Gent "
+        "law's tangent stiffness outgrows the time step (lower dt_safety, raise membrane_locking_jm, or "
+        "lower the cell pressure)"
     ),
 }
 

@@ -343,7 +343,8 @@ class BatchedTest(StackedMembers):
     def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
         template = self.tests[0]
         mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
-        step = template.make_step(mesh)
+        # The Gent stiffening check at the strictest member's limit (each member's own Δt_crit, one Δt).
+        step = template.make_step(mesh, min(t.tangent_limit for t in self.tests))
         record = template.make_record(mesh, member["initial_volume"])
         return self._budgeted_chunk(step, record, state, params, left, num_records, record_every)
 
@@ -363,7 +364,10 @@ class BatchedTest(StackedMembers):
 
         def grow_membrane(members, end):
             capacities = grown_candidate_capacities(states.membrane.candidates, end)
-            return [grow_candidates(m, particles, capacities, thickness[b]) for b, m in enumerate(members)]
+            return [
+                grow_candidates(m, particles, capacities, thickness[b], self.tests[0].mesh)
+                for b, m in enumerate(members)
+            ]
 
         members = grow_tables(
             _members(states, self.num_padded),
@@ -600,7 +604,7 @@ def batch_template(batch: BatchedTest, capacities: dict):
     thickness = np.asarray(batch.params.membrane.contact_thickness)
     particles = batch.tests[0].particles
     members = [
-        grow_candidates(m, particles, _node_capacities(capacities), thickness[b])
+        grow_candidates(m, particles, _node_capacities(capacities), thickness[b], batch.tests[0].mesh)
         for b, m in enumerate(members)
     ]
     lists = allocate_shared(

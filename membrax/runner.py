@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import math
 import platform
 import time
 from collections.abc import Callable
@@ -470,10 +471,13 @@ def _runaways(group: _Group, phase: str, hooks: _Hooks, on_failure, current, chu
         np.asarray(current.dem.step),
         group.settings.dt_safety,
         on_failure if hooks.isolate_failures else None,
+        [_membrane_hint(test) for test in group.batch.tests],
     )
 
 
-def stop_runaways(chunk: dict, volume_work, frozen, names, steps, dt_safety: float, on_failure=None) -> list:
+def stop_runaways(
+    chunk: dict, volume_work, frozen, names, steps, dt_safety: float, on_failure=None, hints=None
+) -> list:
     """The runaway-energy stop of a batch's chunk: members whose kinetic energy ran away, frozen or raised.
 
     A member runs away when the kinetic energy of its chunk's last record is not finite or exceeds
@@ -490,6 +494,7 @@ def stop_runaways(chunk: dict, volume_work, frozen, names, steps, dt_safety: flo
       on_failure: ``on_failure(member, "RUNAWAY_KINETIC_ENERGY", step)``: failure isolation, the member's
         records of the chunk are masked (``valid`` False: frozen at its last good records) and it is returned
         to be stopped. None: the first runaway raises.
+      hints: each member's further advice for the message (a Gent membrane's stable stretch), or None.
 
     Returns:
       The members to stop now.
@@ -508,7 +513,7 @@ def stop_runaways(chunk: dict, volume_work, frozen, names, steps, dt_safety: flo
         message = (
             f"member {b} ({names[b]}): kinetic energy {kinetic[b]:.3g} J exceeds "
             f"{RUNAWAY_KINETIC_FRACTION} σc V₀ = {limit[b]:.3g} J: the run is unstable. Lower dt_safety "
-            f"(now {dt_safety}) or the stiffness."
+            f"(now {dt_safety}) or the stiffness." + (hints[b] if hints is not None else "")
         )
         if on_failure is None:
             raise RunError(message)
@@ -516,6 +521,17 @@ def stop_runaways(chunk: dict, volume_work, frozen, names, steps, dt_safety: flo
         stop.append(int(b))
         on_failure(int(b), "RUNAWAY_KINETIC_ENERGY", int(np.asarray(steps)[b]))
     return stop
+
+
+def _membrane_hint(test) -> str:
+    """For a Gent membrane, its stable stretch: the membrane stiffens toward its lock (docs/model.md)."""
+    stable = getattr(test, "stable_locking_ratio", math.inf)
+    if math.isinf(stable):
+        return ""
+    return (
+        f" The membrane (Gent) is stable to (I1 - 3)/J_m = {stable:.3f} at this step "
+        "(ErrorCode.MEMBRANE_STIFFENED past it): raise membrane_locking_jm or lower the cell pressure."
+    )
 
 
 def _postfix(group: _Group, phase: str, current, chunk, left) -> dict:

@@ -302,3 +302,53 @@ def test_a_small_sphere_dropped_between_three_nodes_bounces_off_the_face():
     np.testing.assert_allclose(float(velocity[2]), -speed, rtol=5e-3)
     deepest = heights.max() - (-(radius + 0.5 * THICKNESS))
     np.testing.assert_allclose(deepest, speed * np.sqrt(mass / STIFFNESS), rtol=5e-3)
+
+
+def test_widening_keeps_every_spring_and_a_grown_table_carries_them_by_sphere_id():
+    """``widen`` pads the slots of a K = 2 table to K = 4 (face 6 → 12, edge 4 → 8, node 2 → 4 columns):
+    every existing slot keeps its sphere id and its spring (the friction state) exactly, the new slots are
+    empty (id N) with zero springs. A grown table then lists the spheres in another order and one more:
+    :func:`face_contact.carry_springs` moves each (feature, sphere) spring onto its new column exactly and
+    gives the new sphere zero; the total spring of each kind is conserved. Narrowing is refused."""
+    mesh = _sheet()
+    num_spheres = 5
+    rng = np.random.default_rng(3)
+    old_table = np.tile(np.asarray([0, 1], np.int32), (mesh.num_nodes, 1))
+    old_table[::3] = [2, num_spheres]  # some rows pad a slot
+    slots = face_contact.feature_slots(mesh, jnp.asarray(old_table), num_spheres)
+    springs = tuple(
+        jnp.where(
+            getattr(slots, kind) < num_spheres,
+            jnp.asarray(rng.normal(size=(3, *getattr(slots, kind).shape))),
+            0.0,
+        )
+        for kind in face_contact.FEATURE_KINDS
+    )
+    state = face_contact.FeatureContactState(slots=slots, spring=springs)
+    wide = face_contact.widen(state, 4, num_spheres)
+    for kind, spring, wide_spring in zip(face_contact.FEATURE_KINDS, springs, wide.spring, strict=True):
+        ids, wide_ids = np.asarray(getattr(slots, kind)), np.asarray(getattr(wide.slots, kind))
+        width = ids.shape[1]
+        assert wide_ids.shape[1] == {"face": 12, "edge": 8, "node": 4}[kind]
+        np.testing.assert_array_equal(wide_ids[:, :width], ids)
+        np.testing.assert_array_equal(np.asarray(wide_spring)[:, :, :width], np.asarray(spring))
+        assert np.all(wide_ids[:, width:] == num_spheres)
+        assert np.all(np.asarray(wide_spring)[:, :, width:] == 0.0)
+    # The grown table: the old spheres reversed, sphere 3 added.
+    new_table = np.concatenate(
+        [old_table[:, ::-1], np.full((mesh.num_nodes, 2), num_spheres, np.int32)], axis=1
+    )
+    new_table[:, 2] = 3
+    new_slots = face_contact.feature_slots(mesh, jnp.asarray(new_table), num_spheres)
+    carried = face_contact.carry_springs(wide, new_slots, num_spheres)
+    for kind, spring, moved in zip(face_contact.FEATURE_KINDS, springs, carried, strict=True):
+        ids, new_ids = np.asarray(getattr(slots, kind)), np.asarray(getattr(new_slots, kind))
+        spring, moved = np.asarray(spring), np.asarray(moved)
+        for row in range(ids.shape[0]):
+            for column, sphere in enumerate(new_ids[row]):
+                where = np.flatnonzero(ids[row] == sphere) if sphere < num_spheres else []
+                expected = spring[:, row, where[0]] if len(where) else np.zeros(3)
+                np.testing.assert_array_equal(moved[:, row, column], expected)
+        np.testing.assert_allclose(moved.sum(axis=(1, 2)), spring.sum(axis=(1, 2)), rtol=1e-12)
+    with pytest.raises(ValueError, match="wide"):
+        face_contact.widen(wide, 2, num_spheres)

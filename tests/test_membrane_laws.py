@@ -7,6 +7,7 @@ W = −(μ J_m/2) ln(1 − (I₁ − 3)/J_m) per unit reference volume, μ = E_m
 """
 
 import dataclasses
+import functools
 import math
 
 import jax
@@ -18,9 +19,14 @@ from helpers import ACCUMULATED, SMALL_MEMBRANE_TEST, central_difference, tolera
 from membrax import assemble, native, theory
 from membrax.config import with_overrides
 from membrax.defaults import GENT_LOCK_FRACTION
+from membrax.driver import ChunkRunner
 from membrax.errors import ErrorCode, SimulationError, describe
-from membrax.membrane import coupled, energies
-from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, flat_mesh
+from membrax.membrane import coupled, energies, face_contact
+from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, flat_mesh, free_node_mask, green_strain
+from membrax.spheres.contact import ContactParams
+from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
+from membrax.spheres.neighbors import pair_neighbor_fn
+from membrax.spheres.walls import triaxial_walls
 
 MODULUS, THICKNESS = 1.4e6, 2e-3
 SHEAR = MODULUS / 3.0
@@ -310,7 +316,7 @@ def test_a_gent_membrane_cell_with_a_remote_lock_runs_as_the_neo_hookean_one():
     membrane test consolidated 600 steps with membrane_law = "gent" and J_m = 1e10 (stresses within
     (I₁ − 3)/J_m ~ 1e-13 of the neo-Hookean ones) equals the neo-Hookean run to float64 round-off carried
     through the steps; with J_m = 1e-3 the same step (J_m is traced) stiffens the membrane and the driver
-    stops on the lock bit with a SimulationError that names it."""
+    stops on the lock bit with a SimulationError that names it and the largest (I₁ − 3)/J_m reached."""
     states = {}
     for law in ("neo-hookean", "gent"):
         config = with_overrides(SMALL_MEMBRANE_TEST, membrane_law=law, membrane_locking_jm=1e10)
@@ -334,5 +340,296 @@ def test_a_gent_membrane_cell_with_a_remote_lock_runs_as_the_neo_hookean_one():
     locked = dataclasses.replace(
         gent_test, params=params.set(membrane=params.membrane.set(locking_jm=jnp.asarray(1e-3)))
     )
-    with assemble.precision_scope(SMALL_MEMBRANE_TEST), pytest.raises(SimulationError, match="Gent lock"):
+    # The message names the lock and the stretch reached at the run's (traced) J_m.
+    named = r"Gent lock.*largest \(I1 - 3\)/J_m reached \d+\.\d{3} at J_m = 0\.001"
+    with assemble.precision_scope(SMALL_MEMBRANE_TEST), pytest.raises(SimulationError, match=named):
         locked.consolidate(max_steps=600, chunk_steps=300, record_every=100, tolerance=1e-12)
+
+
+# ------------------------------------------------------------------------ stability near the lock
+
+#: Gent's equibiaxial tangent ratio k_t/k_0 at J_m = 97.2, from the closed form (energies.gent_tangent_ratio).
+GENT_TANGENT_RATIOS = {0.1: 0.2421345401, 0.5: 1.0411462776, 0.7: 3.2623709688, 0.9: 32.694725455}
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+@pytest.mark.parametrize("ratio", sorted(GENT_TANGENT_RATIOS))
+def test_gent_tangent_ratio_is_the_finite_difference_stiffness_of_the_energy(ratio, dtype):
+    """k_t/k_0 = [16 φ''(s)(λ − λ⁻⁵)²/J_m + φ'(s)(4 + 20λ⁻⁶)]/24 equals d²W/dλ² of a flat patch stretched
+    equibiaxially to λ(s) over its value at rest, by central differences of jax.grad of the energy
+    (h = 1e-6 λ in float64, 1e-4 λ in float32); λ(s) solves 2λ² + λ⁻⁴ − 3 = s J_m. Tolerances: 1e-8 in
+    float64 (round-off ~ε/h, truncation ~h²), 2e-3 in float32 (round-off); at s = 0.9 the continued energy
+    meets Gent's with W of class C² only (its third derivative jumps), so there the difference is first
+    order in h: 2e-5 in float64 (8.8e-6 measured), the same 2e-3 in float32 (8.4e-4)."""
+    locking_jm = 97.2
+    mesh = _patch(dtype)
+    stretch = float(
+        energies.gent_equibiaxial_stretch(jnp.asarray(ratio, dtype), jnp.asarray(locking_jm, dtype))
+    )
+    assert 2.0 * stretch**2 + stretch**-4 - 3.0 == pytest.approx(ratio * locking_jm, rel=tolerance(dtype))
+
+    slope = jax.jit(
+        jax.grad(
+            lambda lam: energies.stretching_energy(
+                _deformed(mesh, lam * jnp.eye(2, dtype=dtype)),
+                mesh,
+                MODULUS,
+                THICKNESS,
+                "gent",
+                0.5,
+                locking_jm,
+            )
+        )
+    )
+
+    def curvature(lam):
+        step = (1e-6 if dtype == jnp.float64 else 1e-4) * lam
+        return (
+            float(slope(jnp.asarray(lam + step, dtype))) - float(slope(jnp.asarray(lam - step, dtype)))
+        ) / (2.0 * step)
+
+    volume = THICKNESS * float(jnp.sum(mesh.reference_area))
+    at_rest = curvature(1.0)
+    difference = (1e-8 if ratio < GENT_LOCK_FRACTION else 2e-5) if dtype == jnp.float64 else 2e-3
+    assert at_rest / volume == pytest.approx(12.0 * SHEAR, rel=difference)  # k_0 = 12 μ per unit volume
+    closed = float(energies.gent_tangent_ratio(jnp.asarray(ratio, dtype), jnp.asarray(locking_jm, dtype)))
+    assert closed == pytest.approx(GENT_TANGENT_RATIOS[ratio], rel=1e-9 if dtype == jnp.float64 else 1e-5)
+    assert curvature(stretch) / at_rest == pytest.approx(closed, rel=difference)
+
+
+def _membrane_tangent(gradient, locking_jm=97.2):
+    """The largest eigenvalue of ∂²W/∂F² per unit volume, F the 3 × 2 deformation gradient of a flat patch
+    (out-of-plane rows included: the stress's geometric stiffness), by reverse over reverse mode."""
+    mesh = _patch()
+    rest = mesh.reference_position[:, :2]
+
+    def energy(flat):
+        return energies.stretching_energy(
+            rest @ flat.reshape(3, 2).T, mesh, MODULUS, THICKNESS, "gent", 0.5, locking_jm
+        )
+
+    hessian = jax.jacrev(jax.grad(energy))(jnp.asarray(gradient, jnp.float64).ravel())
+    return float(np.linalg.eigvalsh(np.asarray(hessian)).max())
+
+
+def test_the_equibiaxial_tangent_ratio_bounds_the_elasticity_tensor_of_tension_states():
+    """k_t/k_0 is the ratio of the largest eigenvalue of ∂²W/∂F² at the equibiaxial stretch λ(s) to that at
+    rest (1e-9), and no plane tension state with the same s (λ₂ from λ₁^(−1/2), uniaxial, to λ₁) has a
+    larger one at s = 0.7 and 0.9, where the tangent exceeds 1 (checked on eight states each). At s = 0.9
+    the patch's triangles straddle f = 0.9 by round-off: the continued energy's two pieces give the same
+    derivatives there (they did not when chosen by ``jnp.minimum`` and ``jnp.maximum``: 29.07, not 32.69)."""
+    locking_jm = 97.2
+    at_rest = _membrane_tangent(np.eye(3, 2))
+    for ratio in (0.1, 0.5, 0.7, 0.9):
+        stretch = float(energies.gent_equibiaxial_stretch(ratio, locking_jm))
+        tangent = _membrane_tangent(np.eye(3, 2) * stretch)
+        assert tangent / at_rest == pytest.approx(
+            float(energies.gent_tangent_ratio(ratio, locking_jm)), rel=1e-9
+        )
+    for ratio in (0.7, 0.9):
+        bound = float(energies.gent_tangent_ratio(ratio, locking_jm))
+        equibiaxial = float(energies.gent_equibiaxial_stretch(ratio, locking_jm))
+        uniaxial = math.sqrt(ratio * locking_jm + 3.0)  # λ² + 2/λ − 3 = s J_m, to 1 %: solved below
+        for fraction in np.linspace(0.0, 0.95, 8):
+            # λ₂ = λ₁^(−1/2 + 3f/2): f = 0 uniaxial, f = 1 equibiaxial; λ₁ solves I₁ − 3 = s J_m.
+            exponent = -0.5 + 1.5 * fraction
+            low, high = 1.0, max(uniaxial, equibiaxial) * 1.5
+            for _ in range(200):
+                middle = 0.5 * (low + high)
+                excess = middle**2 + middle ** (2 * exponent) + middle ** (-2 - 2 * exponent) - 3.0
+                low, high = (middle, high) if excess < ratio * locking_jm else (low, middle)
+            state = np.zeros((3, 2))
+            state[0, 0], state[1, 1] = low, low**exponent
+            assert _membrane_tangent(state) / at_rest <= bound * (1.0 + 1e-9)
+
+
+def test_the_stable_stretch_solves_the_tangent_limit_of_the_time_step():
+    """r_max = (Δt_mesh/Δt)² − (Δt_mesh/Δt_contact)² (ω²_mesh k_t/k_0 + ω²_contact ≤ (2/Δt)²): with
+    Δt = ½ Δt_combined, r_max = 4 + 3 (Δt_mesh/Δt_contact)², 4 without contacts; s_stable solves
+    k_t(s)/k_0 = r_max on the stiffening branch (1e-9), 0.727 at r_max = 4, J_m = 97.2 (the explicit step
+    with dt_safety 0.5 is stable to s ≈ 0.73), and an infinite limit gives an infinite s_stable."""
+    combined = 2.0 / math.sqrt((2.0 / 3e-5) ** 2 + (2.0 / 6e-5) ** 2)
+    critical = {"mesh": 3e-5, "contact": 6e-5, "combined": combined}
+    limit = coupled.membrane_tangent_limit(0.5 * combined, critical)
+    assert limit == pytest.approx(4.0 + 3.0 * 0.25, rel=1e-12)
+    assert coupled.membrane_tangent_limit(1.5e-5, {"mesh": 3e-5, "contact": math.inf}) == pytest.approx(4.0)
+    for tangent_limit in (4.0, limit, 40.0):
+        stable = energies.stable_locking_ratio(tangent_limit, 97.2)
+        assert float(energies.gent_tangent_ratio(stable, 97.2)) == pytest.approx(tangent_limit, rel=1e-9)
+        assert stable > 0.3  # the stiffening branch, past the ratio's minimum (0.2 near s = 0.16)
+    assert energies.stable_locking_ratio(4.0, 97.2) == pytest.approx(0.72700114, rel=1e-7)
+    assert math.isinf(energies.stable_locking_ratio(math.inf, 97.2))
+
+
+def _held_patch_dynamics():
+    """A flat patch, its boundary held, its interior free: the dense M⁻¹K of the free nodes and a leapfrog."""
+    mesh = flat_mesh(0.3, 0.2, 0.05)
+    free = np.asarray(face_contact.interior_nodes(mesh))
+    mass = np.asarray(energies.lumped_mass(mesh, THICKNESS, coupled.LATEX_DENSITY))
+    rows = np.repeat(free, 3)
+    scale = 1.0 / np.sqrt(np.repeat(mass, 3)[rows])
+
+    def energy(position, locking_jm):
+        return energies.stretching_energy(position, mesh, MODULUS, THICKNESS, "gent", 0.5, locking_jm)
+
+    def omega_squared(position, locking_jm=97.2):
+        hessian = jax.jacrev(jax.grad(lambda x: energy(x.reshape(-1, 3), locking_jm)))(position.ravel())
+        block = np.asarray(hessian)[np.ix_(rows, rows)] * scale[:, None] * scale[None, :]
+        return float(np.linalg.eigvalsh(block).max())
+
+    @functools.partial(jax.jit, static_argnums=2)
+    def leapfrog(position, dt, steps, locking_jm=97.2):
+        inverse_mass = jnp.where(jnp.asarray(free)[:, None], 1.0 / jnp.asarray(mass)[:, None], 0.0)
+
+        def step(_, carry):
+            x, v = carry
+            v = v - dt * inverse_mass * jax.grad(energy)(x, locking_jm)
+            return x + dt * v, v
+
+        return jax.lax.fori_loop(0, steps, step, (position, jnp.zeros_like(position)))[0]
+
+    return mesh, free, omega_squared, leapfrog
+
+
+def test_a_patch_stretched_past_the_stable_stretch_blows_up_and_is_flagged_and_below_it_stays_finite():
+    """The rule on a small mesh: a flat Gent patch held at an equibiaxial stretch λ(s) on its boundary, its
+    interior nodes free (undamped leapfrog, the lumped latex masses), Δt = ½ · 2/ω₀ (ω₀² the largest
+    eigenvalue of M⁻¹K at rest, dense), so r_max = 4 and s_stable = 0.727 (J_m = 97.2).
+
+    - ω²(s)/ω₀² ≤ k_t(s)/k_0 (the closed form bounds the mesh's own frequency, within 25 %) at s = 0.6,
+      0.7, 0.85 (at s = 0.5, where both are 1.04, the mesh's is 0.13 % above: no stretch below s ≈ 0.55
+      stiffens the patch beyond its rest value by more than that). The patch itself turns unstable
+      between s = 0.727 and 0.75 (its ω²(s)/ω₀² is 3.46 and 4.12 there): the rule is conservative;
+    - at s = s_stable − 0.05 a 1e-6 perturbation stays below 10× itself over 3000 steps and the check
+      (:func:`coupled.gent_bits`) is clear; at s = 0.85 (k_t/k_0 = 15) it grows past 1e3× (or to inf)
+      within 300 steps, and the check sets ``MEMBRANE_STIFFENED`` (not ``MEMBRANE_LOCKED``: 0.85 < 0.9),
+      whose message names the membrane and the fix."""
+    mesh, free, omega_squared, leapfrog = _held_patch_dynamics()
+    at_rest = omega_squared(mesh.reference_position)
+    dt = 0.5 * 2.0 / math.sqrt(at_rest)
+    limit = coupled.membrane_tangent_limit(dt, {"mesh": 2.0 / math.sqrt(at_rest), "contact": math.inf})
+    assert limit == pytest.approx(4.0, rel=1e-12)
+    stable = energies.stable_locking_ratio(limit, 97.2)
+    assert stable == pytest.approx(0.72700114, rel=1e-7)
+    noise = 1e-6 * 0.05 * np.random.default_rng(0).standard_normal(mesh.reference_position.shape)
+    noise = noise * free[:, None]
+
+    def held(ratio):
+        stretch = float(energies.gent_equibiaxial_stretch(ratio, 97.2))
+        return mesh.reference_position * jnp.asarray([[stretch, stretch, 1.0]])
+
+    for ratio in (0.6, 0.7, 0.85):  # measured 0.94, 0.88, 0.80 of the bound
+        growth = omega_squared(held(ratio)) / at_rest / float(energies.gent_tangent_ratio(ratio, 97.2))
+        assert 0.75 < growth <= 1.0
+    below, past = held(stable - 0.05), held(0.85)
+    end = leapfrog(below + noise, dt, 3000)
+    assert np.max(np.abs(np.asarray(end - below))) < 10.0 * np.max(np.abs(noise))
+    assert int(coupled.gent_bits(below, mesh, 97.2, limit)) == 0
+    end = np.asarray(leapfrog(past + noise, dt, 300))
+    assert not np.all(np.isfinite(end)) or np.max(np.abs(end - np.asarray(past))) > 1e3 * np.max(
+        np.abs(noise)
+    )
+    flagged = int(coupled.gent_bits(past, mesh, 97.2, limit))
+    assert flagged == ErrorCode.MEMBRANE_STIFFENED
+    assert "membrane stiffened" in describe(flagged)[0] and "dt_safety" in describe(flagged)[0]
+
+
+def test_the_stiffening_check_under_jit_and_vmap_over_the_lock():
+    """:func:`coupled.gent_bits` jitted and vmapped over J_m on one stretched patch (s = e/J_m, e its
+    largest I₁ − 3) equals the loop and the rule: clear below s_stable, ``MEMBRANE_STIFFENED`` between
+    s_stable and 0.9, both bits past 0.9; the threshold follows J_m (traced) through the closed form."""
+    mesh = _patch()
+    position = _deformed(mesh, 2.0 * jnp.eye(2))
+    excess = float(jnp.max(energies._first_invariant_excess(green_strain(position, mesh))))
+    limit = 4.0
+    ratios = np.asarray([0.3, 0.8, 0.95])
+    stable = [energies.stable_locking_ratio(limit, excess / r) for r in ratios]
+    expected = [
+        (ErrorCode.MEMBRANE_STIFFENED if r > s else 0) | (ErrorCode.MEMBRANE_LOCKED if r > 0.9 else 0)
+        for r, s in zip(ratios, stable, strict=True)
+    ]
+    assert expected[0] == 0 and expected[1] == ErrorCode.MEMBRANE_STIFFENED
+    batched = jax.jit(jax.vmap(lambda jm: coupled.gent_bits(position, mesh, jm, limit)))(excess / ratios)
+    assert [int(b) for b in batched] == [int(e) for e in expected]
+    assert [int(coupled.gent_bits(position, mesh, excess / r, limit)) for r in ratios] == [
+        int(e) for e in expected
+    ]
+    assert int(coupled.gent_bits(position, mesh, excess / 0.8, math.inf)) == 0  # no limit: nothing checked
+
+
+def test_a_coupled_gent_membrane_past_the_stable_stretch_stops_with_the_named_error():
+    """The check in the coupled step: a clamped Gent cylinder (two spheres inside that touch nothing), its
+    free nodes set out radially by 1.5 (hoop stretch), J_m chosen so that the largest triangle's
+    s = (I₁ − 3)/J_m is 0.3 (below s_stable) or 0.85 (above it, below the lock's 0.9), Δt = ½ Δt_crit,mesh
+    (r_max = 4). vmapped over J_m (traced) the jitted step sets ``MEMBRANE_STIFFENED`` at the first check
+    for 0.85 alone; through the chunk driver the 0.85 run stops with a SimulationError naming the membrane
+    and the fix, the 0.3 run takes its 40 steps finite and clear."""
+    radius, height = 0.1, 0.2
+    mesh = cylinder_mesh(radius, height, 2 * np.pi * radius / 12)
+    spheres = jnp.asarray([[-0.3 * radius, 0.0, 0.5 * height], [0.3 * radius, 0.0, 0.5 * height]])
+    particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
+    frame = pair_neighbor_fn(
+        np.full(3, -3.0 * radius), np.array([3.0, 3.0, height / radius + 1.0]) * radius, 0.2 * radius, 0.02, 0
+    )
+    walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), height)
+    walls = walls.set(servo=jnp.zeros(walls.servo.shape, bool))
+    params = coupled.CoupledParams(
+        dem=DEMParams(contact=ContactParams.paper(), damping=DampingParams.local(0.3)),
+        membrane=coupled.MembraneParams.create(thickness=THICKNESS, cell_pressure=0.0, modulus=MODULUS),
+    )
+    critical = coupled.membrane_critical_time_step(
+        mesh, params.membrane, contacts_per_node=0, stretching_model="gent"
+    )
+    dt = 0.5 * critical["mesh"]
+    limit = coupled.membrane_tangent_limit(dt, critical)
+    assert limit == pytest.approx(4.0, rel=1e-12)
+    dem_init, _ = sphere_dem(particles, frame, dt)
+    init_fn, step_fn = coupled.membrane_dem(
+        particles, frame, mesh, dt, np.pi * radius**2, stretching_model="gent", tangent_limit=limit
+    )
+    state = init_fn(dem_init(spheres, walls, frame.allocate(spheres)), params, capacity=2, skin=0.01)
+    free = jnp.asarray(free_node_mask(mesh))[:, None]
+    stretched = jnp.where(
+        free, state.membrane.position * jnp.asarray([[1.5, 1.5, 1.0]]), state.membrane.position
+    )
+    state = state.set(membrane=state.membrane.set(position=stretched))
+    excess = float(energies.locking_ratio(stretched, mesh, 1.0))  # the largest I₁ − 3
+    targets = np.asarray([0.3, 0.85])
+    locking = excess / targets
+    stable = [energies.stable_locking_ratio(limit, jm) for jm in locking]
+    assert targets[0] < stable[0] and stable[1] < targets[1] < GENT_LOCK_FRACTION
+
+    def with_lock(jm):
+        return params.set(membrane=params.membrane.set(locking_jm=jm))
+
+    def run(jm, steps):
+        return jax.lax.fori_loop(0, steps, lambda _, s: step_fn(s, with_lock(jm)), state)
+
+    errors = jax.jit(jax.vmap(lambda jm: run(jm, 1).error))(jnp.asarray(locking))
+    assert [int(e) for e in errors] == [0, int(ErrorCode.MEMBRANE_STIFFENED)]
+    runner = ChunkRunner(
+        step_fn,
+        frame,
+        lambda s, p: s.membrane.position[0],
+        particles.num_particles,
+        dem_of=lambda s: s.dem,
+        with_dem=lambda s, dem: s.set(dem=dem),
+    )
+    end, _ = runner.run(state, with_lock(jnp.asarray(locking[0])), 40, chunk_steps=20, record_every=10)
+    assert int(end.error) == 0 and np.all(np.isfinite(np.asarray(end.membrane.position)))
+    with pytest.raises(SimulationError, match=r"membrane stiffened.*dt_safety"):
+        runner.run(state, with_lock(jnp.asarray(locking[1])), 40, chunk_steps=20, record_every=10)
+
+
+def test_the_runaway_guard_names_a_gent_membranes_stable_stretch():
+    """The kinetic-energy runaway message adds, for a Gent membrane test, its s_stable (0.727 at r_max = 4,
+    J_m = 97.2, from the closed form) and the fix; other tests (no s_stable) get nothing added."""
+    from types import SimpleNamespace
+
+    from membrax import runner
+
+    gent = SimpleNamespace(stable_locking_ratio=energies.stable_locking_ratio(4.0, 97.2))
+    hint = runner._membrane_hint(gent)
+    assert "(I1 - 3)/J_m = 0.727" in hint and "membrane_locking_jm" in hint
+    assert runner._membrane_hint(SimpleNamespace()) == ""
+    assert runner._membrane_hint(SimpleNamespace(stable_locking_ratio=math.inf)) == ""

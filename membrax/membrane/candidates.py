@@ -420,6 +420,7 @@ def update_candidates(
     sphere_position,
     sphere_radius,
     membrane_thickness,
+    with_rebuilt: bool = False,
 ):
     """Rebuild the table if needed (:func:`needs_rebuild`) and carry the springs to it (jittable).
 
@@ -430,10 +431,11 @@ def update_candidates(
       sphere_position: (N, 3), m.
       sphere_radius: (N,), m.
       membrane_thickness: t_m, m.
+      with_rebuilt: also return whether the table was rebuilt (static), for what is derived from it.
 
     Returns:
       (candidates, spring): the possibly rebuilt table, with ``did_overflow`` kept sticky, and the springs
-      remapped onto it by sphere id.
+      remapped onto it by sphere id; with ``with_rebuilt``, (candidates, spring, rebuilt), rebuilt a bool.
     """
     num_spheres = sphere_position.shape[0]
 
@@ -455,7 +457,9 @@ def update_candidates(
     def keep(_):
         return candidates, spring
 
-    return jax.lax.cond(needs_rebuild(candidates, node_position, sphere_position), rebuild, keep, None)
+    rebuilt = needs_rebuild(candidates, node_position, sphere_position)
+    table, carried = jax.lax.cond(rebuilt, rebuild, keep, None)
+    return (table, carried, rebuilt) if with_rebuilt else (table, carried)
 
 
 def candidate_errors(candidates: NodeCandidates):

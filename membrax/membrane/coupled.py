@@ -34,7 +34,9 @@ One step (explicit central differences, as the DEM; velocities at half steps):
    Clamped nodes (the two end rings, the O-rings) follow their platen rigidly:
    y = y_clamp + (z_platen − z_platen,0) e_z;
 5. the candidate table is rebuilt when a node or a sphere moved more than skin/2
-   (:func:`membrax.membrane.candidates.update_candidates`); an overflow sets
+   (:func:`membrax.membrane.candidates.update_candidates`), and with it, under ``contact_model="faces"``,
+   the feature slots, the springs carried onto them by sphere id (:func:`refresh_feature_contact`; they
+   are a function of the table alone, so a state always holds its table's slots); an overflow sets
    ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` (:mod:`membrax.errors`) in the DEM state's error bitmask,
    and the chunk driver reallocates a larger table and reruns the chunk.
 
@@ -95,6 +97,7 @@ from membrax.membrane.face_contact import (
     face_contact_forces,
     feature_slots,
     longest_edge,
+    mesh_neighbours,
     widen,
     zero_springs,
 )
@@ -121,11 +124,15 @@ __all__ = [
     "MembraneState",
     "grow_candidates",
     "grown_candidate_capacities",
+    "gent_bits",
     "locked_bit",
+    "stiffened_bit",
     "membrane_critical_time_step",
+    "membrane_tangent_limit",
     "membrane_dem",
     "platen_heights",
     "platen_reaction",
+    "refresh_feature_contact",
 ]
 
 #: Latex density, kg/m³ (920–1000; the issue's "about 1000").
@@ -389,6 +396,7 @@ def membrane_dem(
     stretching_model: str = "neo_hookean",
     wall_friction: bool = False,
     contact_model: str = "nodes",
+    tangent_limit: float = math.inf,
 ) -> tuple[Callable, Callable]:
     """The coupled DEM + membrane simulation as ``(init_fn, step_fn)`` (see the module docstring).
 
@@ -407,10 +415,16 @@ def membrane_dem(
       wall_friction: the DEM's sphere–platen friction path (False: frictionless platens, the paper's).
       contact_model: ``"nodes"`` (the spheres meet the mesh's nodes) or ``"faces"`` (its faces, edges
         and nodes: :mod:`membrax.membrane.face_contact`), :data:`CONTACT_MODELS`.
+      tangent_limit: r_max, the largest Gent tangent ratio k_t/k_0 that ``dt`` tolerates
+        (:func:`membrane_tangent_limit`; static). Under ``"gent"`` the same check sets
+        ``ErrorCode.MEMBRANE_STIFFENED`` when the closest approach's ratio exceeds it
+        (:func:`stiffened_bit`); ``inf`` (the default) checks nothing.
     """
     if contact_model not in CONTACT_MODELS:
         raise ValueError(f"contact_model = {contact_model!r}; choose one of {CONTACT_MODELS}.")
     faces = contact_model == "faces"
+    # The mesh's neighbours and interior nodes, which the feature contacts read: built once, not every step.
+    neighbours = mesh_neighbours(mesh) if faces else None
     if particles.num_members != 1:
         raise ValueError(
             f"membrane_dem couples one specimen, got {particles.num_members} members; batch with vmap."
@@ -449,7 +463,7 @@ def membrane_dem(
         )
         feature_contact = None
         if faces:
-            slots = feature_slots(mesh, candidates.idx, particles.num_particles)
+            slots = feature_slots(mesh, candidates.idx, particles.num_particles, neighbours)
             feature_contact = FeatureContactState(slots=slots, spring=zero_springs(slots, position.dtype))
         zeros = jnp.zeros_like(position)
         return CoupledState(
@@ -507,11 +521,23 @@ def membrane_dem(
                 model=stretching_model,
             )
         else:
-            contact = contact_forces(state, particles, params, dt, mesh)
-            contact_spring = contact.spring
-            if faces:
+            if faces:  # the slots of the current table, carried with their springs (see step 5)
+                contact = face_contact_forces(
+                    ContactNodes(position=nodes.position, velocity=nodes.velocity),
+                    _contact_spheres(spheres, particles),
+                    mesh,
+                    feature_contact.slots,
+                    feature_contact.spring,
+                    dt,
+                    mp.contact,
+                    mp.contact_thickness,
+                    neighbours,
+                )
                 feature_contact = FeatureContactState(slots=contact.slots, spring=contact.spring)
                 contact_spring = nodes.spring  # the node slots' springs, unused
+            else:
+                contact = contact_forces(state, particles, params, dt, mesh)
+                contact_spring = contact.spring
             contact_node_force, sphere_force = contact.node_force, contact.sphere_force
             sphere_torque = contact.sphere_torque
             internal = energies.nodal_forces(
@@ -552,19 +578,31 @@ def membrane_dem(
         )
         velocity = velocity.at[rings].set(ring_velocity, unique_indices=True)
 
-        candidates, spring = update_candidates(
+        candidates, spring, rebuilt = update_candidates(
             nodes.candidates,
             contact_spring,
             position,
             spheres.position,
             particles.radius,
             mp.contact_thickness,
+            with_rebuilt=True,
         )
+        if faces:  # the feature slots change with the node table only: rebuilt with it, springs carried by id
+            feature_contact = jax.lax.cond(
+                rebuilt,
+                lambda fc: refresh_feature_contact(
+                    fc, mesh, candidates.idx, particles.num_particles, neighbours
+                ),
+                lambda fc: fc,
+                feature_contact,
+            )
         error = spheres.error | candidate_errors(candidates) | not_finite_bit(position, velocity)
         if stretching_model == "gent":  # static: the other laws have no lock
             check = state.dem.step % LOCK_CHECK_EVERY == 0
             error = error | jax.lax.cond(
-                check, lambda: locked_bit(nodes.position, mesh, mp.locking_jm), lambda: jnp.int32(0)
+                check,
+                lambda: gent_bits(nodes.position, mesh, mp.locking_jm, tangent_limit),
+                lambda: jnp.int32(0),
             )
         return CoupledState(
             dem=spheres.set(error=error.astype(jnp.int32)),
@@ -623,7 +661,9 @@ def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
     return CandidateCapacities(min(capacity, num_spheres), sphere_capacity, cell_capacity)
 
 
-def grow_candidates(state: CoupledState, particles: Particles, capacities, thickness) -> CoupledState:
+def grow_candidates(
+    state: CoupledState, particles: Particles, capacities, thickness, mesh: MembraneMesh | None = None
+) -> CoupledState:
     """A copy of ``state`` with a node candidate table of the given capacities, springs carried by sphere id.
 
     Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``.
@@ -633,6 +673,8 @@ def grow_candidates(state: CoupledState, particles: Particles, capacities, thick
       particles: sphere properties.
       capacities: the new :class:`CandidateCapacities` (e.g. :func:`grown_candidate_capacities`).
       thickness: the contact's thickness f t_m (:attr:`MembraneParams.contact_thickness`), m.
+      mesh: the membrane (its topology: any member's mesh of a batch), needed for a state with feature
+        contacts, whose slots are rebuilt from the new table (:func:`refresh_feature_contact`).
     """
     nodes = state.membrane
     old = nodes.candidates
@@ -653,8 +695,76 @@ def grow_candidates(state: CoupledState, particles: Particles, capacities, thick
     )
     feature_contact = nodes.feature_contact
     if feature_contact is not None:
+        if mesh is None:
+            raise ValueError("grow_candidates: a state with feature contacts needs the mesh (mesh=...).")
         feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
+        feature_contact = refresh_feature_contact(feature_contact, mesh, new.idx, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
+
+
+def stiffened_bit(ratio, locking_jm, tangent_limit):
+    """``ErrorCode.MEMBRANE_STIFFENED`` if Gent's tangent ratio at ``ratio`` exceeds the limit (jittable).
+
+    Else 0. ``ratio`` is the closest approach to the lock, ``tangent_limit`` the step's r_max.
+
+    The rule: Δt stays stable while k_t(s)/k_0 ≤ r_max (:func:`membrane_tangent_limit`), k_t/k_0 the
+    equibiaxial tangent ratio at the largest s = (I₁ − 3)/J_m over the triangles
+    (:func:`membrax.membrane.energies.gent_tangent_ratio`, which bounds the other tension states' there);
+    i.e. while s ≤ s_stable (:func:`membrax.membrane.energies.stable_locking_ratio`). Compared as ratios so
+    that J_m stays a traced parameter.
+
+    Args:
+      ratio: s at the closest approach (:func:`membrax.membrane.energies.locking_ratio`).
+      locking_jm: J_m.
+      tangent_limit: r_max (a float; ``inf``: never set).
+    """
+    if math.isinf(tangent_limit):
+        return jnp.int32(0)
+    tangent = energies.gent_tangent_ratio(ratio, locking_jm)
+    return jnp.where(tangent > tangent_limit, ErrorCode.MEMBRANE_STIFFENED, 0).astype(jnp.int32)
+
+
+def gent_bits(position, mesh: MembraneMesh, locking_jm, tangent_limit=math.inf):
+    """:func:`locked_bit` | :func:`stiffened_bit` of one pass over the triangles (jittable)."""
+    ratio = jax.lax.stop_gradient(energies.locking_ratio(position, mesh, locking_jm))
+    locked = jnp.where(ratio > GENT_LOCK_FRACTION, ErrorCode.MEMBRANE_LOCKED, 0).astype(jnp.int32)
+    return locked | stiffened_bit(ratio, jax.lax.stop_gradient(locking_jm), tangent_limit)
+
+
+def membrane_tangent_limit(dt, critical) -> float:
+    """r_max: the largest membrane tangent ratio k_t/k_0 the step ``dt`` tolerates (host).
+
+    The explicit step is stable while ω² ≤ (2/Δt)², ω² = ω²_mesh + ω²_contact (the bound of
+    :func:`membrane_critical_time_step` for the coupled node). Stiffening by k_t/k_0 multiplies ω²_mesh,
+    the mesh's rest stiffness with the rest masses, by at most that ratio
+    (:func:`membrax.membrane.energies.gent_tangent_ratio`), so
+
+        k_t/k_0 ≤ r_max = (Δt_crit,mesh/Δt)² − (Δt_crit,mesh/Δt_crit,contact)²,
+
+    ≥ 1 whenever Δt ≤ Δt_crit,combined. Chosen over a step taken from the tangent at the lock: that would
+    divide every Gent run's Δt by √32.7 = 5.7 (J_m = 97.2, s = 0.9) to cover stretches few runs reach;
+    the check costs one evaluation of the closed form every :data:`LOCK_CHECK_EVERY` steps, on the pass
+    the lock check makes anyway.
+
+    Args:
+      dt: Δt, s.
+      critical: :func:`membrane_critical_time_step`'s dict (``mesh`` and ``contact`` steps, s).
+    """
+    mesh_step, contact_step = float(critical["mesh"]), float(critical["contact"])
+    return (mesh_step / float(dt)) ** 2 - (mesh_step / contact_step) ** 2
+
+
+def refresh_feature_contact(
+    feature_contact: FeatureContactState, mesh: MembraneMesh, candidates, num_spheres: int, neighbours=None
+) -> FeatureContactState:
+    """The feature slots of the node table ``candidates`` (n_nodes, K), the springs carried onto them by id.
+
+    The slots are a function of the node table alone (:func:`membrax.membrane.face_contact.feature_slots`),
+    so a state keeps those of its current table: the step rebuilds them when it rebuilds the table,
+    :func:`grow_candidates` when it grows it (:func:`membrax.membrane.face_contact.carry_springs`).
+    """
+    slots = feature_slots(mesh, candidates, num_spheres, neighbours)
+    return FeatureContactState(slots=slots, spring=carry_springs(feature_contact, slots, num_spheres))
 
 
 def locked_bit(position, mesh: MembraneMesh, locking_jm):

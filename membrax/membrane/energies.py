@@ -16,11 +16,17 @@ Energies (reference: ``shared/reference/membrane-corrections.md`` §11):
   (:func:`bending_energy`);
 - cell pressure: the load potential +p V, V the volume enclosed by the band closed with two flat caps
   (:func:`membrax.membrane.mesh.enclosed_volume`, :func:`pressure_energy`).
+
+Stiffening near the Gent lock (:func:`gent_tangent_ratio`, :func:`stable_locking_ratio`): the Gent law's
+tangent stiffness grows without bound toward the lock, so an explicit step chosen at rest becomes unstable
+before the lock is reached; the coupled step checks the closest approach against the step's limit
+(:mod:`membrax.membrane.coupled`, ``ErrorCode.MEMBRANE_STIFFENED``).
 """
 
 from __future__ import annotations
 
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
@@ -42,6 +48,9 @@ from membrax.membrane.mesh import (
 __all__ = [
     "stretching_energy",
     "locking_ratio",
+    "gent_equibiaxial_stretch",
+    "gent_tangent_ratio",
+    "stable_locking_ratio",
     "bending_rigidity",
     "bending_energy",
     "pressure_energy",
@@ -136,9 +145,15 @@ def _gent_stiffening_integral(ratio):
 
     φ'(s) = 1/(1 − s) below f and 1/(1 − f) + (s − f)/(1 − f)² above: the factor by which Gent's stress
     exceeds the neo-Hookean one at the same strain.
+
+    The two pieces are chosen by one comparison: ``jnp.minimum`` and ``jnp.maximum`` split their derivative
+    at a tie, which gave φ'' = 50 instead of 100 at s = f exactly, and under ``jit`` (where the tie can be
+    decided differently in the two) a stress factor of up to 20 instead of 10 for a triangle within an ulp
+    of f. The values are the same.
     """
-    below = jnp.minimum(ratio, GENT_LOCK_FRACTION)
-    past = jnp.maximum(ratio - GENT_LOCK_FRACTION, 0.0)
+    past_lock = ratio > GENT_LOCK_FRACTION
+    below = jnp.where(past_lock, GENT_LOCK_FRACTION, ratio)
+    past = jnp.where(past_lock, ratio - GENT_LOCK_FRACTION, 0.0)
     slack = 1.0 - GENT_LOCK_FRACTION
     return -jnp.log1p(-below) + past / slack + 0.5 * (past / slack) ** 2
 
@@ -174,6 +189,110 @@ def locking_ratio(position, mesh: MembraneMesh, locking_jm):
       locking_jm: J_m, dimensionless.
     """
     return jnp.max(_first_invariant_excess(green_strain(position, mesh))) / locking_jm
+
+
+def _gent_stiffening_slopes(ratio):
+    """φ'(s) and φ''(s) of :func:`_gent_stiffening_integral`, continued past f as the energy is."""
+    slack = 1.0 - GENT_LOCK_FRACTION
+    below = 1.0 - jnp.minimum(ratio, GENT_LOCK_FRACTION)
+    past = jnp.maximum(ratio - GENT_LOCK_FRACTION, 0.0)
+    return 1.0 / below + past / (slack * slack), 1.0 / (below * below)
+
+
+def gent_equibiaxial_stretch(ratio, locking_jm):
+    """The equibiaxial stretch λ ≥ 1 at which Gent's s = (I₁ − 3)/J_m equals ``ratio`` (jittable).
+
+    Incompressible, λ₁ = λ₂ = λ, λ₃ = λ⁻²: I₁ − 3 = 2λ² + λ⁻⁴ − 3 = s J_m, so u = λ² is the largest root of
+    the cubic 2u³ − (3 + s J_m) u² + 1 = 0. With a = 3 + s J_m and u = a/6 + t it is t³ + p t + q = 0,
+    p = −a²/12, q = ½ − a³/108, whose largest root is Viète's
+    t = 2 √(−p/3) cos(⅓ arccos((3q/2p) √(−3/p))) (three real roots: a ≥ 3).
+
+    Args:
+      ratio: s, dimensionless, >= 0 (array or scalar).
+      locking_jm: J_m, > 0.
+    """
+    a = 3.0 + ratio * locking_jm
+    p = -a * a / 12.0
+    q = 0.5 - a * a * a / 108.0
+    cosine = jnp.clip((1.5 * q / p) * jnp.sqrt(-3.0 / p), -1.0, 1.0)
+    squared = a / 6.0 + 2.0 * jnp.sqrt(-p / 3.0) * jnp.cos(jnp.arccos(cosine) / 3.0)
+    return jnp.sqrt(squared)
+
+
+def gent_tangent_ratio(ratio, locking_jm):
+    """k_t(s)/k_0: Gent's equibiaxial tangent stiffness at s = (I₁ − 3)/J_m over its value at rest.
+
+    With the energy density w(λ) = (μ J_m/2) φ(s) of an equibiaxial stretch λ (:func:`stretching_energy`;
+    λ from :func:`gent_equibiaxial_stretch`, I₁ − 3 = 2λ² + λ⁻⁴ − 3 = s J_m) the tangent is
+
+        k_t = d²w/dλ² = (μ/2) [φ''(s) (dI₁/dλ)²/J_m + φ'(s) d²I₁/dλ²],
+        dI₁/dλ = 4(λ − λ⁻⁵),  d²I₁/dλ² = 4 + 20 λ⁻⁶,
+
+    and k_0 = 12 μ (λ = 1), so k_t/k_0 = [16 φ''(s) (λ − λ⁻⁵)²/J_m + φ'(s)(4 + 20 λ⁻⁶)]/24, with
+    φ' = 1/(1 − s), φ'' = 1/(1 − s)² (derived here from Gent 1996; past s = f the continued energy's
+    φ' = 1/(1 − f) + (s − f)/(1 − f)², φ'' = 1/(1 − f)²). At J_m = 97.2 it is 0.242 at s = 0.1, 1.041 at
+    0.5, 3.262 at 0.7 and 32.69 at 0.9: the rubber first softens (the neo-Hookean part), then stiffens
+    without bound toward the lock.
+
+    Why it bounds the step. The mesh's stiffness is K = Bᵀ (∂²w/∂F²) B with the rest geometry's B and the
+    rest masses, so its largest frequency scales with the largest eigenvalue of the membrane's elasticity
+    tensor ∂²w/∂F² (F the 3 × 2 deformation gradient, the stress's geometric terms included). At an
+    equibiaxial stretch that eigenvalue is the area mode's, and k_t/k_0 is its ratio to rest. Among plane
+    states from uniaxial to equibiaxial tension (λ₂ from λ₁^(−1/2) to λ₁) at one s, the equibiaxial one
+    has the largest wherever it exceeds 1.15 (s ≥ 0.52 at J_m = 97.2; below, every state is softer
+    than at rest); ``tests/test_membrane_laws.py`` checks both against the Hessian of the energy. So
+    Δt_crit,membrane(s) ≥ Δt_crit,membrane(0) / √(k_t(s)/k_0) for a membrane whose largest s is s: on a
+    flat patch held at λ(s) its M⁻¹K's largest eigenvalue grows by 0.94, 0.88 and 0.80 of k_t/k_0 at
+    s = 0.6, 0.7 and 0.85 (the rest mesh's highest mode is not purely the area mode).
+
+    Args:
+      ratio: s, dimensionless, >= 0 (traced, any shape).
+      locking_jm: J_m, > 0 (traced).
+
+    Returns:
+      k_t/k_0, dimensionless, the dtype of the inputs.
+    """
+    stretch = gent_equibiaxial_stretch(ratio, locking_jm)
+    inverse = stretch**-2  # λ⁻²
+    slope, curvature = _gent_stiffening_slopes(ratio)
+    first = stretch * (1.0 - inverse**3)  # λ − λ⁻⁵
+    return (16.0 * curvature * first * first / locking_jm + slope * (4.0 + 20.0 * inverse**3)) / 24.0
+
+
+def stable_locking_ratio(tangent_limit, locking_jm) -> float:
+    """s_stable: the largest s = (I₁ − 3)/J_m whose tangent ratio stays within ``tangent_limit`` (host).
+
+    s_stable solves k_t(s)/k_0 = r_max on the stiffening branch of :func:`gent_tangent_ratio` (the ratio
+    first falls below 1, then rises without bound: s_stable is the crossing past its minimum), by bisection
+    in float64 to 1e-12. r_max is the step's limit, (Δt_crit,mesh/Δt)² − (Δt_crit,mesh/Δt_crit,contact)²
+    (:func:`membrax.membrane.coupled.membrane_tangent_limit`); with dt_safety 0.5 and negligible contact
+    r_max = 4, s_stable = 0.73 at J_m = 97.2. Returns ``inf`` for an infinite limit and 0 for a limit below
+    the ratio's minimum (no stretch is safe).
+
+    Args:
+      tangent_limit: r_max, dimensionless.
+      locking_jm: J_m, > 0.
+    """
+    import numpy as np
+
+    limit, jm = float(tangent_limit), float(locking_jm)
+    if math.isinf(limit):
+        return math.inf
+
+    def ratio_at(s):
+        return float(gent_tangent_ratio(np.float64(s), np.float64(jm)))
+
+    grid = np.linspace(0.0, GENT_LOCK_FRACTION, 181)
+    low = float(grid[int(np.argmin([ratio_at(s) for s in grid]))])
+    if ratio_at(low) > limit:
+        return 0.0
+    high = low + 0.1
+    while ratio_at(high) <= limit:
+        high = low + 2.0 * (high - low)
+    while high - low > 1e-12:
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if ratio_at(middle) <= limit else (low, middle)
+    return low
 
 
 def bending_rigidity(modulus, thickness, poisson_ratio=0.5):

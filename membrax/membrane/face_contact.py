@@ -78,6 +78,8 @@ __all__ = [
     "closest_point_weights",
     "interior_nodes",
     "longest_edge",
+    "MeshNeighbours",
+    "mesh_neighbours",
     "zero_springs",
 ]
 
@@ -128,6 +130,23 @@ class FaceContactForces(NamedTuple):
     slots: FeatureSlots
 
 
+class MeshNeighbours(NamedTuple):
+    """What the node contacts read of the mesh's topology, built once (:func:`mesh_neighbours`).
+
+    Fixed for a mesh: a stepping caller builds it with the step and passes it to :func:`feature_slots` and
+    :func:`face_contact_forces`.
+
+    Attributes:
+      ids: (n_nodes, K_h) each node's neighbours along interior edges, padded with n_nodes.
+      mask: (n_nodes, K_h) bool, True where ``ids`` holds a neighbour.
+      interior: (n_nodes,) bool, the nodes off the mesh's boundary (:func:`interior_nodes`).
+    """
+
+    ids: jnp.ndarray
+    mask: jnp.ndarray
+    interior: jnp.ndarray
+
+
 # ----------------------------------------------------------------------------------------------- tables
 
 
@@ -155,15 +174,25 @@ def interior_nodes(mesh: MembraneMesh):
     return jnp.sum(on_edge, axis=1) == triangles_around
 
 
-def feature_slots(mesh: MembraneMesh, candidates, num_spheres: int) -> FeatureSlots:
+def mesh_neighbours(mesh: MembraneMesh) -> MeshNeighbours:
+    """The :class:`MeshNeighbours` of ``mesh``: its nodes' neighbours and its interior nodes (jittable)."""
+    ids, mask = _node_neighbours(mesh)
+    return MeshNeighbours(ids=ids, mask=mask, interior=interior_nodes(mesh))
+
+
+def feature_slots(
+    mesh: MembraneMesh, candidates, num_spheres: int, neighbours: MeshNeighbours | None = None
+) -> FeatureSlots:
     """The features' candidate tables from the node–sphere table ``candidates`` (n_nodes, K), padded N.
 
     A sphere the law could meet on a feature lies within reach of one of its nodes (the node table's
     skin covers the mesh's edge length), so the union of the nodes' rows holds every such sphere.
+    ``neighbours``: the mesh's :func:`mesh_neighbours`, if already built (else built here).
     """
+    interior = (mesh_neighbours(mesh) if neighbours is None else neighbours).interior
     face = candidates[mesh.triangles].reshape(mesh.num_triangles, -1)
     edge = candidates[mesh.edges].reshape(mesh.edges.shape[0], -1)
-    node = jnp.where(interior_nodes(mesh)[:, None], candidates, num_spheres)
+    node = jnp.where(interior[:, None], candidates, num_spheres)
     return FeatureSlots(
         face=_first_occurrences(face, num_spheres),
         edge=_first_occurrences(edge, num_spheres),
@@ -255,7 +284,9 @@ def _feature_nodes(mesh: MembraneMesh, kind: str):
     return jnp.arange(mesh.num_nodes)[:, None]
 
 
-def _slot_geometry(kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness):
+def _slot_geometry(
+    kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness, neighbours=None
+):
     """Per slot of ``kind``: the contact point, weights, node ids, branch, reach and validity."""
     num_spheres = sphere_position.shape[0]
     ids = getattr(slots, kind)
@@ -266,9 +297,9 @@ def _slot_geometry(kind, node_position, sphere_position, sphere_radius, mesh, sl
     corners = tuple(_rows(node_position, nodes[:, k])[:, :, None] for k in range(nodes.shape[1]))
     extras = None
     if kind == "node":
-        neighbours, mask = _node_neighbours(mesh)
+        ids, mask = _node_neighbours(mesh) if neighbours is None else (neighbours.ids, neighbours.mask)
         padded = jnp.concatenate([node_position, jnp.zeros((1, 3), node_position.dtype)])
-        extras = (_rows(padded, neighbours)[:, :, None, :], mask[:, None, :])
+        extras = (_rows(padded, ids)[:, :, None, :], mask[:, None, :])
     weights, in_region = closest_point_weights(kind, corners, centre, extras)
     # Stored once: XLA-CPU would otherwise evaluate the region test again in each consumer (membrax.fusion).
     *weights, in_region = materialize(*weights, in_region)
@@ -287,16 +318,18 @@ def face_contact_energy(
     slots: FeatureSlots,
     normal_stiffness,
     membrane_thickness,
+    neighbours: MeshNeighbours | None = None,
 ):
     """Normal penalty energy of the feature contacts, U = Σ ½ k_n max(δ, 0)², J (module docstring).
 
     The regions are decided on the current positions and held fixed under differentiation (they are
-    piecewise constant), so −grad U is the normal force of :func:`face_contact_forces`.
+    piecewise constant), so −grad U is the normal force of :func:`face_contact_forces`. ``neighbours``:
+    the mesh's :func:`mesh_neighbours`, if already built.
     """
     total = 0.0
     for kind in FEATURE_KINDS:
         _, _, branch, reach, active, _ = _slot_geometry(
-            kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness
+            kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness, neighbours
         )
         overlap = jnp.where(active, reach - safe_norm(branch), -1.0)
         total = total + jnp.sum(normal_energy(overlap, normal_stiffness))
@@ -315,6 +348,7 @@ def face_contact_forces(
     dt,
     params: MembraneContactParams,
     membrane_thickness,
+    neighbours: MeshNeighbours | None = None,
 ) -> FaceContactForces:
     """Feature contact forces, torques and springs for one step (law in the module docstring).
 
@@ -331,6 +365,7 @@ def face_contact_forces(
       dt: time step, s.
       params: k_n, k_t and μ (:class:`~membrax.membrane.contact.MembraneContactParams`).
       membrane_thickness: t_m, m.
+      neighbours: the mesh's :func:`mesh_neighbours`, built once by a caller that steps (else built here).
 
     Returns:
       A :class:`FaceContactForces`.
@@ -343,7 +378,14 @@ def face_contact_forces(
     new_springs, normal_forces, slot_forces, branches, overlaps = [], [], [], [], []
     for kind, spring in zip(FEATURE_KINDS, springs, strict=True):
         weights, feature_nodes, branch, reach, active_slot, safe_ids = _slot_geometry(
-            kind, nodes.position, spheres.position, spheres.radius, mesh, slots, membrane_thickness
+            kind,
+            nodes.position,
+            spheres.position,
+            spheres.radius,
+            mesh,
+            slots,
+            membrane_thickness,
+            neighbours,
         )
         normal, distance = safe_normalize(branch)
         overlap = jnp.where(active_slot, reach - distance, -1.0)

@@ -21,7 +21,12 @@ with a leading time axis):
   counts of every phase (:mod:`membrax.runner` runs them, with checkpoints and resume within a phase).
 
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
-:func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. The membrane
+:func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. Those are the
+rest stiffness's; under the Gent law the step is checked against the stiffening toward the lock: the
+coupled step sets ``ErrorCode.MEMBRANE_STIFFENED`` once the largest (I₁ − 3)/J_m passes
+s_stable (:attr:`MembraneTest.stable_locking_ratio`, from
+:func:`membrax.membrane.coupled.membrane_tangent_limit`), and the run stops with a
+:class:`membrax.errors.SimulationError` naming the stretch reached, s_stable and the fix. The membrane
 may touch any sphere (the candidate search runs over all of them through a cell list,
 :func:`membrax.membrane.candidates.build_candidates`). Units: the builder takes laboratory units (kPa, mm),
 named in the arguments; everything inside is SI.
@@ -30,6 +35,7 @@ named in the arguments; everything inside is SI.
 from __future__ import annotations
 
 import dataclasses as pydataclasses
+import math
 
 import jax
 import jax.numpy as jnp
@@ -37,6 +43,7 @@ import numpy as np
 
 from membrax.defaults import GENT_LOCKING_JM, MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
 from membrax.driver import ChunkRunner
+from membrax.errors import ErrorCode
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import (
     LATEX_DENSITY,
@@ -47,7 +54,9 @@ from membrax.membrane.coupled import (
     grown_candidate_capacities,
     membrane_critical_time_step,
     membrane_dem,
+    membrane_tangent_limit,
 )
+from membrax.membrane.energies import locking_ratio, stable_locking_ratio
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, inner_volume, prism_mesh
 from membrax.membrane.records import measure_coupled
 from membrax.spheres.contact import ContactParams
@@ -98,11 +107,18 @@ class MembraneTest(StagedTest):
     initial_volume: float
     platen_area: float
     density: float
-    #: ``make_step(mesh) -> step_fn``: the coupled step around another mesh of the same topology (a traced
-    #: one, e.g. another thickness's rest geometry inside a batch, :mod:`membrax.sweep`).
+    #: ``make_step(mesh, limit=tangent_limit) -> step_fn``: the coupled step around another mesh of the same
+    #: topology (a traced one, e.g. another thickness's rest geometry inside a batch, :mod:`membrax.sweep`),
+    #: checking the Gent stiffening against ``limit`` (a batch passes its members' smallest).
     make_step: object = None
     #: ``make_record(mesh, initial_volume) -> record_fn(state, params)``: the measurements around such a mesh.
     make_record: object = None
+    #: r_max, the largest Gent tangent ratio k_t/k_0 that ``dt`` tolerates
+    #: (:func:`membrax.membrane.coupled.membrane_tangent_limit`; ``inf`` under the other laws, unchecked).
+    tangent_limit: float = math.inf
+    #: s_stable, the largest (I₁ − 3)/J_m the step tolerates under the Gent law
+    #: (:func:`membrax.membrane.energies.stable_locking_ratio`; ``inf`` under the other laws).
+    stable_locking_ratio: float = math.inf
 
     @property
     def cell_pressure(self) -> float:
@@ -346,14 +362,20 @@ def membrane_test(
     walls = walls.set(max_speed=jnp.full(walls.max_speed.shape, max_wall_speed, walls.max_speed.dtype))
     platen_area = float(specimen.cross_section_area)
 
+    gent = stretching_model == "gent"
+    tangent_limit = membrane_tangent_limit(dt, membrane_steps) if gent else math.inf
+    stable_ratio = stable_locking_ratio(tangent_limit, locking_jm) if gent else math.inf
     law = {
         "latex_density": latex_density,
         "stretching_model": stretching_model,
         "contact_model": contact_model,
+        "tangent_limit": tangent_limit,
     }
 
-    def make_step(member_mesh):
-        return membrane_dem(particles, frame, member_mesh, dt, platen_area, **law)[1]
+    def make_step(member_mesh, limit=tangent_limit):
+        return membrane_dem(
+            particles, frame, member_mesh, dt, platen_area, **{**law, "tangent_limit": limit}
+        )[1]
 
     def make_record(member_mesh, member_volume):
         def record(s, p):
@@ -372,7 +394,21 @@ def membrane_test(
 
     def grow(s, overflowed_state):
         capacities = grown_candidate_capacities(s.membrane.candidates, overflowed_state.membrane.candidates)
-        return grow_candidates(s, particles, capacities, contact_thickness)
+        return grow_candidates(s, particles, capacities, contact_thickness, mesh)
+
+    def explain(error, end, start, run_params):
+        """The stretch the membrane reached, for a Gent run stopped near its lock or on non-finite values."""
+        watched = ErrorCode.MEMBRANE_STIFFENED | ErrorCode.MEMBRANE_LOCKED | ErrorCode.NOT_FINITE
+        if not gent or not error & watched:
+            return ""
+        jm = float(run_params.membrane.locking_jm)  # the run's J_m (traced: not necessarily the built one)
+        reached = [float(locking_ratio(s.membrane.position, mesh, jm)) for s in (end, start)]
+        reached = reached[0] if math.isfinite(reached[0]) else reached[1]
+        return (
+            f" (the membrane's largest (I1 - 3)/J_m reached {reached:.3f} at J_m = {jm:.3g}; at dt = "
+            f"{dt:.3g} s its step is stable to s_stable = {stable_locking_ratio(tangent_limit, jm):.3f}, "
+            "and Gent's law is continued past 0.9)"
+        )
 
     runner = ChunkRunner(
         step_fn,
@@ -382,6 +418,7 @@ def membrane_test(
         grow_membrane=grow,
         dem_of=lambda s: s.dem,
         with_dem=lambda s, dem: s.set(dem=dem),
+        explain=explain,
     )
     return MembraneTest(
         specimen=specimen,
@@ -398,4 +435,6 @@ def membrane_test(
         platen_area=platen_area,
         make_step=make_step,
         make_record=make_record,
+        tangent_limit=float(tangent_limit),
+        stable_locking_ratio=float(stable_ratio),
     )
