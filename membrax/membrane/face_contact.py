@@ -292,15 +292,19 @@ def _feature_nodes(mesh: MembraneMesh, kind: str):
     return jnp.arange(mesh.num_nodes)[:, None]
 
 
-def _slot_geometry(
-    kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness, neighbours=None
-):
-    """Per slot of ``kind``: the contact point, weights, node ids, branch, reach and validity."""
-    num_spheres = sphere_position.shape[0]
+def _slot_geometry(kind, node_position, sphere_table, mesh, slots, membrane_thickness, neighbours=None):
+    """Per slot of ``kind``: the contact point, weights, node ids, branch, reach and validity.
+
+    ``sphere_table`` (N, C): each sphere's position in its first three columns, its radius in the last,
+    whatever else the caller reads per slot between them: gathered once, in one row per slot (a gather's
+    cost on XLA-CPU is per row), and returned as ``per_slot`` (C, F, M) with the other results.
+    """
+    num_spheres = sphere_table.shape[0]
     ids = getattr(slots, kind)
     valid = ids < num_spheres
     safe_ids = jnp.where(valid, ids, 0)
-    centre = _rows(sphere_position, safe_ids)  # (3, F, M)
+    per_slot = _rows(sphere_table, safe_ids)  # (C, F, M)
+    centre = per_slot[:3]
     nodes = _feature_nodes(mesh, kind)
     corners = tuple(_rows(node_position, nodes[:, k])[:, :, None] for k in range(nodes.shape[1]))
     extras = None
@@ -314,8 +318,8 @@ def _slot_geometry(
     weights = tuple(weights)
     contact_point = sum(scale(w, x) for w, x in zip(weights, corners, strict=False))
     branch = contact_point - centre  # from the sphere centre to the membrane point (the node law's b)
-    reach = sphere_radius[safe_ids] + 0.5 * membrane_thickness
-    return weights, nodes[:, : len(weights)], branch, reach, valid & in_region, safe_ids
+    reach = per_slot[-1] + 0.5 * membrane_thickness
+    return weights, nodes[:, : len(weights)], branch, reach, valid & in_region, safe_ids, per_slot
 
 
 def _node_sums(kind, shares, mesh: MembraneMesh):
@@ -368,9 +372,10 @@ def face_contact_energy(
     the mesh's :func:`mesh_neighbours`, if already built.
     """
     total = 0.0
+    sphere_table = jnp.concatenate([sphere_position, sphere_radius[:, None]], axis=1)
     for kind in FEATURE_KINDS:
-        _, _, branch, reach, active, _ = _slot_geometry(
-            kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness, neighbours
+        _, _, branch, reach, active, _, _ = _slot_geometry(
+            kind, node_position, sphere_table, mesh, slots, membrane_thickness, neighbours
         )
         overlap = jnp.where(active, reach - safe_norm(branch), -1.0)
         total = total + jnp.sum(normal_energy(overlap, normal_stiffness))
@@ -416,16 +421,13 @@ def face_contact_forces(
     node_force = jnp.zeros((num_nodes, 3), dtype)
     sphere_load = jnp.zeros((num_spheres + 1, 6), dtype)  # force, then torque; a padding row last
     new_springs, normal_forces, slot_forces, branches, overlaps = [], [], [], [], []
+    # What each slot reads of its sphere, gathered in one row: position, velocity, ω, radius.
+    sphere_table = jnp.concatenate(
+        [spheres.position, spheres.velocity, spheres.angular_velocity, spheres.radius[:, None]], axis=1
+    )
     for kind, spring in zip(FEATURE_KINDS, springs, strict=True):
-        weights, feature_nodes, branch, reach, active_slot, safe_ids = _slot_geometry(
-            kind,
-            nodes.position,
-            spheres.position,
-            spheres.radius,
-            mesh,
-            slots,
-            membrane_thickness,
-            neighbours,
+        weights, feature_nodes, branch, reach, active_slot, safe_ids, per_slot = _slot_geometry(
+            kind, nodes.position, sphere_table, mesh, slots, membrane_thickness, neighbours
         )
         normal, distance = safe_normalize(branch)
         overlap = jnp.where(active_slot, reach - distance, -1.0)
@@ -437,9 +439,7 @@ def face_contact_forces(
         membrane_velocity = sum(
             scale(w, _rows(nodes.velocity, feature_nodes[:, k])[:, :, None]) for k, w in enumerate(weights)
         )
-        sphere_velocity = _rows(spheres.velocity, safe_ids) + cross(
-            _rows(spheres.angular_velocity, safe_ids), branch
-        )
+        sphere_velocity = per_slot[3:6] + cross(per_slot[6:9], branch)
         relative = materialize(membrane_velocity - sphere_velocity)  # else gathered again per use
         tangential = materialize(relative - scale(dot(relative, normal), normal))
         spring = tangential_spring_update(
