@@ -228,8 +228,11 @@ def closest_point_weights(kind: str, corners, centre, mesh_extras=None):
         normal = cross(b - a, c - a)
         twice_area = safe_norm(normal)
         unit = scale(1.0 / jnp.where(twice_area > 0.0, twice_area, 1.0), normal)
-        foot = centre - scale(dot(centre - a, unit), unit)
         inverse_area = 1.0 / jnp.where(twice_area > 0.0, twice_area, 1.0)
+        # A feature's own geometry serves all its slots: stored once per feature, where XLA-CPU would
+        # evaluate it again in each per-slot, per-component consumer (membrax.fusion); the same bits.
+        twice_area, unit, inverse_area = materialize(twice_area, unit, inverse_area)
+        foot = centre - scale(dot(centre - a, unit), unit)
         weight_a = dot(cross(c - b, foot - b), unit) * inverse_area
         weight_b = dot(cross(a - c, foot - c), unit) * inverse_area
         weight_c = 1.0 - weight_a - weight_b
@@ -240,13 +243,17 @@ def closest_point_weights(kind: str, corners, centre, mesh_extras=None):
         along = v - u
         length_squared = dot(along, along)
         safe_length_squared = jnp.where(length_squared > 0.0, length_squared, 1.0)
+        along, length_squared, safe_length_squared = materialize(along, length_squared, safe_length_squared)
         fraction = dot(centre - u, along) / safe_length_squared
         in_region = (fraction > band) & (fraction < 1.0 - band) & (length_squared > 0.0)
         for opposite in (opposite_1, opposite_2):
             # The opposite vertex's area coordinate of the centre's foot: ≤ 0 beyond the edge.
             inward = (opposite - u) - scale(dot(opposite - u, along) / safe_length_squared, along)
             height_squared = dot(inward, inward)
-            coordinate = dot(centre - u, inward) / jnp.where(height_squared > 0.0, height_squared, 1.0)
+            inward, safe_height_squared = materialize(
+                inward, jnp.where(height_squared > 0.0, height_squared, 1.0)
+            )
+            coordinate = dot(centre - u, inward) / safe_height_squared
             in_region = in_region & (coordinate <= band)
         return (1.0 - fraction, fraction), in_region
     if kind == "node":
@@ -254,6 +261,7 @@ def closest_point_weights(kind: str, corners, centre, mesh_extras=None):
         neighbours, mask = mesh_extras
         spoke = neighbours - vertex[..., None]
         spoke_squared = dot(spoke, spoke)
+        spoke, spoke_squared = materialize(spoke, spoke_squared)
         # The centre's place along each edge from the node, τ: the node's region where τ ≤ 0 on every one.
         fraction = dot((centre - vertex)[..., None], spoke) / jnp.where(
             spoke_squared > 0.0, spoke_squared, 1.0
@@ -284,15 +292,19 @@ def _feature_nodes(mesh: MembraneMesh, kind: str):
     return jnp.arange(mesh.num_nodes)[:, None]
 
 
-def _slot_geometry(
-    kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness, neighbours=None
-):
-    """Per slot of ``kind``: the contact point, weights, node ids, branch, reach and validity."""
-    num_spheres = sphere_position.shape[0]
+def _slot_geometry(kind, node_position, sphere_table, mesh, slots, membrane_thickness, neighbours=None):
+    """Per slot of ``kind``: the contact point, weights, node ids, branch, reach and validity.
+
+    ``sphere_table`` (N, C): each sphere's position in its first three columns, its radius in the last,
+    whatever else the caller reads per slot between them: gathered once, in one row per slot (a gather's
+    cost on XLA-CPU is per row), and returned as ``per_slot`` (C, F, M) with the other results.
+    """
+    num_spheres = sphere_table.shape[0]
     ids = getattr(slots, kind)
     valid = ids < num_spheres
     safe_ids = jnp.where(valid, ids, 0)
-    centre = _rows(sphere_position, safe_ids)  # (3, F, M)
+    per_slot = _rows(sphere_table, safe_ids)  # (C, F, M)
+    centre = per_slot[:3]
     nodes = _feature_nodes(mesh, kind)
     corners = tuple(_rows(node_position, nodes[:, k])[:, :, None] for k in range(nodes.shape[1]))
     extras = None
@@ -306,8 +318,41 @@ def _slot_geometry(
     weights = tuple(weights)
     contact_point = sum(scale(w, x) for w, x in zip(weights, corners, strict=False))
     branch = contact_point - centre  # from the sphere centre to the membrane point (the node law's b)
-    reach = sphere_radius[safe_ids] + 0.5 * membrane_thickness
-    return weights, nodes[:, : len(weights)], branch, reach, valid & in_region, safe_ids
+    reach = per_slot[-1] + 0.5 * membrane_thickness
+    return weights, nodes[:, : len(weights)], branch, reach, valid & in_region, safe_ids, per_slot
+
+
+def _node_sums(kind, shares, mesh: MembraneMesh):
+    """(n_nodes, 3): each node's shares of the features of ``kind`` it belongs to, summed.
+
+    ``shares`` holds one (3, F) array per node of a feature (:func:`_feature_nodes`' columns, the first
+    ``len(shares)``). A face's and an edge's shares are gathered through the mesh's incidence tables
+    (``corner_incidence``, ``hinge_incidence``): each node sums its own few rows, where a scatter would
+    add one row at a time; a node's share is its own.
+    """
+    if kind == "node":
+        return shares[0].T
+    if kind == "face":
+        # corner_index: the triangles' first corners, then their second and third.
+        rows, incidence = jnp.concatenate(shares, axis=1).T, mesh.corner_incidence
+    else:
+        # hinge_index: the edges' starts, their ends, then the opposite vertices (which get no share).
+        rows = jnp.concatenate(shares, axis=1).T
+        incidence = jnp.where(mesh.hinge_incidence < rows.shape[0], mesh.hinge_incidence, rows.shape[0])
+    padded = jnp.concatenate([rows, jnp.zeros((1, 3), rows.dtype)])
+    return _slot_sum(jnp.moveaxis(padded[incidence], 1, -1))
+
+
+def _slot_sum(values):
+    """``values`` (..., M) summed over the last (short) axis, left to right.
+
+    Written as M − 1 adds, which XLA-CPU fuses into one loop: its reduction over a short axis ran several
+    times slower (paper-size mesh, float32).
+    """
+    total = values[..., 0]
+    for m in range(1, values.shape[-1]):
+        total = total + values[..., m]
+    return total
 
 
 def face_contact_energy(
@@ -327,9 +372,10 @@ def face_contact_energy(
     the mesh's :func:`mesh_neighbours`, if already built.
     """
     total = 0.0
+    sphere_table = jnp.concatenate([sphere_position, sphere_radius[:, None]], axis=1)
     for kind in FEATURE_KINDS:
-        _, _, branch, reach, active, _ = _slot_geometry(
-            kind, node_position, sphere_position, sphere_radius, mesh, slots, membrane_thickness, neighbours
+        _, _, branch, reach, active, _, _ = _slot_geometry(
+            kind, node_position, sphere_table, mesh, slots, membrane_thickness, neighbours
         )
         overlap = jnp.where(active, reach - safe_norm(branch), -1.0)
         total = total + jnp.sum(normal_energy(overlap, normal_stiffness))
@@ -372,20 +418,16 @@ def face_contact_forces(
     """
     num_nodes, num_spheres = nodes.position.shape[0], spheres.position.shape[0]
     dtype = nodes.position.dtype
-    node_force = jnp.zeros((num_nodes + 1, 3), dtype)
-    sphere_force = jnp.zeros((num_spheres + 1, 3), dtype)
-    sphere_torque = jnp.zeros((num_spheres + 1, 3), dtype)
+    node_force = jnp.zeros((num_nodes, 3), dtype)
+    sphere_load = jnp.zeros((num_spheres + 1, 6), dtype)  # force, then torque; a padding row last
     new_springs, normal_forces, slot_forces, branches, overlaps = [], [], [], [], []
+    # What each slot reads of its sphere, gathered in one row: position, velocity, ω, radius.
+    sphere_table = jnp.concatenate(
+        [spheres.position, spheres.velocity, spheres.angular_velocity, spheres.radius[:, None]], axis=1
+    )
     for kind, spring in zip(FEATURE_KINDS, springs, strict=True):
-        weights, feature_nodes, branch, reach, active_slot, safe_ids = _slot_geometry(
-            kind,
-            nodes.position,
-            spheres.position,
-            spheres.radius,
-            mesh,
-            slots,
-            membrane_thickness,
-            neighbours,
+        weights, feature_nodes, branch, reach, active_slot, safe_ids, per_slot = _slot_geometry(
+            kind, nodes.position, sphere_table, mesh, slots, membrane_thickness, neighbours
         )
         normal, distance = safe_normalize(branch)
         overlap = jnp.where(active_slot, reach - distance, -1.0)
@@ -397,10 +439,8 @@ def face_contact_forces(
         membrane_velocity = sum(
             scale(w, _rows(nodes.velocity, feature_nodes[:, k])[:, :, None]) for k, w in enumerate(weights)
         )
-        sphere_velocity = _rows(spheres.velocity, safe_ids) + cross(
-            _rows(spheres.angular_velocity, safe_ids), branch
-        )
-        relative = membrane_velocity - sphere_velocity
+        sphere_velocity = per_slot[3:6] + cross(per_slot[6:9], branch)
+        relative = materialize(membrane_velocity - sphere_velocity)  # else gathered again per use
         tangential = materialize(relative - scale(dot(relative, normal), normal))
         spring = tangential_spring_update(
             spring,
@@ -411,27 +451,29 @@ def face_contact_forces(
             params.friction_coefficient,
             normal_force,
             touching,
+            stored=True,
         )
         spring = materialize(spring)
         on_membrane = materialize(select(touching, scale(normal_force, normal) + spring))  # (3, F, M)
         rows = jnp.moveaxis(on_membrane, 0, -1)  # (F, M, 3)
+        # Force and torque in one scatter (a serial loop over the slots on XLA-CPU, whose cost is per row).
         sphere_index = jnp.where(touching, safe_ids, num_spheres).reshape(-1)
-        sphere_force = sphere_force.at[sphere_index].add(-rows.reshape(-1, 3))
-        torque = jnp.moveaxis(cross(branch, -on_membrane), 0, -1)
-        sphere_torque = sphere_torque.at[sphere_index].add(torque.reshape(-1, 3))
-        for k, w in enumerate(weights):
-            # One scatter of every slot's share: XLA-CPU sums over the short slot axis slowly.
-            node_index = jnp.broadcast_to(feature_nodes[:, k][:, None], w.shape).reshape(-1)
-            node_force = node_force.at[node_index].add((rows * w[..., None]).reshape(-1, 3))
+        torque = cross(branch, -on_membrane)
+        on_sphere = jnp.moveaxis(jnp.concatenate([-on_membrane, torque]), 0, -1)  # (F, M, 6)
+        sphere_load = sphere_load.at[sphere_index].add(on_sphere.reshape(-1, 6))
+        # Each node's share summed over its feature's slots first, then over its features (_node_sums):
+        # one row per feature node instead of one scatter row per slot.
+        shares = tuple(_slot_sum(scale(w, on_membrane)) for w in weights)  # (3, F) each
+        node_force = node_force + _node_sums(kind, shares, mesh)
         new_springs.append(spring)
         normal_forces.append(normal_force)
         slot_forces.append(rows.reshape(-1, 3))
         branches.append(jnp.moveaxis(branch, 0, -1).reshape(-1, 3))
         overlaps.append(overlap.reshape(-1))
     return FaceContactForces(
-        node_force=node_force[:num_nodes],
-        sphere_force=sphere_force[:num_spheres],
-        sphere_torque=sphere_torque[:num_spheres],
+        node_force=node_force,
+        sphere_force=sphere_load[:num_spheres, :3],
+        sphere_torque=sphere_load[:num_spheres, 3:],
         spring=tuple(new_springs),
         normal_force=tuple(normal_forces),
         slot_force=jnp.concatenate(slot_forces)[None],

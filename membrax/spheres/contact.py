@@ -105,7 +105,15 @@ def normal_energy(overlap, normal_stiffness):
 
 
 def tangential_spring_update(
-    spring, normal, tangential_velocity, dt, tangential_stiffness, friction_coefficient, normal_force, active
+    spring,
+    normal,
+    tangential_velocity,
+    dt,
+    tangential_stiffness,
+    friction_coefficient,
+    normal_force,
+    active,
+    stored: bool = False,
 ):
     """Advance a Cundall–Strack tangential spring by one step.
 
@@ -122,12 +130,18 @@ def tangential_spring_update(
       friction_coefficient: μ.
       normal_force: |F_n| (N), >= 0.
       active: whether the bodies overlap.
+      stored: store the per-contact intermediates once (:func:`membrax.fusion.materialize`; the same
+        bits). XLA-CPU otherwise fuses the whole update into each vector component of the result and
+        evaluates every norm three times: worth it for a wide, mostly padded table
+        (:mod:`membrax.membrane.face_contact`).
 
     Returns:
       The new spring (3, ...).
     """
+    store = materialize if stored else lambda *arrays: arrays if len(arrays) > 1 else arrays[0]
     length = safe_norm(spring)
     projected = spring - scale(dot(spring, normal), normal)
+    length, projected = store(length, projected)
     # |s| Π_t(s)/|Π_t(s)|, the rescaling capped at 2. A physical spring turns by a tiny angle per step
     # (factor ≈ 1); one more than 60° out of the plane is round-off (1e-18 N along an FCC contact's normal,
     # measured), where the uncapped factor's derivative, ~|s|/|Π_t(s)|, reached 1e16 and blew up reverse
@@ -138,12 +152,13 @@ def tangential_spring_update(
     positive = denominator_squared > 0.0
     denominator = jnp.where(positive, jnp.sqrt(jnp.where(positive, denominator_squared, 1.0)), 0.0)
     direction = select(positive, scale(1.0 / jnp.where(positive, denominator, 1.0), projected))
-    trial = scale(length, direction) - scale(tangential_stiffness * dt, tangential_velocity)
+    trial = store(scale(length, direction) - scale(tangential_stiffness * dt, tangential_velocity))
     trial_length = safe_norm(trial)
     limit = friction_coefficient * normal_force
     slip_scale = jnp.where(
         trial_length > limit, limit / jnp.where(trial_length > 0.0, trial_length, 1.0), 1.0
     )
+    slip_scale = store(slip_scale)
     return select(active, scale(slip_scale, trial))
 
 
