@@ -66,10 +66,10 @@ def main() -> None:
 
     from membrax import assemble
     from membrax.config import TriaxialConfig
-    from membrax.defaults import DAMPING_FRAMES, SHEAR_RAMP_STRAIN
+    from membrax.defaults import DAMPING_FRAMES, LATEX_DENSITY, SHEAR_RAMP_STRAIN
     from membrax.driver import ChunkRunner
     from membrax.membrane import energies
-    from membrax.membrane.coupled import LATEX_DENSITY, contact_forces
+    from membrax.membrane.coupled import contact_forces
     from membrax.membrane.mesh import free_node_mask
     from membrax.spheres import fcc
     from membrax.spheres.integrate import DampingParams, apply_damping, compute_forces

@@ -19,6 +19,7 @@ __all__ = [
     "FRICTION_ANGLE_DEG",
     "GENT_LOCK_FRACTION",
     "GENT_LOCKING_JM",
+    "LATEX_DENSITY",
     "LATEX_POISSON_RATIO",
     "LAYERS",
     "MEMBRANE_CONTACT_MODELS",
@@ -41,6 +42,9 @@ LAYERS = 25
 FRICTION_ANGLE_DEG = 25.0
 #: Latex membrane Young's modulus E_m, Pa: the paper's 1400 kPa (its Table 1).
 MEMBRANE_MODULUS = 1.4e6
+#: Latex density, kg/m³ (920–1000; the issue's "about 1000").
+LATEX_DENSITY = 1000.0
+
 #: ν of latex, an incompressible rubber: the membrane's forces and bending rigidity
 #: (:func:`membrax.membrane.energies.nodal_forces`).
 LATEX_POISSON_RATIO = 0.5

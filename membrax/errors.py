@@ -53,7 +53,7 @@ class ErrorCode(enum.IntFlag):
       MEMBRANE_STIFFENED: a membrane triangle under the Gent law was stretched past s_stable, where the
         law's tangent stiffness has grown beyond what the time step tolerates, so that the explicit step
         would blow up (:func:`membrax.membrane.energies.gent_tangent_ratio`,
-        :func:`membrax.membrane.coupled.stiffened_bit`).
+        :func:`membrax.membrane.stability.stiffened_bit`).
     """
 
     NONE = 0

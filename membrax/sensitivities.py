@@ -54,11 +54,12 @@ import numpy as np
 
 from membrax.assemble import build_test, parameter_values, thickness_derivative
 from membrax.config import TriaxialConfig, to_si
+from membrax.defaults import LATEX_DENSITY
 from membrax.driver import advance, drive
 from membrax.errors import SimulationError, describe
 from membrax.executor import GEOMETRY_FIELDS
 from membrax.membrane import energies
-from membrax.membrane.coupled import LATEX_DENSITY, platen_heights
+from membrax.membrane.coupled import platen_heights
 from membrax.membrane.mesh import free_node_mask, inner_volume
 from membrax.membrane.records import measure_coupled
 from membrax.spheres.integrate import DampingParams

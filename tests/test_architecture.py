@@ -62,6 +62,7 @@ LAYERS = (
         "membrane.contact",
         "membrane.face_contact",
     ),
+    ("membrane.stability",),
     # step
     ("spheres.integrate", "membrane.node_update", "membrane.coupled", "membrane.indentation"),
     ("spheres.stability",),

@@ -7,7 +7,7 @@ import pytest
 from helpers import central_difference, tolerance
 from scipy.optimize import minimize
 
-from membrax.membrane import coupled, energies
+from membrax.membrane import energies, stability
 from membrax.membrane.mesh import (
     cylinder_mesh,
     enclosed_volume,
@@ -395,7 +395,7 @@ def test_parameter_gradients_match_central_differences():
 def test_nodal_forces_and_hessian_match_central_differences(model):
     # The closed-form derivatives of the triangles and hinges against the energy itself: the directional
     # derivative of U is −F·v, and the Hessian–vector product that membrane_critical_time_step iterates on
-    # (coupled._stiffness_product, reverse over reverse) is the directional derivative of −F.
+    # (stability._stiffness_product, reverse over reverse) is the directional derivative of −F.
     mesh = cylinder_mesh(0.1, 0.2, 0.03)
     key1, key2 = jax.random.split(jax.random.PRNGKey(3))
     position = mesh.reference_position * jnp.asarray([1.05, 1.05, 0.97])[None, :]
@@ -421,7 +421,7 @@ def test_nodal_forces_and_hessian_match_central_differences(model):
     )
     finite = (energy_at(step) - energy_at(-step)) / (2.0 * step)
     np.testing.assert_allclose(-float(jnp.sum(force(position) * direction)), finite, rtol=1e-6)
-    hvp = coupled._stiffness_product(
+    hvp = stability._stiffness_product(
         direction, position, mesh, *params, bending_factor, locking_jm, model=model
     )
     finite_hvp = -(force(position + step * direction) - force(position - step * direction)) / (2.0 * step)

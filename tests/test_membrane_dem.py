@@ -6,8 +6,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from membrax.defaults import LATEX_DENSITY
 from membrax.membrane import coupled as membrane_dem
-from membrax.membrane import energies
+from membrax.membrane import energies, stability
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import cylinder_mesh, free_node_mask
@@ -40,7 +41,7 @@ def _clamped_cylinder(radius, height, edge, modulus, thickness, cell_pressure, d
             contact_offset_factor=jnp.asarray(1.0),
         ),
     )
-    dt = 0.5 * membrane_dem.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)["mesh"]
+    dt = 0.5 * stability.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)["mesh"]
     dem_init, _ = sphere_dem(particles, frame, dt)
     init_fn, step_fn = membrane_dem.membrane_dem(particles, frame, mesh, dt, platen_area=np.pi * radius**2)
     state = init_fn(dem_init(spheres, walls, frame.allocate(spheres)), params, capacity=2, skin=0.01)
@@ -194,10 +195,10 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
     mesh, params, _, _ = _clamped_cylinder(
         radius, height, 2 * np.pi * radius / 12, modulus, thickness, 1e4, DampingParams.local(0.3)
     )
-    first = membrane_dem.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)
-    again = membrane_dem.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)
+    first = stability.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)
+    again = stability.membrane_critical_time_step(mesh, params.membrane, contacts_per_node=0)
     assert first == again
-    mass = np.asarray(energies.lumped_mass(mesh, params.membrane.thickness, membrane_dem.LATEX_DENSITY))
+    mass = np.asarray(energies.lumped_mass(mesh, params.membrane.thickness, LATEX_DENSITY))
     free = np.repeat(np.asarray(free_node_mask(mesh)), 3)
     scale = np.repeat(1.0 / np.sqrt(mass), 3) * free
     stiffness = (
@@ -209,7 +210,7 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
     )
     basis = jnp.asarray((np.eye(3 * mesh.num_nodes) * scale).reshape(-1, mesh.num_nodes, 3))
     products = jax.vmap(
-        lambda vector: membrane_dem._stiffness_product(
+        lambda vector: stability._stiffness_product(
             vector, mesh.reference_position, mesh, *stiffness, model="neo_hookean"
         )
     )(basis)

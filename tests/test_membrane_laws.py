@@ -18,10 +18,10 @@ from helpers import ACCUMULATED, SMALL_MEMBRANE_TEST, central_difference, tolera
 
 from membrax import assemble, native, theory
 from membrax.config import with_overrides
-from membrax.defaults import GENT_LOCK_FRACTION
+from membrax.defaults import GENT_LOCK_FRACTION, LATEX_DENSITY
 from membrax.driver import ChunkRunner
 from membrax.errors import ErrorCode, SimulationError, describe
-from membrax.membrane import coupled, energies, face_contact
+from membrax.membrane import coupled, energies, face_contact, stability
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, flat_mesh, free_node_mask, green_strain
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
@@ -167,8 +167,8 @@ def test_the_gent_lock_is_continued_finitely_and_checked():
         )
         assert np.isfinite(float(energy))
     assert float(energies.locking_ratio(position, mesh, 10.0)) == pytest.approx(excess / 10.0, rel=1e-12)
-    assert int(coupled.locked_bit(position, mesh, excess / (GENT_LOCK_FRACTION - 1e-3))) == 0
-    locked = int(coupled.locked_bit(position, mesh, excess / (GENT_LOCK_FRACTION + 1e-3)))
+    assert int(stability.locked_bit(position, mesh, excess / (GENT_LOCK_FRACTION - 1e-3))) == 0
+    locked = int(stability.locked_bit(position, mesh, excess / (GENT_LOCK_FRACTION + 1e-3)))
     assert locked == ErrorCode.MEMBRANE_LOCKED
     assert "membrane_locking_jm" in describe(locked)[0]
 
@@ -450,9 +450,9 @@ def test_the_stable_stretch_solves_the_tangent_limit_of_the_time_step():
     with dt_safety 0.5 is stable to s ≈ 0.73), and an infinite limit gives an infinite s_stable."""
     combined = 2.0 / math.sqrt((2.0 / 3e-5) ** 2 + (2.0 / 6e-5) ** 2)
     critical = {"mesh": 3e-5, "contact": 6e-5, "combined": combined}
-    limit = coupled.membrane_tangent_limit(0.5 * combined, critical)
+    limit = stability.membrane_tangent_limit(0.5 * combined, critical)
     assert limit == pytest.approx(4.0 + 3.0 * 0.25, rel=1e-12)
-    assert coupled.membrane_tangent_limit(1.5e-5, {"mesh": 3e-5, "contact": math.inf}) == pytest.approx(4.0)
+    assert stability.membrane_tangent_limit(1.5e-5, {"mesh": 3e-5, "contact": math.inf}) == pytest.approx(4.0)
     for tangent_limit in (4.0, limit, 40.0):
         stable = energies.stable_locking_ratio(tangent_limit, 97.2)
         assert float(energies.gent_tangent_ratio(stable, 97.2)) == pytest.approx(tangent_limit, rel=1e-9)
@@ -465,7 +465,7 @@ def _held_patch_dynamics():
     """A flat patch, its boundary held, its interior free: the dense M⁻¹K of the free nodes and a leapfrog."""
     mesh = flat_mesh(0.3, 0.2, 0.05)
     free = np.asarray(face_contact.interior_nodes(mesh))
-    mass = np.asarray(energies.lumped_mass(mesh, THICKNESS, coupled.LATEX_DENSITY))
+    mass = np.asarray(energies.lumped_mass(mesh, THICKNESS, LATEX_DENSITY))
     rows = np.repeat(free, 3)
     scale = 1.0 / np.sqrt(np.repeat(mass, 3)[rows])
 
@@ -501,13 +501,13 @@ def test_a_patch_stretched_past_the_stable_stretch_blows_up_and_is_flagged_and_b
       stiffens the patch beyond its rest value by more than that). The patch itself turns unstable
       between s = 0.727 and 0.75 (its ω²(s)/ω₀² is 3.46 and 4.12 there): the rule is conservative;
     - at s = s_stable − 0.05 a 1e-6 perturbation stays below 10× itself over 3000 steps and the check
-      (:func:`coupled.gent_bits`) is clear; at s = 0.85 (k_t/k_0 = 15) it grows past 1e3× (or to inf)
+      (:func:`stability.gent_bits`) is clear; at s = 0.85 (k_t/k_0 = 15) it grows past 1e3× (or to inf)
       within 300 steps, and the check sets ``MEMBRANE_STIFFENED`` (not ``MEMBRANE_LOCKED``: 0.85 < 0.9),
       whose message names the membrane and the fix."""
     mesh, free, omega_squared, leapfrog = _held_patch_dynamics()
     at_rest = omega_squared(mesh.reference_position)
     dt = 0.5 * 2.0 / math.sqrt(at_rest)
-    limit = coupled.membrane_tangent_limit(dt, {"mesh": 2.0 / math.sqrt(at_rest), "contact": math.inf})
+    limit = stability.membrane_tangent_limit(dt, {"mesh": 2.0 / math.sqrt(at_rest), "contact": math.inf})
     assert limit == pytest.approx(4.0, rel=1e-12)
     stable = energies.stable_locking_ratio(limit, 97.2)
     assert stable == pytest.approx(0.72700114, rel=1e-7)
@@ -524,18 +524,18 @@ def test_a_patch_stretched_past_the_stable_stretch_blows_up_and_is_flagged_and_b
     below, past = held(stable - 0.05), held(0.85)
     end = leapfrog(below + noise, dt, 3000)
     assert np.max(np.abs(np.asarray(end - below))) < 10.0 * np.max(np.abs(noise))
-    assert int(coupled.gent_bits(below, mesh, 97.2, limit)) == 0
+    assert int(stability.gent_bits(below, mesh, 97.2, limit)) == 0
     end = np.asarray(leapfrog(past + noise, dt, 300))
     assert not np.all(np.isfinite(end)) or np.max(np.abs(end - np.asarray(past))) > 1e3 * np.max(
         np.abs(noise)
     )
-    flagged = int(coupled.gent_bits(past, mesh, 97.2, limit))
+    flagged = int(stability.gent_bits(past, mesh, 97.2, limit))
     assert flagged == ErrorCode.MEMBRANE_STIFFENED
     assert "membrane stiffened" in describe(flagged)[0] and "dt_safety" in describe(flagged)[0]
 
 
 def test_the_stiffening_check_under_jit_and_vmap_over_the_lock():
-    """:func:`coupled.gent_bits` jitted and vmapped over J_m on one stretched patch (s = e/J_m, e its
+    """:func:`stability.gent_bits` jitted and vmapped over J_m on one stretched patch (s = e/J_m, e its
     largest I₁ − 3) equals the loop and the rule: clear below s_stable, ``MEMBRANE_STIFFENED`` between
     s_stable and 0.9, both bits past 0.9; the threshold follows J_m (traced) through the closed form."""
     mesh = _patch()
@@ -549,12 +549,12 @@ def test_the_stiffening_check_under_jit_and_vmap_over_the_lock():
         for r, s in zip(ratios, stable, strict=True)
     ]
     assert expected[0] == 0 and expected[1] == ErrorCode.MEMBRANE_STIFFENED
-    batched = jax.jit(jax.vmap(lambda jm: coupled.gent_bits(position, mesh, jm, limit)))(excess / ratios)
+    batched = jax.jit(jax.vmap(lambda jm: stability.gent_bits(position, mesh, jm, limit)))(excess / ratios)
     assert [int(b) for b in batched] == [int(e) for e in expected]
-    assert [int(coupled.gent_bits(position, mesh, excess / r, limit)) for r in ratios] == [
+    assert [int(stability.gent_bits(position, mesh, excess / r, limit)) for r in ratios] == [
         int(e) for e in expected
     ]
-    assert int(coupled.gent_bits(position, mesh, excess / 0.8, math.inf)) == 0  # no limit: nothing checked
+    assert int(stability.gent_bits(position, mesh, excess / 0.8, math.inf)) == 0  # no limit: nothing checked
 
 
 def test_a_coupled_gent_membrane_past_the_stable_stretch_stops_with_the_named_error():
@@ -577,11 +577,11 @@ def test_a_coupled_gent_membrane_past_the_stable_stretch_stops_with_the_named_er
         dem=DEMParams(contact=ContactParams.paper(), damping=DampingParams.local(0.3)),
         membrane=coupled.MembraneParams.create(thickness=THICKNESS, cell_pressure=0.0, modulus=MODULUS),
     )
-    critical = coupled.membrane_critical_time_step(
+    critical = stability.membrane_critical_time_step(
         mesh, params.membrane, contacts_per_node=0, stretching_model="gent"
     )
     dt = 0.5 * critical["mesh"]
-    limit = coupled.membrane_tangent_limit(dt, critical)
+    limit = stability.membrane_tangent_limit(dt, critical)
     assert limit == pytest.approx(4.0, rel=1e-12)
     dem_init, _ = sphere_dem(particles, frame, dt)
     init_fn, step_fn = coupled.membrane_dem(

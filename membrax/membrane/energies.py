@@ -181,7 +181,7 @@ def locking_ratio(position, mesh: MembraneMesh, locking_jm):
 
     Past :data:`membrax.defaults.GENT_LOCK_FRACTION` the Gent energy is its continuation, no longer Gent's
     (:func:`stretching_energy`); the coupled step checks it every ``LOCK_CHECK_EVERY`` steps
-    (:func:`membrax.membrane.coupled.locked_bit`, ``ErrorCode.MEMBRANE_LOCKED``).
+    (:func:`membrax.membrane.stability.locked_bit`, ``ErrorCode.MEMBRANE_LOCKED``).
 
     Args:
       position: (N, 3) node positions, m.
@@ -265,7 +265,7 @@ def stable_locking_ratio(tangent_limit, locking_jm) -> float:
     s_stable solves k_t(s)/k_0 = r_max on the stiffening branch of :func:`gent_tangent_ratio` (the ratio
     first falls below 1, then rises without bound: s_stable is the crossing past its minimum), by bisection
     in float64 to 1e-12. r_max is the step's limit, (Δt_crit,mesh/Δt)² − (Δt_crit,mesh/Δt_crit,contact)²
-    (:func:`membrax.membrane.coupled.membrane_tangent_limit`); with dt_safety 0.5 and negligible contact
+    (:func:`membrax.membrane.stability.membrane_tangent_limit`); with dt_safety 0.5 and negligible contact
     r_max = 4, s_stable = 0.73 at J_m = 97.2. Returns ``inf`` for an infinite limit and 0 for a limit below
     the ratio's minimum (no stretch is safe).
 

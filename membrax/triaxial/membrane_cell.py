@@ -21,11 +21,11 @@ with a leading time axis):
   counts of every phase (:mod:`membrax.runner` runs them, with checkpoints and resume within a phase).
 
 Time step: Δt = ``dt_safety`` × min(Δt_crit of the DEM, Δt_crit of the membrane with its contacts,
-:func:`membrax.membrane.coupled.membrane_critical_time_step`); both are kept in ``critical_dt``. Those are the
-rest stiffness's; under the Gent law the step is checked against the stiffening toward the lock: the
-coupled step sets ``ErrorCode.MEMBRANE_STIFFENED`` once the largest (I₁ − 3)/J_m passes
+:func:`membrax.membrane.stability.membrane_critical_time_step`); both are kept in ``critical_dt``.
+Those are the rest stiffness's; under the Gent law the step is checked against the stiffening toward the
+lock: the coupled step sets ``ErrorCode.MEMBRANE_STIFFENED`` once the largest (I₁ − 3)/J_m passes
 s_stable (:attr:`MembraneTest.stable_locking_ratio`, from
-:func:`membrax.membrane.coupled.membrane_tangent_limit`), and the run stops with a
+:func:`membrax.membrane.stability.membrane_tangent_limit`), and the run stops with a
 :class:`membrax.errors.SimulationError` naming the stretch reached, s_stable and the fix. The membrane
 may touch any sphere (the candidate search runs over all of them through a cell list,
 :func:`membrax.membrane.candidates.build_candidates`). Units: the builder takes laboratory units (kPa, mm),
@@ -41,24 +41,22 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from membrax.defaults import GENT_LOCKING_JM, MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
+from membrax.defaults import GENT_LOCKING_JM, LATEX_DENSITY, MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
 from membrax.driver import ChunkRunner
 from membrax.errors import ErrorCode
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import (
-    LATEX_DENSITY,
     CoupledParams,
     CoupledState,
     MembraneParams,
     grow_candidates,
     grown_candidate_capacities,
-    membrane_critical_time_step,
     membrane_dem,
-    membrane_tangent_limit,
 )
 from membrax.membrane.energies import locking_ratio, stable_locking_ratio
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, inner_volume, prism_mesh
 from membrax.membrane.records import measure_coupled
+from membrax.membrane.stability import membrane_critical_time_step, membrane_tangent_limit
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.fcc import Specimen
 from membrax.spheres.grading import RandomSpecimen
@@ -114,7 +112,7 @@ class MembraneTest(StagedTest):
     #: ``make_record(mesh, initial_volume) -> record_fn(state, params)``: the measurements around such a mesh.
     make_record: object = None
     #: r_max, the largest Gent tangent ratio k_t/k_0 that ``dt`` tolerates
-    #: (:func:`membrax.membrane.coupled.membrane_tangent_limit`; ``inf`` under the other laws, unchecked).
+    #: (:func:`membrax.membrane.stability.membrane_tangent_limit`; ``inf`` under the other laws, unchecked).
     tangent_limit: float = math.inf
     #: s_stable, the largest (I₁ − 3)/J_m the step tolerates under the Gent law
     #: (:func:`membrax.membrane.energies.stable_locking_ratio`; ``inf`` under the other laws).
