@@ -47,3 +47,28 @@ def central_difference(function, args, index, relative_step=1e-6):
 def assert_close(actual, expected, rtol=1e-4, atol=0.0, what=""):
     """np.testing.assert_allclose with a message."""
     np.testing.assert_allclose(np.asarray(actual, dtype=float), expected, rtol=rtol, atol=atol, err_msg=what)
+
+
+def clamped_cylinder_parts(radius: float, height: float, edge: float, box: float = 2.0):
+    """A membrane cylinder between two fixed platens with two small spheres inside that touch nothing.
+
+    Returns (mesh, sphere positions, particles, neighbour frame, walls): the parts the clamped-cylinder tests
+    (test_membrane_dem, test_membrane_laws) build their coupled step from; ``box`` is the frame's half-width
+    in radii.
+    """
+    import jax.numpy as jnp
+
+    from membrax.membrane.mesh import cylinder_mesh
+    from membrax.spheres.integrate import make_particles
+    from membrax.spheres.neighbors import pair_neighbor_fn
+    from membrax.spheres.walls import triaxial_walls
+
+    mesh = cylinder_mesh(radius, height, edge)
+    spheres = jnp.asarray([[-0.3 * radius, 0.0, 0.5 * height], [0.3 * radius, 0.0, 0.5 * height]])
+    particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
+    frame = pair_neighbor_fn(
+        np.full(3, -box * radius), np.array([box, box, height / radius + 1.0]) * radius, 0.2 * radius, 0.02, 0
+    )
+    walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), height)
+    walls = walls.set(servo=jnp.zeros(walls.servo.shape, bool))
+    return mesh, spheres, particles, frame, walls

@@ -5,6 +5,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from helpers import clamped_cylinder_parts
 
 from membrax.defaults import LATEX_DENSITY
 from membrax.membrane import coupled as membrane_dem
@@ -16,20 +17,12 @@ from membrax.spheres import fcc
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
 from membrax.spheres.neighbors import pair_neighbor_fn
-from membrax.spheres.walls import triaxial_walls
 from membrax.triaxial.membrane_cell import membrane_test
 
 
 def _clamped_cylinder(radius, height, edge, modulus, thickness, cell_pressure, damping):
     """A membrane cylinder clamped to two fixed platens, two small spheres inside that touch nothing."""
-    mesh = cylinder_mesh(radius, height, edge)
-    spheres = jnp.asarray([[-0.3 * radius, 0.0, 0.5 * height], [0.3 * radius, 0.0, 0.5 * height]])
-    particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
-    frame = pair_neighbor_fn(
-        np.full(3, -2.0 * radius), np.array([2.0, 2.0, height / radius + 1.0]) * radius, 0.2 * radius, 0.02, 0
-    )
-    walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), height)
-    walls = walls.set(servo=jnp.zeros(walls.servo.shape, bool))
+    mesh, spheres, particles, frame, walls = clamped_cylinder_parts(radius, height, edge)
     params = membrane_dem.CoupledParams(
         dem=DEMParams(contact=ContactParams.paper(), damping=damping),
         membrane=membrane_dem.MembraneParams(

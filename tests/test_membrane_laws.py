@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from helpers import ACCUMULATED, SMALL_MEMBRANE_TEST, central_difference, tolerance
+from helpers import ACCUMULATED, SMALL_MEMBRANE_TEST, central_difference, clamped_cylinder_parts, tolerance
 
 from membrax import assemble, native, theory
 from membrax.config import with_overrides
@@ -24,9 +24,7 @@ from membrax.errors import ErrorCode, SimulationError, describe
 from membrax.membrane import coupled, energies, face_contact, stability
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, flat_mesh, free_node_mask, green_strain
 from membrax.spheres.contact import ContactParams
-from membrax.spheres.integrate import DampingParams, DEMParams, make_particles, sphere_dem
-from membrax.spheres.neighbors import pair_neighbor_fn
-from membrax.spheres.walls import triaxial_walls
+from membrax.spheres.integrate import DampingParams, DEMParams, sphere_dem
 
 MODULUS, THICKNESS = 1.4e6, 2e-3
 SHEAR = MODULUS / 3.0
@@ -565,14 +563,9 @@ def test_a_coupled_gent_membrane_past_the_stable_stretch_stops_with_the_named_er
     for 0.85 alone; through the chunk driver the 0.85 run stops with a SimulationError naming the membrane
     and the fix, the 0.3 run takes its 40 steps finite and clear."""
     radius, height = 0.1, 0.2
-    mesh = cylinder_mesh(radius, height, 2 * np.pi * radius / 12)
-    spheres = jnp.asarray([[-0.3 * radius, 0.0, 0.5 * height], [0.3 * radius, 0.0, 0.5 * height]])
-    particles = make_particles(jnp.full(2, 0.1 * radius), 2650.0)
-    frame = pair_neighbor_fn(
-        np.full(3, -3.0 * radius), np.array([3.0, 3.0, height / radius + 1.0]) * radius, 0.2 * radius, 0.02, 0
+    mesh, spheres, particles, frame, walls = clamped_cylinder_parts(
+        radius, height, 2 * np.pi * radius / 12, box=3.0
     )
-    walls = triaxial_walls(np.zeros((0, 2)), np.zeros(0), height)
-    walls = walls.set(servo=jnp.zeros(walls.servo.shape, bool))
     params = coupled.CoupledParams(
         dem=DEMParams(contact=ContactParams.paper(), damping=DampingParams.local(0.3)),
         membrane=coupled.MembraneParams.create(thickness=THICKNESS, cell_pressure=0.0, modulus=MODULUS),
