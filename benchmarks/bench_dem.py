@@ -15,7 +15,7 @@ Run: ``python benchmarks/bench_dem.py [--width 10 --layers 25 --steps 500]`` (â‰
 
 import resource
 
-from harness import benchmark_parser, benchmark_rows, print_table, timed
+from harness import benchmark_parser, benchmark_report, timed
 
 CASES = 9
 
@@ -126,21 +126,25 @@ def main():
     parser.add_argument("--width", type=int, default=10)
     parser.add_argument("--layers", type=int, default=25)
     parser.add_argument("--steps", type=int, default=500)
-    _, rows = benchmark_rows(__file__, parser, measure)
-    if rows is None:
-        return
-    first = rows[0]
-    print(
-        f"DEM benchmark: {first['particles']} spheres, {first['pairs']} pair slots, "
-        f"dt = {first['dt']:.3e} s, "
-        f"device {first['device']}, {CASES}-case batch"
-    )
-    print_table(
-        rows,
+
+    def caption(_, first):
+        return (
+            f"DEM benchmark: {first['particles']} spheres, {first['pairs']} pair slots, "
+            f"dt = {first['dt']:.3e} s, "
+            f"device {first['device']}, {CASES}-case batch"
+        )
+
+    rows = benchmark_report(
+        __file__,
+        parser,
+        measure,
+        caption,
         "compile s|steps/s|particle-steps/s|9 serial|folded|map|vmap|peak MB",
         "{compile_s:>10.1f}{steps_per_s:>9.0f}{particle_steps_per_s:>18.3e}{serial_sim_steps_per_s:>10.0f}"
         "{folded_sim_steps_per_s:>9.0f}{map_sim_steps_per_s:>8.0f}{vmap_sim_steps_per_s:>8.0f}{peak_memory_mb:>9.0f}",
     )
+    if rows is None:
+        return
     print("9 serial / folded / map / vmap: simulation steps per second over the 9 cases (higher is better).")
 
 

@@ -37,7 +37,7 @@ XLA's alone.
 
 import resource
 
-from harness import benchmark_parser, benchmark_rows, best_of, print_table, time_coupled_steps, timed
+from harness import benchmark_parser, benchmark_report, best_of, time_coupled_steps, timed
 
 
 def measure(
@@ -164,18 +164,21 @@ def main():
         default="nodes",
         help="where the coupled step's spheres meet the membrane (the other columns: the node law's)",
     )
-    args, rows = benchmark_rows(__file__, parser, measure)
-    if rows is None:
-        return
-    first = rows[0]
-    print(
-        f"membrane benchmark ({args.packing}, {args.contact_model} contact): {first['nodes']} nodes, "
-        f"{first['triangles']} triangles, "
-        f"{first['spheres']} spheres (cell list: {first['cell_capacity']} per cell), K = {first['capacity']} "
-        f"(max candidates found {first['max_candidates']}); CPU kernels: {first['kernels']}"
-    )
-    print_table(
-        rows,
+
+    def caption(args, first):
+        return (
+            f"membrane benchmark ({args.packing}, {args.contact_model} contact): {first['nodes']} nodes, "
+            f"{first['triangles']} triangles, "
+            f"{first['spheres']} spheres (cell list: {first['cell_capacity']} per cell), "
+            f"K = {first['capacity']} (max candidates found {first['max_candidates']}); "
+            f"CPU kernels: {first['kernels']}"
+        )
+
+    benchmark_report(
+        __file__,
+        parser,
+        measure,
+        caption,
         "compile s|membrane/s|contact/s|both/s|rebuild ms|step/s|particle-steps/s|peak MB",
         "{compile_s:>10.1f}{membrane_forces_per_s:>11.0f}{contact_forces_per_s:>10.0f}{combined_per_s:>8.0f}"
         "{rebuild_ms:>11.0f}{coupled_steps_per_s:>8.1f}{coupled_particle_steps_per_s:>17.3g}{peak_memory_mb:>9.0f}",

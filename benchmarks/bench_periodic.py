@@ -19,7 +19,7 @@ Run: ``python benchmarks/bench_periodic.py [--members 4] [--particles 500] [--st
 """
 
 import numpy as np
-from harness import batch_columns, benchmark_parser, benchmark_rows, print_table, time_one_by_one, timed
+from harness import batch_columns, benchmark_parser, benchmark_report, time_one_by_one, timed
 
 
 def measure(dtype: str, members: int, particles: int, steps: int, mode: str, cpu_devices: int) -> dict:
@@ -80,16 +80,19 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--mode", default="", help="map or vmap (default: by backend)")
     parser.add_argument("--cpu-devices", type=int, default=0, help="CPU devices (default: one per core)")
-    _, rows = benchmark_rows(__file__, parser, measure)
-    if rows is None:
-        return
-    first = rows[0]
-    print(
-        f"{first['members']} periodic elements of {first['spheres']} spheres, {first['steps']} consolidation "
-        f"steps each, {first['backend']} ×{first['devices']} ({first['mode']}); steps/s per member:"
-    )
-    print_table(
-        rows,
+
+    def caption(_, first):
+        return (
+            f"{first['members']} periodic elements of {first['spheres']} spheres, "
+            f"{first['steps']} consolidation steps each, {first['backend']} ×{first['devices']} "
+            f"({first['mode']}); steps/s per member:"
+        )
+
+    benchmark_report(
+        __file__,
+        parser,
+        measure,
+        caption,
         "batched|one by one|batched / one by one|batched compile s|one by one compile s",
         "{batched_steps_per_s:>9.0f}{serial_steps_per_s:>12.0f}{speedup:>22.2f}{batched_compile_s:>19.1f}"
         "{serial_compile_s:>22.1f}",

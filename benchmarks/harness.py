@@ -54,6 +54,22 @@ def benchmark_rows(script: str, parser: argparse.ArgumentParser, measure, flags=
     return args, run_each_dtype(script, options, tuple(args.dtypes.split(",")))
 
 
+def benchmark_report(
+    script: str, parser: argparse.ArgumentParser, measure, caption, titles: str, row_format: str
+) -> list[dict] | None:
+    """A benchmark's main: its rows (:func:`benchmark_rows`), a caption and the table (:func:`print_table`).
+
+    ``caption(args, first_row)`` is the line printed above the table; ``titles`` and ``row_format`` are
+    :func:`print_table`'s. Returns the rows, or None in a child process (the caller returns).
+    """
+    args, rows = benchmark_rows(script, parser, measure)
+    if rows is None:
+        return None
+    print(caption(args, rows[0]))
+    print_table(rows, titles, row_format)
+    return rows
+
+
 def timed(function, *args):
     """(result, seconds) of one call, waiting for the device."""
     import jax
