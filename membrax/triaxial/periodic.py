@@ -586,26 +586,17 @@ class PeriodicTest(StagedTest):
         rate = self.shear_rate(coarse_inertial_number)
         return self.control(state, [True, True, False], [0.0, 0.0, -rate])
 
-    def shear_plan(
-        self,
-        target_axial_strain: float = 0.10,
-        inertial_number: float = 1e-3,
-        fine_until_strain: float = 0.01,
-        ramp_strain: float | None = None,
-        coarse_inertial_number: float | None = None,
+    def steps_at_rates(
+        self, target_axial_strain, fine_until_strain, ramp_strain, fine_rate, coarse_rate
     ) -> tuple[int, int]:
-        """Steps of the two recording phases of stage 2: (fine, coarse).
+        """:meth:`shear_plan`'s (fine, coarse) steps at the strain rates ``fine_rate`` and ``coarse_rate``.
 
         At a constant ε̇ = L̇/L the engineering strain ε = 1 − Lz/Lz0 reaches ε after −ln(1 − ε)/(ε̇ Δt)
-        steps; the coarse phase runs at ``coarse_inertial_number``'s rate (None: ``inertial_number``'s).
-        ``ramp_strain`` is not used (class docstring).
+        steps; the coarse phase runs at ``coarse_rate`` (None: ``fine_rate``). ``ramp_strain`` is not used
+        (class docstring).
         """
         del ramp_strain
-        check_range(
-            "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
-        )
-        fine_rate = self.shear_rate(inertial_number)
-        coarse_rate = fine_rate if coarse_inertial_number is None else self.shear_rate(coarse_inertial_number)
+        coarse_rate = fine_rate if coarse_rate is None else coarse_rate
         fine_strain = min(fine_until_strain, target_axial_strain)
         fine = math.ceil(-math.log1p(-fine_strain) / (fine_rate * self.dt))
         rest = -math.log1p(-target_axial_strain) + math.log1p(-fine_strain)

@@ -144,19 +144,32 @@ class StagedTest:
     ) -> tuple[int, int]:
         """Steps of the two recording phases of stage 2: (fine, coarse).
 
-        Axial strain counts from the start of shearing: at full speed the platens close ε̇ H Δt per step, so
-        ε_a reaches ``fine_until_strain`` after (ε + ε_ramp)/(ε̇ Δt) steps (the ramp delays it by ε_ramp/ε̇,
-        :func:`membrax.driver.two_rate_plan`) and the target after the rest, at the strain rate of
-        ``coarse_inertial_number`` (None: ``inertial_number``) once the speed has changed over ε_ramp.
+        The fine phase runs at the strain rate of ``inertial_number`` to ``fine_until_strain``, the coarse
+        phase at that of ``coarse_inertial_number`` (None: ``inertial_number``'s) to the target; how many
+        steps a strain takes is the cell's (:meth:`steps_at_rates`).
         """
         check_range(
             "target_axial_strain", target_axial_strain, lower=0.0, upper=1.0, lower_open=True, upper_open=True
         )
+        fine_rate = self.shear_rate(inertial_number)
+        coarse_rate = None if coarse_inertial_number is None else self.shear_rate(coarse_inertial_number)
+        return self.steps_at_rates(
+            target_axial_strain, fine_until_strain, ramp_strain, fine_rate, coarse_rate
+        )
+
+    def steps_at_rates(
+        self, target_axial_strain, fine_until_strain, ramp_strain, fine_rate, coarse_rate
+    ) -> tuple[int, int]:
+        """:meth:`shear_plan`'s (fine, coarse) steps at the strain rates ``fine_rate`` and ``coarse_rate``.
+
+        Axial strain counts from the start of shearing: at full speed the platens close ε̇ H Δt per step, so
+        ε_a reaches ``fine_until_strain`` after (ε + ε_ramp)/(ε̇ Δt) steps (the ramp delays it by ε_ramp/ε̇,
+        :func:`membrax.driver.two_rate_plan`) and the target after the rest, at ``coarse_rate`` (None:
+        ``fine_rate``) once the speed has changed over ε_ramp (``ramp_strain``, None: the cell's default).
+        """
         ramp = self.default_ramp_strain if ramp_strain is None else ramp_strain
-        steps_per_strain = 1.0 / (self.shear_rate(inertial_number) * self.dt)
-        coarse_steps_per_strain = None
-        if coarse_inertial_number is not None:
-            coarse_steps_per_strain = 1.0 / (self.shear_rate(coarse_inertial_number) * self.dt)
+        steps_per_strain = 1.0 / (fine_rate * self.dt)
+        coarse_steps_per_strain = None if coarse_rate is None else 1.0 / (coarse_rate * self.dt)
         return two_rate_plan(
             steps_per_strain, target_axial_strain, fine_until_strain, ramp, coarse_steps_per_strain
         )
