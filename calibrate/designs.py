@@ -50,56 +50,28 @@ __all__ = [
 #: Cell pressures (kPa), membrane thicknesses (mm) and moduli (kPa) of the calibration grid.
 _PRESSURES = (10.0, 40.0, 100.0)
 
+
+def _grid(pressures, thicknesses, moduli=None) -> dict:
+    """A ``membrax sweep`` grid: cell pressures (kPa), membrane thicknesses (mm) and, given, moduli (kPa)."""
+    grid = {"cell_pressure_kpa": pressures, "membrane_thickness_mm": thicknesses}
+    return grid if moduli is None else {**grid, "membrane_modulus_kpa": moduli}
+
+
 #: group → (specimen fields, sweep grid). D/D_s = 1/5.7, 1/7.4, 1/10 (module docstring).
 CALIBRATION = {
-    "d6": (
-        {"particles_across": 6, "layers": 10},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (1.0, 3.0, 5.0),
-            "membrane_modulus_kpa": (1400.0, 2800.0),
-        },
-    ),
+    "d6": ({"particles_across": 6, "layers": 10}, _grid(_PRESSURES, (1.0, 3.0, 5.0), (1400.0, 2800.0))),
     # The softest membrane without its thinnest: at 100 kPa a 1 mm sheet of 700 kPa is above its inflation
     # limit over the lattice's windows (82.7 kPa, membrax.config.inflation_ratio) and is refused.
-    "d6_soft": (
-        {"particles_across": 6, "layers": 10},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (3.0, 5.0),
-            "membrane_modulus_kpa": (700.0,),
-        },
-    ),
+    "d6_soft": ({"particles_across": 6, "layers": 10}, _grid(_PRESSURES, (3.0, 5.0), (700.0,))),
     # 2 mm rather than 1 mm: at 100 kPa a 1 mm sheet of 1400 kPa (α/D = 0.38, 0.60 of its inflation limit)
     # went non-finite in shearing on the 8-across specimen as the lattice's windows opened (docs/model.md).
-    "d8": (
-        {"particles_across": 8, "layers": 13},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (2.0, 5.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
-    ),
-    "d10": (
-        {"particles_across": 10, "layers": 17},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (2.0, 5.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
-    ),
+    "d8": ({"particles_across": 8, "layers": 13}, _grid(_PRESSURES, (2.0, 5.0), (1400.0,))),
+    "d10": ({"particles_across": 10, "layers": 17}, _grid(_PRESSURES, (2.0, 5.0), (1400.0,))),
 }
 
 #: Members off every grid line, for the held-out comparison (module docstring).
 HELD_OUT = {
-    "d7": (
-        {"particles_across": 7, "layers": 12},
-        {
-            "cell_pressure_kpa": (25.0, 70.0),
-            "membrane_thickness_mm": (2.0, 4.0),
-            "membrane_modulus_kpa": (1000.0, 2000.0),
-        },
-    ),
+    "d7": ({"particles_across": 7, "layers": 12}, _grid((25.0, 70.0), (2.0, 4.0), (1000.0, 2000.0))),
 }
 
 
@@ -113,59 +85,18 @@ _LOOSE = "loose"
 #: --grading ballast [--state loose] --seeds 1``). Seed 0 everywhere: the seeds of the held-out members
 #: are 1.
 RANDOM_CALIBRATION = {
-    "r6": (
-        {"mould": (150.0, 250.0)},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (2.0, 3.0, 5.0),
-            "membrane_modulus_kpa": (1400.0, 2800.0),
-        },
-    ),
+    "r6": ({"mould": (150.0, 250.0)}, _grid(_PRESSURES, (2.0, 3.0, 5.0), (1400.0, 2800.0))),
     # 1 mm sheets of 2800 kPa: 0.30 of their inflation limit at 100 kPa over 25 mm spheres' windows
     # (membrax.config.inflation_ratio); 1 mm of 1400 kPa is at 0.60, where FCC runs went non-finite.
-    "r6_thin": (
-        {"mould": (150.0, 250.0)},
-        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (1.0,), "membrane_modulus_kpa": (2800.0,)},
-    ),
-    "r6_soft": (
-        {"mould": (150.0, 250.0)},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (3.0, 5.0),
-            "membrane_modulus_kpa": (700.0,),
-        },
-    ),
-    "r6_loose": (
-        {"mould": (150.0, 250.0), "state": _LOOSE},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (2.0, 5.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
-    ),
-    "r8": (
-        {"mould": (200.0, 270.0)},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (2.0, 5.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
-    ),
-    "r10": (
-        {"mould": (250.0, 320.0)},
-        {
-            "cell_pressure_kpa": _PRESSURES,
-            "membrane_thickness_mm": (2.0, 5.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
-    ),
-    "g6": (
-        {"mould": (150.0, 250.0), "grading": "ballast"},
-        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (2.5, 3.33, 5.0)},
-    ),
+    "r6_thin": ({"mould": (150.0, 250.0)}, _grid(_PRESSURES, (1.0,), (2800.0,))),
+    "r6_soft": ({"mould": (150.0, 250.0)}, _grid(_PRESSURES, (3.0, 5.0), (700.0,))),
+    "r6_loose": ({"mould": (150.0, 250.0), "state": _LOOSE}, _grid(_PRESSURES, (2.0, 5.0), (1400.0,))),
+    "r8": ({"mould": (200.0, 270.0)}, _grid(_PRESSURES, (2.0, 5.0), (1400.0,))),
+    "r10": ({"mould": (250.0, 320.0)}, _grid(_PRESSURES, (2.0, 5.0), (1400.0,))),
+    "g6": ({"mould": (150.0, 250.0), "grading": "ballast"}, _grid(_PRESSURES, (2.5, 3.33, 5.0))),
     "g6_loose": (
         {"mould": (150.0, 250.0), "grading": "ballast", "state": _LOOSE},
-        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (2.5, 3.33, 5.0)},
+        _grid(_PRESSURES, (2.5, 3.33, 5.0)),
     ),
 }
 
@@ -175,28 +106,13 @@ RANDOM_CALIBRATION = {
 RANDOM_HELD_OUT = {
     "g6_held": (
         {"mould": (150.0, 250.0), "grading": "ballast", "seed": 1},
-        {
-            "cell_pressure_kpa": (25.0, 70.0),
-            "membrane_thickness_mm": (4.0,),
-            "membrane_modulus_kpa": (2000.0,),
-        },
+        _grid((25.0, 70.0), (4.0,), (2000.0,)),
     ),
     "g6_loose_held": (
         {"mould": (150.0, 250.0), "grading": "ballast", "state": _LOOSE, "seed": 1},
-        {
-            "cell_pressure_kpa": (25.0, 70.0),
-            "membrane_thickness_mm": (4.0,),
-            "membrane_modulus_kpa": (1000.0,),
-        },
+        _grid((25.0, 70.0), (4.0,), (1000.0,)),
     ),
-    "r7_held": (
-        {"mould": (175.0, 250.0), "seed": 1},
-        {
-            "cell_pressure_kpa": (25.0, 70.0),
-            "membrane_thickness_mm": (4.0,),
-            "membrane_modulus_kpa": (2000.0,),
-        },
-    ),
+    "r7_held": ({"mould": (175.0, 250.0), "seed": 1}, _grid((25.0, 70.0), (4.0,), (2000.0,))),
 }
 
 #: The loading rate and membrane resolution, checked rather than assumed: the r6 group's Table 1 members
@@ -206,7 +122,7 @@ RANDOM_HELD_OUT = {
 PROTOCOL_CHECK = {
     "r6_paper_protocol": (
         {"mould": (150.0, 250.0), "protocol": "paper"},
-        {"cell_pressure_kpa": _PRESSURES, "membrane_thickness_mm": (2.5, 3.33, 5.0)},
+        _grid(_PRESSURES, (2.5, 3.33, 5.0)),
     ),
 }
 
@@ -220,11 +136,7 @@ def _lab_group(mould, grid, seeds=LAB_SEEDS, **specimen):
 
 
 #: Two membranes per group and two moduli on the reference one: the Table 1 pressures.
-_LAB_GRID = {
-    "cell_pressure_kpa": _PRESSURES,
-    "membrane_thickness_mm": (2.0, 5.0),
-    "membrane_modulus_kpa": (1400.0,),
-}
+_LAB_GRID = _grid(_PRESSURES, (2.0, 5.0), (1400.0,))
 
 #: group → (specimen fields, sweep grid) at a laboratory's geometry and the paper's protocol (I = 1e-3,
 #: membrane edge D/5): moulds of H/D = 2 (one group at 2.5), 150–300 mm across (D/D_s = 1/6–1/12 for equal
@@ -238,22 +150,15 @@ LAB_CALIBRATION = {
     f"{name}_s{seed}": item
     for name, groups in {
         # 1 mm of 2800 kPa: E_m t_m as 2 mm of 1400, half as thick (0.30 of the inflation limit at 100 kPa).
-        "e6_thin": _lab_group(
-            (150.0, 300.0), {**_LAB_GRID, "membrane_thickness_mm": (1.0,), "membrane_modulus_kpa": (2800.0,)}
-        ),
+        "e6_thin": _lab_group((150.0, 300.0), _grid(_PRESSURES, (1.0,), (2800.0,))),
         "n6": _lab_group((150.0, 300.0), _LAB_GRID, grading="narrow"),
         "n6_loose": _lab_group((150.0, 300.0), _LAB_GRID, grading="narrow", state=_LOOSE),
         "e6_loose": _lab_group((150.0, 300.0), _LAB_GRID, state=_LOOSE),
         "e6_medium": _lab_group((150.0, 300.0), _LAB_GRID, state="medium"),
         "e6_h25": _lab_group((150.0, 375.0), _LAB_GRID),
         "e8": _lab_group((200.0, 400.0), _LAB_GRID),
-        "g6": _lab_group(
-            (150.0, 300.0), {**_LAB_GRID, "membrane_thickness_mm": (2.5, 5.0)}, grading="ballast"
-        ),
-        "e6": _lab_group(
-            (150.0, 300.0),
-            {**_LAB_GRID, "membrane_thickness_mm": (2.0, 3.0, 5.0), "membrane_modulus_kpa": (1400.0, 2800.0)},
-        ),
+        "g6": _lab_group((150.0, 300.0), _grid(_PRESSURES, (2.5, 5.0), (1400.0,)), grading="ballast"),
+        "e6": _lab_group((150.0, 300.0), _grid(_PRESSURES, (2.0, 3.0, 5.0), (1400.0, 2800.0))),
         "e10": _lab_group((250.0, 500.0), _LAB_GRID),
         "e12": _lab_group((300.0, 600.0), _LAB_GRID),
     }.items()
@@ -266,35 +171,19 @@ LAB_CALIBRATION = {
 LAB_HELD_OUT = {
     "e7_medium_held": (
         {"mould": (175.0, 350.0), "protocol": "paper", "seed": 1, "state": "medium"},
-        {
-            "cell_pressure_kpa": (15.0, 50.0, 80.0),
-            "membrane_thickness_mm": (1.5, 4.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
+        _grid((15.0, 50.0, 80.0), (1.5, 4.0), (1400.0,)),
     ),
     "e10_held": (
         {"mould": (250.0, 500.0), "protocol": "paper", "seed": 3},
-        {
-            "cell_pressure_kpa": (25.0, 70.0),
-            "membrane_thickness_mm": (1.5, 4.0),
-            "membrane_modulus_kpa": (2000.0,),
-        },
+        _grid((25.0, 70.0), (1.5, 4.0), (2000.0,)),
     ),
     "n7_loose_held": (
         {"mould": (175.0, 350.0), "protocol": "paper", "seed": 1, "grading": "narrow", "state": _LOOSE},
-        {
-            "cell_pressure_kpa": (15.0, 50.0),
-            "membrane_thickness_mm": (1.5, 4.0),
-            "membrane_modulus_kpa": (1000.0,),
-        },
+        _grid((15.0, 50.0), (1.5, 4.0), (1000.0,)),
     ),
     "g6_medium_held": (
         {"mould": (150.0, 300.0), "protocol": "paper", "seed": 1, "grading": "ballast", "state": "medium"},
-        {
-            "cell_pressure_kpa": (25.0, 70.0),
-            "membrane_thickness_mm": (1.5, 4.0),
-            "membrane_modulus_kpa": (1400.0,),
-        },
+        _grid((25.0, 70.0), (1.5, 4.0), (1400.0,)),
     ),
 }
 
