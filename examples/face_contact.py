@@ -20,7 +20,6 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from membrax.membrane import measure  # noqa: E402
 from membrax.spheres import fcc  # noqa: E402
 from membrax.triaxial.membrane_cell import membrane_test  # noqa: E402
 
@@ -43,13 +42,7 @@ for model in ("nodes", "faces"):
         state, records = test.consolidate(max_steps=3000, chunk_steps=1000, record_every=100, tolerance=0.01)
         if int(state.error):
             raise SystemExit(f"{model}, D/{edges_per_diameter:g}: error bits {int(state.error)}")
-        penetration = measure.max_sphere_penetration(
-            state.membrane.position,
-            test.mesh.triangles,
-            state.dem.position,
-            test.particles.radius,
-            state.membrane.candidates.idx,
-        )
+        penetration = test.max_penetration(state)
         print(
             f"{model:>8}{f'D/{edges_per_diameter:g}':>11}{test.mesh.num_nodes:>7}"
             f"{-1e3 * float(penetration):>21.2f}{float(records.internal_radial_stress[-1, 0]) / 1e3:>19.2f}"

@@ -101,7 +101,6 @@ def main():
     if not args.redraw:
         from tqdm import tqdm
 
-        from membrax.membrane import measure as membrane_measure
         from membrax.spheres import fcc
         from membrax.triaxial import membrane_cell as membrane_triaxial
 
@@ -131,13 +130,7 @@ def main():
             on_chunk=progress,
         )
         bar.close()
-        penetration = membrane_measure.max_sphere_penetration(
-            state.membrane.position,
-            test.mesh.triangles,
-            state.dem.position,
-            test.particles.radius,
-            state.membrane.candidates.idx,
-        )
+        penetration = test.max_penetration(state)
         np.savez(
             state_file,
             sphere=np.asarray(state.dem.position),

@@ -10,7 +10,6 @@ from helpers import clamped_cylinder_parts
 from membrax.defaults import LATEX_DENSITY
 from membrax.membrane import coupled as membrane_dem
 from membrax.membrane import energies, stability
-from membrax.membrane import measure as membrane_measure
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import cylinder_mesh, free_node_mask
 from membrax.spheres import fcc
@@ -157,15 +156,7 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
     assert abs(platen_force[0] - platen_force[1] + sphere_force[2]) < 0.01 * load
     # The servo holds the ram (spheres + the membrane's pull on the platen) at p A, not the sphere force.
     assert abs(float(records.ram_force[-1, 0]) / load - 1.0) < 0.01
-    penetration = float(
-        membrane_measure.max_sphere_penetration(
-            state.membrane.position,
-            test.mesh.triangles,
-            state.dem.position,
-            test.particles.radius,
-            state.membrane.candidates.idx,
-        )
-    )
+    penetration = float(test.max_penetration(state))
     assert penetration < 0.5 * float(test.params.membrane.thickness)
 
 

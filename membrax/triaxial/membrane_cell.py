@@ -54,6 +54,7 @@ from membrax.membrane.coupled import (
     membrane_dem,
 )
 from membrax.membrane.energies import locking_ratio, stable_locking_ratio
+from membrax.membrane.measure import max_sphere_penetration
 from membrax.membrane.mesh import MembraneMesh, cylinder_mesh, inner_volume, prism_mesh
 from membrax.membrane.records import measure_coupled
 from membrax.membrane.stability import membrane_critical_time_step, membrane_tangent_limit
@@ -122,6 +123,20 @@ class MembraneTest(StagedTest):
     def cell_pressure(self) -> float:
         """σc, Pa."""
         return float(self.params.membrane.cell_pressure)
+
+    def max_penetration(self, state: CoupledState):
+        """The deepest a sphere passes through the membrane's mid-surface at ``state``, m (scalar).
+
+        :func:`membrax.membrane.measure.max_sphere_penetration` over the membrane's candidate table (−inf
+        when no sphere is a candidate).
+        """
+        return max_sphere_penetration(
+            state.membrane.position,
+            self.mesh.triangles,
+            state.dem.position,
+            self.particles.radius,
+            state.membrane.candidates.idx,
+        )
 
     def set_platens(self, state: CoupledState, servo, velocity, target, acceleration=np.inf) -> CoupledState:
         """A copy of ``state`` with the platens' mode, velocity (dh/dt, m/s), target stress (Pa) and ramp set.
