@@ -21,9 +21,16 @@ not fitted on is least:
   refitted without that case (from the rest of its region or, for a region of one case, the nearest
   other region's).
 
-Errors are RMS over the region's cases of each case's mean square, in Δσ/σc; a tie goes to the larger
-factor. Since no correction is a candidate, in each region the chosen factor errs, on cases it was not
-fitted on, no more than no correction: never worse than none, by construction. The shrinkage is only
+Errors are RMS over the region's cases of each case's mean square, in Δσ/σc. No correction is the
+default: a correction (1 or w*) is chosen only where it beats none by more than one standard error of the
+paired difference of the cases' mean squares (the one-standard-error rule of model selection: Breiman et
+al. 1984, *Classification and Regression Trees* §3.4.3; Hastie, Tibshirani & Friedman 2009, *The Elements
+of Statistical Learning* §7.10), and among those that do, the one erring least (a tie to the larger
+factor). Choosing the least of three errors measured on the same few cases is optimistic, and where all
+three are within noise of each other that optimism picks a factor that helps in sample only; the rule
+gives the benefit of the doubt to no correction, so a region of one case (no standard error) abstains.
+Since no correction is a candidate, in each region the chosen factor errs, on cases it was not fitted
+on, no more than no correction: never worse than none, by construction. The shrinkage is only
 taken where it beats the correction on unseen cases, so a w* that fits the noise of a few cases (on the
 shipped table, σ3 in 32–64: w* = 0.89 in sample, worse than unshrunk out of it) is not applied; w* is
 clipped at 1 because amplifying the model would be a new fitted term, not an abstention.
@@ -37,8 +44,10 @@ either for a correction and for none alike); on the shipped table the two behave
 would withdraw a good σ3 correction with a bad σ1 one.
 
 Stored per region and stress: ``weight`` (the chosen w), ``shrinkage`` (w*), ``none_rms``, ``fitted_rms``,
-``shrunk_rms`` (w* in sample), ``held_out_rms`` (w* refitted without each case) and ``rms``, the chosen
-factor's error on unseen cases, which is the band's prediction error where the rule shrinks
+``shrunk_rms`` (w* in sample), ``held_out_rms`` (w* refitted without each case), ``fitted_gain`` and
+``held_out_gain`` (the mean over the cases of none's mean square minus the candidate's, in (Δσ/σc)²)
+with their standard errors ``fitted_gain_se`` and ``held_out_gain_se``, and ``rms``, the chosen factor's
+error on unseen cases, which is the band's prediction error where the rule shrinks
 (:mod:`calibrate.correct`).
 
 Per record, not per reading: a record's region is that of its median E_m t_m/(σc D) (constant in a test at
@@ -63,8 +72,8 @@ QUANTITY = "stiffness_ratio"
 #: The two corrected stresses, in the order of the model's predictions: Δσ_a/σc, Δσ_r/σc.
 TARGETS = ("axial", "radial")
 KIND = (
-    "per octave of E_m t_m/(σc D) and per stress, the factor among 1, the least-squares shrinkage toward "
-    "none and 0 with the least leave-one-case-out error"
+    "per octave of E_m t_m/(σc D) and per stress, 0 unless 1 or the least-squares shrinkage toward none "
+    "beats it by more than one standard error on leave-one-case-out errors; then the one erring least"
 )
 
 
@@ -100,6 +109,14 @@ def _mean_square(weight, sums):
     return np.maximum(weight * weight * pp - 2.0 * weight * pt + tt, 0.0)
 
 
+def _gain(none, candidate) -> tuple[float, float]:
+    """Mean over cases of none's mean square minus the candidate's, and its standard error (∞ if one)."""
+    difference = np.asarray(none) - np.asarray(candidate)
+    if difference.size < 2:
+        return (float(np.mean(difference)) if difference.size else math.nan), math.inf
+    return float(np.mean(difference)), float(np.std(difference, ddof=1) / math.sqrt(difference.size))
+
+
 def fit_rule(table, axial_prediction, radial_prediction) -> dict:
     """The abstention rule of a correction from its cross-validated predictions (module docstring).
 
@@ -111,7 +128,8 @@ def fit_rule(table, axial_prediction, radial_prediction) -> dict:
     Returns:
       {"quantity", "kind", "regions": [{"low", "high", "cases", "axial": {...}, "radial": {...}}]}, each
       stress's entry {"weight", "shrinkage", "none_rms", "fitted_rms", "shrunk_rms", "held_out_rms",
-      "rms"} (module docstring; errors in Δσ/σc).
+      "fitted_gain", "fitted_gain_se", "held_out_gain", "held_out_gain_se", "rms"} (module docstring;
+      errors in Δσ/σc).
 
     Raises:
       ValueError: predictions of another length than the table, or no case with a positive finite
@@ -157,19 +175,24 @@ def fit_rule(table, axial_prediction, radial_prediction) -> dict:
             def rms(values, rows=rows):
                 return float(math.sqrt(np.mean(values[rows]))) if np.any(rows) else math.nan
 
+            none = sums[:, k, 2]
+            fitted = _mean_square(1.0, sums[:, k])
             scores = {
-                "none_rms": rms(sums[:, k, 2]),
-                "fitted_rms": rms(_mean_square(1.0, sums[:, k])),
+                "none_rms": rms(none),
+                "fitted_rms": rms(fitted),
                 "shrunk_rms": rms(_mean_square(weights[r, k], sums[:, k])),
                 "held_out_rms": rms(held[:, k]),
             }
-            # The candidate erring least on unseen cases; ties to the larger factor (listed first).
-            candidates = (
-                (1.0, scores["fitted_rms"]),
-                (float(weights[r, k]), scores["held_out_rms"]),
-                (0.0, scores["none_rms"]),
-            )
-            weight, error = min(candidates, key=lambda candidate: candidate[1])
+            for name, errors in (("fitted", fitted), ("held_out", held[:, k])):
+                scores[f"{name}_gain"], scores[f"{name}_gain_se"] = _gain(none[rows], errors[rows])
+            # No correction unless one beats it by more than a standard error; then the least error on
+            # unseen cases, ties to the larger factor (listed first).
+            candidates = [
+                (factor, scores[f"{name}_rms"])
+                for factor, name in ((1.0, "fitted"), (float(weights[r, k]), "held_out"))
+                if scores[f"{name}_gain"] > scores[f"{name}_gain_se"]
+            ]
+            weight, error = min(candidates or [(0.0, scores["none_rms"])], key=lambda candidate: candidate[1])
             region[target] = {"weight": weight, "shrinkage": float(weights[r, k]), "rms": error, **scores}
         regions.append(region)
     return {"quantity": QUANTITY, "kind": KIND, "regions": regions}
@@ -207,8 +230,8 @@ def rule_lines(rule: dict) -> list[str]:
     """The rule as ``membrax fit`` reports it: per region and stress, w and the RMS errors (Δσ/σc)."""
     lines = [
         "when the correction abstains: its σ1 and σ3 corrections scaled by w per octave of E_m t_m/(σc D), "
-        "w = 1, the least-squares shrinkage w* or 0, whichever erred least on unseen cases; RMS in "
-        "Δσ/σc of none / fitted / shrunk by w*:"
+        "w = 0 unless 1 or the least-squares shrinkage w* beat it by more than one standard error on unseen "
+        "cases, then whichever erred least; RMS in Δσ/σc of none / fitted / shrunk by w*:"
     ]
     for region in rule["regions"]:
         cells = [

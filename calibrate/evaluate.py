@@ -70,8 +70,15 @@ INTERNAL_COLUMNS = {
 }
 
 
-def read_example_record():
-    """The shipped example record: (LabRecord, LabSpecimen, internal σ1, internal σ3), stresses in Pa."""
+def read_example_record(radial_target: str | None = None):
+    """The shipped example record: (LabRecord, LabSpecimen, internal σ1, internal σ3), stresses in Pa.
+
+    Args:
+      radial_target: which internal σ3 (:data:`INTERNAL_COLUMNS`: ``"received"`` or ``"section_4_3"``);
+        default the shipped correction's own target.
+    """
+    if radial_target is None:
+        radial_target = correct.default_corrections().radial_target
     with correct.example_record_path() as path:
         record = lab.read_lab_record(path)
         lines = path.read_text().splitlines()
@@ -82,7 +89,7 @@ def read_example_record():
         *example_arguments(record.comments), void_ratio=example_void_ratio(record.comments)
     )
     internal_1 = 1e3 * table[:, names.index(INTERNAL_COLUMNS["sigma_1"])]
-    internal_3 = 1e3 * table[:, names.index(INTERNAL_COLUMNS["section_4_3"])]
+    internal_3 = 1e3 * table[:, names.index(INTERNAL_COLUMNS[radial_target])]
     return record, specimen, internal_1, internal_3
 
 

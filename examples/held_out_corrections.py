@@ -74,6 +74,14 @@ for name, path in zip(groups, paths, strict=True):
             k: config[k] for k in ("cell_pressure_kpa", "membrane_thickness_mm", "membrane_modulus_kpa")
         }
         scores = evaluate.corrected_csv_errors(record, corrected, corrections.radial_target)
+        columns = evaluate.csv_columns(corrected)
+        particle_mm = evaluate.example_arguments(lab.read_lab_record(record).comments)[1]
+        fields["ratio"] = (
+            fields["membrane_modulus_kpa"]
+            * fields["membrane_thickness_mm"]
+            / (fields["cell_pressure_kpa"] * particle_mm)
+        )
+        fields["shrink"] = (columns["fitted_shrink_axial"][0], columns["fitted_shrink_radial"][0])
         members.append((name, fields, scores))
 
 short = {
@@ -90,20 +98,21 @@ for target in datasets.RADIAL_TARGETS:
     which = "its own" if target == corrections.radial_target else "the alternate's"
     print(f"\ninternal σ3 {target!r} (fitted: {which}); |φ' − φ'_internal| (°), mean / worst, 0 < ε_a ≤ 10 %")
     print(
-        f"{'group':>18}{'σc kPa':>7}{'t_m mm':>7}{'E_m kPa':>8}"
+        f"{'group':>18}{'σc kPa':>7}{'t_m mm':>7}{'E_m kPa':>8}{'EtσD':>6}{'w σ1/σ3':>10}"
         + "".join(f"{short[m]:>13}" for m in correct.METHODS)
     )
     for group, fields, errors in scored:
         print(
             f"{group:>18}{fields['cell_pressure_kpa']:7g}{fields['membrane_thickness_mm']:7g}"
-            f"{fields['membrane_modulus_kpa']:8g}"
+            f"{fields['membrane_modulus_kpa']:8g}{fields['ratio']:6.2f}"
+            f"{fields['shrink'][0]:6.2f}/{fields['shrink'][1]:.2f}"
             + "".join(f"{errors[m][0]:7.2f}/{errors[m][1]:5.2f}" for m in correct.METHODS)
         )
     pooled = {
         m: (np.mean([e[m][0] for _, _, e in scored]), np.max([e[m][1] for _, _, e in scored]))
         for m in correct.METHODS
     }
-    print(f"{'pooled':>40}" + "".join(f"{pooled[m][0]:7.2f}/{pooled[m][1]:5.2f}" for m in correct.METHODS))
+    print(f"{'pooled':>56}" + "".join(f"{pooled[m][0]:7.2f}/{pooled[m][1]:5.2f}" for m in correct.METHODS))
     worse_mean = [(g, f) for g, f, e in scored if e["fitted"][0] > e["uncorrected"][0]]
     worse_worst = [(g, f) for g, f, e in scored if e["fitted"][1] > e["uncorrected"][1]]
     print(
@@ -111,6 +120,9 @@ for target in datasets.RADIAL_TARGETS:
         f"{len(worse_worst)} on the worst error"
     )
     for group, fields in sorted(
-        set(map(lambda item: (item[0], tuple(item[1].items())), worse_mean + worse_worst))
+        {
+            (g, tuple((k, f[k]) for k in ("cell_pressure_kpa", "membrane_thickness_mm")))
+            for g, f in worse_mean + worse_worst
+        }
     ):
         print(f"  {group} {dict(fields)}")

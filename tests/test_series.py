@@ -166,8 +166,10 @@ def test_membrax_correct_writes_a_series_report_whose_numbers_are_the_series(tmp
 
 
 def test_on_the_shipped_example_series_the_membrane_s_apparent_cohesion_is_removed_in_part():
-    """The example series' internal stresses (the records' extra columns) carry c' ≈ 0.9 kPa; the external
-    ones, uncorrected, 7.9 kPa. Every correction brings c' below the uncorrected, toward the internal."""
+    """The example series' internal stresses (the records' extra columns: σ1 and the received σ3, the
+    shipped correction's target) carry c' 0.6 ± 0.3 kPa; the external ones, uncorrected, 2.8 kPa: the
+    membrane's apparent cohesion, beyond the internal envelope's scatter. Every correction brings c' toward
+    the internal one."""
     from importlib import resources
     from pathlib import Path
 
@@ -178,11 +180,13 @@ def test_on_the_shipped_example_series_the_membrane_s_apparent_cohesion_is_remov
     peaks = []
     for test in result.tests:
         columns = evaluate.csv_columns(test.record)
-        sigma_1, sigma_3 = 1e3 * columns["internal_sigma_1"], 1e3 * columns["internal_sigma_3"]
+        sigma_1 = 1e3 * columns["internal_sigma_1"]
+        sigma_3 = 1e3 * columns["internal_sigma_3_received"]
         best = int(np.nanargmax((sigma_1 - sigma_3) / (sigma_1 + sigma_3)))
         peaks.append((sigma_1[best], sigma_3[best]))
     internal = series.mohr_coulomb_envelope(*np.array(peaks).T)
     uncorrected = result.envelopes["uncorrected"].cohesion
-    assert uncorrected - internal.cohesion > 5e3  # the membrane's apparent cohesion
+    assert uncorrected - internal.cohesion > 3.0 * internal.cohesion_std  # the membrane's apparent cohesion
     for method in ("astm", "henkel_gilbert", "kuerbis_vaid", "fitted"):
-        assert result.envelopes[method].cohesion < 0.5 * uncorrected, method
+        remaining = abs(result.envelopes[method].cohesion - internal.cohesion)
+        assert remaining < abs(uncorrected - internal.cohesion), method
