@@ -16,7 +16,7 @@ alone). :class:`StackedMembers` holds what every batch shares (the chunk, the bu
 
 Periodic elements. :func:`build_periodic_batch` stacks ``cell = "periodic"`` members of one packing
 (:class:`PeriodicBatch`: one cell, Δt and neighbour-list shape; each member its own σc, servo targets,
-rates, contact law, stage budgets and stop test); :func:`membrax.run.run_periodic_group` drives it through
+rates, contact law, stage budgets and stop test); :func:`membrax.runner.run_group` drives it through
 the protocol (a single element is a batch of one). Its records equal those of each member run alone to
 the bit on one device with ``lax.map`` (the same program per member: tests/test_periodic_batch.py). Under
 ``vmap`` (the GPU's mode) the reductions over spheres and pairs are vectorised across members and sum in

@@ -32,12 +32,12 @@ the run with :class:`RunError`, naming the step and what to change; the records 
 The periodic element. A configuration with ``cell = "periodic"`` runs the boundary-free element test of its
 spheres instead (:func:`membrax.assemble.build_periodic_test`, :class:`membrax.triaxial.periodic.
 PeriodicTest`): the same phases, the element a batch of one (:func:`membrax.executor.build_periodic_batch`)
-through :func:`run_periodic_group`, the loop a sweep's periodic batches share, checkpointed every
-``checkpoint_every_chunks`` chunks and at each phase's end (a resumed run takes the same chunks and writes
-the same bits); error bits or a runaway kinetic energy (σc V₀ of the cell's first box the scale) stop it with
-:class:`RunError` as a membrane run, and in a sweep freeze and flag the member instead. The folder
-receives ``results.nc``/``.csv`` and ``consolidation.nc``/``.csv`` (the cell's records,
-:class:`membrax.triaxial.periodic.CellRecords`, with ``time``, ``radial_strain`` and
+through :func:`membrax.runner.run_group`, the one phase loop of membrane and periodic batches,
+checkpointed every ``checkpoint_every_chunks`` chunks and at each phase's end (a resumed run takes the same
+chunks and writes the same bits); error bits or a runaway kinetic energy (σc V₀ of the cell's first box
+the scale) stop it with :class:`RunError` as a membrane run, and in a sweep freeze and flag the member
+instead. The folder receives ``results.nc``/``.csv`` and ``consolidation.nc``/``.csv`` (the cell's
+records, :class:`membrax.triaxial.periodic.CellRecords`, with ``time``, ``radial_strain`` and
 ``love_weber_friction_angle_deg``; the first shearing record the end of consolidation, strains from the
 start of shearing), ``element.png`` (:func:`membrax.plots.save_element_figure`), ``summary.md``
 (:func:`membrax.triaxial.analysis.element_summary_table`), ``config.toml`` and ``checkpoint.npz``.
@@ -60,15 +60,13 @@ from membrax.assemble import (
     precision_scope,
 )
 from membrax.config import TriaxialConfig, config_to_dict, dump_config_toml
-from membrax.errors import RunError, SimulationError
-from membrax.executor import PeriodicBatch, build_batch, build_periodic_batch
+from membrax.errors import RunError
+from membrax.executor import build_batch, build_periodic_batch
 from membrax.io import (
     VTKSeries,
     dataset_attrs_to_python,
-    load_checkpoint,
     read_checkpoint_host,
     records_to_dataset,
-    save_checkpoint,
     write_results,
 )
 from membrax.membrane.measure import triangle_stretches
@@ -77,17 +75,12 @@ from membrax.runner import (
     CHECKPOINT_NAME,
     join_records,
     member_chunk_records,
-    phase_bar,
-    records_from_host,
-    records_to_host,
     results_datasets,
     run_group,
     run_metadata,
-    stop_runaways,
 )
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest
-from membrax.triaxial.protocol import PHASES
 
 __all__ = [
     "CHECKPOINT_NAME",
@@ -97,7 +90,6 @@ __all__ = [
     "default_folder",
     "figure_title",
     "periodic_datasets",
-    "run_periodic_group",
     "run_test",
 ]
 
@@ -219,25 +211,38 @@ def run_test(
                     _vtk_snapshot(series, batch.unstack(states)[0], test)
                 last_step[0] = step
 
-        try:
-            records, shear_start, elapsed = run_group(
-                batch, folder, resume, progress, interrupt_after_chunks, after_chunk=after_chunk
-            )
-        except RunError as error:
-            if error.records is not None:
-                _write_partial(folder, member_chunk_records(error.records, 0), config)
-            raise RunError(f"{error} Records so far are in {folder}.", error.records) from error
-        mine = member_chunk_records(records, 0)
+        mine, shear_start, elapsed = _run_alone(
+            batch, config, folder, resume, progress, interrupt_after_chunks, after_chunk
+        )
         return _finish(
             folder,
             config,
             test,
             run_metadata(batch.settings[0], test, mine, build_seconds, elapsed),
             mine,
-            shear_start[0],
+            shear_start,
             elapsed,
             None if resumed_from is None else (resumed_from, time.perf_counter() - call_started),
         )
+
+
+def _run_alone(batch, config, folder: Path, resume, progress, interrupt_after_chunks, after_chunk=None):
+    """The one member of ``batch``, a membrane cell or a periodic element, through :func:`run_group`.
+
+    Returns its records by phase, its start of shearing and the elapsed seconds.
+
+    Raises:
+      RunError: it blew up; the records so far are written to ``folder`` first, and the message says so.
+    """
+    try:
+        records, shear_starts, elapsed = run_group(
+            batch, folder, resume, progress, interrupt_after_chunks, after_chunk=after_chunk
+        )
+    except RunError as error:
+        if error.records is not None:
+            _write_partial(folder, member_chunk_records(error.records, 0), config)
+        raise RunError(f"{error} Records so far are in {folder}.", error.records) from error
+    return member_chunk_records(records, 0), shear_starts[0], elapsed
 
 
 def _write_partial(folder, records, config) -> None:
@@ -304,214 +309,19 @@ def _finish(folder, config, test, metadata, records, shear_start, elapsed, resum
 # ----------------------------------------------------------------------------------------------------------
 
 
-@dataclasses.dataclass
-class _PeriodicGroup:
-    """A batch of periodic elements in progress (:func:`run_periodic_group`): records, checkpoints, progress.
-
-    ``records`` maps each phase of :data:`PHASES` to the chunks' stacked records ((B, T, ...) arrays and
-    ``valid``, as :meth:`membrax.executor.StackedMembers.run_phase` hands them over); ``failures`` is the
-    batch's (member → error, step, phase of the members frozen by ``isolate_failures``).
-    """
-
-    batch: PeriodicBatch
-    path: Path
-    progress: bool
-    interrupt_after_chunks: int | None
-    chunk_counter: list
-    isolate_failures: bool = False
-    records: dict = dataclasses.field(default_factory=lambda: {phase: [] for phase in PHASES})
-    elapsed_before: float = 0.0
-    started: float = dataclasses.field(default_factory=time.perf_counter)
-
-    def __post_init__(self):
-        self.batch.failures = {}
-        # σc V₀ of each member: the runaway stop's scale (membrax.runner.stop_runaways).
-        self.volume_work = np.array(
-            [t.cell_pressure * float(np.prod(np.asarray(t.initial_state.length))) for t in self.batch.tests]
-        )
-
-    @property
-    def failures(self) -> dict:
-        return self.batch.failures
-
-    def elapsed(self) -> float:
-        return self.elapsed_before + time.perf_counter() - self.started
-
-    def save(self, states, phase_index: int, budgets) -> None:
-        """Checkpoint: the states, their phase and budgets, the records so far, the lists' shape, failures."""
-        host = {
-            "phase": phase_index,
-            # None at a phase's end: the next phase is entered (and its budgets planned) on resume.
-            "budgets": None if budgets is None else [int(v) for v in budgets],
-            "elapsed": self.elapsed(),
-            "list_shape": self.batch.list_shape(states),
-            "member_steps": [int(v) for v in np.asarray(states.step)[: self.batch.num_members]],
-            "failures": {str(b): failure for b, failure in self.failures.items()},
-            **records_to_host(self.records),
-        }
-        save_checkpoint(self.path, states, host)
-
-    def restore(self):
-        """(states, phase index, budgets or None) from the checkpoint, the records and failures put back."""
-        saved = read_checkpoint_host(self.path)
-        states, host = load_checkpoint(self.path, self.batch.template(saved["list_shape"]))
-        self.elapsed_before = host["elapsed"]
-        self.records.update(records_from_host(host))
-        self.failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
-        budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
-        return states, host["phase"], budgets
-
-    def run_phase(self, index: int, states, budgets, plans):
-        """Phase ``index`` of :data:`PHASES` until every member's ``budgets`` is spent; returns the states."""
-        batch, phase = self.batch, PHASES[index]
-        settings = batch.settings[0]  # chunk steps, checkpoints: not batched fields
-        record_every = plans[0][phase][1]
-        total = int(np.ceil(np.max(budgets, initial=0) / record_every) * record_every)
-        bar = phase_bar(phase, batch.num_members, total, self.progress)
-        tolerances = [s.consolidation_tolerance for s in batch.settings]
-
-        def consolidated(b, records):
-            return phase == "consolidation" and batch.tests[b].is_consolidated(records, tolerances[b])
-
-        def on_failure(b, names, step):
-            self.failures[b] = {"error": names, "step": step, "phase": phase}
-
-        def on_chunk(current, chunk, left):
-            stop = stop_runaways(
-                chunk,
-                self.volume_work,
-                self.failures,
-                [s.name for s in batch.settings],
-                np.asarray(current.step),
-                settings.dt_safety,
-                on_failure if self.isolate_failures else None,
-            )
-            self.records[phase].append(chunk)
-            bar.update(chunk["valid"].shape[1] * record_every)
-            ratio = chunk["unbalanced_force_ratio"][chunk["valid"]]
-            bar.set_postfix(ufr=f"{np.max(ratio, initial=0.0):.1e}", active=int(np.sum(left > 0)))
-            self.chunk_counter[0] += 1
-            if self.chunk_counter[0] % settings.checkpoint_every_chunks == 0:
-                left = left.copy()
-                left[stop] = 0
-                self.save(current, index, left)
-            interrupt = self.interrupt_after_chunks
-            if interrupt is not None and self.chunk_counter[0] >= interrupt:
-                raise KeyboardInterrupt(f"interrupted after {self.chunk_counter[0]} chunks (testing aid)")
-            return stop
-
-        try:
-            states, _ = batch.run_phase(
-                states,
-                budgets,
-                settings.chunk_steps,
-                record_every,
-                stop_fn=consolidated,
-                on_chunk=on_chunk,
-                on_failure=on_failure if self.isolate_failures else None,
-            )
-        except SimulationError as error:
-            hint = f"Lower dt_safety (now {settings.dt_safety}) or particle_stiffness_n_m."
-            raise RunError(f"{error}. {hint}", self.records) from error
-        except RunError as error:
-            error.records = self.records
-            raise
-        finally:
-            bar.close()
-        return states
-
-
-def run_periodic_group(
-    batch: PeriodicBatch,
-    folder: Path,
-    resume: bool = False,
-    progress: bool = True,
-    interrupt_after_chunks: int | None = None,
-    chunk_counter: list | None = None,
-    isolate_failures: bool = False,
-):
-    """Run a batch of periodic elements through the phases of :data:`PHASES` (module docstring).
-
-    Each phase is entered by every member's test (:meth:`~membrax.triaxial.protocol.StagedTest.start_phase`
-    under its own loading, its budget from its own ``phase_plan``) and advanced by
-    :meth:`membrax.executor.StackedMembers.run_phase` (the driver's loop: error bits, list growth, each
-    member's consolidation stop test); after each chunk the runaway-energy stop
-    (:func:`membrax.runner.stop_runaways`) as in a membrane run; every ``checkpoint_every_chunks`` chunks,
-    and at each phase's end, the stacked states, the phase, the budgets, the failures and the records so
-    far are saved, so a resumed run takes the same chunks as an uninterrupted one.
-
-    Args:
-      batch: from :func:`membrax.executor.build_periodic_batch`.
-      folder: where ``checkpoint.npz`` is written (and read with ``resume``).
-      resume: continue from the folder's checkpoint, if there is one.
-      progress: a tqdm bar per phase.
-      interrupt_after_chunks: testing aid: ``KeyboardInterrupt`` after this many chunks (counted in
-        ``chunk_counter``, after that chunk's checkpoint).
-      chunk_counter: a one-element list counting chunks across groups (default: this call's own).
-      isolate_failures: a member that blows up (error bits other than a list overflow, or a runaway kinetic
-        energy) is frozen at its last good records (its budget ends, the chunk runs again without it, it
-        enters no later phase) and the others go on; ``batch.failures`` maps it to its error, step and
-        phase (kept in checkpoints). False: the first raises.
-
-    Returns:
-      (records by phase: lists of chunk dicts of stacked (B, T, ...) arrays with ``valid``, as
-      :func:`membrax.runner.member_chunk_records` takes them; the elapsed seconds).
-
-    Raises:
-      RunError: a member blew up (without ``isolate_failures``); ``error.records`` holds the records so far.
-    """
-    group = _PeriodicGroup(
-        batch,
-        folder / CHECKPOINT_NAME,
-        progress,
-        interrupt_after_chunks,
-        chunk_counter or [0],
-        isolate_failures,
-    )
-    plans = [t.phase_plan(s.loading) for t, s in zip(batch.tests, batch.settings, strict=True)]
-    states, first, budgets = batch.initial_state, 0, None
-    if resume and group.path.exists():
-        states, first, budgets = group.restore()
-    for index in range(first, len(PHASES)):
-        phase = PHASES[index]
-        if budgets is None:  # entering the phase (the first is entered by build_periodic_batch)
-            if index > 0:
-                members = batch.unstack(states)
-                started = [
-                    member if b in group.failures else test.start_phase(phase, member, s.loading)
-                    for b, (member, test, s) in enumerate(
-                        zip(members, batch.tests, batch.settings, strict=True)
-                    )
-                ]
-                if any(new is not old for new, old in zip(started, members, strict=True)):
-                    states = batch.restack(started)
-            budgets = np.array([plan[phase][0] for plan in plans], dtype=np.int64)
-            budgets[list(group.failures)] = 0  # a failed member stays frozen
-        states = group.run_phase(index, states, budgets, plans)
-        budgets = None
-        group.save(states, index + 1, None)
-    return group.records, group.elapsed()
-
-
 def _run_periodic(config, folder: Path, resume, progress, interrupt_after_chunks, call_started) -> RunResult:
     """The periodic element test of ``config`` into ``folder`` (module docstring, "The periodic element").
 
     A batch of one (:func:`membrax.executor.build_periodic_batch` on one device) through
-    :func:`run_periodic_group`, as a sweep's batches.
+    :func:`membrax.runner.run_group`, as a sweep's batches.
     """
     with precision_scope(config):
         started = time.perf_counter()
         batch = build_periodic_batch([config], num_devices=1)
         build_seconds = time.perf_counter() - started
-        try:
-            records, elapsed = run_periodic_group(batch, folder, resume, progress, interrupt_after_chunks)
-        except RunError as error:
-            _write_partial(folder, member_chunk_records(error.records, 0), config)
-            raise RunError(f"{error} Records so far are in {folder}.", error.records) from error
+        mine, _, elapsed = _run_alone(batch, config, folder, resume, progress, interrupt_after_chunks)
         test = batch.tests[0]
-        shear, consolidation = periodic_datasets(
-            test, batch.settings[0], member_chunk_records(records, 0), build_seconds, elapsed
-        )
+        shear, consolidation = periodic_datasets(test, batch.settings[0], mine, build_seconds, elapsed)
         return _finish_periodic(folder, config, test, shear, consolidation, call_started, resume)
 
 

@@ -1,16 +1,18 @@
-"""The runner: a batch of membrane tests from configurations, through consolidation and shearing.
+"""The runner: a batch of tests from configurations, through consolidation and shearing.
 
-Contract. Every membrane test that runs to a results folder goes through here, alone or in a grid: a single
-test (:func:`membrax.run.run_test`) is a batch of one, a sweep (:func:`membrax.sweep.run_sweep`) runs its
-grid as batches. :func:`membrax.executor.build_batch` builds the members of one compiled batch
-(:class:`~membrax.executor.BatchedTest`: states stacked on a member axis, one Δt, one mesh topology, each
-member's plain :class:`~membrax.assemble.RunSettings`; the runner never reads a configuration) and
-:func:`run_group` takes them through the protocol's stage sequence (:data:`membrax.triaxial.protocol.PHASES`,
+Contract. Every test that runs to a results folder goes through here, alone or in a grid, a membrane cell
+or a periodic element: a single test (:func:`membrax.run.run_test`) is a batch of one, a sweep
+(:func:`membrax.sweep.run_sweep`) runs its grid as batches. :func:`membrax.executor.build_batch` builds the
+members of one compiled batch (:class:`~membrax.executor.BatchedTest`: states stacked on a member axis, one
+Δt, one mesh topology, each member's plain :class:`~membrax.assemble.RunSettings`; the runner never reads a
+configuration), :func:`membrax.executor.build_periodic_batch` those of periodic elements of one packing
+(:class:`~membrax.executor.PeriodicBatch`), and :func:`run_group`, the one phase loop, takes either through
+the protocol's stage sequence (:data:`membrax.triaxial.protocol.PHASES`,
 each phase started by :meth:`~membrax.triaxial.protocol.StagedTest.start_phase`, each member's steps and
 record intervals from :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan` of its loading):
 
-- ``consolidation``: the ram servo on, until each member's own stop test holds
-  (:meth:`membrax.triaxial.membrane_cell.MembraneTest.is_consolidated`) or it reaches
+- ``consolidation``: the ram servo on (a periodic element's: its box's), until each member's own stop
+  test holds (:meth:`membrax.triaxial.membrane_cell.MembraneTest.is_consolidated`) or it reaches
   ``consolidation_max_steps``;
 - ``shear_fine`` and ``shear_coarse``: drained shearing at the strain rate of ``inertial_number``
   (ramped from rest), recorded every ``record_every_fine`` steps below ``fine_until_strain`` and every
@@ -45,7 +47,14 @@ import numpy as np
 from membrax import __version__, theory
 from membrax.assemble import RunSettings
 from membrax.errors import RunError, SimulationError
-from membrax.executor import BatchedTest, batch_template, cast_state, float32_batch, table_capacities
+from membrax.executor import (
+    PeriodicBatch,
+    StackedMembers,
+    batch_template,
+    cast_state,
+    float32_batch,
+    table_capacities,
+)
 from membrax.io import load_checkpoint, read_checkpoint_host, records_to_dataset, save_checkpoint
 from membrax.membrane.records import right_cylinder_stresses
 from membrax.spheres.grading import mass_fractions
@@ -172,7 +181,7 @@ def phase_bar(phase: str, num: int, total: int, progress: bool):
 
 
 def run_group(
-    batch: BatchedTest,
+    batch: StackedMembers,
     folder: Path,
     resume: bool = False,
     progress: bool = True,
@@ -181,20 +190,23 @@ def run_group(
     after_chunk: Callable | None = None,
     isolate_failures: bool = False,
 ):
-    """Run one batch through the three phases of :data:`PHASES` (module docstring).
+    """Run one batch through the three phases of :data:`PHASES` (module docstring): the one phase loop.
 
-    The steps, each a function below: :func:`_start_group` (afresh, or from the checkpoint), then for each
-    phase :func:`_enter_phase` (the protocol's :meth:`~membrax.triaxial.protocol.StagedTest.start_phase`
-    on every member, the budgets of its :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan`) and
-    :func:`_advance_phase` (the driver's loop, watched chunk by chunk by :func:`_on_chunk`), a checkpoint at
-    each phase's end (:func:`_save`), and last :func:`_shear_starts`.
+    A batch of membrane cells (:class:`~membrax.executor.BatchedTest`) and one of periodic elements
+    (:class:`~membrax.executor.PeriodicBatch`) take the same steps, each a function below:
+    :func:`_start_group` (afresh, or from the checkpoint), then for each phase :func:`_enter_phase` (the
+    protocol's :meth:`~membrax.triaxial.protocol.StagedTest.start_phase` on every member, the budgets of its
+    :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan`) and :func:`_advance_phase` (the driver's loop,
+    watched chunk by chunk by :func:`_on_chunk`), a checkpoint at each phase's end (:func:`_save`). What the
+    two cells do differently (the checkpoint's table shapes, the start of shearing, the bar's postfix) their
+    groups say: :class:`_MembraneGroup`, :class:`_PeriodicGroup`.
 
-    With ``float32_shearing`` (and ``float64``) consolidation runs in float64 and the shearing in float32:
-    at the start of shearing the batch is rebuilt in float32 (:func:`float32_batch`) and the state carried
-    over (:func:`cast_state`); the rest runs inside ``jax.enable_x64(False)``.
+    With ``float32_shearing`` (and ``float64``) a membrane batch consolidates in float64 and shears in
+    float32: at the start of shearing the batch is rebuilt in float32 (:func:`float32_batch`) and the state
+    carried over (:func:`cast_state`); the rest runs inside ``jax.enable_x64(False)``.
 
     Args:
-      batch: from :func:`build_batch`.
+      batch: from :func:`build_batch` or :func:`membrax.executor.build_periodic_batch`.
       folder: where ``checkpoint.npz`` is written (and read with ``resume``).
       resume: continue from the folder's checkpoint, if there is one.
       progress: a tqdm bar per phase.
@@ -209,7 +221,8 @@ def run_group(
 
     Returns:
       (records by phase: lists of chunk dicts of stacked (B, T, ...) arrays with ``valid``; the start of
-      shearing per member: height, volume and platen area; the elapsed seconds).
+      shearing per member: height, volume and platen area (None for a periodic element, whose records count
+      their strains themselves); the elapsed seconds).
 
     Raises:
       RunError: a member blew up (error bits or runaway kinetic energy); ``error.records`` holds the
@@ -234,7 +247,7 @@ def run_group(
             group.budgets = None
             _save(group, group.states, None)
         group.elapsed += time.perf_counter() - group.clock
-        return group.records, _shear_starts(group), group.elapsed
+        return group.records, group.shear_starts(), group.elapsed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -252,18 +265,24 @@ class _Hooks:
 class _Group:
     """Where a group stands in the protocol, shared by :func:`run_group`'s steps (what a checkpoint keeps).
 
-    ``batch`` is the float32 rebuild once the float32 shearing has begun; ``plans`` (each member's
-    :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan`) and ``volume_work`` (σc V₀, the runaway
-    scale) are the batch's at the start of this call; ``clock`` the wall clock at its start.
+    ``plans`` (each member's :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan`) and ``volume_work``
+    (σc V₀, the runaway scale) are the batch's at the start of this call; ``clock`` the wall clock at its
+    start. A kind of batch says the rest in a subclass: what its checkpoint keeps beside the states and the
+    records (:meth:`host_values`, :meth:`template`, :meth:`restore`), what changes at a phase's start beside
+    the protocol's switch (:meth:`enter`), the bar's postfix and each member's start of shearing.
     """
 
-    batch: BatchedTest
+    #: The checkpoint's names of the phase index and of the elapsed seconds.
+    phase_key = "phase_index"
+    elapsed_key = "elapsed_s"
+    #: What to lower beside ``dt_safety`` when a member blows up.
+    stiffness_advice = "particle_stiffness_n_m"
+
+    batch: StackedMembers
     checkpoint: Path
     states: object
     records: dict
     failures: dict
-    shear_height: np.ndarray
-    shear_volume: np.ndarray
     plans: list = dataclasses.field(default_factory=list)
     volume_work: np.ndarray | None = None
     phase_index: int = 0
@@ -276,22 +295,166 @@ class _Group:
         """The settings the members share (chunk steps, checkpoints, precision: not batched fields)."""
         return self.batch.settings[0]
 
+    def host_values(self, current) -> dict:
+        """The checkpoint's values of this kind: what sizes :meth:`template`, what :meth:`restore` reads."""
+        raise NotImplementedError
+
+    def template(self, host: dict, scope):
+        """The stacked states a checkpoint with ``host`` loads into."""
+        raise NotImplementedError
+
+    def restore(self, host: dict) -> None:
+        """Put back this kind's values of a checkpoint's ``host`` (none by default)."""
+
+    def enter(self, phase: str, scope) -> None:
+        """What changes at ``phase``'s start before the protocol switches the members (nothing by default)."""
+
+    def postfix(self, phase: str, current, chunk: dict, left) -> dict:
+        """The bar's postfix after a chunk: where the group stands (tqdm sorts the keys)."""
+        raise NotImplementedError
+
+    def shear_starts(self) -> list:
+        """Each member's start of shearing, as :func:`run_group` returns it."""
+        raise NotImplementedError
+
+
+@dataclasses.dataclass
+class _MembraneGroup(_Group):
+    """A batch of membrane cells (:class:`~membrax.executor.BatchedTest`) in :func:`run_group`.
+
+    ``batch`` is the float32 rebuild once the float32 shearing has begun; ``shear_height`` and
+    ``shear_volume`` each member's at the start of shearing (strains count from them).
+    """
+
+    stiffness_advice = (
+        "particle_stiffness_n_m; a membrane modulus far above the paper's 1400 kPa also shortens the "
+        "stable step"
+    )
+
+    shear_height: np.ndarray | None = None
+    shear_volume: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.shear_height = np.zeros(self.batch.num_members)
+        self.shear_volume = np.zeros(self.batch.num_members)
+
     @property
     def float32_shearing(self) -> bool:
         return self.settings.float64 and self.settings.float32_shearing
 
+    def host_values(self, current) -> dict:
+        """The tables' capacities, the precision and the start of shearing."""
+        return {
+            "capacities": table_capacities(current),
+            "shear_height": self.shear_height,
+            "shear_volume": self.shear_volume,
+            "dtype": str(np.dtype(current.dem.position.dtype)),
+        }
 
-def _start_group(batch: BatchedTest, checkpoint: Path, resume: bool, scope) -> _Group:
+    def template(self, host: dict, scope):
+        """The batch's states with the checkpoint's capacities (in float32 where its shearing was)."""
+        if self.float32_shearing and host.get("dtype") == "float32":
+            _to_float32(self, scope)
+        return batch_template(self.batch, host["capacities"])
+
+    def restore(self, host: dict) -> None:
+        """The start of shearing of each member."""
+        self.shear_height = np.asarray(host["shear_height"])
+        self.shear_volume = np.asarray(host["shear_volume"])
+
+    def enter(self, phase: str, scope) -> None:
+        """At the start of shearing the float32 shearing begins and each member's height and volume are kept.
+
+        Strains count from them (:func:`rebase_to_shear_start`).
+        """
+        if phase == "shear_fine" and self.float32_shearing:
+            capacities = table_capacities(self.states)
+            _to_float32(self, scope)
+            self.states = cast_state(self.states, batch_template(self.batch, capacities))
+        if phase == "shear_fine":
+            for b in range(self.batch.num_members):
+                if b not in self.failures:  # frozen: it never shears
+                    self.shear_height[b] = _last_member_value(self.records["consolidation"], "height", b)
+                    self.shear_volume[b] = _last_member_value(self.records["consolidation"], "volume", b)
+
+    def postfix(self, phase: str, current, chunk: dict, left) -> dict:
+        """Where the group stands after a chunk.
+
+        In consolidation the worst member's unbalanced-force ratio against the stop value; in a single
+        test's shearing its axial strain and φ' (the paper's Fig. 5); in a batch's the members still going.
+        """
+        num = self.batch.num_members
+        active = int(np.sum(left > 0))
+        if phase == "consolidation":
+            ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
+            last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
+            return {
+                "unbalanced": f"{max(last, default=0.0):.1e}",
+                "until": f"{min(s.consolidation_tolerance for s in self.batch.settings):.0e}",
+                **({} if num == 1 else {"active": active}),
+            }
+        if num > 1:
+            return {"active": active, "step": int(np.max(np.asarray(self.batch.member_steps(current))))}
+        valid = chunk["valid"][0]
+        last = {name: float(chunk[name][0][valid][-1].ravel()[0]) for name in _PROGRESS}
+        external, internal = analysis.friction_angle_deg(
+            [last["external_axial_stress"], last["internal_axial_stress"]],
+            [last["external_radial_stress"], last["internal_radial_stress"]],
+        )
+        return {
+            "strain": f"{100 * last['axial_strain']:.3f}%",
+            "phi_ext": f"{external:.1f}",
+            "phi_int": f"{internal:.1f}",
+        }
+
+    def shear_starts(self) -> list[dict]:
+        """Each member's height, volume and platen area at the start of shearing."""
+        return [
+            {"height": self.shear_height[b], "volume": self.shear_volume[b], "platen_area": test.platen_area}
+            for b, test in enumerate(self.batch.tests)
+        ]
+
+
+@dataclasses.dataclass
+class _PeriodicGroup(_Group):
+    """A batch of periodic elements (:class:`~membrax.executor.PeriodicBatch`) in :func:`run_group`.
+
+    Its checkpoint names the phase ``phase`` and the elapsed seconds ``elapsed`` and keeps the shape of the
+    members' lists (:meth:`PeriodicBatch.list_shape`); nothing changes at a phase's start beside the
+    protocol's switch, and its records count their strains themselves
+    (:func:`membrax.run.periodic_datasets`).
+    """
+
+    phase_key = "phase"
+    elapsed_key = "elapsed"
+
+    def host_values(self, current) -> dict:
+        """The shape of the members' lists."""
+        return {"list_shape": self.batch.list_shape(current)}
+
+    def template(self, host: dict, scope):
+        """The batch's states with lists of the checkpoint's shape."""
+        return self.batch.template(host["list_shape"])
+
+    def postfix(self, phase: str, current, chunk: dict, left) -> dict:
+        """The chunk's largest unbalanced-force ratio and the members still going."""
+        ratio = chunk["unbalanced_force_ratio"][chunk["valid"]]
+        return {"ufr": f"{np.max(ratio, initial=0.0):.1e}", "active": int(np.sum(left > 0))}
+
+    def shear_starts(self) -> list:
+        """None for each member."""
+        return [None] * self.batch.num_members
+
+
+def _start_group(batch: StackedMembers, checkpoint: Path, resume: bool, scope) -> _Group:
     """The group at the start of consolidation, or where the checkpoint left it (``resume``)."""
-    num = batch.num_members
-    group = _Group(
+    kind = _PeriodicGroup if isinstance(batch, PeriodicBatch) else _MembraneGroup
+    group = kind(
         batch=batch,
         checkpoint=checkpoint,
         states=batch.initial_state,
         records={phase: [] for phase in PHASES},
         failures={},
-        shear_height=np.zeros(num),
-        shear_volume=np.zeros(num),
     )
     batch.failures = group.failures
     if resume and checkpoint.exists():
@@ -304,32 +467,27 @@ def _start_group(batch: BatchedTest, checkpoint: Path, resume: bool, scope) -> _
 
 
 def _load(group: _Group, scope) -> None:
-    """Restore ``group`` from its checkpoint (in float32 where the checkpoint's shearing was)."""
-    host = read_checkpoint_host(group.checkpoint)
-    if group.float32_shearing and host.get("dtype") == "float32":
-        _to_float32(group, scope)
-    group.states, host = load_checkpoint(group.checkpoint, batch_template(group.batch, host["capacities"]))
-    group.phase_index, group.elapsed = host["phase_index"], host["elapsed_s"]
+    """Restore ``group`` from its checkpoint."""
+    template = group.template(read_checkpoint_host(group.checkpoint), scope)
+    group.states, host = load_checkpoint(group.checkpoint, template)
+    group.phase_index, group.elapsed = host[group.phase_key], host[group.elapsed_key]
     group.budgets = None if host["budgets"] is None else np.asarray(host["budgets"], dtype=np.int64)
-    group.shear_height = np.asarray(host["shear_height"])
-    group.shear_volume = np.asarray(host["shear_volume"])
     group.failures.update({int(b): failure for b, failure in host.get("failures", {}).items()})
     group.records.update(records_from_host(host))
+    group.restore(host)
 
 
 def _save(group: _Group, current, budgets) -> None:
     """A checkpoint of ``current`` (stacked states) with the records so far and the phase's budgets."""
+    num = group.batch.num_members
     host = {
-        "phase_index": group.phase_index,
-        "elapsed_s": group.elapsed + time.perf_counter() - group.clock,
-        "capacities": table_capacities(current),
+        group.phase_key: group.phase_index,
+        group.elapsed_key: group.elapsed + time.perf_counter() - group.clock,
         # None at a phase's end: the next phase computes its budgets (and starts shearing) on resume.
         "budgets": None if budgets is None else [int(v) for v in budgets],
-        "shear_height": group.shear_height,
-        "shear_volume": group.shear_volume,
-        "member_steps": [int(step) for step in np.asarray(current.dem.step)[: group.batch.num_members]],
-        "dtype": str(np.dtype(current.dem.position.dtype)),
+        "member_steps": [int(v) for v in np.asarray(group.batch.member_steps(current))[:num]],
         "failures": {str(b): failure for b, failure in group.failures.items()},
+        **group.host_values(current),
         **records_to_host(group.records),
     }
     save_checkpoint(group.checkpoint, current, host)
@@ -355,7 +513,7 @@ def records_from_host(host: dict) -> dict:
     return records
 
 
-def _to_float32(group: _Group, scope) -> None:
+def _to_float32(group: _MembraneGroup, scope) -> None:
     """Rebuild the batch in float32 and run the rest in float32 (once)."""
     if np.dtype(group.batch.initial_state.dem.position.dtype) == np.float32:
         return
@@ -364,21 +522,13 @@ def _to_float32(group: _Group, scope) -> None:
 
 
 def _enter_phase(group: _Group, phase: str, scope) -> None:
-    """Start ``phase``: every member not frozen switched by the protocol, and each one's step budget.
+    """Start ``phase``: the group's own start, every member not frozen switched, each one's step budget.
 
-    The batch was built at the first phase's start (:func:`membrax.executor.build_batch`). At the start of
-    shearing the float32 shearing begins, and each member's height and volume are kept: strains count from
-    them (:func:`rebase_to_shear_start`).
+    What the group's kind changes comes first (:meth:`_Group.enter`), then the protocol's switch. The
+    batch was built at the first phase's start (:func:`membrax.executor.build_batch`,
+    :func:`membrax.executor.build_periodic_batch`).
     """
-    if phase == "shear_fine" and group.float32_shearing:
-        capacities = table_capacities(group.states)
-        _to_float32(group, scope)
-        group.states = cast_state(group.states, batch_template(group.batch, capacities))
-    if phase == "shear_fine":
-        for b in range(group.batch.num_members):
-            if b not in group.failures:  # frozen: it never shears
-                group.shear_height[b] = _last_member_value(group.records["consolidation"], "height", b)
-                group.shear_volume[b] = _last_member_value(group.records["consolidation"], "volume", b)
+    group.enter(phase, scope)
     if phase != PHASES[0]:
         group.states = _start_members(group, phase)
     group.budgets = np.array([plan[phase][0] for plan in group.plans], dtype=np.int64)
@@ -430,8 +580,7 @@ def _advance_phase(group: _Group, phase: str, hooks: _Hooks) -> None:
         )
     except SimulationError as error:
         raise RunError(
-            f"{error}. Lower dt_safety (now {settings.dt_safety}) or particle_stiffness_n_m; a "
-            "membrane modulus far above the paper's 1400 kPa also shortens the stable step.",
+            f"{error}. Lower dt_safety (now {settings.dt_safety}) or {group.stiffness_advice}.",
             group.records,
         ) from error
     except RunError as error:
@@ -450,7 +599,7 @@ def _on_chunk(group: _Group, phase: str, hooks: _Hooks, bar, on_failure, current
     group.budgets = left
     group.records[phase].append(chunk)
     bar.update(chunk["valid"].shape[1] * group.plans[0][phase][1])
-    bar.set_postfix(**_postfix(group, phase, current, chunk, left))
+    bar.set_postfix(**group.postfix(phase, current, chunk, left))
     if hooks.after_chunk is not None:
         hooks.after_chunk(current, phase)
     hooks.chunk_counter[0] += 1
@@ -468,7 +617,7 @@ def _runaways(group: _Group, phase: str, hooks: _Hooks, on_failure, current, chu
         group.volume_work,
         group.failures,
         [s.name for s in group.batch.settings],
-        np.asarray(current.dem.step),
+        np.asarray(group.batch.member_steps(current)),
         group.settings.dt_safety,
         on_failure if hooks.isolate_failures else None,
         [_membrane_hint(test) for test in group.batch.tests],
@@ -481,8 +630,8 @@ def stop_runaways(
     """The runaway-energy stop of a batch's chunk: members whose kinetic energy ran away, frozen or raised.
 
     A member runs away when the kinetic energy of its chunk's last record is not finite or exceeds
-    :data:`RUNAWAY_KINETIC_FRACTION` × σc V₀ (the work scale of the cell pressure). Shared by the membrane
-    cell's runner and the periodic element's (:func:`membrax.run.run_periodic_group`).
+    :data:`RUNAWAY_KINETIC_FRACTION` × σc V₀ (the work scale of the cell pressure). Every group of
+    :func:`run_group` checks its chunks with it, membrane cells and periodic elements alike.
 
     Args:
       chunk: the chunk's stacked records (``kinetic_energy`` (B, T, ...) and ``valid`` (B, T), writable).
@@ -532,43 +681,6 @@ def _membrane_hint(test) -> str:
         f" The membrane (Gent) is stable to (I1 - 3)/J_m = {stable:.3f} at this step "
         "(ErrorCode.MEMBRANE_STIFFENED past it): raise membrane_locking_jm or lower the cell pressure."
     )
-
-
-def _postfix(group: _Group, phase: str, current, chunk, left) -> dict:
-    """The bar's postfix after a chunk: where the group stands (tqdm sorts the keys)."""
-    num = group.batch.num_members
-    active = int(np.sum(left > 0))
-    if phase == "consolidation":
-        # The worst member's unbalanced-force ratio against the stop value.
-        ratio = chunk["unbalanced_force_ratio"].reshape(num, chunk["valid"].shape[1], -1)[..., 0]
-        last = [ratio[b][chunk["valid"][b]][-1] for b in range(num) if chunk["valid"][b].any()]
-        return {
-            "unbalanced": f"{max(last, default=0.0):.1e}",
-            "until": f"{min(s.consolidation_tolerance for s in group.batch.settings):.0e}",
-            **({} if num == 1 else {"active": active}),
-        }
-    if num > 1:
-        return {"active": active, "step": int(np.max(np.asarray(current.dem.step)))}
-    # A single test (run_test) shows where it stands, as in the paper's Fig. 5.
-    valid = chunk["valid"][0]
-    last = {name: float(chunk[name][0][valid][-1].ravel()[0]) for name in _PROGRESS}
-    external, internal = analysis.friction_angle_deg(
-        [last["external_axial_stress"], last["internal_axial_stress"]],
-        [last["external_radial_stress"], last["internal_radial_stress"]],
-    )
-    return {
-        "strain": f"{100 * last['axial_strain']:.3f}%",
-        "phi_ext": f"{external:.1f}",
-        "phi_int": f"{internal:.1f}",
-    }
-
-
-def _shear_starts(group: _Group) -> list[dict]:
-    """Each member's height, volume and platen area at the start of shearing."""
-    return [
-        {"height": group.shear_height[b], "volume": group.shear_volume[b], "platen_area": test.platen_area}
-        for b, test in enumerate(group.batch.tests)
-    ]
 
 
 def run_metadata(settings: RunSettings, test, records, build_seconds, elapsed) -> dict:

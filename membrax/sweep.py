@@ -46,7 +46,7 @@ Periodic elements (``cell = "periodic"``) batch too: members that share one pack
 the cell pressure, the inertial numbers, the strain targets, the friction, the consolidation criteria:
 :func:`membrax.assemble.structure_key`) are one :class:`membrax.executor.PeriodicBatch`, stacked in one
 compiled chunk and sharded over the devices as above, run through the protocol's phases by
-:func:`membrax.run.run_periodic_group` into ``groups/group_{g}``; members that cannot stack (another
+:func:`membrax.runner.run_group` into ``groups/group_{g}``; members that cannot stack (another
 particle count, seed, grading, particle stiffness or precision: another packing or Δt) are grouped by those
 fields and the groups run one after another. ``sweep.nc`` holds their records and figures (peak and late
 φ', ε_v, the lateral servo's error: :func:`membrax.triaxial.analysis.element_summary`) on the same grid.
@@ -94,7 +94,7 @@ from membrax.executor import build_batch, build_periodic_batch, describe_failure
 from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_results, write_netcdf
 from membrax.planning import balanced_order, plan_members, plan_periodic_members
 from membrax.run import default_folder as run_folder
-from membrax.run import periodic_datasets, run_periodic_group
+from membrax.run import periodic_datasets
 from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata
 from membrax.triaxial import analysis
 
@@ -287,8 +287,7 @@ def _run_unit(
 
     Writes ``shear_{k}.nc``/``consolidation_{k}.nc`` for the batch's member k (``configs[order[k]]``),
     ``members.json`` (the order) and, last, ``results.nc``. A member that fails is frozen and written
-    with its ``status`` (``isolate_failures`` of :func:`membrax.runner.run_group`, or of
-    :func:`membrax.run.run_periodic_group` for periodic elements). Returns the order.
+    with its ``status`` (``isolate_failures`` of :func:`membrax.runner.run_group`). Returns the order.
     """
     build_start = time.perf_counter()
     periodic = run_settings(configs[0]).cell == "periodic"
@@ -299,14 +298,9 @@ def _run_unit(
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "members.json").write_text(json.dumps(batch.order))
     build_seconds = time.perf_counter() - build_start
-    if periodic:
-        records, elapsed = run_periodic_group(
-            batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
-        )
-    else:
-        records, shear_start, elapsed = run_group(
-            batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
-        )
+    records, shear_start, elapsed = run_group(
+        batch, folder, resume, progress, interrupt_after_chunks, chunk_counter, isolate_failures=True
+    )
     for k, (settings, test) in enumerate(zip(batch.settings, batch.tests, strict=True)):
         mine = member_chunk_records(records, k)
         failure = batch.failures.get(k)

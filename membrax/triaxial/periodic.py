@@ -529,6 +529,11 @@ class PeriodicTest(StagedTest):
             control = control.set(max_strain_rate=jnp.asarray(max_strain_rate, dtype))
         return state.set(control=control)
 
+    @property
+    def initial_volume(self) -> float:
+        """The box's volume as built, m³ (σc V₀: the runaway stop's scale, :mod:`membrax.runner`)."""
+        return float(np.prod(np.asarray(self.initial_state.length)))
+
     def list_shape(self, state: PeriodicState) -> dict:
         """What fixes the shape of ``state``'s neighbour list (:meth:`template`'s arguments), plain values."""
         return {
