@@ -37,6 +37,7 @@ __all__ = [
     "element_errors",
     "example_arguments",
     "example_argv",
+    "example_height_mm",
     "example_void_ratio",
     "read_example_record",
     "friction_angle_errors",
@@ -86,7 +87,9 @@ def read_example_record(radial_target: str | None = None):
     names = [cell.split("[")[0].strip() for cell in lines[header].split(",")]
     table = np.loadtxt(lines[header + 1 :], delimiter=",", ndmin=2)
     specimen = correct.LabSpecimen.from_mm_kpa(
-        *example_arguments(record.comments), void_ratio=example_void_ratio(record.comments)
+        *example_arguments(record.comments),
+        void_ratio=example_void_ratio(record.comments),
+        specimen_height_mm=example_height_mm(record.comments),
     )
     internal_1 = 1e3 * table[:, names.index(INTERNAL_COLUMNS["sigma_1"])]
     internal_3 = 1e3 * table[:, names.index(INTERNAL_COLUMNS[radial_target])]
@@ -119,14 +122,24 @@ def example_argv(comments) -> list[str]:
     raise ValueError(f"no '# {EXAMPLE_ARGUMENTS_PREFIX} ...' comment in the record.")
 
 
-def example_void_ratio(comments) -> float | None:
-    """The void ratio in a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, or None when it has none."""
+def _example_option(comments, flag: str) -> float | None:
+    """The value of ``flag`` in a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, or None."""
     for line in comments:
         if line.startswith(EXAMPLE_ARGUMENTS_PREFIX):
             words = line[len(EXAMPLE_ARGUMENTS_PREFIX) :].split()
             values = dict(zip(words[::2], words[1::2], strict=True))
-            return float(values[VOID_RATIO_FLAG]) if VOID_RATIO_FLAG in values else None
+            return float(values[flag]) if flag in values else None
     return None
+
+
+def example_void_ratio(comments) -> float | None:
+    """The void ratio in a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, or None when it has none."""
+    return _example_option(comments, VOID_RATIO_FLAG)
+
+
+def example_height_mm(comments) -> float | None:
+    """The specimen height (mm) in a record's :data:`EXAMPLE_ARGUMENTS_PREFIX` comment, or None."""
+    return _example_option(comments, HEIGHT_FLAG)
 
 
 def lab_record_of(config: dict, rows, radial_target: str = datasets.LEGACY_RADIAL_TARGET):

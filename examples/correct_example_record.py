@@ -1,7 +1,8 @@
 """The shipped synthetic example record corrected by every method, beside the stresses it really carried.
 
-Reads ``calibrate/data/example_record.csv`` (a membrax simulation held out of every fit: a dense random
-packing of ballast-graded spheres, seed 1, 147 mm across, d50 16.1 mm, 25 kPa, a 4 mm membrane of 2000 kPa),
+Reads ``calibrate/data/example_record.csv`` (a membrax simulation held out of the fit: a medium-dense random
+packing of ballast-graded spheres, seed 1, 150.5 mm across and 301 mm tall, d50 16.1 mm, 25 kPa, a 4 mm
+membrane of 1400 kPa),
 corrects it as ``membrax correct`` does, prints φ' at a few strains
 by method with the internal φ', and writes the plot with the internal stresses drawn in grey
 (``docs/example_record_corrected.png`` in the README).
