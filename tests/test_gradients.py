@@ -144,7 +144,8 @@ def test_windows_checkpoint_each_step_on_a_cpus_jax_path_alone_and_differentiate
 def test_checkpointed_gradients_through_consolidation_and_shearing_match_central_differences_under_vmap():
     # two Table 1-like members in one compiled call (vmap): 10 kPa in 5 mm, 40 kPa in 2.5 mm; 1,000 steps of
     # consolidation, then 1,000 of shearing at I = 0.01 with a ramp to 0.1 % strain (ε̇ Δt = 8.8e-6 per step
-    # at 10 kPa: ε_a ≈ 0.8 %, twice that at 40 kPa), the whole path differentiated
+    # at 10 kPa: ε_a ≈ 0.8 %, twice that at 40 kPa), the whole path differentiated. Notebook 04's smoke run
+    # (CI) takes this rollout's Jacobian too and leaves its check against central differences to this test.
     shearing = {"inertial_number": 0.01, "shear_ramp_strain": 0.001}
     configs = [
         dataclasses.replace(SMOOTH, **shearing),

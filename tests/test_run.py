@@ -198,10 +198,17 @@ def _compare(a, b):
         np.testing.assert_array_equal(np.asarray(a[name]), np.asarray(b[name]), err_msg=name)
 
 
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory):
+    """The SMALL run (float64) straight through: the reference of the resumed and the float32-shearing
+    runs below (each ran it itself before)."""
+    return run_test(TriaxialConfig(**SMALL), tmp_path_factory.mktemp("small") / "whole", progress=False)
+
+
 @pytest.mark.slow
-def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
+def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(small_run, tmp_path):
     config = TriaxialConfig(**SMALL)
-    whole = run_test(config, tmp_path / "whole", progress=False)
+    whole = small_run
     assert int(whole.metadata["shear_steps"]) > 0
     with pytest.raises(KeyboardInterrupt):
         run_test(config, tmp_path / "cut", progress=False, interrupt_after_chunks=5)
@@ -225,7 +232,7 @@ def test_interrupted_and_resumed_run_equals_an_uninterrupted_one(tmp_path):
     assert end["ram_force"] / initial_area == pytest.approx(1e3 * config.cell_pressure_kpa, rel=0.01)
     assert end["axial_strain"] > 0.0  # the platens moved in
     # The results folder holds what the issue names.
-    names = {p.name for p in (tmp_path / "whole").iterdir()}
+    names = {p.name for p in whole.folder.iterdir()}
     assert {"results.nc", "results.csv", "consolidation.nc", "summary.md", "config.toml"} <= names
     assert {"fig5_friction.png", "fig6_additional_stress.png"} <= names
     # Strains restart at the start of shearing: the first record is the end of consolidation.
@@ -350,13 +357,14 @@ def test_a_faster_coarse_phase_keeps_the_fine_records_and_reaches_the_target_str
     "0.3 deg bound (0.195 absolute); peaks agree to 0.0002 deg; seeds scatter 0.04-0.30 deg in both frames",
     strict=False,
 )
-def test_float32_shearing_keeps_the_float64_consolidation_and_resumes_in_float32(tmp_path):
+def test_float32_shearing_keeps_the_float64_consolidation_and_resumes_in_float32(small_run, tmp_path):
     """``float32_shearing``: consolidation is the float64 run's bit for bit (Table 3's stresses at the start
     of shearing), the shearing runs in float32, balances the ram to float32 round-off and stays within
     float32 noise of the float64 shearing; a run interrupted while shearing resumes from its float32
     checkpoint to the uninterrupted run's records exactly."""
     base = dict(SMALL, float64=True)
-    double = run_test(TriaxialConfig(**base), tmp_path / "double", progress=False)
+    assert base == SMALL  # the module's float64 run
+    double = small_run
     config = TriaxialConfig(**{**base, "float32_shearing": True})
     mixed = run_test(config, tmp_path / "mixed", progress=False)
     assert mixed.metadata["dtype"] == "float64 consolidation, float32 shearing"

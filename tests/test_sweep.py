@@ -162,10 +162,19 @@ SHORT = dict(
 SHORT_GRID = {"cell_pressure_kpa": (10.0, 40.0), "membrane_thickness_mm": (5.0,)}
 
 
-def test_an_interrupted_sweep_resumes_to_the_same_results(tmp_path):
+@pytest.fixture(scope="module")
+def short_sweep(tmp_path_factory):
+    """The short grid (10, 40 kPa in a 5 mm membrane) run at once, in process, on one device: the reference
+    of the resumed, the sabotaged and the sharded sweeps below (each ran it itself before)."""
+    return sweep.run_sweep(
+        TriaxialConfig(**SHORT), SHORT_GRID, tmp_path_factory.mktemp("short"), progress=False, num_devices=1
+    )
+
+
+def test_an_interrupted_sweep_resumes_to_the_same_results(short_sweep, tmp_path):
     """A sweep killed after 2 chunks (a checkpoint every 2) and resumed ends identical to one run at once."""
     base = TriaxialConfig(**SHORT)
-    whole = sweep.run_sweep(base, SHORT_GRID, tmp_path / "whole", progress=False, num_devices=1)
+    whole = short_sweep
     with pytest.raises(KeyboardInterrupt):
         sweep.run_sweep(
             base, SHORT_GRID, tmp_path / "cut", progress=False, num_devices=1, interrupt_after_chunks=3
@@ -180,40 +189,39 @@ SHARDED = textwrap.dedent(
     import json, sys
     import jax
     jax.config.update("jax_enable_x64", True)
-    import numpy as np
-    from membrax import executor, paper, runner, sweep
+    from membrax import sweep
     from membrax.config import TriaxialConfig
     base = TriaxialConfig(**json.loads(sys.argv[1]))
     grid = json.loads(sys.argv[2])
-    one = sweep.run_sweep(base, grid, sys.argv[3] + "/one", progress=False, num_devices=1)
-    two = sweep.run_sweep(base, grid, sys.argv[3] + "/two", progress=False, num_devices=2)
-    def difference(a, b, names, first=None):
-        return max(
-            float(np.nanmax(np.abs(a[n].values[..., :first] - b[n].values[..., :first])))
-            / float(np.nanmax(np.abs(a[n].values))) for n in names
-        )
-    names = NAMES
-    print(json.dumps({
-        "devices": len(jax.devices()),
-        "early": difference(one.consolidation, two.consolidation, names, 5),
-        "whole": difference(one.dataset, two.dataset, names),
-        "steps": [one.dataset["consolidation_steps"].values.tolist(),
-                  two.dataset["consolidation_steps"].values.tolist()],
-    }))
+    sweep.run_sweep(base, grid, sys.argv[3], progress=False, num_devices=2)
+    print(json.dumps({"devices": len(jax.devices())}))
     """
-).replace("NAMES", repr(COMPARED))
+)
 
 
 #: The operations by which one device waits for another inside a compiled program.
 COLLECTIVES = ("all-reduce", "all-gather", "collective-permute", "all-to-all", "reduce-scatter")
 
 
-def test_two_devices_give_the_results_of_one(tmp_path):
+def _difference(a, b, first=None):
+    """The largest difference of the compared records of ``a`` and ``b`` (to record ``first``), relative to
+    ``a``'s largest value."""
+    return max(
+        float(np.nanmax(np.abs(a[n].values[..., :first] - b[n].values[..., :first])))
+        / float(np.nanmax(np.abs(a[n].values)))
+        for n in COMPARED
+    )
+
+
+def test_two_devices_give_the_results_of_one(short_sweep, tmp_path):
     """The member axis sharded over 2 (virtual CPU) devices with shard_map gives the unsharded results, and no
     program the sweep compiles makes one device wait for the other (XLA ends the process when a
     device reaches a cross-device all-reduce 40 s after the other). Every compiled module is dumped and read:
     none holds a collective; the 10 kPa member shears twice as long as the 40 kPa one, so its device works
-    alone in the last chunks, under a collective timeout cut to 1 s."""
+    alone in the last chunks, under a collective timeout cut to 1 s.
+
+    The unsharded reference is the module's one-device sweep of the same grid, run in this process: on one
+    device, the same programs whichever process compiles them (it was run a second time in the subprocess)."""
     dump = tmp_path / "hlo"
     flags = (
         "--xla_force_host_platform_device_count=2 --xla_cpu_collective_call_terminate_timeout_seconds=1 "
@@ -221,17 +229,21 @@ def test_two_devices_give_the_results_of_one(tmp_path):
     )
     env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
     done = subprocess.run(
-        [sys.executable, "-c", SHARDED, json.dumps(SHORT), json.dumps(SHORT_GRID), str(tmp_path)],
+        [sys.executable, "-c", SHARDED, json.dumps(SHORT), json.dumps(SHORT_GRID), str(tmp_path / "two")],
         env=env,
         capture_output=True,
         text=True,
         check=False,
     )
     assert done.returncode == 0, done.stderr[-3000:]
-    report = json.loads(done.stdout.strip().splitlines()[-1])
-    assert report["devices"] == 2
-    assert report["steps"][0] == report["steps"][1], report
-    assert report["early"] <= 1e-9, report
+    assert json.loads(done.stdout.strip().splitlines()[-1]) == {"devices": 2}
+    one, folder = short_sweep, tmp_path / "two"
+    two, two_consolidation = (read_results(folder / f) for f in ("sweep.nc", "sweep_consolidation.nc"))
+    np.testing.assert_array_equal(
+        two["consolidation_steps"].values, one.dataset["consolidation_steps"].values
+    )
+    early = _difference(one.consolidation, two_consolidation, 5)
+    assert early <= 1e-9, (early, _difference(one.dataset, two))
     compiled = sorted(dump.glob("*after_optimizations.txt"))
     assert any("_chunk_impl" in path.name for path in compiled)
     waiting = [
@@ -327,7 +339,9 @@ def test_the_cpu_splits_into_one_device_per_core_before_jax_starts():
 
 
 @pytest.mark.slow
-def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchanged(tmp_path, monkeypatch):
+def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchanged(
+    short_sweep, tmp_path, monkeypatch
+):
     """Failure isolation: the 100 kPa member's sphere stiffness raised 1e6-fold (the batch's Δt then far past
     its stable step, a test-only sabotage) goes non-finite in its first chunk. It is flagged with the error,
     the phase and the step; the 10 and 40 kPa members of the same batch end bitwise equal to a sweep of them
@@ -358,10 +372,8 @@ def test_a_member_that_blows_up_is_frozen_and_flagged_and_the_others_are_unchang
     np.testing.assert_array_equal(resumed.dataset["status"].values, mixed.dataset["status"].values)
     for name in COMPARED:
         np.testing.assert_array_equal(resumed.dataset[name].values, mixed.dataset[name].values)
-    monkeypatch.setattr(sweep, "build_batch", build)
-    alone = sweep.run_sweep(
-        base, {**grid, "cell_pressure_kpa": (10.0, 40.0)}, tmp_path / "alone", progress=False, num_devices=1
-    )
+    alone = short_sweep  # the same base, the grid without the 100 kPa member, unsabotaged
+    assert SHORT_GRID == {**grid, "cell_pressure_kpa": (10.0, 40.0)}
     status = mixed.dataset["status"].values[:, 0]
     assert list(status[:2]) == ["completed", "completed"]
     # Its spheres go non-finite or leave the neighbour box within its first chunk of 500 steps.
