@@ -3,8 +3,8 @@
 A correction maps a membrane specimen's external stresses to its internal ones; the internal φ' of a
 specimen 6–12 particles across is not the boundary-free material's (``examples/boundary_split.py``). This
 script corrects every member of the laboratory grid's membrane cells (``--lab``: its archive, the
-repository's ``data/sweeps/lab``, or a run folder; the groups of ``--groups`` that have run; none of them
-is in the shipped correction's fit) by every
+repository's ``data/sweeps/lab``, or a run folder; the groups of ``--groups`` that have run; the shipped
+correction was fitted on them, so its internal scores are in sample: ``--model`` scores another) by every
 method of ``membrax correct`` (:func:`calibrate.evaluate.element_errors`) and compares each method's peak
 and late φ' (the mean over ε_a ≥ 8 %) with the member's internal ones and with the periodic element's at
 the same state and σc (``calibrate/data/boundary_split.csv``). Prints, per group and pooled, the mean
