@@ -9,7 +9,9 @@ the sources' hash and the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/memb
 
 Kernels: the membrane's nodal forces (:func:`membrax.membrane.energies.nodal_forces`), its node update
 (:func:`membrax.membrane.node_update.advance_nodes`), the node–sphere law
-(:func:`membrax.membrane.contact.node_sphere_forces`) and the DEM's sphere–sphere contacts summed per
+(:func:`membrax.membrane.contact.node_sphere_forces`), the face contact law
+(:func:`membrax.membrane.face_contact.face_contact_forces`, forward only: its reverse mode is the JAX
+law's derivative) and the DEM's sphere–sphere contacts summed per
 sphere (:func:`membrax.spheres.integrate.compute_forces`, with the law of
 :func:`membrax.spheres.contact.pair_contact`). Each caller wraps its kernel with :func:`with_reference`.
 
@@ -76,7 +78,7 @@ __all__ = [
     "zeros_for_absent",
 ]
 
-_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
+_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "face_contact.cc", "dem_pairs.cc")
 _HEADERS = ("contact_law.h", "dual.h", "ffi_bind.h", "parallel.h")
 # Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
 _KERNELS = {
@@ -86,6 +88,7 @@ _KERNELS = {
     "membrane_nodes_backward": "MembraxMembraneNodesBackward",
     "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
     "node_sphere_backward": "MembraxNodeSphereBackward",
+    "face_contact_forces": "MembraxFaceContactForces",  # face_contact.face_contact_forces
     "dem_pairs": "MembraxDemPairs",  # integrate.compute_forces (pairs)
     "dem_pairs_backward": "MembraxDemPairsBackward",
 }
