@@ -191,9 +191,13 @@ def node_sphere_backward_kernel(args, cotangents, position_addend, velocity_adde
 # the mesh's neighbours given.
 
 
-def face_contact_kernel_inputs(nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours):
-    """The kernel's floating inputs, flat in its order: x, v (nodes), x, v, ω, R (spheres), the three springs,
-    and (Δt, k_n, k_t, μ, t_m) stacked; all of the node positions' dtype."""
+def face_contact_kernel_inputs(
+    nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours
+):
+    """The kernel's floating inputs, flat in its order, all of the node positions' dtype.
+
+    x, v (nodes), x, v, ω, R (spheres), the three springs, and (Δt, k_n, k_t, μ, t_m) stacked.
+    """
     del mesh, slots, neighbours  # integer tables: passed to the kernel as they are
     dtype = nodes.position.dtype
     rows = (nodes.position, nodes.velocity, spheres.position, spheres.velocity, spheres.angular_velocity)

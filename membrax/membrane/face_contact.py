@@ -77,6 +77,7 @@ __all__ = [
     "face_contact_forces",
     "face_contact_reference",
     "reference_face_contact_forces",
+    "runs_kernel",
     "feature_slots",
     "closest_point_weights",
     "interior_nodes",
@@ -428,7 +429,7 @@ def face_contact_forces(
       A :class:`FaceContactForces`.
     """
     springs = tuple(springs)
-    if not native.enabled_for(jnp.asarray(nodes.position).dtype):
+    if not runs_kernel(jnp.asarray(nodes.position).dtype):
         return reference_face_contact_forces(
             nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours
         )
@@ -461,6 +462,16 @@ def face_contact_forces(
         overlap=jnp.concatenate(overlaps),
         slots=slots,
     )
+
+
+def runs_kernel(dtype) -> bool:
+    """Whether :func:`face_contact_forces` calls the compiled kernel for positions of ``dtype``.
+
+    :func:`membrax.native.enabled_for` (float32 or float64, the kernels built); the kernel then runs on the
+    CPU backend and the JAX law elsewhere. A test may replace this function to run the JAX law everywhere
+    (or call :func:`reference_face_contact_forces` directly).
+    """
+    return native.enabled_for(dtype)
 
 
 def face_contact_reference(*args):
