@@ -57,6 +57,14 @@ struct Law {
   T *on_sphere, *torque;
 };
 
+// A slot's spring set to zero (no contact), written only where it is not zero already: in a step's loop
+// nearly every spring is, and a store would dirty its cache line all the same.
+template <typename T>
+inline void clear(T* spring, int64_t stride) {
+  if ((spring[0] != T(0)) | (spring[stride] != T(0)) | (spring[2 * stride] != T(0)))
+    spring[0] = spring[stride] = spring[2 * stride] = T(0);
+}
+
 // One slot's law from its sphere, the closest point's weights (count of them) and corners, and the
 // carried spring; writes the new spring (component-first, stride m) and returns F on the membrane.
 // `in_region`: whether the centre lies in the feature's region.
@@ -66,7 +74,7 @@ inline Vec3<T> slot_law(const Law<T>& law, int64_t sphere, Vec3<T> centre, const
                         T* spring, int64_t stride) {
   const Vec3<T> zero{T(0), T(0), T(0)};
   if (!in_region) {  // the reference's overlap −1: no force, a zero spring
-    spring[0] = spring[stride] = spring[2 * stride] = T(0);
+    clear(spring, stride);
     return zero;
   }
   Vec3<T> contact_point = zero;
@@ -76,7 +84,7 @@ inline Vec3<T> slot_law(const Law<T>& law, int64_t sphere, Vec3<T> centre, const
   const T distance = distance_sq == T(0) ? T(0) : std::sqrt(distance_sq);
   const T overlap = law.radius[sphere] + law.half_thickness - distance;
   if (!((overlap > T(0)) & (distance > T(0)))) {  // not touching (a NaN neither)
-    spring[0] = spring[stride] = spring[2 * stride] = T(0);
+    clear(spring, stride);
     return zero;
   }
   // Touching (about one occupied slot in 300 at paper size): the law.
@@ -136,13 +144,13 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + f * width + m;
         if (row[m] >= law.num_spheres) {
-          s[0] = s[stride] = s[2 * stride] = T(0);
+          clear(s, stride);
           continue;
         }
         const int64_t sphere = row[m];
         const Vec3<T> centre = row3(law.xs, sphere);
         if (out_of_reach(law, sphere, centre, middle, extent)) {
-          s[0] = s[stride] = s[2 * stride] = T(0);
+          clear(s, stride);
           continue;
         }
         const Vec3<T> foot = centre - dot(centre - a, unit) * unit;
@@ -158,7 +166,7 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
     } else {
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + f * width + m;
-        s[0] = s[stride] = s[2 * stride] = T(0);
+        clear(s, stride);
       }
     }
     for (int k = 0; k < 3; ++k) {
@@ -200,13 +208,13 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + e * width + m;
         if (row[m] >= law.num_spheres) {
-          s[0] = s[stride] = s[2 * stride] = T(0);
+          clear(s, stride);
           continue;
         }
         const int64_t sphere = row[m];
         const Vec3<T> centre = row3(law.xs, sphere);
         if (out_of_reach(law, sphere, centre, middle, extent)) {
-          s[0] = s[stride] = s[2 * stride] = T(0);
+          clear(s, stride);
           continue;
         }
         const Vec3<T> from_u = centre - u;
@@ -220,7 +228,7 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
     } else {
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + e * width + m;
-        s[0] = s[stride] = s[2 * stride] = T(0);
+        clear(s, stride);
       }
     }
     for (int k = 0; k < 2; ++k) {
@@ -258,13 +266,13 @@ void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int3
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + n * width + m;
         if (row[m] >= law.num_spheres) {
-          s[0] = s[stride] = s[2 * stride] = T(0);
+          clear(s, stride);
           continue;
         }
         const int64_t sphere = row[m];
         const Vec3<T> centre = row3(law.xs, sphere);
         if (out_of_reach(law, sphere, centre, vertex, T(0))) {
-          s[0] = s[stride] = s[2 * stride] = T(0);
+          clear(s, stride);
           continue;
         }
         const Vec3<T> from_vertex = centre - vertex;
@@ -276,7 +284,7 @@ void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int3
     } else {
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + n * width + m;
-        s[0] = s[stride] = s[2 * stride] = T(0);
+        clear(s, stride);
       }
     }
     share[3 * n] = total.x;
