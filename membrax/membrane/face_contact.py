@@ -45,6 +45,14 @@ the sides of a flat sheet) have no edge or node contact; the triangles next to t
 contact. Near a saddle-shaped node the regions of its edges and of the node itself may overlap or leave a
 sliver (the regions are exact for a convex or a concave patch).
 
+Kernel. On the CPU, in float32 or float64, :func:`face_contact_forces` runs a compiled kernel
+(``membrax/native/face_contact.cc``, :mod:`membrax.native`) that skips the empty slots (about 70 % of
+665,000 at paper size) and the spheres out of a feature's reach, applies the law to the others one feature
+at a time, and sums the node shares per feature and then per node through the mesh's incidence tables,
+without atomics, in the order of the JAX law below (:func:`reference_face_contact_forces`), which stays the
+definition: the tests hold the kernel to it to round-off, it runs on other backends, and its derivative is
+the kernel's (reverse mode runs ``jax.vjp`` of the JAX law; there is no backward kernel).
+
 Layout: positions are rows (n, 3); per-slot quantities are component-first (3, F, M) (:mod:`membrax.vector`).
 SI units: m, s, N, N·m.
 """
