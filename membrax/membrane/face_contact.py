@@ -50,8 +50,9 @@ Kernel. On the CPU, in float32 or float64, :func:`face_contact_forces` runs a co
 665,000 at paper size) and the spheres out of a feature's reach, applies the law to the others one feature
 at a time, and sums the node shares per feature and then per node through the mesh's incidence tables,
 without atomics, in the order of the JAX law below (:func:`reference_face_contact_forces`), which stays the
-definition: the tests hold the kernel to it to round-off, it runs on other backends, and its derivative is
-the kernel's (reverse mode runs ``jax.vjp`` of the JAX law; there is no backward kernel).
+definition: the tests hold the kernel to it to round-off, and it runs on other backends. Reverse mode on
+the CPU runs a backward kernel (``face_contact_backward``: each touching slot's ū·(outputs) on dual
+numbers, once per input of the slot) that the tests hold to ``jax.vjp`` of the JAX law.
 
 Layout: positions are rows (n, 3); per-slot quantities are component-first (3, F, M) (:mod:`membrax.vector`).
 SI units: m, s, N, N·m.
@@ -427,11 +428,12 @@ def face_contact_forces(
 
     On the CPU, in float32 or float64, the forces, torques and springs come from a compiled kernel
     (:mod:`membrax.native`, ``face_contact.cc``) that skips the empty slots and applies this law to the
-    others, one feature at a time, summing the node shares per feature and then per node without atomics.
-    The JAX law (:func:`reference_face_contact_forces`) is the definition the tests hold the kernel to
-    (agreement to round-off), the law used elsewhere, and the derivative of both (reverse mode through the
-    kernel is ``jax.vjp`` of the JAX law). The per-slot fields (normal forces, slot forces, branches,
-    overlaps) are then computed from the geometry in JAX; XLA drops those a caller does not read.
+    others, one feature at a time, summing the node shares per feature and then per node without atomics. The
+    JAX law (:func:`reference_face_contact_forces`) is the definition the tests hold the kernel to (agreement
+    to round-off) and the law used elsewhere; reverse mode runs a compiled backward kernel
+    (``face_contact_backward``) that gives the JAX law's derivatives to round-off. The per-slot fields (normal
+    forces, slot forces, branches, overlaps) are then computed from the geometry in JAX; XLA drops those a
+    caller does not read.
 
     Returns:
       A :class:`FaceContactForces`.
@@ -488,7 +490,9 @@ def face_contact_reference(*args):
     return (result.node_force, result.sphere_force, result.sphere_torque, *result.spring)
 
 
-_compiled_face_contact_forces = native.with_reference(_kernels.face_contact_kernel, face_contact_reference)
+_compiled_face_contact_forces = native.with_reference(
+    _kernels.face_contact_kernel, face_contact_reference, _kernels.face_contact_backward
+)
 
 
 def reference_face_contact_forces(

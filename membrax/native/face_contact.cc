@@ -3,8 +3,8 @@
 //
 // An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
 // parallel.h), compiled on first use by membrax/native/__init__.py; the law is that of
-// membrax/membrane/face_contact.py (face_contact_forces), which remains the reference and gives the
-// derivatives. For each slot (feature f, candidate m) with sphere i = idx[f, m] < N:
+// membrax/membrane/face_contact.py (face_contact_forces), which remains the reference;
+// face_contact_backward (below) is its reverse-mode rule. For each slot (feature f, candidate m) with sphere i = idx[f, m] < N:
 //   the closest point x_p = Σ w_k x_k of the centre x_i on the feature (face: the foot of the perpendicular
 //   on the triangle's plane, area coordinates w; edge: on its line, 1 − τ and τ; node: the node, 1), which
 //   counts only where x_i lies in the feature's Voronoi region (tie band β = √ε of the dtype);
@@ -35,6 +35,7 @@
 #include <vector>
 
 #include "contact_law.h"
+#include "dual.h"
 #include "ffi_bind.h"
 #include "parallel.h"
 #include "xla/ffi/api/ffi.h"
@@ -108,6 +109,18 @@ inline Vec3<T> slot_law(const Law<T>& law, int64_t sphere, Vec3<T> centre, const
   return force;
 }
 
+// The forward kernel's visit of an occupied slot: the law (slot_law).
+template <typename T>
+struct ForwardVisit {
+  static constexpr bool kForward = true;
+  const Law<T>& law;
+  template <int kCount>
+  Vec3<T> slot(int64_t sphere, Vec3<T> centre, const T (&weight)[kCount], const Vec3<T> (&corner)[kCount],
+               const int64_t (&node)[kCount], bool in_region, T* spring, int64_t stride) {
+    return slot_law<T, kCount>(law, sphere, centre, weight, corner, node, in_region, spring, stride);
+  }
+};
+
 // Whether the sphere surely misses a feature that lies inside the ball (middle, extent): the closest point
 // of any region of the feature is then farther from the centre than R + t_m/2, by a margin far above
 // round-off, so the law gives no force and a zero spring, as the reference does in or out of the region.
@@ -120,9 +133,9 @@ inline bool out_of_reach(const Law<T>& law, int64_t sphere, Vec3<T> centre, Vec3
 }
 
 // The faces: share (F, 3, 3), each triangle's force on its corners a, b, c summed over its slots.
-template <typename T>
+template <typename T, typename Visit>
 void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_t width, const int32_t* triangles,
-                T* spring, T* share) {
+                T* spring, T* share, Visit& visit) {
   const int64_t stride = num_faces * width;
   for (int64_t f = 0; f < num_faces; ++f) {
     Vec3<T> total[3] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
@@ -144,13 +157,13 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + f * width + m;
         if (row[m] >= law.num_spheres) {
-          clear(s, stride);
+          if constexpr (Visit::kForward) clear(s, stride);
           continue;
         }
         const int64_t sphere = row[m];
         const Vec3<T> centre = row3(law.xs, sphere);
         if (out_of_reach(law, sphere, centre, middle, extent)) {
-          clear(s, stride);
+          if constexpr (Visit::kForward) clear(s, stride);
           continue;
         }
         const Vec3<T> foot = centre - dot(centre - a, unit) * unit;
@@ -160,16 +173,17 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
         const bool inside = (weight_a > law.band) & (weight_b > law.band) & (weight_c > law.band) &
                             (twice_area > T(0));
         const T weight[3] = {weight_a, weight_b, weight_c};
-        const Vec3<T> force = slot_law<T, 3>(law, sphere, centre, weight, corner, node, inside, s, stride);
+        const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, inside, s, stride);
         for (int k = 0; k < 3; ++k) total[k] = total[k] + weight[k] * force;
       }
     } else {
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + f * width + m;
-        clear(s, stride);
+        if constexpr (Visit::kForward) clear(s, stride);
       }
     }
-    for (int k = 0; k < 3; ++k) {
+    if constexpr (Visit::kForward)
+      for (int k = 0; k < 3; ++k) {
       share[9 * f + 3 * k] = total[k].x;
       share[9 * f + 3 * k + 1] = total[k].y;
       share[9 * f + 3 * k + 2] = total[k].z;
@@ -178,9 +192,9 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
 }
 
 // The interior edges: share (E, 2, 3), each edge's force on its ends u, v summed over its slots.
-template <typename T>
+template <typename T, typename Visit>
 void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_t width, const int32_t* edge_nodes,
-                T* spring, T* share) {
+                T* spring, T* share, Visit& visit) {
   const int64_t stride = num_edges * width;
   for (int64_t e = 0; e < num_edges; ++e) {
     Vec3<T> total[2] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
@@ -208,13 +222,13 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + e * width + m;
         if (row[m] >= law.num_spheres) {
-          clear(s, stride);
+          if constexpr (Visit::kForward) clear(s, stride);
           continue;
         }
         const int64_t sphere = row[m];
         const Vec3<T> centre = row3(law.xs, sphere);
         if (out_of_reach(law, sphere, centre, middle, extent)) {
-          clear(s, stride);
+          if constexpr (Visit::kForward) clear(s, stride);
           continue;
         }
         const Vec3<T> from_u = centre - u;
@@ -222,16 +236,17 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
         bool in_region = (fraction > law.band) & (fraction < law.upper_band) & (length_sq > T(0));
         for (int k = 0; k < 2; ++k) in_region &= dot(from_u, inward[k]) / safe_height_sq[k] <= law.band;
         const T weight[2] = {T(1) - fraction, fraction};
-        const Vec3<T> force = slot_law<T, 2>(law, sphere, centre, weight, corner, node, in_region, s, stride);
+        const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
         for (int k = 0; k < 2; ++k) total[k] = total[k] + weight[k] * force;
       }
     } else {
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + e * width + m;
-        clear(s, stride);
+        if constexpr (Visit::kForward) clear(s, stride);
       }
     }
-    for (int k = 0; k < 2; ++k) {
+    if constexpr (Visit::kForward)
+      for (int k = 0; k < 2; ++k) {
       share[6 * e + 3 * k] = total[k].x;
       share[6 * e + 3 * k + 1] = total[k].y;
       share[6 * e + 3 * k + 2] = total[k].z;
@@ -240,9 +255,9 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
 }
 
 // The interior nodes: share (n, 3), each node's own force summed over its slots.
-template <typename T>
+template <typename T, typename Visit>
 void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int32_t* neighbours,
-                int64_t num_neighbours, T* spring, T* share) {
+                int64_t num_neighbours, T* spring, T* share, Visit& visit) {
   const int64_t num_nodes = law.num_nodes, stride = num_nodes * width;
   std::vector<Vec3<T>> spoke(static_cast<size_t>(num_neighbours));
   std::vector<T> safe_spoke_sq(static_cast<size_t>(num_neighbours));
@@ -266,30 +281,32 @@ void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int3
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + n * width + m;
         if (row[m] >= law.num_spheres) {
-          clear(s, stride);
+          if constexpr (Visit::kForward) clear(s, stride);
           continue;
         }
         const int64_t sphere = row[m];
         const Vec3<T> centre = row3(law.xs, sphere);
         if (out_of_reach(law, sphere, centre, vertex, T(0))) {
-          clear(s, stride);
+          if constexpr (Visit::kForward) clear(s, stride);
           continue;
         }
         const Vec3<T> from_vertex = centre - vertex;
         bool in_region = true;
         for (int64_t h = 0; h < num_neighbours; ++h)
           in_region &= (dot(from_vertex, spoke[h]) / safe_spoke_sq[h] <= law.band) | (around[h] >= num_nodes);
-        total = total + slot_law<T, 1>(law, sphere, centre, weight, corner, node, in_region, s, stride);
+        total = total + visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
       }
     } else {
       for (int64_t m = 0; m < width; ++m) {
         T* s = spring + n * width + m;
-        clear(s, stride);
+        if constexpr (Visit::kForward) clear(s, stride);
       }
     }
-    share[3 * n] = total.x;
-    share[3 * n + 1] = total.y;
-    share[3 * n + 2] = total.z;
+    if constexpr (Visit::kForward) {
+      share[3 * n] = total.x;
+      share[3 * n + 1] = total.y;
+      share[3 * n + 2] = total.z;
+    }
   }
 }
 
@@ -367,9 +384,10 @@ ffi::Future face_contact_forces(
     T* node_share = edge_share + 6 * num_edges + 3;
     std::fill(face_share + 9 * num_faces, face_share + 9 * num_faces + 3, T(0));
     std::fill(edge_share + 6 * num_edges, edge_share + 6 * num_edges + 3, T(0));
-    face_slots<T>(law, face_ids, num_faces, face_width, triangle_nodes, face_out, face_share);
-    edge_slots<T>(law, edge_ids, num_edges, edge_width, edge_corners, edge_out, edge_share);
-    node_slots<T>(law, node_ids, node_width, around, num_neighbours, node_out, node_share);
+    ForwardVisit<T> visit{law};
+    face_slots(law, face_ids, num_faces, face_width, triangle_nodes, face_out, face_share, visit);
+    edge_slots(law, edge_ids, num_edges, edge_width, edge_corners, edge_out, edge_share, visit);
+    node_slots(law, node_ids, node_width, around, num_neighbours, node_out, node_share, visit);
     // Each node: its corners' face shares, its ends' edge shares, its own; in that order.
     for (int64_t n = 0; n < num_nodes; ++n) {
       // corner_index: e < F the triangles' first corners, then their second and third; padded with 3F.
@@ -389,6 +407,265 @@ ffi::Future face_contact_forces(
   });
 }
 
+
+// ---- The backward kernel: each touching slot's law on dual numbers, one input direction at a time.
+//
+// Reverse mode needs ū·J for the slot's outputs (its shares w_k F on its nodes, −F and b × (−F) on its
+// sphere, its new spring s'), a function of a few dozen inputs (the feature's node positions and velocities,
+// the sphere's position, velocity, spin and radius, the carried spring, Δt, k_n, k_t, μ, t_m): the scalar
+// L = ū·outputs is evaluated on dual numbers once per input, seeded with that input's unit tangent, and its
+// tangent is that input's cotangent. A few hundred slots touch at paper size, so this costs little. The
+// regions and the touching test are decided on the values and held fixed, as the JAX law's selects are;
+// every guarded norm and select takes the JAX law's branch (value-based), so the derivatives are its own.
+
+using membrax::Dual;
+
+template <typename T>
+inline T value(T x) { return x; }
+template <typename T>
+inline T value(Dual<T> x) { return x.v; }
+
+template <typename S>
+inline S guarded_sqrt(S x) {  // √x, 0 (with a zero tangent) at x = 0: the JAX law's safe_norm
+  using membrax::sqrt;
+  using std::sqrt;
+  return value(x) > decltype(value(x))(0) ? sqrt(x) : S{};
+}
+
+template <typename T>
+inline Vec3<Dual<T>> lift(Vec3<T> a) {
+  return {membrax::constant(a.x), membrax::constant(a.y), membrax::constant(a.z)};
+}
+
+// The slot's inputs, in their seeding order: corners (3K), corner velocities (3K), centre, sphere velocity,
+// spin (3 each), radius, carried spring (3), Δt, k_n, k_t, μ, t_m.
+template <int kCount>
+constexpr int kInputs = 6 * kCount + 9 + 1 + 3 + 5;
+
+// L = ū·(the slot's outputs) on inputs `in` (dual numbers); `bar`: the shares' cotangents per corner, then
+// the sphere force's, the torque's and the spring's.
+template <typename T, int kCount>
+Dual<T> slot_objective(const Dual<T>* in, const Vec3<T> (&bar)[kCount + 3]) {
+  using S = Dual<T>;
+  auto vec = [in](int q) { return Vec3<S>{in[q], in[q + 1], in[q + 2]}; };
+  Vec3<S> corner[kCount], velocity[kCount];
+  for (int k = 0; k < kCount; ++k) {
+    corner[k] = vec(3 * k);
+    velocity[k] = vec(3 * kCount + 3 * k);
+  }
+  const int q = 6 * kCount;
+  const Vec3<S> centre = vec(q), sphere_velocity = vec(q + 3), spin = vec(q + 6);
+  const S radius = in[q + 9];
+  const Vec3<S> spring = vec(q + 10);
+  const S dt = in[q + 13], normal_stiffness = in[q + 14], tangential_stiffness = in[q + 15], friction = in[q + 16],
+          thickness = in[q + 17];
+  S weight[kCount];
+  if constexpr (kCount == 3) {  // the area coordinates of the foot of the perpendicular
+    const Vec3<S> a = corner[0], b = corner[1], c = corner[2];
+    const Vec3<S> normal = cross(b - a, c - a);
+    const S inverse_area = T(1) / guarded_sqrt(dot(normal, normal));  // > 0 in the face's region
+    const Vec3<S> unit = inverse_area * normal;
+    const Vec3<S> foot = centre - dot(centre - a, unit) * unit;
+    weight[0] = dot(cross(c - b, foot - b), unit) * inverse_area;
+    weight[1] = dot(cross(a - c, foot - c), unit) * inverse_area;
+    weight[2] = (T(1) - weight[0]) - weight[1];
+  } else if constexpr (kCount == 2) {  // τ along the edge
+    const Vec3<S> along = corner[1] - corner[0];
+    const S fraction = dot(centre - corner[0], along) / dot(along, along);
+    weight[0] = T(1) - fraction;
+    weight[1] = fraction;
+  } else {
+    weight[0] = membrax::constant(T(1));
+  }
+  Vec3<S> contact_point = lift(Vec3<T>{T(0), T(0), T(0)}), membrane_velocity = contact_point;
+  for (int k = 0; k < kCount; ++k) {
+    contact_point = contact_point + weight[k] * corner[k];
+    membrane_velocity = membrane_velocity + weight[k] * velocity[k];
+  }
+  const Vec3<S> branch = contact_point - centre;
+  const S distance = guarded_sqrt(dot(branch, branch));  // > 0: touching
+  const Vec3<S> normal = (T(1) / distance) * branch;
+  const S overlap = (radius + T(0.5) * thickness) - distance;
+  const S normal_force = normal_stiffness * overlap;
+  const Vec3<S> relative = membrane_velocity - (sphere_velocity + cross(spin, branch));
+  const Vec3<S> tangential = relative - dot(relative, normal) * normal;
+  // membrax.spheres.contact.tangential_spring_update, active.
+  const S length = guarded_sqrt(dot(spring, spring));
+  const Vec3<S> projected = spring - dot(spring, normal) * normal;
+  const S projected_sq = dot(projected, projected), quarter = T(0.25) * length * length;
+  const S denominator_sq = value(projected_sq) >= value(quarter) ? projected_sq : quarter;
+  const bool positive = value(denominator_sq) > T(0);
+  const S denominator = positive ? guarded_sqrt(denominator_sq) : S{};
+  const Vec3<S> zero = lift(Vec3<T>{T(0), T(0), T(0)});
+  const Vec3<S> direction = positive ? (T(1) / denominator) * projected : zero;
+  const Vec3<S> trial = length * direction - (tangential_stiffness * dt) * tangential;
+  const S trial_length = guarded_sqrt(dot(trial, trial));
+  const S limit = friction * normal_force;
+  const S slip = value(trial_length) > value(limit)
+                     ? limit / (value(trial_length) > T(0) ? trial_length : membrax::constant(T(1)))
+                     : membrax::constant(T(1));
+  const Vec3<S> updated = slip * trial;
+  const Vec3<S> force = normal_force * normal + updated;  // on the membrane
+  const Vec3<S> reaction = S{T(-1), T(0)} * force;
+  S total = dot(lift(bar[kCount]), reaction) + dot(lift(bar[kCount + 1]), cross(branch, reaction)) +
+            dot(lift(bar[kCount + 2]), updated);
+  for (int k = 0; k < kCount; ++k) total = total + dot(lift(bar[k]), weight[k] * force);
+  return total;
+}
+
+// The backward's visit of an occupied slot: where it touches, the cotangents of its inputs added to the
+// outputs (its spring's written), in slot order.
+template <typename T>
+struct BackwardVisit {
+  static constexpr bool kForward = false;
+  const Law<T>& law;
+  const T *node_force_bar, *sphere_force_bar, *torque_bar, *spring_bar;  // spring_bar: this kind's
+  const T* spring_base;                                                  // this kind's carried springs
+  T *x_bar, *v_bar, *xs_bar, *vs_bar, *ws_bar, *radius_bar, *spring_out, *scalars_bar;
+
+  template <int kCount>
+  Vec3<T> slot(int64_t sphere, Vec3<T> centre, const T (&weight)[kCount], const Vec3<T> (&corner)[kCount],
+               const int64_t (&node)[kCount], bool in_region, T* spring, int64_t stride) {
+    const Vec3<T> zero{T(0), T(0), T(0)};
+    if (!in_region) return zero;
+    Vec3<T> contact_point = zero;  // as slot_law decides touching
+    for (int k = 0; k < kCount; ++k) contact_point = contact_point + weight[k] * corner[k];
+    const Vec3<T> branch = contact_point - centre;
+    const T distance_sq = dot(branch, branch);
+    const T distance = distance_sq == T(0) ? T(0) : std::sqrt(distance_sq);
+    const T overlap = law.radius[sphere] + law.half_thickness - distance;
+    if (!((overlap > T(0)) & (distance > T(0)))) return zero;
+    const int64_t slot = spring - spring_base;
+    constexpr int n_in = kInputs<kCount>;
+    T values[n_in];
+    for (int k = 0; k < kCount; ++k) {
+      const Vec3<T> x = corner[k], v = row3(law.v, node[k]);
+      const T rows[6] = {x.x, x.y, x.z, v.x, v.y, v.z};
+      for (int c = 0; c < 3; ++c) {
+        values[3 * k + c] = rows[c];
+        values[3 * kCount + 3 * k + c] = rows[3 + c];
+      }
+    }
+    const int q = 6 * kCount;
+    const Vec3<T> sphere_rows[3] = {centre, row3(law.vs, sphere), row3(law.ws, sphere)};
+    for (int r = 0; r < 3; ++r) {
+      values[q + 3 * r] = sphere_rows[r].x;
+      values[q + 3 * r + 1] = sphere_rows[r].y;
+      values[q + 3 * r + 2] = sphere_rows[r].z;
+    }
+    values[q + 9] = law.radius[sphere];
+    for (int c = 0; c < 3; ++c) values[q + 10 + c] = spring_base[c * stride + slot];
+    const T scalars[5] = {law.dt, law.normal_stiffness, law.tangential_stiffness, law.friction,
+                          T(2) * law.half_thickness};
+    for (int c = 0; c < 5; ++c) values[q + 13 + c] = scalars[c];
+    Vec3<T> bar[kCount + 3];
+    for (int k = 0; k < kCount; ++k) bar[k] = row3(node_force_bar, node[k]);
+    bar[kCount] = row3(sphere_force_bar, sphere);
+    bar[kCount + 1] = row3(torque_bar, sphere);
+    bar[kCount + 2] = {spring_bar[slot], spring_bar[stride + slot], spring_bar[2 * stride + slot]};
+    T gradient[n_in];
+    Dual<T> in[n_in];
+    for (int j = 0; j < n_in; ++j) in[j] = membrax::constant(values[j]);
+    for (int j = 0; j < n_in; ++j) {
+      in[j].d = T(1);
+      gradient[j] = slot_objective<T, kCount>(in, bar).d;
+      in[j].d = T(0);
+    }
+    for (int k = 0; k < kCount; ++k) {
+      membrax::add3(x_bar, node[k], Vec3<T>{gradient[3 * k], gradient[3 * k + 1], gradient[3 * k + 2]});
+      membrax::add3(v_bar, node[k],
+                    Vec3<T>{gradient[3 * kCount + 3 * k], gradient[3 * kCount + 3 * k + 1],
+                            gradient[3 * kCount + 3 * k + 2]});
+    }
+    membrax::add3(xs_bar, sphere, Vec3<T>{gradient[q], gradient[q + 1], gradient[q + 2]});
+    membrax::add3(vs_bar, sphere, Vec3<T>{gradient[q + 3], gradient[q + 4], gradient[q + 5]});
+    membrax::add3(ws_bar, sphere, Vec3<T>{gradient[q + 6], gradient[q + 7], gradient[q + 8]});
+    radius_bar[sphere] += gradient[q + 9];
+    for (int c = 0; c < 3; ++c) spring_out[c * stride + slot] = gradient[q + 10 + c];
+    for (int c = 0; c < 5; ++c) scalars_bar[c] += gradient[q + 13 + c];
+    return zero;
+  }
+};
+
+// Inputs: those of face_contact_forces, then the cotangents of its outputs (node force (n, 3), sphere force
+// and torque (N, 3), the three springs). Outputs: the cotangents of its floating inputs: node position and
+// velocity (n, 3), sphere position, velocity and spin (N, 3), radius (N,), the three springs and the scalars
+// (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero cotangents whatever their inputs.
+template <ffi::DataType dtype>
+ffi::Error face_contact_backward(
+    ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,
+    ffi::Buffer<dtype> sphere_velocity, ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
+    ffi::Buffer<ffi::S32> face_idx, ffi::Buffer<ffi::S32> edge_idx, ffi::Buffer<ffi::S32> node_idx,
+    ffi::Buffer<ffi::S32> triangles, ffi::Buffer<ffi::S32> edge_nodes, ffi::Buffer<ffi::S32> neighbours,
+    ffi::Buffer<ffi::S32> corner_incidence, ffi::Buffer<ffi::S32> hinge_incidence, ffi::Buffer<dtype> face_spring,
+    ffi::Buffer<dtype> edge_spring, ffi::Buffer<dtype> node_spring, ffi::Buffer<dtype> scalars,
+    ffi::Buffer<dtype> node_force_bar, ffi::Buffer<dtype> sphere_force_bar, ffi::Buffer<dtype> sphere_torque_bar,
+    ffi::Buffer<dtype> face_spring_bar, ffi::Buffer<dtype> edge_spring_bar, ffi::Buffer<dtype> node_spring_bar,
+    ffi::ResultBuffer<dtype> node_position_out, ffi::ResultBuffer<dtype> node_velocity_out,
+    ffi::ResultBuffer<dtype> sphere_position_out, ffi::ResultBuffer<dtype> sphere_velocity_out,
+    ffi::ResultBuffer<dtype> sphere_angular_out, ffi::ResultBuffer<dtype> radius_out,
+    ffi::ResultBuffer<dtype> face_spring_out, ffi::ResultBuffer<dtype> edge_spring_out,
+    ffi::ResultBuffer<dtype> node_spring_out, ffi::ResultBuffer<dtype> scalars_out) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = node_position.element_count() / 3;
+  const int64_t num_spheres = sphere_radius.element_count();
+  const auto face_dims = face_idx.dimensions(), edge_dims = edge_idx.dimensions(), node_dims = node_idx.dimensions();
+  const auto neighbour_dims = neighbours.dimensions();
+  if (face_dims.size() != 2 || edge_dims.size() != 2 || node_dims.size() != 2 || neighbour_dims.size() != 2 ||
+      scalars.element_count() != 5 || node_dims[0] != num_nodes || neighbour_dims[0] != num_nodes ||
+      triangles.element_count() != size_t(3 * face_dims[0]) ||
+      edge_nodes.element_count() != size_t(4 * edge_dims[0]) ||
+      face_spring.element_count() != size_t(3 * face_dims[0] * face_dims[1]) ||
+      edge_spring.element_count() != size_t(3 * edge_dims[0] * edge_dims[1]) ||
+      node_spring.element_count() != size_t(3 * node_dims[0] * node_dims[1]) ||
+      face_spring_bar.element_count() != face_spring.element_count() ||
+      edge_spring_bar.element_count() != edge_spring.element_count() ||
+      node_spring_bar.element_count() != node_spring.element_count() ||
+      node_force_bar.element_count() != size_t(3 * num_nodes) ||
+      sphere_force_bar.element_count() != size_t(3 * num_spheres) ||
+      sphere_torque_bar.element_count() != size_t(3 * num_spheres) ||
+      sphere_position.element_count() != size_t(3 * num_spheres)) {
+    return ffi::Error::InvalidArgument("face_contact_backward: inconsistent array sizes");
+  }
+  const T* scalar = scalars.typed_data();
+  const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
+  const Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
+                   sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
+                   num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
+                   T(band), T(1.0 - band), nullptr, nullptr};
+  T* outputs[6] = {node_position_out->typed_data(), node_velocity_out->typed_data(),
+                   sphere_position_out->typed_data(), sphere_velocity_out->typed_data(),
+                   sphere_angular_out->typed_data(), radius_out->typed_data()};
+  const int64_t sizes[6] = {3 * num_nodes, 3 * num_nodes, 3 * num_spheres, 3 * num_spheres, 3 * num_spheres,
+                            num_spheres};
+  for (int k = 0; k < 6; ++k) std::fill(outputs[k], outputs[k] + sizes[k], T(0));
+  std::fill(scalars_out->typed_data(), scalars_out->typed_data() + 5, T(0));
+  T* spring_outs[3] = {face_spring_out->typed_data(), edge_spring_out->typed_data(), node_spring_out->typed_data()};
+  const size_t spring_sizes[3] = {face_spring.element_count(), edge_spring.element_count(),
+                                  node_spring.element_count()};
+  for (int k = 0; k < 3; ++k) std::fill(spring_outs[k], spring_outs[k] + spring_sizes[k], T(0));
+  auto visit_for = [&](const T* carried, const T* carried_bar, T* out) {
+    return BackwardVisit<T>{law, node_force_bar.typed_data(), sphere_force_bar.typed_data(),
+                            sphere_torque_bar.typed_data(), carried_bar, carried, outputs[0], outputs[1], outputs[2],
+                            outputs[3], outputs[4], outputs[5], out, scalars_out->typed_data()};
+  };
+  // The loops only read the springs (the visit's kForward is false).
+  T* face_carried = const_cast<T*>(face_spring.typed_data());
+  T* edge_carried = const_cast<T*>(edge_spring.typed_data());
+  T* node_carried = const_cast<T*>(node_spring.typed_data());
+  auto face_visit = visit_for(face_carried, face_spring_bar.typed_data(), spring_outs[0]);
+  face_slots(law, face_idx.typed_data(), face_dims[0], face_dims[1], triangles.typed_data(), face_carried,
+             static_cast<T*>(nullptr), face_visit);
+  auto edge_visit = visit_for(edge_carried, edge_spring_bar.typed_data(), spring_outs[1]);
+  edge_slots(law, edge_idx.typed_data(), edge_dims[0], edge_dims[1], edge_nodes.typed_data(), edge_carried,
+             static_cast<T*>(nullptr), edge_visit);
+  auto node_visit = visit_for(node_carried, node_spring_bar.typed_data(), spring_outs[2]);
+  node_slots(law, node_idx.typed_data(), node_dims[1], neighbours.typed_data(), neighbour_dims[1], node_carried,
+             static_cast<T*>(nullptr), node_visit);
+  return ffi::Error::Success();
+}
+
 }  // namespace
 
 MEMBRAX_DEFINE_HANDLERS(MembraxFaceContactForces, face_contact_forces);
+MEMBRAX_DEFINE_HANDLERS(MembraxFaceContactBackward, face_contact_backward);
