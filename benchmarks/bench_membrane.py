@@ -26,8 +26,8 @@ spheres, compacted first, about 40 s, not timed): its membrane is a cylinder (ta
 steps/s within 1.5× of the FCC row's).
 
 With ``--contact-model faces`` the coupled step's spheres meet the membrane's faces, edges and nodes
-(:mod:`membrax.membrane.face_contact`, in JAX: no CPU kernel) instead of its nodes; the other columns are
-the node law's.
+(:mod:`membrax.membrane.face_contact`, its compiled CPU kernel ``face_contact.cc``) instead of its nodes; the
+other columns are the node law's.
 
 Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--contact-model faces]
 [--dtypes float32]``;

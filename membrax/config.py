@@ -446,8 +446,8 @@ class TriaxialConfig:
         mid-surface, t_m/2 off). Default 1.
       membrane_contact_model (str): where the spheres meet the membrane: "nodes" (its nodes, the
         paper's) or "faces" (its faces, edges and nodes: the closest point of its mid-surface, so a
-        deeply indented sheet cannot pass between its nodes through a sphere; runs in JAX, not the CPU
-        kernels). Default "nodes".
+        deeply indented sheet cannot pass between its nodes through a sphere; a compiled CPU kernel
+        forward, slower per step than node contact). Default "nodes".
       imperfection_fraction (float): seeded imperfection, the largest radius reduction as a fraction of
         the particle diameter, in [0, 0.01]; each sphere's radius is reduced by a uniform random fraction
         of it (the lattice's centres stay). Default 0 (a perfect lattice).

@@ -122,7 +122,7 @@ def test_consolidated_specimen_is_in_equilibrium_and_spheres_stay_behind_the_mem
     contact_model, edges_per_diameter
 ):
     """A 4 × 4 × 5-layer FCC specimen in a 5 mm membrane, consolidated at 10 kPa (f64), the spheres meeting
-    the membrane's nodes (mesh edge D/5) or its faces, edges and nodes (edge D/3, cheaper in JAX).
+    the membrane's nodes (mesh edge D/5) or its faces, edges and nodes (edge D/3, cheaper).
 
     - Newton's third law and rest: the membrane's reactions on both platens plus its forces on the spheres
       sum to zero (the cell pressure sums to zero over the closed surface, the clamps and the spheres hold

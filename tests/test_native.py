@@ -831,3 +831,264 @@ def test_the_chunks_scheduler_option_changes_the_order_not_the_bits():
                 for o in (None, native.compiler_options())
             ]
         assert orders[0] != orders[1]
+
+
+# ---- The face contact kernel (face_contact.cc) against face_contact.reference_face_contact_forces.
+
+#: Per dtype, the largest error of the kernel's fields relative to the reference's largest entry: float64
+#: round-off (the torques lose about three digits to the cancellation of arm × force, as above); float32
+#: measured 7e-7 (forces, springs) and 2e-6 (torques) on this case.
+_FACE_TOLERANCE = {"float64": (1e-12, 1e-10), "float32": (1e-5, 5e-5)}
+
+
+def _face_contact_case(dtype, seed=0):
+    """A wrinkled 120 mm sheet (6 mm triangles) indented by 16 spheres, 0 to 1.5 mm deep, moving and
+    spinning, with carried springs of up to ~100 N (some beyond μ F_n: sliding), in ``dtype``."""
+    from membrax.membrane import face_contact
+    from membrax.membrane.candidates import build_candidates
+    from membrax.membrane.mesh import flat_mesh
+
+    rng = np.random.default_rng(seed)
+    mesh = flat_mesh(0.12, 0.12, 0.006, dtype=dtype)
+    position = np.asarray(mesh.reference_position, np.float64).copy()
+    position[:, 2] += 1e-3 * rng.standard_normal(len(position))
+    radius, thickness = 0.0125, 0.002
+    grid = np.linspace(0.02, 0.1, 4)
+    centres = np.array(
+        [
+            [
+                x + 4e-3 * rng.standard_normal(),
+                y + 4e-3 * rng.standard_normal(),
+                -(radius + thickness / 2) + 1.5e-3 * rng.random(),
+            ]
+            for x in grid
+            for y in grid
+        ]
+    )
+    num_spheres = len(centres)
+    radii = radius * (1.0 + 0.1 * rng.random(num_spheres))
+    table = build_candidates(
+        jnp.asarray(position), jnp.asarray(centres), jnp.asarray(radii), thickness, 0.008, 3, grid=None
+    )
+    slots = face_contact.feature_slots(mesh, table.idx, num_spheres)
+
+    def cast(array):
+        return jnp.asarray(array, dtype)
+
+    springs = tuple(
+        cast(50.0 * rng.standard_normal(spring.shape)) for spring in face_contact.zero_springs(slots, dtype)
+    )
+    return dict(
+        nodes=ContactNodes(
+            position=cast(position), velocity=cast(0.01 * rng.standard_normal(position.shape))
+        ),
+        spheres=ContactSpheres(
+            position=cast(centres),
+            velocity=cast(0.01 * rng.standard_normal((num_spheres, 3))),
+            angular_velocity=cast(rng.standard_normal((num_spheres, 3))),
+            radius=cast(radii),
+        ),
+        mesh=mesh,
+        slots=slots,
+        springs=springs,
+        dt=cast(1e-5),
+        params=jax.tree.map(cast, MembraneContactParams.default(normal_stiffness=1e5)),
+        membrane_thickness=cast(thickness),
+    )
+
+
+def _face_fields(result):
+    """A FaceContactForces' arrays by name (the springs and normal forces one per feature kind)."""
+    fields = {name: getattr(result, name) for name in ("node_force", "sphere_force", "sphere_torque")}
+    fields.update({name: getattr(result, name) for name in ("slot_force", "branch", "overlap")})
+    for kind, spring, normal in zip(
+        ("face", "edge", "node"), result.spring, result.normal_force, strict=True
+    ):
+        fields[f"spring_{kind}"], fields[f"normal_force_{kind}"] = spring, normal
+    return fields
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_face_contact_kernel_matches_the_jax_law_and_conserves_momentum(dtype):
+    """The compiled face contact law (it runs: its custom call is in the program) gives the JAX law's
+    forces, torques, springs and per-slot fields on a sheet indented at faces, edges and nodes, with
+    sticking and sliding springs, to round-off of the dtype; momentum and angular momentum are conserved."""
+    from membrax.membrane import face_contact
+
+    case = _face_contact_case(jnp.dtype(dtype))
+    assert "membrax_face_contact_forces" in jax.jit(face_contact.face_contact_forces).lower(**case).as_text()
+    compiled = jax.jit(face_contact.face_contact_forces)(**case)
+    reference = jax.jit(face_contact.reference_face_contact_forces)(**case)
+    touching = [int(jnp.sum(force > 0.0)) for force in reference.normal_force]
+    assert min(touching) > 0 and sum(touching) > 25, touching  # every kind of feature meets a sphere
+    limit = [case["params"].friction_coefficient * force for force in reference.normal_force]  # μ F_n
+    sliding = sum(
+        int(jnp.sum((force > 0.0) & (jnp.linalg.norm(spring, axis=0) >= 0.999 * cap)))
+        for force, spring, cap in zip(reference.normal_force, reference.spring, limit, strict=True)
+    )
+    assert 0 < sliding < sum(touching)  # both regimes of the spring
+    tolerance, torque_tolerance = _FACE_TOLERANCE[dtype]
+    got, want = _face_fields(compiled), _face_fields(reference)
+    for name, value in want.items():
+        bound = torque_tolerance if name == "sphere_torque" else tolerance
+        assert _relative_error(got[name], value) < bound, (name, _relative_error(got[name], value))
+    scale = float(np.max(np.abs(np.asarray(compiled.node_force, np.float64))))
+    node_force, sphere_force = (
+        np.asarray(a, np.float64) for a in (compiled.node_force, compiled.sphere_force)
+    )
+    np.testing.assert_allclose(node_force.sum(0), -sphere_force.sum(0), atol=10 * tolerance * scale)
+    moment = (
+        np.cross(np.asarray(case["nodes"].position, np.float64), node_force).sum(0)
+        + np.cross(np.asarray(case["spheres"].position, np.float64), sphere_force).sum(0)
+        + np.asarray(compiled.sphere_torque, np.float64).sum(0)
+    )
+    assert np.max(np.abs(moment)) < 10 * tolerance * scale * 0.12
+
+
+def test_face_contact_kernel_gradients_vmap_and_repeatable_bits():
+    """Reverse mode through the kernel runs its backward kernel (``face_contact_backward``) and gives the
+    JAX law's gradient in every floating input (node and sphere positions, velocities, spins, radii,
+    springs, thickness, k_n, k_t, μ, Δt) to round-off, float64 and float32; ``vmap`` over the thickness
+    equals a loop of the reference, and two calls give the same bits; inconsistent sizes fail with the
+    kernel's message."""
+    from membrax.membrane import face_contact
+
+    for dtype, tolerance in (("float64", 1e-12), ("float32", 1e-5)):  # float32 measured 1.1e-6
+        case = _face_contact_case(jnp.dtype(dtype), seed=1)
+        rng = np.random.default_rng(2)
+        node_weights = jnp.asarray(rng.normal(size=case["nodes"].position.shape), dtype)
+        sphere_weights = jnp.asarray(rng.normal(size=case["spheres"].position.shape), dtype)
+        nodes, spheres, params = case["nodes"], case["spheres"], case["params"]
+
+        def work(
+            fn,
+            nodes,
+            spheres,
+            springs,
+            thickness,
+            params,
+            dt,
+            case=case,
+            weights=(node_weights, sphere_weights),
+        ):
+            result = fn(
+                **{
+                    **case,
+                    "nodes": nodes,
+                    "spheres": spheres,
+                    "springs": springs,
+                    "membrane_thickness": thickness,
+                    "params": params,
+                    "dt": dt,
+                }
+            )
+            return (
+                jnp.sum(weights[0] * result.node_force)
+                + jnp.sum(weights[1] * (result.sphere_force + 100.0 * result.sphere_torque))
+                + sum(jnp.sum(spring**2) for spring in result.spring)
+            )
+
+        args = (nodes, spheres, case["springs"], case["membrane_thickness"], params, case["dt"])
+        argnums = tuple(range(len(args)))
+        compiled = jax.jit(jax.grad(lambda *a: work(face_contact.face_contact_forces, *a), argnums))
+        assert "membrax_face_contact_backward" in compiled.lower(*args).as_text()
+        got = compiled(*args)
+        want = jax.jit(jax.grad(lambda *a: work(face_contact.reference_face_contact_forces, *a), argnums))(
+            *args
+        )
+        for got_leaf, want_leaf in zip(jax.tree.leaves(got), jax.tree.leaves(want), strict=True):
+            assert float(jnp.max(jnp.abs(want_leaf))) > 0.0
+            assert _relative_error(got_leaf, want_leaf) < tolerance, dtype
+
+    case = _face_contact_case(jnp.dtype("float64"), seed=1)
+    thicknesses = jnp.asarray([0.0015, 0.002, 0.0025])
+    batched = jax.vmap(
+        lambda t: face_contact.face_contact_forces(**{**case, "membrane_thickness": t}).node_force
+    )(thicknesses)
+    for k, thickness in enumerate(thicknesses):
+        single = face_contact.reference_face_contact_forces(**{**case, "membrane_thickness": thickness})
+        assert _relative_error(batched[k], single.node_force) < 1e-12
+    first = jax.jit(face_contact.face_contact_forces)(**case)
+    second = jax.jit(face_contact.face_contact_forces)(**case)
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(second), strict=True):
+        assert np.array_equal(np.asarray(a), np.asarray(b))
+
+    f64, n, num_spheres = jnp.float64, 4, 2
+
+    def zeros(*shape, dtype=f64):
+        return jnp.zeros(shape, dtype)
+
+    rows, sphere_rows = jax.ShapeDtypeStruct((n, 3), f64), jax.ShapeDtypeStruct((num_spheres, 3), f64)
+    springs = [jax.ShapeDtypeStruct(shape, f64) for shape in ((3, 2, 3), (3, 1, 2), (3, n, 1))]
+    arguments = (
+        *(zeros(n, 3) for _ in range(2)),
+        *(zeros(num_spheres, 3) for _ in range(3)),
+        zeros(num_spheres),
+        zeros(2, 3, dtype=jnp.int32),
+        zeros(1, 2, dtype=jnp.int32),
+        zeros(n, 1, dtype=jnp.int32),
+        zeros(2, 3, dtype=jnp.int32),
+        zeros(1, 4, dtype=jnp.int32),
+        zeros(n, 3, dtype=jnp.int32),
+        zeros(n, 3, dtype=jnp.int32),
+        zeros(n, 3, dtype=jnp.int32),
+        zeros(3, 2, 3),
+        zeros(3, 1, 2),
+        zeros(3, n, 1),
+        zeros(4),  # 4 scalars for 5
+    )
+    with pytest.raises(Exception, match="face_contact_forces: "):
+        jax.block_until_ready(
+            native.call("face_contact_forces", f64, (rows, sphere_rows, sphere_rows, *springs), *arguments)
+        )
+
+
+def test_coupled_step_with_face_contact_runs_the_kernel_with_the_jax_laws_numbers(monkeypatch):
+    """The coupled step of a specimen with face contact (``contact_model="faces"``) calls the compiled face
+    contact law on the CPU, and one step of it gives the step with the JAX law (``face_contact.runs_kernel``
+    False) to round-off: from the start of a 4 × 4 × 5 FCC specimen's consolidation at 10 kPa (float64)
+    and from its state 300 steps on (springs sticking and sliding).
+
+    (Step by step from the same state: whole trajectories do not compare, as the local damping's sign of
+    the spheres' spins, zero to round-off at the start, turns round-off into 0.1 rad/s within three steps.)
+    """
+    from membrax.membrane import face_contact
+    from membrax.spheres import fcc
+    from membrax.triaxial.membrane_cell import membrane_test
+
+    test = membrane_test(
+        fcc.fcc_specimen(0.025, 4, 5),
+        cell_pressure=1e4,
+        membrane_thickness=5e-3,
+        edges_per_diameter=3.0,
+        contact_model="faces",
+    )
+    start = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
+    step = jax.jit(lambda s: test.runner.step_fn(s, test.params))
+    later = jax.jit(lambda s: jax.lax.fori_loop(0, 300, lambda _, x: test.runner.step_fn(x, test.params), s))(
+        start
+    )
+    assert "membrax_face_contact_forces" in step.lower(start).as_text()
+    with_kernel = [step(state) for state in (start, later)]
+    monkeypatch.setattr(face_contact, "runs_kernel", lambda dtype: False)
+    jax_step = jax.jit(lambda s: test.runner.step_fn(s, test.params))
+    assert "membrax_face_contact_forces" not in jax_step.lower(start).as_text()
+    with_jax = [jax_step(state) for state in (start, later)]
+    springs_moved = float(
+        jnp.max(jnp.abs(jnp.concatenate([s.ravel() for s in later.membrane.feature_contact.spring])))
+    )
+    assert springs_moved > 0.0
+    fields = {  # each field's absolute bound: round-off of its scale (m, m/s, rad/s, N)
+        "node position": (lambda s: s.membrane.position, 1e-15),
+        "node velocity": (lambda s: s.membrane.velocity, 1e-12),
+        "sphere position": (lambda s: s.dem.position, 1e-15),
+        "sphere velocity": (lambda s: s.dem.velocity, 1e-13),
+        "sphere spin": (lambda s: s.dem.angular_velocity, 1e-11),
+        "contact force on the spheres": (lambda s: s.membrane.sphere_force, 1e-10),
+        "springs": (lambda s: jnp.concatenate([x.ravel() for x in s.membrane.feature_contact.spring]), 1e-11),
+    }
+    for got, want in zip(with_kernel, with_jax, strict=True):
+        assert int(got.error) == int(want.error)
+        for name, (get, bound) in fields.items():
+            difference = float(jnp.max(jnp.abs(get(got) - get(want))))
+            assert difference < bound, (name, difference)

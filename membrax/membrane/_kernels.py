@@ -1,7 +1,8 @@
 """The membrane's compiled CPU kernels on the JAX side: flat inputs, calls, residuals, backward rules.
 
 Contract. Private to :mod:`membrax.membrane`. For each law with a kernel in :mod:`membrax.native`
-(the membrane forces, ``membrane_forces.cc``; the node–sphere contact, ``node_sphere.cc``; the node update,
+(the membrane forces, ``membrane_forces.cc``; the node–sphere contact, ``node_sphere.cc``; the face contact,
+``face_contact.cc``; the node update,
 ``membrane_nodes.cc``; the three chained as one node step), the functions that turn the law's arguments
 into the kernel's flat operands (``*_inputs``), call the forward kernel (``*_kernel``), choose what reverse
 mode keeps (``*_residuals``) and run the backward kernels (``*_backward``). The laws themselves, their JAX
@@ -184,6 +185,87 @@ def node_sphere_backward_kernel(args, cotangents, position_addend, velocity_adde
         velocity_addend.astype(dtype),
         input_output_aliases={12: 6, 13: 0, 14: 1},
     )
+
+
+# The face contact law (face_contact.cc): face_contact.face_contact_forces' arguments, the springs a tuple and
+# the mesh's neighbours given.
+
+
+def face_contact_kernel_inputs(
+    nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours
+):
+    """The kernel's floating inputs, flat in its order, all of the node positions' dtype.
+
+    x, v (nodes), x, v, ω, R (spheres), the three springs, and (Δt, k_n, k_t, μ, t_m) stacked.
+    """
+    del mesh, slots, neighbours  # integer tables: passed to the kernel as they are
+    dtype = nodes.position.dtype
+    rows = (nodes.position, nodes.velocity, spheres.position, spheres.velocity, spheres.angular_velocity)
+    law = (params.normal_stiffness, params.tangential_stiffness, params.friction_coefficient)
+    return (
+        *native.in_dtype(dtype, *rows, spheres.radius, *springs),
+        native.stack_scalars(dtype, dt, *law, membrane_thickness),
+    )
+
+
+def _face_contact_tables(args):
+    """The kernels' integer operands after the sphere radii: the slots, the mesh's features and incidences."""
+    mesh, slots, neighbours = args[2], args[3], args[8]
+    num_nodes = args[0].position.shape[0]
+    tables = (
+        slots.face,
+        slots.edge,
+        slots.node,
+        mesh.triangles,
+        jnp.concatenate([mesh.edges, mesh.edge_opposite], axis=1),  # u, v, o₁, o₂
+        jnp.where(neighbours.mask, neighbours.ids, num_nodes),
+        mesh.corner_incidence,
+        mesh.hinge_incidence,
+    )
+    return tuple(jnp.asarray(table).astype(jnp.int32) for table in tables)
+
+
+def face_contact_kernel(*args):
+    """(node force, sphere force, sphere torque, face, edge and node springs) from ``face_contact.cc``.
+
+    The springs are updated in place (operands 14–16 to results 3–5).
+    """
+    flat = face_contact_kernel_inputs(*args)
+    dtype = flat[0].dtype
+    rows = jax.ShapeDtypeStruct(flat[0].shape, dtype)
+    sphere_rows = jax.ShapeDtypeStruct(flat[2].shape, dtype)
+    springs = tuple(jax.ShapeDtypeStruct(spring.shape, dtype) for spring in flat[6:9])
+    return native.call(
+        "face_contact_forces",
+        dtype,
+        (rows, sphere_rows, sphere_rows, *springs),
+        *flat[:6],
+        *_face_contact_tables(args),
+        *flat[6:],
+        input_output_aliases={14: 3, 15: 4, 16: 5},
+    )
+
+
+def face_contact_backward(args, perturbed, cotangents):
+    """The compiled reverse-mode rule (``face_contact_backward``: each touching slot's law on dual numbers).
+
+    The cotangents of :func:`face_contact_kernel_inputs`' arrays from those of the kernel's six outputs,
+    carried back to the arguments (the mesh's and the slots' arrays get none: the law reads only their
+    integer tables).
+    """
+    del perturbed  # it covers every differentiable argument
+    flat = face_contact_kernel_inputs(*args)
+    dtype = flat[0].dtype
+    flat_cotangents = native.call(
+        "face_contact_backward",
+        dtype,
+        tuple(jax.ShapeDtypeStruct(array.shape, dtype) for array in flat),
+        *flat[:6],
+        *_face_contact_tables(args),
+        *flat[6:],
+        *(jnp.asarray(c, dtype) for c in cotangents),
+    )
+    return native.pack_cotangents(face_contact_kernel_inputs, args, flat_cotangents)
 
 
 def node_update_inputs(nodes, dt, damping):

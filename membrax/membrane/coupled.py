@@ -17,8 +17,9 @@ One step (explicit central differences, as the DEM; velocities at half steps):
    (:func:`membrax.membrane.contact.node_sphere_forces`), or with ``contact_model="faces"`` the
    contacts of the spheres with the mesh's faces, edges and nodes
    (:func:`membrax.membrane.face_contact.face_contact_forces`: the mesh cannot pass between its nodes
-   through a sphere; JAX only, so steps 1, 2 and 4 run as written rather than in the CPU kernels; the
-   node table then reaches one rest edge further, :func:`membrax.membrane.face_contact.longest_edge`);
+   through a sphere; its own CPU kernel, ``face_contact.cc``, so steps 1, 2 and 4 run as three kernels
+   rather than the node law's chained node step; the node table then reaches one rest edge further,
+   :func:`membrax.membrane.face_contact.longest_edge`);
 2. membrane forces −∇(W_stretch + W_bend + p V) at y_n (:func:`membrax.membrane.energies.nodal_forces`);
 3. the DEM step with the contacts' reactions added to the spheres (forces and torques);
 4. free nodes (:mod:`membrax.membrane.node_update`): damped leapfrog with the lumped masses (area × t_m

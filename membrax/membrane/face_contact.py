@@ -45,6 +45,15 @@ the sides of a flat sheet) have no edge or node contact; the triangles next to t
 contact. Near a saddle-shaped node the regions of its edges and of the node itself may overlap or leave a
 sliver (the regions are exact for a convex or a concave patch).
 
+Kernel. On the CPU, in float32 or float64, :func:`face_contact_forces` runs a compiled kernel
+(``membrax/native/face_contact.cc``, :mod:`membrax.native`) that skips the empty slots (about 70 % of
+665,000 at paper size) and the spheres out of a feature's reach, applies the law to the others one feature
+at a time, and sums the node shares per feature and then per node through the mesh's incidence tables,
+without atomics, in the order of the JAX law below (:func:`reference_face_contact_forces`), which stays the
+definition: the tests hold the kernel to it to round-off, and it runs on other backends. Reverse mode on
+the CPU runs a backward kernel (``face_contact_backward``: each touching slot's ū·(outputs) on dual
+numbers, once per input of the slot) that the tests hold to ``jax.vjp`` of the JAX law.
+
 Layout: positions are rows (n, 3); per-slot quantities are component-first (3, F, M) (:mod:`membrax.vector`).
 SI units: m, s, N, N·m.
 """
@@ -57,8 +66,9 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from membrax import pytree
+from membrax import native, pytree
 from membrax.fusion import materialize
+from membrax.membrane import _kernels
 from membrax.membrane.candidates import remap_node_history
 from membrax.membrane.contact import ContactNodes, ContactSpheres, MembraneContactParams
 from membrax.membrane.mesh import MembraneMesh
@@ -74,6 +84,9 @@ __all__ = [
     "widen",
     "face_contact_energy",
     "face_contact_forces",
+    "face_contact_reference",
+    "reference_face_contact_forces",
+    "runs_kernel",
     "feature_slots",
     "closest_point_weights",
     "interior_nodes",
@@ -413,9 +426,87 @@ def face_contact_forces(
       membrane_thickness: t_m, m.
       neighbours: the mesh's :func:`mesh_neighbours`, built once by a caller that steps (else built here).
 
+    On the CPU, in float32 or float64, the forces, torques and springs come from a compiled kernel
+    (:mod:`membrax.native`, ``face_contact.cc``) that skips the empty slots and applies this law to the
+    others, one feature at a time, summing the node shares per feature and then per node without atomics. The
+    JAX law (:func:`reference_face_contact_forces`) is the definition the tests hold the kernel to (agreement
+    to round-off) and the law used elsewhere; reverse mode runs a compiled backward kernel
+    (``face_contact_backward``) that gives the JAX law's derivatives to round-off. The per-slot fields (normal
+    forces, slot forces, branches, overlaps) are then computed from the geometry in JAX; XLA drops those a
+    caller does not read.
+
     Returns:
       A :class:`FaceContactForces`.
     """
+    springs = tuple(springs)
+    if not runs_kernel(jnp.asarray(nodes.position).dtype):
+        return reference_face_contact_forces(
+            nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours
+        )
+    neighbours = mesh_neighbours(mesh) if neighbours is None else neighbours
+    args = (nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours)
+    node_force, sphere_force, sphere_torque, *new_springs = _compiled_face_contact_forces(*args)
+    normal_forces, slot_forces, branches, overlaps = [], [], [], []
+    sphere_table = jnp.concatenate([spheres.position, spheres.radius[:, None]], axis=1)
+    for kind, spring in zip(FEATURE_KINDS, new_springs, strict=True):
+        _, _, branch, reach, active_slot, _, _ = _slot_geometry(
+            kind, nodes.position, sphere_table, mesh, slots, membrane_thickness, neighbours
+        )
+        normal, distance = safe_normalize(branch)
+        overlap = jnp.where(active_slot, reach - distance, -1.0)
+        touching = (overlap > 0.0) & (distance > 0.0)
+        normal_force = jnp.where(touching, params.normal_stiffness * overlap, 0.0)
+        on_membrane = select(touching, scale(normal_force, normal) + spring)
+        normal_forces.append(normal_force)
+        slot_forces.append(jnp.moveaxis(on_membrane, 0, -1).reshape(-1, 3))
+        branches.append(jnp.moveaxis(branch, 0, -1).reshape(-1, 3))
+        overlaps.append(overlap.reshape(-1))
+    return FaceContactForces(
+        node_force=node_force,
+        sphere_force=sphere_force,
+        sphere_torque=sphere_torque,
+        spring=tuple(new_springs),
+        normal_force=tuple(normal_forces),
+        slot_force=jnp.concatenate(slot_forces)[None],
+        branch=jnp.concatenate(branches)[None],
+        overlap=jnp.concatenate(overlaps),
+        slots=slots,
+    )
+
+
+def runs_kernel(dtype) -> bool:
+    """Whether :func:`face_contact_forces` calls the compiled kernel for positions of ``dtype``.
+
+    :func:`membrax.native.enabled_for` (float32 or float64, the kernels built); the kernel then runs on the
+    CPU backend and the JAX law elsewhere. A test may replace this function to run the JAX law everywhere
+    (or call :func:`reference_face_contact_forces` directly).
+    """
+    return native.enabled_for(dtype)
+
+
+def face_contact_reference(*args):
+    """The six outputs of the compiled face contact kernel (membrane/_kernels.py), from the JAX law."""
+    result = reference_face_contact_forces(*args)
+    return (result.node_force, result.sphere_force, result.sphere_torque, *result.spring)
+
+
+_compiled_face_contact_forces = native.with_reference(
+    _kernels.face_contact_kernel, face_contact_reference, _kernels.face_contact_backward
+)
+
+
+def reference_face_contact_forces(
+    nodes: ContactNodes,
+    spheres: ContactSpheres,
+    mesh: MembraneMesh,
+    slots: FeatureSlots,
+    springs,
+    dt,
+    params: MembraneContactParams,
+    membrane_thickness,
+    neighbours: MeshNeighbours | None = None,
+) -> FaceContactForces:
+    """:func:`face_contact_forces` in JAX: the definition of the law, and its derivatives (any backend)."""
     num_nodes, num_spheres = nodes.position.shape[0], spheres.position.shape[0]
     dtype = nodes.position.dtype
     node_force = jnp.zeros((num_nodes, 3), dtype)

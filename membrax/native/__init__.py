@@ -9,7 +9,8 @@ the sources' hash and the host CPU (``$MEMBRAX_CACHE_DIR``, else ``~/.cache/memb
 
 Kernels: the membrane's nodal forces (:func:`membrax.membrane.energies.nodal_forces`), its node update
 (:func:`membrax.membrane.node_update.advance_nodes`), the node–sphere law
-(:func:`membrax.membrane.contact.node_sphere_forces`) and the DEM's sphere–sphere contacts summed per
+(:func:`membrax.membrane.contact.node_sphere_forces`), the face contact law
+(:func:`membrax.membrane.face_contact.face_contact_forces`) and the DEM's sphere–sphere contacts summed per
 sphere (:func:`membrax.spheres.integrate.compute_forces`, with the law of
 :func:`membrax.spheres.contact.pair_contact`). Each caller wraps its kernel with :func:`with_reference`.
 
@@ -19,20 +20,21 @@ one loop that computes it once per element and adds it to its nodes does in one 
 dozen. The callers keep their JAX formulas as the definition: they use them on other backends
 (``lax.platform_dependent``), and the tests check kernel against JAX.
 
-Derivatives. Each kernel is wrapped in ``jax.custom_vjp`` (:func:`with_reference`). Its backward pass on
-the CPU is a second compiled kernel (``*_backward``): the membrane forces are −∇Φ, whose Jacobian is
-symmetric, so their backward kernel evaluates the directional derivative J ū on dual numbers
-(``dual.h``); the contact laws and the node update are run backwards by hand. XLA's own derivatives of
-the JAX formulas spread over hundreds of small fusions per step and made reverse mode through a rollout
-50–60× the forward pass at paper size (``benchmarks/bench_gradients.py``). The JAX formulas' derivatives
-remain the definition: the tests hold each backward kernel to ``jax.vjp`` of the JAX code to round-off,
-and that derivative is used on other backends and for arguments a backward kernel does not cover (the
-membrane mesh's rest geometry). Where several kernels read the same array, their backward kernels take
-an addend, the cotangent so far, which ``input_output_aliases`` (:func:`call`) lets them update in place
-(:func:`membrax.membrane.node_update.node_step`). XLA runs the reverse pass's kernels one after another, so
-the membrane, node–sphere and pair backward kernels split their element loops in two fixed halves, the
-second offered to XLA's intra-op thread pool (``parallel.h``); each half sums its own elements in order,
-so the result does not depend on which thread ran it.
+Derivatives. Each kernel is wrapped in ``jax.custom_vjp`` (:func:`with_reference`). Its backward pass on the
+CPU is a second compiled kernel (``*_backward``): the membrane forces are −∇Φ, whose Jacobian is symmetric,
+so their backward kernel evaluates the directional derivative J ū on dual numbers (``dual.h``); the face
+contact law evaluates each touching slot's ū·(outputs) on dual numbers once per input of the slot (a few
+dozen, for a few hundred touching slots); the other contact laws and the node update are run backwards by
+hand. XLA's own derivatives of the JAX formulas spread over hundreds of small fusions per step and made
+reverse mode through a rollout 50–60× the forward pass at paper size (``benchmarks/bench_gradients.py``).
+The JAX formulas' derivatives remain the definition: the tests hold each backward kernel to ``jax.vjp`` of
+the JAX code to round-off, and that derivative is used on other backends and for arguments a backward kernel
+does not cover (the membrane mesh's rest geometry). Where several kernels read the same array, their
+backward kernels take an addend, the cotangent so far, which ``input_output_aliases`` (:func:`call`) lets
+them update in place (:func:`membrax.membrane.node_update.node_step`). XLA runs the reverse pass's kernels
+one after another, so the membrane, node–sphere and pair backward kernels split their element loops in two
+fixed halves, the second offered to XLA's intra-op thread pool (``parallel.h``); each half sums its own
+elements in order, so the result does not depend on which thread ran it.
 
 Threads. The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are
 asynchronous FFI handlers: each checks its arguments, runs its loop as a task on XLA's intra-op thread
@@ -76,7 +78,7 @@ __all__ = [
     "zeros_for_absent",
 ]
 
-_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "dem_pairs.cc")
+_SOURCES = ("membrane_forces.cc", "membrane_nodes.cc", "node_sphere.cc", "face_contact.cc", "dem_pairs.cc")
 _HEADERS = ("contact_law.h", "dual.h", "ffi_bind.h", "parallel.h")
 # Kernel → exported handler symbol, less its F32/F64 suffix; XLA's target is membrax_<kernel>_f32/_f64.
 _KERNELS = {
@@ -86,6 +88,8 @@ _KERNELS = {
     "membrane_nodes_backward": "MembraxMembraneNodesBackward",
     "node_sphere_forces": "MembraxNodeSphereForces",  # membrane_contact.node_sphere_forces
     "node_sphere_backward": "MembraxNodeSphereBackward",
+    "face_contact_forces": "MembraxFaceContactForces",  # face_contact.face_contact_forces
+    "face_contact_backward": "MembraxFaceContactBackward",
     "dem_pairs": "MembraxDemPairs",  # integrate.compute_forces (pairs)
     "dem_pairs_backward": "MembraxDemPairsBackward",
 }

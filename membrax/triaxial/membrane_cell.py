@@ -305,7 +305,8 @@ def membrane_test(
         ``"svk"`` (:func:`membrax.membrane.energies.stretching_energy`).
       locking_jm: the Gent law's J_m, > 0 (:data:`membrax.defaults.GENT_LOCKING_JM`).
       contact_model: ``"nodes"`` (the spheres meet the membrane's nodes) or ``"faces"`` (its faces, edges
-        and nodes, :mod:`membrax.membrane.face_contact`; JAX only, not the CPU kernels).
+        and nodes, :mod:`membrax.membrane.face_contact`; compiled CPU kernels forward and
+        backward).
     """
     check_range("cell_pressure", cell_pressure, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
     check_range("edges_per_diameter", edges_per_diameter, lower=0.0, lower_open=True)

@@ -1,0 +1,671 @@
+// Sphere contact on the membrane's faces, interior edges and interior nodes: forces, torques and the
+// tangential springs of every occupied (feature, candidate) slot, in one pass per feature.
+//
+// An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
+// parallel.h), compiled on first use by membrax/native/__init__.py; the law is that of
+// membrax/membrane/face_contact.py (face_contact_forces), which remains the reference;
+// face_contact_backward (below) is its reverse-mode rule. For each slot (feature f, candidate m) with sphere i = idx[f, m] < N:
+//   the closest point x_p = Σ w_k x_k of the centre x_i on the feature (face: the foot of the perpendicular
+//   on the triangle's plane, area coordinates w; edge: on its line, 1 − τ and τ; node: the node, 1), which
+//   counts only where x_i lies in the feature's Voronoi region (tie band β = √ε of the dtype);
+//   b = x_p − x_i, δ = R_i + t_m/2 − |b|, n̂ = b/|b|, F_n = k_n δ (touching: δ > 0 and |b| > 0),
+//   v_t = Π_t[Σ w_k v_k − (v_i + ω_i × b)], s' = Coulomb-capped spring (contact_law.h), s' = 0 if not touching;
+//   F = F_n n̂ + s' on the membrane, node k of the feature gets w_k F; −F on the sphere, torque b × (−F).
+// Every formula is written as the JAX law writes it (same operations, same order), so the two agree to
+// round-off; the region tests then decide the same ties.
+//
+// Sums without atomics, in the JAX law's order: a feature's share per node is summed over its slots in
+// slot order (one row per feature node), then each node sums its features' rows through the mesh's
+// incidence tables (corner_incidence, hinge_incidence) in their order; faces, then edges, then its own
+// node slots. The spheres' force and torque are summed in slot order, faces, edges, nodes.
+//
+// Inputs (T: float or double): node_position, node_velocity (n, 3); sphere_position, sphere_velocity,
+// sphere_angular_velocity (N, 3); sphere_radius (N,); the slots face_idx (F, Mf), edge_idx (E, Me),
+// node_idx (n, Mn), i32 padded with N; triangles (F, 3), edge_nodes (E, 4) = (u, v, o₁, o₂),
+// neighbours (n, H) (each node's neighbours along interior edges, padded with n), corner_incidence (n, Jc)
+// (entries < 3F: corner k = e / F of triangle e % F), hinge_incidence (n, Jh) (entries < 2E: the start
+// (e < E) or end of edge e % E), all i32; springs (3, F, Mf), (3, E, Me), (3, n, Mn); scalars (5,) = Δt, k_n,
+// k_t, μ, t_m.
+// Outputs: node_force (n, 3), sphere_force (N, 3), sphere_torque (N, 3), the three springs'.
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+#include "contact_law.h"
+#include "dual.h"
+#include "ffi_bind.h"
+#include "parallel.h"
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace {
+
+using membrax::cross;
+using membrax::dot;
+using membrax::row3;
+using membrax::Vec3;
+
+template <typename T>
+struct Law {
+  const T *x, *v, *xs, *vs, *ws, *radius;
+  int64_t num_nodes, num_spheres;
+  T dt, normal_stiffness, tangential_stiffness, friction, half_thickness;
+  T band, upper_band;  // β and 1 − β, each rounded from double as the JAX law's Python floats are
+  T *on_sphere, *torque;
+};
+
+// A slot's spring set to zero (no contact), written only where it is not zero already: in a step's loop
+// nearly every spring is, and a store would dirty its cache line all the same.
+template <typename T>
+inline void clear(T* spring, int64_t stride) {
+  if ((spring[0] != T(0)) | (spring[stride] != T(0)) | (spring[2 * stride] != T(0)))
+    spring[0] = spring[stride] = spring[2 * stride] = T(0);
+}
+
+// One slot's law from its sphere, the closest point's weights (count of them) and corners, and the
+// carried spring; writes the new spring (component-first, stride m) and returns F on the membrane.
+// `in_region`: whether the centre lies in the feature's region.
+template <typename T, int kCount>
+inline Vec3<T> slot_law(const Law<T>& law, int64_t sphere, Vec3<T> centre, const T (&weight)[kCount],
+                        const Vec3<T> (&corner)[kCount], const int64_t (&node)[kCount], bool in_region,
+                        T* spring, int64_t stride) {
+  const Vec3<T> zero{T(0), T(0), T(0)};
+  if (!in_region) {  // the reference's overlap −1: no force, a zero spring
+    clear(spring, stride);
+    return zero;
+  }
+  Vec3<T> contact_point = zero;
+  for (int k = 0; k < kCount; ++k) contact_point = contact_point + weight[k] * corner[k];
+  const Vec3<T> branch = contact_point - centre;  // from the sphere centre to the membrane point
+  const T distance_sq = dot(branch, branch);
+  const T distance = distance_sq == T(0) ? T(0) : std::sqrt(distance_sq);
+  const T overlap = law.radius[sphere] + law.half_thickness - distance;
+  if (!((overlap > T(0)) & (distance > T(0)))) {  // not touching (a NaN neither)
+    clear(spring, stride);
+    return zero;
+  }
+  // Touching (about one occupied slot in 300 at paper size): the law.
+  Vec3<T> membrane_velocity = zero;
+  for (int k = 0; k < kCount; ++k) membrane_velocity = membrane_velocity + weight[k] * row3(law.v, node[k]);
+  const Vec3<T> normal = (T(1) / distance) * branch;
+  const T normal_force = law.normal_stiffness * overlap;
+  const Vec3<T> sphere_velocity = row3(law.vs, sphere) + cross(row3(law.ws, sphere), branch);
+  const Vec3<T> relative = membrane_velocity - sphere_velocity;
+  const Vec3<T> tangential = relative - dot(relative, normal) * normal;
+  const Vec3<T> old{spring[0], spring[stride], spring[2 * stride]};
+  const Vec3<T> updated = membrax::tangential_spring(old, normal, tangential, law.tangential_stiffness * law.dt,
+                                                     law.friction * normal_force, true);
+  spring[0] = updated.x;
+  spring[stride] = updated.y;
+  spring[2 * stride] = updated.z;
+  const Vec3<T> force = normal_force * normal + updated;
+  const Vec3<T> reaction = T(-1) * force;
+  membrax::add3(law.on_sphere, sphere, reaction);
+  membrax::add3(law.torque, sphere, cross(branch, reaction));
+  return force;
+}
+
+// The forward kernel's visit of an occupied slot: the law (slot_law).
+template <typename T>
+struct ForwardVisit {
+  static constexpr bool kForward = true;
+  const Law<T>& law;
+  template <int kCount>
+  Vec3<T> slot(int64_t sphere, Vec3<T> centre, const T (&weight)[kCount], const Vec3<T> (&corner)[kCount],
+               const int64_t (&node)[kCount], bool in_region, T* spring, int64_t stride) {
+    return slot_law<T, kCount>(law, sphere, centre, weight, corner, node, in_region, spring, stride);
+  }
+};
+
+// Whether the sphere surely misses a feature that lies inside the ball (middle, extent): the closest point
+// of any region of the feature is then farther from the centre than R + t_m/2, by a margin far above
+// round-off, so the law gives no force and a zero spring, as the reference does in or out of the region.
+// (Most occupied slots at paper size; a NaN goes on to the law, which carries it as the reference does.)
+template <typename T>
+inline bool out_of_reach(const Law<T>& law, int64_t sphere, Vec3<T> centre, Vec3<T> middle, T extent) {
+  const Vec3<T> gap = centre - middle;
+  const T limit = law.radius[sphere] + law.half_thickness + extent;
+  return dot(gap, gap) > T(1.001) * (limit * limit);
+}
+
+// The faces: share (F, 3, 3), each triangle's force on its corners a, b, c summed over its slots.
+template <typename T, typename Visit>
+void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_t width, const int32_t* triangles,
+                T* spring, T* share, Visit& visit) {
+  const int64_t stride = num_faces * width;
+  for (int64_t f = 0; f < num_faces; ++f) {
+    Vec3<T> total[3] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
+    const int32_t* row = idx + f * width;
+    bool any = false;
+    for (int64_t m = 0; m < width; ++m) any |= row[m] < law.num_spheres;
+    if (any) {
+      const int64_t node[3] = {triangles[3 * f], triangles[3 * f + 1], triangles[3 * f + 2]};
+      const Vec3<T> a = row3(law.x, node[0]), b = row3(law.x, node[1]), c = row3(law.x, node[2]);
+      const Vec3<T> normal = cross(b - a, c - a);
+      const T area_sq = dot(normal, normal);
+      const T twice_area = area_sq == T(0) ? T(0) : std::sqrt(area_sq);
+      const T inverse_area = T(1) / (twice_area > T(0) ? twice_area : T(1));
+      const Vec3<T> unit = inverse_area * normal;
+      const Vec3<T> corner[3] = {a, b, c};
+      const Vec3<T> middle = T(1) / T(3) * ((a + b) + c);
+      const Vec3<T> da = a - middle, db = b - middle, dc = c - middle;
+      const T extent = std::sqrt(std::max(std::max(dot(da, da), dot(db, db)), dot(dc, dc)));
+      for (int64_t m = 0; m < width; ++m) {
+        T* s = spring + f * width + m;
+        if (row[m] >= law.num_spheres) {
+          if constexpr (Visit::kForward) clear(s, stride);
+          continue;
+        }
+        const int64_t sphere = row[m];
+        const Vec3<T> centre = row3(law.xs, sphere);
+        if (out_of_reach(law, sphere, centre, middle, extent)) {
+          if constexpr (Visit::kForward) clear(s, stride);
+          continue;
+        }
+        const Vec3<T> foot = centre - dot(centre - a, unit) * unit;
+        const T weight_a = dot(cross(c - b, foot - b), unit) * inverse_area;
+        const T weight_b = dot(cross(a - c, foot - c), unit) * inverse_area;
+        const T weight_c = (T(1) - weight_a) - weight_b;
+        const bool inside = (weight_a > law.band) & (weight_b > law.band) & (weight_c > law.band) &
+                            (twice_area > T(0));
+        const T weight[3] = {weight_a, weight_b, weight_c};
+        const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, inside, s, stride);
+        for (int k = 0; k < 3; ++k) total[k] = total[k] + weight[k] * force;
+      }
+    } else {
+      for (int64_t m = 0; m < width; ++m) {
+        T* s = spring + f * width + m;
+        if constexpr (Visit::kForward) clear(s, stride);
+      }
+    }
+    if constexpr (Visit::kForward)
+      for (int k = 0; k < 3; ++k) {
+      share[9 * f + 3 * k] = total[k].x;
+      share[9 * f + 3 * k + 1] = total[k].y;
+      share[9 * f + 3 * k + 2] = total[k].z;
+    }
+  }
+}
+
+// The interior edges: share (E, 2, 3), each edge's force on its ends u, v summed over its slots.
+template <typename T, typename Visit>
+void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_t width, const int32_t* edge_nodes,
+                T* spring, T* share, Visit& visit) {
+  const int64_t stride = num_edges * width;
+  for (int64_t e = 0; e < num_edges; ++e) {
+    Vec3<T> total[2] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
+    const int32_t* row = idx + e * width;
+    bool any = false;
+    for (int64_t m = 0; m < width; ++m) any |= row[m] < law.num_spheres;
+    if (any) {
+      const int32_t* ids = edge_nodes + 4 * e;
+      const int64_t node[2] = {ids[0], ids[1]};
+      const Vec3<T> u = row3(law.x, ids[0]), v = row3(law.x, ids[1]);
+      const Vec3<T> along = v - u;
+      const T length_sq = dot(along, along);
+      const T safe_length_sq = length_sq > T(0) ? length_sq : T(1);
+      Vec3<T> inward[2];
+      T safe_height_sq[2];
+      for (int k = 0; k < 2; ++k) {
+        const Vec3<T> out = row3(law.x, ids[2 + k]) - u;
+        inward[k] = out - (dot(out, along) / safe_length_sq) * along;
+        const T height_sq = dot(inward[k], inward[k]);
+        safe_height_sq[k] = height_sq > T(0) ? height_sq : T(1);
+      }
+      const Vec3<T> corner[2] = {u, v};
+      const Vec3<T> middle = T(0.5) * (u + v);
+      const T extent = T(0.5) * std::sqrt(length_sq);
+      for (int64_t m = 0; m < width; ++m) {
+        T* s = spring + e * width + m;
+        if (row[m] >= law.num_spheres) {
+          if constexpr (Visit::kForward) clear(s, stride);
+          continue;
+        }
+        const int64_t sphere = row[m];
+        const Vec3<T> centre = row3(law.xs, sphere);
+        if (out_of_reach(law, sphere, centre, middle, extent)) {
+          if constexpr (Visit::kForward) clear(s, stride);
+          continue;
+        }
+        const Vec3<T> from_u = centre - u;
+        const T fraction = dot(from_u, along) / safe_length_sq;
+        bool in_region = (fraction > law.band) & (fraction < law.upper_band) & (length_sq > T(0));
+        for (int k = 0; k < 2; ++k) in_region &= dot(from_u, inward[k]) / safe_height_sq[k] <= law.band;
+        const T weight[2] = {T(1) - fraction, fraction};
+        const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
+        for (int k = 0; k < 2; ++k) total[k] = total[k] + weight[k] * force;
+      }
+    } else {
+      for (int64_t m = 0; m < width; ++m) {
+        T* s = spring + e * width + m;
+        if constexpr (Visit::kForward) clear(s, stride);
+      }
+    }
+    if constexpr (Visit::kForward)
+      for (int k = 0; k < 2; ++k) {
+      share[6 * e + 3 * k] = total[k].x;
+      share[6 * e + 3 * k + 1] = total[k].y;
+      share[6 * e + 3 * k + 2] = total[k].z;
+    }
+  }
+}
+
+// The interior nodes: share (n, 3), each node's own force summed over its slots.
+template <typename T, typename Visit>
+void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int32_t* neighbours,
+                int64_t num_neighbours, T* spring, T* share, Visit& visit) {
+  const int64_t num_nodes = law.num_nodes, stride = num_nodes * width;
+  std::vector<Vec3<T>> spoke(static_cast<size_t>(num_neighbours));
+  std::vector<T> safe_spoke_sq(static_cast<size_t>(num_neighbours));
+  for (int64_t n = 0; n < num_nodes; ++n) {
+    Vec3<T> total{T(0), T(0), T(0)};
+    const int32_t* row = idx + n * width;
+    bool any = false;
+    for (int64_t m = 0; m < width; ++m) any |= row[m] < law.num_spheres;
+    if (any) {
+      const Vec3<T> vertex = row3(law.x, n);
+      const int32_t* around = neighbours + n * num_neighbours;
+      for (int64_t h = 0; h < num_neighbours; ++h) {
+        const bool present = around[h] < num_nodes;
+        spoke[h] = (present ? row3(law.x, around[h]) : Vec3<T>{T(0), T(0), T(0)}) - vertex;
+        const T spoke_sq = dot(spoke[h], spoke[h]);
+        safe_spoke_sq[h] = spoke_sq > T(0) ? spoke_sq : T(1);
+      }
+      const Vec3<T> corner[1] = {vertex};
+      const int64_t node[1] = {n};
+      const T weight[1] = {T(1)};
+      for (int64_t m = 0; m < width; ++m) {
+        T* s = spring + n * width + m;
+        if (row[m] >= law.num_spheres) {
+          if constexpr (Visit::kForward) clear(s, stride);
+          continue;
+        }
+        const int64_t sphere = row[m];
+        const Vec3<T> centre = row3(law.xs, sphere);
+        if (out_of_reach(law, sphere, centre, vertex, T(0))) {
+          if constexpr (Visit::kForward) clear(s, stride);
+          continue;
+        }
+        const Vec3<T> from_vertex = centre - vertex;
+        bool in_region = true;
+        for (int64_t h = 0; h < num_neighbours; ++h)
+          in_region &= (dot(from_vertex, spoke[h]) / safe_spoke_sq[h] <= law.band) | (around[h] >= num_nodes);
+        total = total + visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
+      }
+    } else {
+      for (int64_t m = 0; m < width; ++m) {
+        T* s = spring + n * width + m;
+        if constexpr (Visit::kForward) clear(s, stride);
+      }
+    }
+    if constexpr (Visit::kForward) {
+      share[3 * n] = total.x;
+      share[3 * n + 1] = total.y;
+      share[3 * n + 2] = total.z;
+    }
+  }
+}
+
+// Each node's rows of `share` listed in its incidence row, summed left to right: row(e) maps an entry to
+// its row, the zero row (after the others) for an entry that names no share; without a branch, which the
+// mix of edge ends and opposite vertices in hinge_incidence would mispredict.
+template <typename T, typename Row>
+inline Vec3<T> incidence_sum(const T* share, const int32_t* incidence, int64_t width, Row row) {
+  Vec3<T> total{T(0), T(0), T(0)};
+  for (int64_t j = 0; j < width; ++j) total = total + row3(share, row(int64_t(incidence[j])));
+  return total;
+}
+
+template <ffi::DataType dtype>
+ffi::Future face_contact_forces(
+    ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,
+    ffi::Buffer<dtype> sphere_velocity, ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
+    ffi::Buffer<ffi::S32> face_idx, ffi::Buffer<ffi::S32> edge_idx, ffi::Buffer<ffi::S32> node_idx,
+    ffi::Buffer<ffi::S32> triangles, ffi::Buffer<ffi::S32> edge_nodes, ffi::Buffer<ffi::S32> neighbours,
+    ffi::Buffer<ffi::S32> corner_incidence, ffi::Buffer<ffi::S32> hinge_incidence, ffi::Buffer<dtype> face_spring,
+    ffi::Buffer<dtype> edge_spring, ffi::Buffer<dtype> node_spring, ffi::Buffer<dtype> scalars,
+    ffi::ResultBuffer<dtype> node_force, ffi::ResultBuffer<dtype> sphere_force, ffi::ResultBuffer<dtype> sphere_torque,
+    ffi::ResultBuffer<dtype> new_face_spring, ffi::ResultBuffer<dtype> new_edge_spring,
+    ffi::ResultBuffer<dtype> new_node_spring, ffi::ThreadPool pool) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = node_position.element_count() / 3;
+  const int64_t num_spheres = sphere_radius.element_count();
+  const auto face_dims = face_idx.dimensions(), edge_dims = edge_idx.dimensions(), node_dims = node_idx.dimensions();
+  const auto neighbour_dims = neighbours.dimensions(), corner_dims = corner_incidence.dimensions(),
+             hinge_dims = hinge_incidence.dimensions();
+  if (face_dims.size() != 2 || edge_dims.size() != 2 || node_dims.size() != 2 || neighbour_dims.size() != 2 ||
+      corner_dims.size() != 2 || hinge_dims.size() != 2 || scalars.element_count() != 5 ||
+      node_dims[0] != num_nodes || neighbour_dims[0] != num_nodes || corner_dims[0] != num_nodes ||
+      hinge_dims[0] != num_nodes || triangles.element_count() != size_t(3 * face_dims[0]) ||
+      edge_nodes.element_count() != size_t(4 * edge_dims[0]) ||
+      face_spring.element_count() != size_t(3 * face_dims[0] * face_dims[1]) ||
+      edge_spring.element_count() != size_t(3 * edge_dims[0] * edge_dims[1]) ||
+      node_spring.element_count() != size_t(3 * node_dims[0] * node_dims[1]) ||
+      sphere_position.element_count() != size_t(3 * num_spheres)) {
+    return membrax::failed(ffi::Error::InvalidArgument("face_contact_forces: inconsistent array sizes"));
+  }
+  const T* scalar = scalars.typed_data();
+  const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
+  Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
+             sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
+             num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
+             T(band), T(1.0 - band), sphere_force->typed_data(), sphere_torque->typed_data()};
+  const int64_t num_faces = face_dims[0], face_width = face_dims[1];
+  const int64_t num_edges = edge_dims[0], edge_width = edge_dims[1];
+  const int64_t node_width = node_dims[1], num_neighbours = neighbour_dims[1];
+  const int64_t corner_width = corner_dims[1], hinge_width = hinge_dims[1];
+  const int32_t *face_ids = face_idx.typed_data(), *edge_ids = edge_idx.typed_data(), *node_ids = node_idx.typed_data();
+  const int32_t *triangle_nodes = triangles.typed_data(), *edge_corners = edge_nodes.typed_data();
+  const int32_t *around = neighbours.typed_data(), *corners = corner_incidence.typed_data(),
+                *hinges = hinge_incidence.typed_data();
+  const T *old_face = face_spring.typed_data(), *old_edge = edge_spring.typed_data(),
+          *old_node = node_spring.typed_data();
+  T *face_out = new_face_spring->typed_data(), *edge_out = new_edge_spring->typed_data(),
+    *node_out = new_node_spring->typed_data();
+  T* on_node = node_force->typed_data();
+  const int64_t slots = num_faces * face_width + num_edges * edge_width + num_nodes * node_width;
+  return membrax::on_pool(pool, slots, [=]() {
+    std::fill(law.on_sphere, law.on_sphere + 3 * num_spheres, T(0));
+    std::fill(law.torque, law.torque + 3 * num_spheres, T(0));
+    // The springs are updated in their output buffers (aliased to the inputs by the caller, or copied
+    // here): each slot reads its own spring and then writes it.
+    if (face_out != old_face) std::copy(old_face, old_face + 3 * num_faces * face_width, face_out);
+    if (edge_out != old_edge) std::copy(old_edge, old_edge + 3 * num_edges * edge_width, edge_out);
+    if (node_out != old_node) std::copy(old_node, old_node + 3 * num_nodes * node_width, node_out);
+    thread_local std::vector<T> scratch;
+    // Each kind's share rows, a zero row after the faces' and the edges'.
+    scratch.resize(size_t(9 * num_faces + 6 * num_edges + 3 * num_nodes + 6));
+    T* face_share = scratch.data();
+    T* edge_share = face_share + 9 * num_faces + 3;
+    T* node_share = edge_share + 6 * num_edges + 3;
+    std::fill(face_share + 9 * num_faces, face_share + 9 * num_faces + 3, T(0));
+    std::fill(edge_share + 6 * num_edges, edge_share + 6 * num_edges + 3, T(0));
+    ForwardVisit<T> visit{law};
+    face_slots(law, face_ids, num_faces, face_width, triangle_nodes, face_out, face_share, visit);
+    edge_slots(law, edge_ids, num_edges, edge_width, edge_corners, edge_out, edge_share, visit);
+    node_slots(law, node_ids, node_width, around, num_neighbours, node_out, node_share, visit);
+    // Each node: its corners' face shares, its ends' edge shares, its own; in that order.
+    for (int64_t n = 0; n < num_nodes; ++n) {
+      // corner_index: e < F the triangles' first corners, then their second and third; padded with 3F.
+      const Vec3<T> faces = incidence_sum<T>(face_share, corners + n * corner_width, corner_width, [=](int64_t e) {
+        return e < num_faces ? 3 * e : e < 2 * num_faces ? 3 * (e - num_faces) + 1
+                                   : e < 3 * num_faces ? 3 * (e - 2 * num_faces) + 2 : 3 * num_faces;
+      });
+      // hinge_index: the edges' starts, their ends, then the opposite vertices (no share); padded with 4E.
+      const Vec3<T> edges = incidence_sum<T>(edge_share, hinges + n * hinge_width, hinge_width, [=](int64_t e) {
+        return e < num_edges ? 2 * e : e < 2 * num_edges ? 2 * (e - num_edges) + 1 : 2 * num_edges;
+      });
+      const Vec3<T> total = (faces + edges) + row3(node_share, n);
+      on_node[3 * n] = total.x;
+      on_node[3 * n + 1] = total.y;
+      on_node[3 * n + 2] = total.z;
+    }
+  });
+}
+
+
+// ---- The backward kernel: each touching slot's law on dual numbers, one input direction at a time.
+//
+// Reverse mode needs ū·J for the slot's outputs (its shares w_k F on its nodes, −F and b × (−F) on its
+// sphere, its new spring s'), a function of a few dozen inputs (the feature's node positions and velocities,
+// the sphere's position, velocity, spin and radius, the carried spring, Δt, k_n, k_t, μ, t_m): the scalar
+// L = ū·outputs is evaluated on dual numbers once per input, seeded with that input's unit tangent, and its
+// tangent is that input's cotangent. A few hundred slots touch at paper size, so this costs little. The
+// regions and the touching test are decided on the values and held fixed, as the JAX law's selects are;
+// every guarded norm and select takes the JAX law's branch (value-based), so the derivatives are its own.
+
+using membrax::Dual;
+
+template <typename T>
+inline T value(T x) { return x; }
+template <typename T>
+inline T value(Dual<T> x) { return x.v; }
+
+template <typename S>
+inline S guarded_sqrt(S x) {  // √x, 0 (with a zero tangent) at x = 0: the JAX law's safe_norm
+  using membrax::sqrt;
+  using std::sqrt;
+  return value(x) > decltype(value(x))(0) ? sqrt(x) : S{};
+}
+
+template <typename T>
+inline Vec3<Dual<T>> lift(Vec3<T> a) {
+  return {membrax::constant(a.x), membrax::constant(a.y), membrax::constant(a.z)};
+}
+
+// The slot's inputs, in their seeding order: corners (3K), corner velocities (3K), centre, sphere velocity,
+// spin (3 each), radius, carried spring (3), Δt, k_n, k_t, μ, t_m.
+template <int kCount>
+constexpr int kInputs = 6 * kCount + 9 + 1 + 3 + 5;
+
+// L = ū·(the slot's outputs) on inputs `in` (dual numbers); `bar`: the shares' cotangents per corner, then
+// the sphere force's, the torque's and the spring's.
+template <typename T, int kCount>
+Dual<T> slot_objective(const Dual<T>* in, const Vec3<T> (&bar)[kCount + 3]) {
+  using S = Dual<T>;
+  auto vec = [in](int q) { return Vec3<S>{in[q], in[q + 1], in[q + 2]}; };
+  Vec3<S> corner[kCount], velocity[kCount];
+  for (int k = 0; k < kCount; ++k) {
+    corner[k] = vec(3 * k);
+    velocity[k] = vec(3 * kCount + 3 * k);
+  }
+  const int q = 6 * kCount;
+  const Vec3<S> centre = vec(q), sphere_velocity = vec(q + 3), spin = vec(q + 6);
+  const S radius = in[q + 9];
+  const Vec3<S> spring = vec(q + 10);
+  const S dt = in[q + 13], normal_stiffness = in[q + 14], tangential_stiffness = in[q + 15], friction = in[q + 16],
+          thickness = in[q + 17];
+  S weight[kCount];
+  if constexpr (kCount == 3) {  // the area coordinates of the foot of the perpendicular
+    const Vec3<S> a = corner[0], b = corner[1], c = corner[2];
+    const Vec3<S> normal = cross(b - a, c - a);
+    const S inverse_area = T(1) / guarded_sqrt(dot(normal, normal));  // > 0 in the face's region
+    const Vec3<S> unit = inverse_area * normal;
+    const Vec3<S> foot = centre - dot(centre - a, unit) * unit;
+    weight[0] = dot(cross(c - b, foot - b), unit) * inverse_area;
+    weight[1] = dot(cross(a - c, foot - c), unit) * inverse_area;
+    weight[2] = (T(1) - weight[0]) - weight[1];
+  } else if constexpr (kCount == 2) {  // τ along the edge
+    const Vec3<S> along = corner[1] - corner[0];
+    const S fraction = dot(centre - corner[0], along) / dot(along, along);
+    weight[0] = T(1) - fraction;
+    weight[1] = fraction;
+  } else {
+    weight[0] = membrax::constant(T(1));
+  }
+  Vec3<S> contact_point = lift(Vec3<T>{T(0), T(0), T(0)}), membrane_velocity = contact_point;
+  for (int k = 0; k < kCount; ++k) {
+    contact_point = contact_point + weight[k] * corner[k];
+    membrane_velocity = membrane_velocity + weight[k] * velocity[k];
+  }
+  const Vec3<S> branch = contact_point - centre;
+  const S distance = guarded_sqrt(dot(branch, branch));  // > 0: touching
+  const Vec3<S> normal = (T(1) / distance) * branch;
+  const S overlap = (radius + T(0.5) * thickness) - distance;
+  const S normal_force = normal_stiffness * overlap;
+  const Vec3<S> relative = membrane_velocity - (sphere_velocity + cross(spin, branch));
+  const Vec3<S> tangential = relative - dot(relative, normal) * normal;
+  // membrax.spheres.contact.tangential_spring_update, active.
+  const S length = guarded_sqrt(dot(spring, spring));
+  const Vec3<S> projected = spring - dot(spring, normal) * normal;
+  const S projected_sq = dot(projected, projected), quarter = T(0.25) * length * length;
+  const S denominator_sq = value(projected_sq) >= value(quarter) ? projected_sq : quarter;
+  const bool positive = value(denominator_sq) > T(0);
+  const S denominator = positive ? guarded_sqrt(denominator_sq) : S{};
+  const Vec3<S> zero = lift(Vec3<T>{T(0), T(0), T(0)});
+  const Vec3<S> direction = positive ? (T(1) / denominator) * projected : zero;
+  const Vec3<S> trial = length * direction - (tangential_stiffness * dt) * tangential;
+  const S trial_length = guarded_sqrt(dot(trial, trial));
+  const S limit = friction * normal_force;
+  const S slip = value(trial_length) > value(limit)
+                     ? limit / (value(trial_length) > T(0) ? trial_length : membrax::constant(T(1)))
+                     : membrax::constant(T(1));
+  const Vec3<S> updated = slip * trial;
+  const Vec3<S> force = normal_force * normal + updated;  // on the membrane
+  const Vec3<S> reaction = S{T(-1), T(0)} * force;
+  S total = dot(lift(bar[kCount]), reaction) + dot(lift(bar[kCount + 1]), cross(branch, reaction)) +
+            dot(lift(bar[kCount + 2]), updated);
+  for (int k = 0; k < kCount; ++k) total = total + dot(lift(bar[k]), weight[k] * force);
+  return total;
+}
+
+// The backward's visit of an occupied slot: where it touches, the cotangents of its inputs added to the
+// outputs (its spring's written), in slot order.
+template <typename T>
+struct BackwardVisit {
+  static constexpr bool kForward = false;
+  const Law<T>& law;
+  const T *node_force_bar, *sphere_force_bar, *torque_bar, *spring_bar;  // spring_bar: this kind's
+  const T* spring_base;                                                  // this kind's carried springs
+  T *x_bar, *v_bar, *xs_bar, *vs_bar, *ws_bar, *radius_bar, *spring_out, *scalars_bar;
+
+  template <int kCount>
+  Vec3<T> slot(int64_t sphere, Vec3<T> centre, const T (&weight)[kCount], const Vec3<T> (&corner)[kCount],
+               const int64_t (&node)[kCount], bool in_region, T* spring, int64_t stride) {
+    const Vec3<T> zero{T(0), T(0), T(0)};
+    if (!in_region) return zero;
+    Vec3<T> contact_point = zero;  // as slot_law decides touching
+    for (int k = 0; k < kCount; ++k) contact_point = contact_point + weight[k] * corner[k];
+    const Vec3<T> branch = contact_point - centre;
+    const T distance_sq = dot(branch, branch);
+    const T distance = distance_sq == T(0) ? T(0) : std::sqrt(distance_sq);
+    const T overlap = law.radius[sphere] + law.half_thickness - distance;
+    if (!((overlap > T(0)) & (distance > T(0)))) return zero;
+    const int64_t slot = spring - spring_base;
+    constexpr int n_in = kInputs<kCount>;
+    T values[n_in];
+    for (int k = 0; k < kCount; ++k) {
+      const Vec3<T> x = corner[k], v = row3(law.v, node[k]);
+      const T rows[6] = {x.x, x.y, x.z, v.x, v.y, v.z};
+      for (int c = 0; c < 3; ++c) {
+        values[3 * k + c] = rows[c];
+        values[3 * kCount + 3 * k + c] = rows[3 + c];
+      }
+    }
+    const int q = 6 * kCount;
+    const Vec3<T> sphere_rows[3] = {centre, row3(law.vs, sphere), row3(law.ws, sphere)};
+    for (int r = 0; r < 3; ++r) {
+      values[q + 3 * r] = sphere_rows[r].x;
+      values[q + 3 * r + 1] = sphere_rows[r].y;
+      values[q + 3 * r + 2] = sphere_rows[r].z;
+    }
+    values[q + 9] = law.radius[sphere];
+    for (int c = 0; c < 3; ++c) values[q + 10 + c] = spring_base[c * stride + slot];
+    const T scalars[5] = {law.dt, law.normal_stiffness, law.tangential_stiffness, law.friction,
+                          T(2) * law.half_thickness};
+    for (int c = 0; c < 5; ++c) values[q + 13 + c] = scalars[c];
+    Vec3<T> bar[kCount + 3];
+    for (int k = 0; k < kCount; ++k) bar[k] = row3(node_force_bar, node[k]);
+    bar[kCount] = row3(sphere_force_bar, sphere);
+    bar[kCount + 1] = row3(torque_bar, sphere);
+    bar[kCount + 2] = {spring_bar[slot], spring_bar[stride + slot], spring_bar[2 * stride + slot]};
+    T gradient[n_in];
+    Dual<T> in[n_in];
+    for (int j = 0; j < n_in; ++j) in[j] = membrax::constant(values[j]);
+    for (int j = 0; j < n_in; ++j) {
+      in[j].d = T(1);
+      gradient[j] = slot_objective<T, kCount>(in, bar).d;
+      in[j].d = T(0);
+    }
+    for (int k = 0; k < kCount; ++k) {
+      membrax::add3(x_bar, node[k], Vec3<T>{gradient[3 * k], gradient[3 * k + 1], gradient[3 * k + 2]});
+      membrax::add3(v_bar, node[k],
+                    Vec3<T>{gradient[3 * kCount + 3 * k], gradient[3 * kCount + 3 * k + 1],
+                            gradient[3 * kCount + 3 * k + 2]});
+    }
+    membrax::add3(xs_bar, sphere, Vec3<T>{gradient[q], gradient[q + 1], gradient[q + 2]});
+    membrax::add3(vs_bar, sphere, Vec3<T>{gradient[q + 3], gradient[q + 4], gradient[q + 5]});
+    membrax::add3(ws_bar, sphere, Vec3<T>{gradient[q + 6], gradient[q + 7], gradient[q + 8]});
+    radius_bar[sphere] += gradient[q + 9];
+    for (int c = 0; c < 3; ++c) spring_out[c * stride + slot] = gradient[q + 10 + c];
+    for (int c = 0; c < 5; ++c) scalars_bar[c] += gradient[q + 13 + c];
+    return zero;
+  }
+};
+
+// Inputs: those of face_contact_forces, then the cotangents of its outputs (node force (n, 3), sphere force
+// and torque (N, 3), the three springs). Outputs: the cotangents of its floating inputs: node position and
+// velocity (n, 3), sphere position, velocity and spin (N, 3), radius (N,), the three springs and the scalars
+// (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero cotangents whatever their inputs.
+template <ffi::DataType dtype>
+ffi::Error face_contact_backward(
+    ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,
+    ffi::Buffer<dtype> sphere_velocity, ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
+    ffi::Buffer<ffi::S32> face_idx, ffi::Buffer<ffi::S32> edge_idx, ffi::Buffer<ffi::S32> node_idx,
+    ffi::Buffer<ffi::S32> triangles, ffi::Buffer<ffi::S32> edge_nodes, ffi::Buffer<ffi::S32> neighbours,
+    ffi::Buffer<ffi::S32> corner_incidence, ffi::Buffer<ffi::S32> hinge_incidence, ffi::Buffer<dtype> face_spring,
+    ffi::Buffer<dtype> edge_spring, ffi::Buffer<dtype> node_spring, ffi::Buffer<dtype> scalars,
+    ffi::Buffer<dtype> node_force_bar, ffi::Buffer<dtype> sphere_force_bar, ffi::Buffer<dtype> sphere_torque_bar,
+    ffi::Buffer<dtype> face_spring_bar, ffi::Buffer<dtype> edge_spring_bar, ffi::Buffer<dtype> node_spring_bar,
+    ffi::ResultBuffer<dtype> node_position_out, ffi::ResultBuffer<dtype> node_velocity_out,
+    ffi::ResultBuffer<dtype> sphere_position_out, ffi::ResultBuffer<dtype> sphere_velocity_out,
+    ffi::ResultBuffer<dtype> sphere_angular_out, ffi::ResultBuffer<dtype> radius_out,
+    ffi::ResultBuffer<dtype> face_spring_out, ffi::ResultBuffer<dtype> edge_spring_out,
+    ffi::ResultBuffer<dtype> node_spring_out, ffi::ResultBuffer<dtype> scalars_out) {
+  using T = ffi::NativeType<dtype>;
+  const int64_t num_nodes = node_position.element_count() / 3;
+  const int64_t num_spheres = sphere_radius.element_count();
+  const auto face_dims = face_idx.dimensions(), edge_dims = edge_idx.dimensions(), node_dims = node_idx.dimensions();
+  const auto neighbour_dims = neighbours.dimensions();
+  if (face_dims.size() != 2 || edge_dims.size() != 2 || node_dims.size() != 2 || neighbour_dims.size() != 2 ||
+      scalars.element_count() != 5 || node_dims[0] != num_nodes || neighbour_dims[0] != num_nodes ||
+      triangles.element_count() != size_t(3 * face_dims[0]) ||
+      edge_nodes.element_count() != size_t(4 * edge_dims[0]) ||
+      face_spring.element_count() != size_t(3 * face_dims[0] * face_dims[1]) ||
+      edge_spring.element_count() != size_t(3 * edge_dims[0] * edge_dims[1]) ||
+      node_spring.element_count() != size_t(3 * node_dims[0] * node_dims[1]) ||
+      face_spring_bar.element_count() != face_spring.element_count() ||
+      edge_spring_bar.element_count() != edge_spring.element_count() ||
+      node_spring_bar.element_count() != node_spring.element_count() ||
+      node_force_bar.element_count() != size_t(3 * num_nodes) ||
+      sphere_force_bar.element_count() != size_t(3 * num_spheres) ||
+      sphere_torque_bar.element_count() != size_t(3 * num_spheres) ||
+      sphere_position.element_count() != size_t(3 * num_spheres)) {
+    return ffi::Error::InvalidArgument("face_contact_backward: inconsistent array sizes");
+  }
+  const T* scalar = scalars.typed_data();
+  const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
+  const Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
+                   sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
+                   num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
+                   T(band), T(1.0 - band), nullptr, nullptr};
+  T* outputs[6] = {node_position_out->typed_data(), node_velocity_out->typed_data(),
+                   sphere_position_out->typed_data(), sphere_velocity_out->typed_data(),
+                   sphere_angular_out->typed_data(), radius_out->typed_data()};
+  const int64_t sizes[6] = {3 * num_nodes, 3 * num_nodes, 3 * num_spheres, 3 * num_spheres, 3 * num_spheres,
+                            num_spheres};
+  for (int k = 0; k < 6; ++k) std::fill(outputs[k], outputs[k] + sizes[k], T(0));
+  std::fill(scalars_out->typed_data(), scalars_out->typed_data() + 5, T(0));
+  T* spring_outs[3] = {face_spring_out->typed_data(), edge_spring_out->typed_data(), node_spring_out->typed_data()};
+  const size_t spring_sizes[3] = {face_spring.element_count(), edge_spring.element_count(),
+                                  node_spring.element_count()};
+  for (int k = 0; k < 3; ++k) std::fill(spring_outs[k], spring_outs[k] + spring_sizes[k], T(0));
+  auto visit_for = [&](const T* carried, const T* carried_bar, T* out) {
+    return BackwardVisit<T>{law, node_force_bar.typed_data(), sphere_force_bar.typed_data(),
+                            sphere_torque_bar.typed_data(), carried_bar, carried, outputs[0], outputs[1], outputs[2],
+                            outputs[3], outputs[4], outputs[5], out, scalars_out->typed_data()};
+  };
+  // The loops only read the springs (the visit's kForward is false).
+  T* face_carried = const_cast<T*>(face_spring.typed_data());
+  T* edge_carried = const_cast<T*>(edge_spring.typed_data());
+  T* node_carried = const_cast<T*>(node_spring.typed_data());
+  auto face_visit = visit_for(face_carried, face_spring_bar.typed_data(), spring_outs[0]);
+  face_slots(law, face_idx.typed_data(), face_dims[0], face_dims[1], triangles.typed_data(), face_carried,
+             static_cast<T*>(nullptr), face_visit);
+  auto edge_visit = visit_for(edge_carried, edge_spring_bar.typed_data(), spring_outs[1]);
+  edge_slots(law, edge_idx.typed_data(), edge_dims[0], edge_dims[1], edge_nodes.typed_data(), edge_carried,
+             static_cast<T*>(nullptr), edge_visit);
+  auto node_visit = visit_for(node_carried, node_spring_bar.typed_data(), spring_outs[2]);
+  node_slots(law, node_idx.typed_data(), node_dims[1], neighbours.typed_data(), neighbour_dims[1], node_carried,
+             static_cast<T*>(nullptr), node_visit);
+  return ffi::Error::Success();
+}
+
+}  // namespace
+
+MEMBRAX_DEFINE_HANDLERS(MembraxFaceContactForces, face_contact_forces);
+MEMBRAX_DEFINE_HANDLERS(MembraxFaceContactBackward, face_contact_backward);
