@@ -21,8 +21,8 @@ package but its command line (``membrax fit``, ``membrax correct``).
   corrections and the fitted one (with its uncertainty band); the shipped default correction
   (``data/default_corrections.json``). :mod:`calibrate.report`: ``membrax correct``'s CSV and plot;
   :mod:`calibrate.series`: a test series and its envelopes; :mod:`calibrate.web`: ``membrax serve``.
-- :mod:`calibrate.designs`: the calibration and held-out sweeps on random packings (the shipped
-  correction's, and the laboratory-geometry set) and FCC lattices; :mod:`calibrate.grid` runs them
-  (``python -m calibrate.grid OUT --design random``); :mod:`calibrate.evaluate`: simulated tests as
+- :mod:`calibrate.designs`: the calibration and held-out sweeps on random packings (the laboratory-geometry
+  set, the shipped correction's, and the small random grid) and FCC lattices; :mod:`calibrate.grid` runs
+  them (``python -m calibrate.grid OUT --design lab``); :mod:`calibrate.evaluate`: simulated tests as
   laboratory records, and each correction's φ' error against the internal φ'.
 """

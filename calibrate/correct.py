@@ -39,16 +39,16 @@ so is a void ratio (``LabSpecimen.solid_fraction``) outside the fitted members' 
 band and withholds like the inputs above, its distance in units of the fitted span of void ratios
 (:func:`void_ratio_distance`).
 
-LabSpecimen height. The correction records the H/D_s of the specimens it was fitted on (1.28–1.67 for the
-shipped one, its moulds), below the 2–2.5 laboratories test at (ASTM D7181, BS 1377-8). A record whose
-height is not given is warned about (:func:`aspect_ratio_warnings`); one whose H/D_s lies outside is
-warned about like the other quantities and its band widened by the same 1 + δ (in logarithms), but the
-fitted column is not withheld for it. The withholding is for a model carried beyond the span of the inputs
-it reads; no model reads H/D_s, so its distance says how far an untested assumption (the extra stresses per
-unit area do not depend on the height) is carried, an uncertainty rather than an extrapolated term. And
-H/D_s spans a factor of 1.3 only, so one width in logarithms is H/D_s = 2.2: withholding there would
-withhold the correction on most standard tests, though on the paper-size random members (moulds of
-H/D_s = 2) it halved the uncorrected error (docs/calibration.md).
+LabSpecimen height. The correction records the H/D_s of the specimens it was fitted on (1.99–2.50 for the
+shipped one, the 2–2.5 laboratories test at: ASTM D7181, BS 1377-8; 1.28–1.67 for the random grid's). A record
+whose height is not given is warned about (:func:`aspect_ratio_warnings`); one whose H/D_s lies outside is
+warned about like the other quantities and its band widened by the same 1 + δ (in logarithms), but the fitted
+column is not withheld for it. The withholding is for a model carried beyond the span of the inputs it reads;
+no model reads H/D_s, so its distance says how far an untested assumption (the extra stresses per unit area do
+not depend on the height) is carried, an uncertainty rather than an extrapolated term. And H/D_s spans a
+factor of 1.3 only, so one width in logarithms is H/D_s = 2.2: withholding there would withhold the correction
+on most standard tests, though on the paper-size random members (moulds of H/D_s = 2) it halved the
+uncorrected error (docs/calibration.md).
 
 Abstention (:mod:`calibrate.abstention`). A correction fitted with a rule carries, per region of
 E_m t_m/(σc D), a factor w in [0, 1] for each of its σ1 and σ3 corrections, chosen on the
@@ -62,8 +62,8 @@ without a rule never abstains.
 Radial target. The fitted σ3 reproduces the correction's ``radial_target``
 (:data:`calibrate.datasets.RADIAL_TARGETS`, docs/model.md): the received stress (the radial load the
 spheres and clamps receive over the membrane's radially projected area, equal to σc when the membrane
-carries nothing) for a correction fitted since that choice, the paper's §4.3 stress for the shipped one and
-for files written before. A correction with an ``alternate`` (the same fit with the other target) gives
+carries nothing) for a correction fitted since that choice, the shipped one included, and the paper's §4.3
+stress for files written before. A correction with an ``alternate`` (the same fit with the other target) gives
 that one's fitted σ1, σ3, φ' and φ' band beside (:mod:`calibrate.report` writes them, in the columns
 ``*_fitted_<target>``).
 
@@ -285,7 +285,7 @@ class CorrectedRecord(NamedTuple):
 
 
 def default_corrections() -> persistence.Corrections:
-    """The correction shipped with the package (fitted on :data:`calibrate.designs.RANDOM_CALIBRATION`)."""
+    """The correction shipped with the package (fitted on :data:`calibrate.designs.LAB_CALIBRATION`)."""
     with resources.as_file(resources.files("calibrate") / "data" / DEFAULT_MODEL_FILE) as path:
         return persistence.load_corrections(path)
 

@@ -1,17 +1,18 @@
 """The calibration designs: the membrax sweeps a correction is fitted on, and the held-out tests.
 
-Contract. :data:`DESIGNS` names the designs (one source for each): :data:`RANDOM_CALIBRATION` (the shipped
-correction's), :data:`RANDOM_HELD_OUT`, :data:`PROTOCOL_CHECK`, :data:`LAB_CALIBRATION`,
-:data:`LAB_HELD_OUT`, and the FCC :data:`CALIBRATION` and :data:`HELD_OUT` of the first correction. Each
-maps a group name to ``(specimen, grid)``: the specimen's fields (:func:`specimen_fields`) and the
-``membrax sweep`` grid of that specimen. Running them is :mod:`calibrate.grid`'s.
+Contract. :data:`DESIGNS` names the designs (one source for each): :data:`LAB_CALIBRATION` (the shipped
+correction's), :data:`LAB_HELD_OUT`, :data:`RANDOM_CALIBRATION` (the previous correction's),
+:data:`RANDOM_HELD_OUT`, :data:`PROTOCOL_CHECK`, and the FCC :data:`CALIBRATION` and :data:`HELD_OUT` of the
+first correction. Each maps a group name to ``(specimen, grid)``: the specimen's fields
+(:func:`specimen_fields`) and the ``membrax sweep`` grid of that specimen. Running them is
+:mod:`calibrate.grid`'s.
 
-Random specimens. A laboratory specimen is a random packing, and corrections do not transfer between
-packings (docs/calibration.md), so the shipped correction is fitted on random packings: equal 25 mm spheres
-in moulds 150, 200 and 250 mm across (D/D_s = 1/6, 1/8, 1/10), dense and loose, and railway ballast's
-grading scaled to a largest sieve of D_s/6 (:func:`membrax.reproduce.random_fields`), dense and loose;
-σc 10–100 kPa, t_m 1–5 mm, E_m 700–2800 kPa; packing seed 0. The held-out members are packings of seed 1
-off every grid line. :data:`PROTOCOL_CHECK` reruns nine members at the paper's rate and membrane resolution.
+Random specimens. A laboratory specimen is a random packing, and corrections do not transfer between packings
+(docs/calibration.md), so the corrections are fitted on random packings. The random grid: equal 25 mm spheres
+in moulds 150, 200 and 250 mm across (D/D_s = 1/6, 1/8, 1/10), dense and loose, and railway ballast's grading
+scaled to a largest sieve of D_s/6 (:func:`membrax.reproduce.random_fields`), dense and loose; σc 10–100 kPa,
+t_m 1–5 mm, E_m 700–2800 kPa; packing seed 0. The held-out members are packings of seed 1 off every grid line.
+:data:`PROTOCOL_CHECK` reruns nine members at the paper's rate and membrane resolution.
 
 Why small specimens. Every group uses the small preset of ``membrax reproduce`` (:data:`membrax.reproduce.
 SIZES` ``"small"``: a membrane of edge D/3, inertial number 5e-3, float64, consolidation to an
@@ -21,11 +22,11 @@ paper-size member costs about 2.5 min on 2 cores. FCC: 6, 8 and 10 spheres acros
 and 1/10 (D_s = √(4A/π) of the platen area), heights H/D_s ≈ 1.25; its held-out members (σc 25 and 70 kPa,
 t_m 2 and 4 mm, E_m 1000 and 2000 kPa) are 7 spheres across (D/D_s = 1/7).
 
-At a laboratory's geometry. :data:`LAB_CALIBRATION` (``--design lab``) is the next training set: moulds of
-H/D 2 and 2.5, 150–300 mm, the paper's protocol, dense, medium and loose states, equal, ballast and narrow
-gradings, two seeds per group (150 members); :data:`LAB_HELD_OUT` (``--design lab_held_out``, 18 members)
-its held-out members, off its σc and t_m grid lines and seeds. Run it as a campaign (``--scheduler local``):
-it is resumable, group by group and member by member.
+At a laboratory's geometry. :data:`LAB_CALIBRATION` (``--design lab``) is the shipped correction's training
+set: moulds of H/D 2 and 2.5, 150–300 mm, the paper's protocol, dense, medium and loose states, equal, ballast
+and narrow gradings, two seeds per group (150 members); :data:`LAB_HELD_OUT` (``--design lab_held_out``, 18
+members) its held-out members, off its σc and t_m grid lines and seeds. Run it as a campaign (``--scheduler
+local``): it is resumable, group by group and member by member.
 
 Run: :mod:`calibrate.grid` (``python -m calibrate.grid OUT --design NAME``).
 """

@@ -17,10 +17,10 @@ fit starts from). Both functions work under ``jax.jit``, ``jax.vmap`` and ``jax.
   Fig. 7, and initial offsets linear in Molenkamp & Luger's indentation ratio (Fig. 9). Six parameters.
 - :data:`RICH` — the same terms plus the size ratio D/D_s in the offsets, the hoop term's growth with
   axial strain and a quadratic strain-ratio term. Ten parameters. The shipped default
-  (``calibrate/data/default_corrections.json``): on the random calibration grid
-  (:data:`calibrate.designs.RANDOM_CALIBRATION`) its leave-one-case-out error is below :data:`PAPER`'s in
-  both targets (axial 0.0603 against 0.0626 σc, radial 0.0157 against 0.0196 σc), at the price of
-  correlated, individually poorly determined terms.
+  (``calibrate/data/default_corrections.json``, fitted on :data:`calibrate.designs.LAB_CALIBRATION`): on
+  the random calibration grid (:data:`calibrate.designs.RANDOM_CALIBRATION`), where the two were compared,
+  its leave-one-case-out error is below :data:`PAPER`'s in both targets (axial 0.0603 against 0.0626 σc,
+  radial 0.0157 against 0.0196 σc), at the price of correlated, individually poorly determined terms.
 """
 
 from __future__ import annotations
