@@ -14,13 +14,13 @@ scaled to a largest sieve of D_s/6 (:func:`membrax.reproduce.random_fields`), de
 t_m 1–5 mm, E_m 700–2800 kPa; packing seed 0. The held-out members are packings of seed 1 off every grid line.
 :data:`PROTOCOL_CHECK` reruns nine members at the paper's rate and membrane resolution.
 
-Why small specimens. Every group uses the small preset of ``membrax reproduce`` (:data:`membrax.reproduce.
-SIZES` ``"small"``: a membrane of edge D/3, inertial number 5e-3, float64, consolidation to an
-unbalanced-force ratio ≤ 1e-3): the extra stresses depend on the groups the models use (t_m/D,
-E_m t_m/(σc D), D/D_s, the strains), which the grid spans, rather than on the specimen's height, and a
+Why small specimens. Every random-grid group uses the small preset of ``membrax reproduce``
+(:data:`membrax.reproduce.SIZES` ``"small"``: a membrane of edge D/3, inertial number 5e-3, float64,
+consolidation to an unbalanced-force ratio ≤ 1e-3): the extra stresses depend on the groups the models use
+(t_m/D, E_m t_m/(σc D), D/D_s, the strains), which the grid spans, rather than on the specimen's height, and a
 paper-size member costs about 2.5 min on 2 cores. FCC: 6, 8 and 10 spheres across give D/D_s = 1/5.7, 1/7.4
-and 1/10 (D_s = √(4A/π) of the platen area), heights H/D_s ≈ 1.25; its held-out members (σc 25 and 70 kPa,
-t_m 2 and 4 mm, E_m 1000 and 2000 kPa) are 7 spheres across (D/D_s = 1/7).
+and 1/10 (D_s = √(4A/π) of the platen area), heights H/D_s ≈ 1.25; its held-out members (σc 25 and 70 kPa, t_m
+2 and 4 mm, E_m 1000 and 2000 kPa) are 7 spheres across (D/D_s = 1/7).
 
 At a laboratory's geometry. :data:`LAB_CALIBRATION` (``--design lab``) is the shipped correction's training
 set: moulds of H/D 2 and 2.5, 150–300 mm, the paper's protocol, dense, medium and loose states, equal, ballast
