@@ -39,7 +39,7 @@ so is a void ratio (``LabSpecimen.solid_fraction``) outside the fitted members' 
 band and withholds like the inputs above, its distance in units of the fitted span of void ratios
 (:func:`void_ratio_distance`).
 
-LabSpecimen height. The correction records the H/D_s of the specimens it was fitted on (1.99–2.50 for the
+Specimen height. The correction records the H/D_s of the specimens it was fitted on (1.99–2.50 for the
 shipped one, the 2–2.5 laboratories test at: ASTM D7181, BS 1377-8; 1.28–1.67 for the random grid's). A record
 whose height is not given is warned about (:func:`aspect_ratio_warnings`); one whose H/D_s lies outside is
 warned about like the other quantities and its band widened by the same 1 + δ (in logarithms), but the fitted

@@ -32,12 +32,12 @@ __all__ = ["PAGE", "app", "serve"]
 
 #: The form's specimen fields: (name, label, required).
 FIELDS = (
-    ("specimen_diameter_mm", "LabSpecimen diameter after consolidation (mm)", True),
+    ("specimen_diameter_mm", "Specimen diameter after consolidation (mm)", True),
     ("particle_size_mm", "Particle size d50 (mm)", True),
     ("membrane_thickness_mm", "Membrane thickness (mm)", True),
     ("membrane_modulus_kpa", "Membrane Young's modulus (kPa; latex ≈ 1400)", True),
     ("void_ratio", "Void ratio e (optional)", False),
-    ("specimen_height_mm", "LabSpecimen height after consolidation (mm, optional)", False),
+    ("specimen_height_mm", "Specimen height after consolidation (mm, optional)", False),
 )
 
 _INPUTS = "\n".join(

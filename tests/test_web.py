@@ -58,6 +58,8 @@ def test_the_page_answers_the_cli_s_numbers_and_the_cli_s_words(tmp_path, capsys
         and 'id="records"' in page.text
         and "http" not in page.text.split("<script>")[1]
     )
+    # the fields in a laboratory's words, no class names of the code
+    assert "Specimen diameter after consolidation (mm)" in page.text and "LabSpecimen" not in page.text
     files = [("records", (Path(r).name, Path(r).read_bytes(), "text/csv")) for r in records]
     answer = client.post("/correct", data=fields, files=files)
     assert answer.status_code == 200, answer.text
