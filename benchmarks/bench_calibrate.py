@@ -5,7 +5,7 @@ call; there is no float32 path), with:
 
 - ``fit (s)``: the shipped default model (``calibrate/data/default_corrections.json``) fitted on the
   shipped calibration table (``calibrate/data/calibration_table.npz``, the fitting table of
-  ``calibrate.designs.RANDOM_CALIBRATION``), first call including compilation; ``warm (s)``, the second call;
+  ``calibrate.designs.LAB_CALIBRATION``), first call including compilation; ``warm (s)``, the second call;
 - ``loo (s)``: the leave-one-case-out cross-validation (one fit per case);
 - ``nm evals`` / ``optax evals``: loss evaluations of scipy's Nelder–Mead and of Adam + L-BFGS;
 - ``correct (s)``: ``calibrate.report.correct_file`` on a 1,000-row record (the shipped example record
