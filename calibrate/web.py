@@ -28,7 +28,7 @@ from pathlib import Path
 
 from calibrate import correct, series
 
-__all__ = ["PAGE", "app", "serve"]
+__all__ = ["PAGE", "app", "form_values", "serve"]
 
 #: The form's specimen fields: (name, label, required).
 FIELDS = (
@@ -39,6 +39,17 @@ FIELDS = (
     ("void_ratio", "Void ratio e (optional)", False),
     ("specimen_height_mm", "Specimen height after consolidation (mm, optional)", False),
 )
+
+
+def form_values(specimen) -> dict[str, str]:
+    """The required fields of :data:`FIELDS` as the page takes them (mm, kPa) of a ``LabSpecimen``."""
+    return {
+        "specimen_diameter_mm": f"{1e3 * specimen.specimen_diameter:g}",
+        "particle_size_mm": f"{1e3 * specimen.particle_diameter:g}",
+        "membrane_thickness_mm": f"{1e3 * specimen.membrane_thickness:g}",
+        "membrane_modulus_kpa": f"{1e-3 * specimen.membrane_modulus:g}",
+    }
+
 
 _INPUTS = "\n".join(
     f'<label>{label} <input name="{name}" id="{name}" inputmode="decimal"{" required" if needed else ""}>'

@@ -32,13 +32,7 @@ out = (
 )
 sheet = Path(str(resources.files("calibrate") / "data" / "example_series")) / "series.toml"
 tests = series.read_series_sheet(sheet)
-specimen = tests[0].specimen
-fields = {
-    "specimen_diameter_mm": f"{1e3 * specimen.specimen_diameter:g}",
-    "particle_size_mm": f"{1e3 * specimen.particle_diameter:g}",
-    "membrane_thickness_mm": f"{1e3 * specimen.membrane_thickness:g}",
-    "membrane_modulus_kpa": f"{1e-3 * specimen.membrane_modulus:g}",
-}
+fields = web.form_values(tests[0].specimen)
 with socket.socket() as probe:
     probe.bind(("127.0.0.1", 0))
     port = probe.getsockname()[1]

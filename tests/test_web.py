@@ -25,14 +25,7 @@ SERIES = resources.files("calibrate") / "data" / "example_series"
 def _example_series():
     """The shipped example series: its records and, as the page takes them, the first test's specimen."""
     tests = series.read_series_sheet(Path(str(SERIES)) / "series.toml")
-    specimen = tests[0].specimen
-    fields = {
-        "specimen_diameter_mm": f"{1e3 * specimen.specimen_diameter:g}",
-        "particle_size_mm": f"{1e3 * specimen.particle_diameter:g}",
-        "membrane_thickness_mm": f"{1e3 * specimen.membrane_thickness:g}",
-        "membrane_modulus_kpa": f"{1e-3 * specimen.membrane_modulus:g}",
-    }
-    return [test.record for test in tests], fields
+    return [test.record for test in tests], web.form_values(tests[0].specimen)
 
 
 def _cli_envelopes(records, fields, folder) -> str:
