@@ -132,6 +132,49 @@ inline bool out_of_reach(const Law<T>& law, int64_t sphere, Vec3<T> centre, Vec3
   return dot(gap, gap) > T(1.001) * (limit * limit);
 }
 
+// Whether any slot of a feature's row holds a sphere.
+inline bool occupied(const int32_t* row, int64_t width, int64_t num_spheres) {
+  bool any = false;
+  for (int64_t m = 0; m < width; ++m) any |= row[m] < num_spheres;
+  return any;
+}
+
+// Each slot of a feature's row in order: on_slot(sphere, centre, spring) for a sphere within reach of the
+// ball (middle, extent); the spring of an empty or out-of-reach slot cleared on the forward pass.
+template <bool kForward, typename T, typename OnSlot>
+inline void for_each_slot(const Law<T>& law, const int32_t* row, int64_t width, T* spring_row, int64_t stride,
+                          Vec3<T> middle, T extent, OnSlot on_slot) {
+  for (int64_t m = 0; m < width; ++m) {
+    T* s = spring_row + m;
+    if (row[m] < law.num_spheres) {
+      const int64_t sphere = row[m];
+      const Vec3<T> centre = row3(law.xs, sphere);
+      if (!out_of_reach(law, sphere, centre, middle, extent)) {
+        on_slot(sphere, centre, s);
+        continue;
+      }
+    }
+    if constexpr (kForward) clear(s, stride);
+  }
+}
+
+// The springs of a feature's row with no sphere, cleared on the forward pass.
+template <bool kForward, typename T>
+inline void clear_row(T* spring_row, int64_t width, int64_t stride) {
+  if constexpr (kForward)
+    for (int64_t m = 0; m < width; ++m) clear(spring_row + m, stride);
+}
+
+// A feature's K shares, written as K rows of 3 from share_row.
+template <typename T, int K>
+inline void write_shares(T* share_row, const Vec3<T> (&total)[K]) {
+  for (int k = 0; k < K; ++k) {
+    share_row[3 * k] = total[k].x;
+    share_row[3 * k + 1] = total[k].y;
+    share_row[3 * k + 2] = total[k].z;
+  }
+}
+
 // The faces: share (F, 3, 3), each triangle's force on its corners a, b, c summed over its slots.
 template <typename T, typename Visit>
 void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_t width, const int32_t* triangles,
@@ -140,9 +183,7 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
   for (int64_t f = 0; f < num_faces; ++f) {
     Vec3<T> total[3] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
     const int32_t* row = idx + f * width;
-    bool any = false;
-    for (int64_t m = 0; m < width; ++m) any |= row[m] < law.num_spheres;
-    if (any) {
+    if (occupied(row, width, law.num_spheres)) {
       const int64_t node[3] = {triangles[3 * f], triangles[3 * f + 1], triangles[3 * f + 2]};
       const Vec3<T> a = row3(law.x, node[0]), b = row3(law.x, node[1]), c = row3(law.x, node[2]);
       const Vec3<T> normal = cross(b - a, c - a);
@@ -154,18 +195,8 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
       const Vec3<T> middle = T(1) / T(3) * ((a + b) + c);
       const Vec3<T> da = a - middle, db = b - middle, dc = c - middle;
       const T extent = std::sqrt(std::max(std::max(dot(da, da), dot(db, db)), dot(dc, dc)));
-      for (int64_t m = 0; m < width; ++m) {
-        T* s = spring + f * width + m;
-        if (row[m] >= law.num_spheres) {
-          if constexpr (Visit::kForward) clear(s, stride);
-          continue;
-        }
-        const int64_t sphere = row[m];
-        const Vec3<T> centre = row3(law.xs, sphere);
-        if (out_of_reach(law, sphere, centre, middle, extent)) {
-          if constexpr (Visit::kForward) clear(s, stride);
-          continue;
-        }
+      for_each_slot<Visit::kForward>(law, row, width, spring + f * width, stride, middle, extent,
+                                     [&](int64_t sphere, Vec3<T> centre, T* s) {
         const Vec3<T> foot = centre - dot(centre - a, unit) * unit;
         const T weight_a = dot(cross(c - b, foot - b), unit) * inverse_area;
         const T weight_b = dot(cross(a - c, foot - c), unit) * inverse_area;
@@ -175,19 +206,11 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
         const T weight[3] = {weight_a, weight_b, weight_c};
         const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, inside, s, stride);
         for (int k = 0; k < 3; ++k) total[k] = total[k] + weight[k] * force;
-      }
+      });
     } else {
-      for (int64_t m = 0; m < width; ++m) {
-        T* s = spring + f * width + m;
-        if constexpr (Visit::kForward) clear(s, stride);
-      }
+      clear_row<Visit::kForward>(spring + f * width, width, stride);
     }
-    if constexpr (Visit::kForward)
-      for (int k = 0; k < 3; ++k) {
-      share[9 * f + 3 * k] = total[k].x;
-      share[9 * f + 3 * k + 1] = total[k].y;
-      share[9 * f + 3 * k + 2] = total[k].z;
-    }
+    if constexpr (Visit::kForward) write_shares(share + 9 * f, total);
   }
 }
 
@@ -199,9 +222,7 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
   for (int64_t e = 0; e < num_edges; ++e) {
     Vec3<T> total[2] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
     const int32_t* row = idx + e * width;
-    bool any = false;
-    for (int64_t m = 0; m < width; ++m) any |= row[m] < law.num_spheres;
-    if (any) {
+    if (occupied(row, width, law.num_spheres)) {
       const int32_t* ids = edge_nodes + 4 * e;
       const int64_t node[2] = {ids[0], ids[1]};
       const Vec3<T> u = row3(law.x, ids[0]), v = row3(law.x, ids[1]);
@@ -219,18 +240,8 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
       const Vec3<T> corner[2] = {u, v};
       const Vec3<T> middle = T(0.5) * (u + v);
       const T extent = T(0.5) * std::sqrt(length_sq);
-      for (int64_t m = 0; m < width; ++m) {
-        T* s = spring + e * width + m;
-        if (row[m] >= law.num_spheres) {
-          if constexpr (Visit::kForward) clear(s, stride);
-          continue;
-        }
-        const int64_t sphere = row[m];
-        const Vec3<T> centre = row3(law.xs, sphere);
-        if (out_of_reach(law, sphere, centre, middle, extent)) {
-          if constexpr (Visit::kForward) clear(s, stride);
-          continue;
-        }
+      for_each_slot<Visit::kForward>(law, row, width, spring + e * width, stride, middle, extent,
+                                     [&](int64_t sphere, Vec3<T> centre, T* s) {
         const Vec3<T> from_u = centre - u;
         const T fraction = dot(from_u, along) / safe_length_sq;
         bool in_region = (fraction > law.band) & (fraction < law.upper_band) & (length_sq > T(0));
@@ -238,19 +249,11 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
         const T weight[2] = {T(1) - fraction, fraction};
         const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
         for (int k = 0; k < 2; ++k) total[k] = total[k] + weight[k] * force;
-      }
+      });
     } else {
-      for (int64_t m = 0; m < width; ++m) {
-        T* s = spring + e * width + m;
-        if constexpr (Visit::kForward) clear(s, stride);
-      }
+      clear_row<Visit::kForward>(spring + e * width, width, stride);
     }
-    if constexpr (Visit::kForward)
-      for (int k = 0; k < 2; ++k) {
-      share[6 * e + 3 * k] = total[k].x;
-      share[6 * e + 3 * k + 1] = total[k].y;
-      share[6 * e + 3 * k + 2] = total[k].z;
-    }
+    if constexpr (Visit::kForward) write_shares(share + 6 * e, total);
   }
 }
 
@@ -262,11 +265,9 @@ void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int3
   std::vector<Vec3<T>> spoke(static_cast<size_t>(num_neighbours));
   std::vector<T> safe_spoke_sq(static_cast<size_t>(num_neighbours));
   for (int64_t n = 0; n < num_nodes; ++n) {
-    Vec3<T> total{T(0), T(0), T(0)};
+    Vec3<T> total[1] = {{T(0), T(0), T(0)}};
     const int32_t* row = idx + n * width;
-    bool any = false;
-    for (int64_t m = 0; m < width; ++m) any |= row[m] < law.num_spheres;
-    if (any) {
+    if (occupied(row, width, law.num_spheres)) {
       const Vec3<T> vertex = row3(law.x, n);
       const int32_t* around = neighbours + n * num_neighbours;
       for (int64_t h = 0; h < num_neighbours; ++h) {
@@ -278,35 +279,18 @@ void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int3
       const Vec3<T> corner[1] = {vertex};
       const int64_t node[1] = {n};
       const T weight[1] = {T(1)};
-      for (int64_t m = 0; m < width; ++m) {
-        T* s = spring + n * width + m;
-        if (row[m] >= law.num_spheres) {
-          if constexpr (Visit::kForward) clear(s, stride);
-          continue;
-        }
-        const int64_t sphere = row[m];
-        const Vec3<T> centre = row3(law.xs, sphere);
-        if (out_of_reach(law, sphere, centre, vertex, T(0))) {
-          if constexpr (Visit::kForward) clear(s, stride);
-          continue;
-        }
+      for_each_slot<Visit::kForward>(law, row, width, spring + n * width, stride, vertex, T(0),
+                                     [&](int64_t sphere, Vec3<T> centre, T* s) {
         const Vec3<T> from_vertex = centre - vertex;
         bool in_region = true;
         for (int64_t h = 0; h < num_neighbours; ++h)
           in_region &= (dot(from_vertex, spoke[h]) / safe_spoke_sq[h] <= law.band) | (around[h] >= num_nodes);
-        total = total + visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
-      }
+        total[0] = total[0] + visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
+      });
     } else {
-      for (int64_t m = 0; m < width; ++m) {
-        T* s = spring + n * width + m;
-        if constexpr (Visit::kForward) clear(s, stride);
-      }
+      clear_row<Visit::kForward>(spring + n * width, width, stride);
     }
-    if constexpr (Visit::kForward) {
-      share[3 * n] = total.x;
-      share[3 * n + 1] = total.y;
-      share[3 * n + 2] = total.z;
-    }
+    if constexpr (Visit::kForward) write_shares(share + 3 * n, total);
   }
 }
 
