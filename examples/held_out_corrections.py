@@ -64,7 +64,8 @@ for name, path in zip(groups, paths, strict=True):
         )
         corrected = records / f"{label}_corrected.csv"
         argv = ["correct", str(record), "--out", str(corrected), "--no-plot"]
-        argv += evaluate.example_argv(lab.read_lab_record(record).comments)
+        comments = lab.read_lab_record(record).comments
+        argv += evaluate.example_argv(comments)
         if args.model is not None:
             argv += ["--model", args.model]
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()) as errors:
@@ -75,7 +76,7 @@ for name, path in zip(groups, paths, strict=True):
         }
         scores = evaluate.corrected_csv_errors(record, corrected, corrections.radial_target)
         columns = evaluate.csv_columns(corrected)
-        particle_mm = evaluate.example_arguments(lab.read_lab_record(record).comments)[1]
+        particle_mm = evaluate.example_arguments(comments)[1]
         fields["ratio"] = (
             fields["membrane_modulus_kpa"]
             * fields["membrane_thickness_mm"]
