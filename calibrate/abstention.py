@@ -32,16 +32,16 @@ gives the benefit of the doubt to no correction, so a region of one case (no sta
 Since no correction is a candidate, in each region the chosen factor errs, on cases it was not fitted
 on, no more than no correction: never worse than none, by construction. The shrinkage is only
 taken where it beats the correction on unseen cases, so a w* that fits the noise of a few cases (on the
-shipped table, σ3 in 32–64: w* = 0.89 in sample, worse than unshrunk out of it) is not applied; w* is
+random grid's table, σ3 in 32–64: w* = 0.89 in sample, worse than unshrunk out of it) is not applied; w* is
 clipped at 1 because amplifying the model would be a new fitted term, not an abstention.
 
 Why per stress: φ' depends on both, sin φ' = (σ1 − σ3)/(σ1 + σ3); linearised with σ3 ≈ σc and R = σ1/σ3,
 δφ' = (δσ1/σc − R δσ3/σc)/(√R (R + 1)) rad: the two stresses' errors combined, σ3's weighted by R, which
 the fitting table does not hold (it keeps Δσ/σc, not σ1). A correction no worse than none in each stress
 is what can be guaranteed without R (not a bound on φ' itself: the two errors can add or cancel, and do
-either for a correction and for none alike); on the shipped table the two behave differently
-(the σ1 correction is worse than none at small E_m t_m/(σc D), the σ3 one nowhere), so one shared factor
-would withdraw a good σ3 correction with a bad σ1 one.
+either for a correction and for none alike); on the shipped table the two behave differently (in
+E_m t_m/(σc D) 2–4 the σ1 correction is shrunk to 0.64, the σ3 one kept at 0.89, where it cuts none's error
+fourfold), so one shared factor would give up a good σ3 correction with a bad σ1 one.
 
 Stored per region and stress: ``weight`` (the chosen w), ``shrinkage`` (w*), ``none_rms``, ``fitted_rms``,
 ``shrunk_rms`` (w* in sample), ``held_out_rms`` (w* refitted without each case), ``fitted_gain`` and
