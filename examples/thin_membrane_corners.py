@@ -97,7 +97,7 @@ def run_case(
     import jax
     import numpy as np
 
-    from membrax import executor, runner
+    from membrax import executor, run_records, runner
     from membrax.config import ConfigError, TriaxialConfig
     from membrax.errors import RunError, SimulationError
     from membrax.reproduce import SIZES
@@ -154,9 +154,9 @@ def run_case(
         records, shear_start, _ = runner.run_group(
             batch, Path(tempfile.mkdtemp(prefix=f"corner_{name}_")), progress=False, after_chunk=after_chunk
         )
-        mine = runner.member_chunk_records(records, 0)
-        metadata = runner.run_metadata(batch.settings[0], test, mine, 0.0, 0.0)
-        shear, _ = runner.results_datasets(mine, shear_start[0], metadata)
+        mine = run_records.member_chunk_records(records, 0)
+        metadata = run_records.run_metadata(batch.settings[0], test, mine, 0.0, 0.0)
+        shear, _ = run_records.results_datasets(mine, shear_start[0], metadata)
         peak = analysis.peak(shear)
         angles = {key: float(value) for key, value in peak.items() if "index" not in key}
         outcome.update(status="completed", **angles)

@@ -71,14 +71,8 @@ from membrax.io import (
 )
 from membrax.membrane.measure import triangle_stretches
 from membrax.paper import PAPER_10KPA_5MM, paper_key
-from membrax.runner import (
-    CHECKPOINT_NAME,
-    join_records,
-    member_chunk_records,
-    results_datasets,
-    run_group,
-    run_metadata,
-)
+from membrax.run_records import join_records, member_chunk_records, results_datasets, run_metadata
+from membrax.runner import CHECKPOINT_NAME, run_group
 from membrax.triaxial import analysis
 from membrax.triaxial.membrane_cell import MembraneTest
 
@@ -335,7 +329,7 @@ def periodic_datasets(test, settings, records, build_seconds, elapsed, **attrs):
     Args:
       test: the member's :class:`~membrax.triaxial.periodic.PeriodicTest`.
       settings: its :class:`membrax.assemble.RunSettings`.
-      records: its records by phase (:func:`membrax.runner.member_chunk_records`).
+      records: its records by phase (:func:`membrax.run_records.member_chunk_records`).
       build_seconds: the batch's build time, s.
       elapsed: the run's time, s.
       **attrs: further attributes (a sweep's batch size, status).

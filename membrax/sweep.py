@@ -95,7 +95,8 @@ from membrax.io import dataset_attrs_to_python, read_checkpoint_host, read_resul
 from membrax.planning import balanced_order, plan_members, plan_periodic_members
 from membrax.run import default_folder as run_folder
 from membrax.run import periodic_datasets
-from membrax.runner import CHECKPOINT_NAME, member_chunk_records, results_datasets, run_group, run_metadata
+from membrax.run_records import member_chunk_records, results_datasets, run_metadata
+from membrax.runner import CHECKPOINT_NAME, run_group
 from membrax.triaxial import analysis
 
 __all__ = [

@@ -98,6 +98,7 @@ LAYERS = (
     ("assemble",),
     ("planning",),
     ("executor",),
+    ("run_records",),
     ("runner",),
     ("run", "sensitivities", "gradients"),
     ("campaign", "sweep"),

@@ -409,7 +409,7 @@ def test_a_jumped_packing_says_so_in_its_specimen_and_the_run_metadata():
     """The specimen's packing measures carry the compaction stress and the jump's sides (Pa), and a run's
     specimen record gives them in kPa (hand values: 10.9, 7.9 and 10.9 kPa); a packing that reached its
     window carries the stress alone."""
-    from membrax.runner import specimen_metadata
+    from membrax.run_records import specimen_metadata
 
     packing = _jumped_packing()
     measures = dict(packing.specimen().packing_measures)

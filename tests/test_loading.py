@@ -17,7 +17,7 @@ from membrax.driver import two_rate_plan
 from membrax.membrane import measure as membrane_measure
 from membrax.membrane.mesh import cylinder_mesh
 from membrax.membrane.records import right_cylinder_stresses
-from membrax.runner import rebase_to_shear_start
+from membrax.run_records import rebase_to_shear_start
 from membrax.spheres import fcc
 from membrax.spheres.walls import (
     BOTTOM,
