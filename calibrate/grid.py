@@ -176,8 +176,8 @@ def main(argv=None) -> int:
         help="fcc: the FCC calibration grid (the first shipped correction's); random: the random-specimen "
         "grid the previous correction was fitted on; lab: random members at a laboratory's H/D and the "
         "paper's protocol (the shipped correction's); *_held_out: their held-out members; protocol_check: "
-        "random members at the paper's rate and membrane resolution; contact_check: lab members with the thin "
-        "membranes' law and face contact",
+        "random members at the paper's rate and membrane resolution; contact_check: lab members with "
+        "the thin membranes' law and face contact",
     )
     parser.add_argument(
         "--held-out", action="store_true", help="the FCC held-out members (--design fcc_held_out)"
