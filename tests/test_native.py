@@ -841,15 +841,15 @@ def test_the_chunks_scheduler_option_changes_the_order_not_the_bits():
 _FACE_TOLERANCE = {"float64": (1e-12, 1e-10), "float32": (1e-5, 5e-5)}
 
 
-def _face_contact_case(dtype, seed=0):
-    """A wrinkled 120 mm sheet (6 mm triangles) indented by 16 spheres, 0 to 1.5 mm deep, moving and
-    spinning, with carried springs of up to ~100 N (some beyond μ F_n: sliding), in ``dtype``."""
+def _face_contact_case(dtype, seed=0, edge=0.006):
+    """A wrinkled 120 mm sheet (6 mm triangles, or ``edge``) indented by 16 spheres, 0 to 1.5 mm deep,
+    moving and spinning, with carried springs of up to ~100 N (some beyond μ F_n: sliding), in ``dtype``."""
     from membrax.membrane import face_contact
     from membrax.membrane.candidates import build_candidates
     from membrax.membrane.mesh import flat_mesh
 
     rng = np.random.default_rng(seed)
-    mesh = flat_mesh(0.12, 0.12, 0.006, dtype=dtype)
+    mesh = flat_mesh(0.12, 0.12, edge, dtype=dtype)
     position = np.asarray(mesh.reference_position, np.float64).copy()
     position[:, 2] += 1e-3 * rng.standard_normal(len(position))
     radius, thickness = 0.0125, 0.002
@@ -1041,6 +1041,69 @@ def test_face_contact_kernel_gradients_vmap_and_repeatable_bits():
         jax.block_until_ready(
             native.call("face_contact_forces", f64, (rows, sphere_rows, sphere_rows, *springs), *arguments)
         )
+
+
+def _face_contact_bits():
+    """The face contact kernel's outputs and a gradient through its backward kernel, float64 and float32, on
+    a 120 mm sheet of 1.5 mm triangles: 14,720 faces, 21,908 edges and 7,533 nodes, above parallel.h's
+    thresholds (8,192 slots, 4,096 features of each kind), so that both kernels run in two halves."""
+    from membrax.membrane import face_contact
+
+    bits = {}
+    for dtype in ("float64", "float32"):
+        case = _face_contact_case(jnp.dtype(dtype), seed=1, edge=0.0015)
+        assert min(getattr(case["slots"], kind).shape[0] for kind in ("face", "edge", "node")) >= 4096
+        rng = np.random.default_rng(2)
+        node_weights = jnp.asarray(rng.normal(size=case["nodes"].position.shape), dtype)
+        sphere_weights = jnp.asarray(rng.normal(size=case["spheres"].position.shape), dtype)
+
+        def work(nodes, spheres, springs, params, case=case, weights=(node_weights, sphere_weights)):
+            result = face_contact.face_contact_forces(
+                **{**case, "nodes": nodes, "spheres": spheres, "springs": springs, "params": params}
+            )
+            return (
+                jnp.sum(weights[0] * result.node_force)
+                + jnp.sum(weights[1] * (result.sphere_force + 100.0 * result.sphere_torque))
+                + sum(jnp.sum(spring**2) for spring in result.spring)
+            )
+
+        args = (case["nodes"], case["spheres"], case["springs"], case["params"])
+        outputs = jax.tree.leaves(jax.jit(face_contact.face_contact_forces)(**case))
+        gradient = jax.tree.leaves(jax.jit(jax.grad(work, argnums=(0, 1, 2, 3)))(*args))
+        for name, leaves in (("forward", outputs), ("gradient", gradient)):
+            bits.update({f"{dtype}_{name}_{k}": np.asarray(leaf) for k, leaf in enumerate(leaves)})
+    return bits
+
+
+def test_face_contact_kernels_in_halves_give_the_serial_kernels_bits(tmp_path):
+    """Above parallel.h's thresholds the face contact kernels split each kind's features in two halves (the
+    forward's as two pool tasks, the backward's second half offered to the pool) and add the spheres'
+    reactions and the cotangents up after them, in slot order. Their forward outputs and gradients, float64
+    and float32, equal to the bit those of a second call and those of the same kernels run serially
+    (``MEMBRAX_NATIVE_THREADS=1``: every loop in its caller, in a fresh process)."""
+    threaded = _face_contact_bits()
+    assert sum(int(np.count_nonzero(value)) > 0 for value in threaded.values()) == len(threaded)
+    again = _face_contact_bits()
+    saved = tmp_path / "serial.npz"
+    script = textwrap.dedent(
+        f"""
+        import sys
+        import jax
+        jax.config.update("jax_enable_x64", True)
+        import numpy as np
+        sys.path.insert(0, {str(os.path.dirname(__file__))!r})
+        import test_native
+        np.savez({str(saved)!r}, **test_native._face_contact_bits())
+        """
+    )
+    environment = {**os.environ, "MEMBRAX_NATIVE_THREADS": "1"}
+    subprocess.run([sys.executable, "-c", script], env=environment, check=True)
+    serial = dict(np.load(saved))
+    assert serial.keys() == threaded.keys() == again.keys()
+    for name, value in threaded.items():
+        assert value.dtype == serial[name].dtype
+        assert np.array_equal(value, again[name]), name
+        assert np.array_equal(value, serial[name]), name
 
 
 def test_coupled_step_with_face_contact_runs_the_kernel_with_the_jax_laws_numbers(monkeypatch):

@@ -32,16 +32,20 @@ the JAX code to round-off, and that derivative is used on other backends and for
 does not cover (the membrane mesh's rest geometry). Where several kernels read the same array, their
 backward kernels take an addend, the cotangent so far, which ``input_output_aliases`` (:func:`call`) lets
 them update in place (:func:`membrax.membrane.node_update.node_step`). XLA runs the reverse pass's kernels
-one after another, so the membrane, node–sphere and pair backward kernels split their element loops in two
-fixed halves, the second offered to XLA's intra-op thread pool (``parallel.h``); each half sums its own
-elements in order, so the result does not depend on which thread ran it.
+one after another, so the membrane, node–sphere, face contact and pair backward kernels split their element
+loops in two fixed halves, the second offered to XLA's intra-op thread pool (``parallel.h``); each half sums
+its own elements in order, so the result does not depend on which thread ran it.
 
 Threads. The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are
 asynchronous FFI handlers: each checks its arguments, runs its loop as a task on XLA's intra-op thread
 pool (from 8,192 elements on; smaller loops run in the caller) and returns a future, so XLA goes on with
 independent work meanwhile and the three kernels of a step run side by side (``parallel.h``,
-``on_pool``). Their arithmetic is the synchronous one's, bit for bit. A trace (``jax.profiler``) then
-shows only their launch under the kernel's name; the loop runs in an unnamed pool task.
+``on_pool``). The face contact law's forward kernel runs its loops as two such tasks, fixed halves of
+each kind of feature, and adds their sphere reactions up in slot order after both (``halves_on_pool``).
+Their arithmetic is the synchronous one's, bit for bit. A trace (``jax.profiler``) then shows only their
+launch under the kernel's name; the loop runs in an unnamed pool task. With ``MEMBRAX_NATIVE_THREADS=1``
+every kernel runs its loops in its caller, the same halves in the same order: the serial path the tests
+hold the threaded one to, bit for bit.
 """
 
 from __future__ import annotations

@@ -1,10 +1,11 @@
 // Sphere contact on the membrane's faces, interior edges and interior nodes: forces, torques and the
 // tangential springs of every occupied (feature, candidate) slot, in one pass per feature.
 //
-// An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
+// An XLA FFI handler for the CPU (asynchronous: its loops run as two tasks on XLA's thread pool,
 // parallel.h), compiled on first use by membrax/native/__init__.py; the law is that of
 // membrax/membrane/face_contact.py (face_contact_forces), which remains the reference;
-// face_contact_backward (below) is its reverse-mode rule. For each slot (feature f, candidate m) with sphere i = idx[f, m] < N:
+// face_contact_backward (below) is its reverse-mode rule. For each slot (feature f, candidate m) with
+// sphere i = idx[f, m] < N:
 //   the closest point x_p = Σ w_k x_k of the centre x_i on the feature (face: the foot of the perpendicular
 //   on the triangle's plane, area coordinates w; edge: on its line, 1 − τ and τ; node: the node, 1), which
 //   counts only where x_i lies in the feature's Voronoi region (tie band β = √ε of the dtype);
@@ -19,6 +20,12 @@
 // incidence tables (corner_incidence, hinge_incidence) in their order; faces, then edges, then its own
 // node slots. The spheres' force and torque are summed in slot order, faces, edges, nodes.
 //
+// Threads: each kind's features are split in two fixed halves (parallel.h: halves_on_pool here, two_halves
+// in the backward), which write only their own features' springs and shares and keep their touching slots'
+// reactions (the backward: cotangents) in lists of their own; after both, one thread adds the lists up in
+// slot order (faces, edges, nodes, each kind's first half then its second) and sums the nodes' rows. So the
+// sums are those of one pass over the slots, bit for bit, whichever thread ran which half.
+//
 // Inputs (T: float or double): node_position, node_velocity (n, 3); sphere_position, sphere_velocity,
 // sphere_angular_velocity (N, 3); sphere_radius (N,); the slots face_idx (F, Mf), edge_idx (E, Me),
 // node_idx (n, Mn), i32 padded with N; triangles (F, 3), edge_nodes (E, 4) = (u, v, o₁, o₂),
@@ -32,6 +39,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <vector>
 
 #include "contact_law.h"
@@ -55,7 +63,14 @@ struct Law {
   int64_t num_nodes, num_spheres;
   T dt, normal_stiffness, tangential_stiffness, friction, half_thickness;
   T band, upper_band;  // β and 1 − β, each rounded from double as the JAX law's Python floats are
-  T *on_sphere, *torque;
+};
+
+// A touching slot's reaction on its sphere, −F and its torque b × (−F): kept by the slot loops (each loop,
+// or half of one, its own list in slot order) and added to the spheres' sums after them, list by list.
+template <typename T>
+struct Reaction {
+  int64_t sphere;
+  Vec3<T> force, torque;
 };
 
 // A slot's spring set to zero (no contact), written only where it is not zero already: in a step's loop
@@ -67,12 +82,12 @@ inline void clear(T* spring, int64_t stride) {
 }
 
 // One slot's law from its sphere, the closest point's weights (count of them) and corners, and the
-// carried spring; writes the new spring (component-first, stride m) and returns F on the membrane.
-// `in_region`: whether the centre lies in the feature's region.
+// carried spring; writes the new spring (component-first, stride m), appends the sphere's reaction where
+// it touches and returns F on the membrane. `in_region`: whether the centre lies in the feature's region.
 template <typename T, int kCount>
 inline Vec3<T> slot_law(const Law<T>& law, int64_t sphere, Vec3<T> centre, const T (&weight)[kCount],
                         const Vec3<T> (&corner)[kCount], const int64_t (&node)[kCount], bool in_region,
-                        T* spring, int64_t stride) {
+                        T* spring, int64_t stride, std::vector<Reaction<T>>& reactions) {
   const Vec3<T> zero{T(0), T(0), T(0)};
   if (!in_region) {  // the reference's overlap −1: no force, a zero spring
     clear(spring, stride);
@@ -104,20 +119,20 @@ inline Vec3<T> slot_law(const Law<T>& law, int64_t sphere, Vec3<T> centre, const
   spring[2 * stride] = updated.z;
   const Vec3<T> force = normal_force * normal + updated;
   const Vec3<T> reaction = T(-1) * force;
-  membrax::add3(law.on_sphere, sphere, reaction);
-  membrax::add3(law.torque, sphere, cross(branch, reaction));
+  reactions.push_back({sphere, reaction, cross(branch, reaction)});
   return force;
 }
 
-// The forward kernel's visit of an occupied slot: the law (slot_law).
+// The forward kernel's visit of an occupied slot: the law (slot_law), the reactions kept in `reactions`.
 template <typename T>
 struct ForwardVisit {
   static constexpr bool kForward = true;
   const Law<T>& law;
+  std::vector<Reaction<T>>& reactions;
   template <int kCount>
   Vec3<T> slot(int64_t sphere, Vec3<T> centre, const T (&weight)[kCount], const Vec3<T> (&corner)[kCount],
                const int64_t (&node)[kCount], bool in_region, T* spring, int64_t stride) {
-    return slot_law<T, kCount>(law, sphere, centre, weight, corner, node, in_region, spring, stride);
+    return slot_law<T, kCount>(law, sphere, centre, weight, corner, node, in_region, spring, stride, reactions);
   }
 };
 
@@ -175,12 +190,12 @@ inline void write_shares(T* share_row, const Vec3<T> (&total)[K]) {
   }
 }
 
-// The faces: share (F, 3, 3), each triangle's force on its corners a, b, c summed over its slots.
+// The faces in `range`: share (F, 3, 3), each triangle's force on its corners a, b, c summed over its slots.
 template <typename T, typename Visit>
-void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_t width, const int32_t* triangles,
-                T* spring, T* share, Visit& visit) {
+void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_t width, membrax::Range range,
+                const int32_t* triangles, T* spring, T* share, Visit& visit) {
   const int64_t stride = num_faces * width;
-  for (int64_t f = 0; f < num_faces; ++f) {
+  for (int64_t f = range.begin; f < range.end; ++f) {
     Vec3<T> total[3] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
     const int32_t* row = idx + f * width;
     if (occupied(row, width, law.num_spheres)) {
@@ -214,12 +229,12 @@ void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_
   }
 }
 
-// The interior edges: share (E, 2, 3), each edge's force on its ends u, v summed over its slots.
+// The interior edges in `range`: share (E, 2, 3), each edge's force on its ends u, v summed over its slots.
 template <typename T, typename Visit>
-void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_t width, const int32_t* edge_nodes,
-                T* spring, T* share, Visit& visit) {
+void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_t width, membrax::Range range,
+                const int32_t* edge_nodes, T* spring, T* share, Visit& visit) {
   const int64_t stride = num_edges * width;
-  for (int64_t e = 0; e < num_edges; ++e) {
+  for (int64_t e = range.begin; e < range.end; ++e) {
     Vec3<T> total[2] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
     const int32_t* row = idx + e * width;
     if (occupied(row, width, law.num_spheres)) {
@@ -257,14 +272,14 @@ void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_
   }
 }
 
-// The interior nodes: share (n, 3), each node's own force summed over its slots.
+// The interior nodes in `range`: share (n, 3), each node's own force summed over its slots.
 template <typename T, typename Visit>
-void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int32_t* neighbours,
-                int64_t num_neighbours, T* spring, T* share, Visit& visit) {
+void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, membrax::Range range,
+                const int32_t* neighbours, int64_t num_neighbours, T* spring, T* share, Visit& visit) {
   const int64_t num_nodes = law.num_nodes, stride = num_nodes * width;
   std::vector<Vec3<T>> spoke(static_cast<size_t>(num_neighbours));
   std::vector<T> safe_spoke_sq(static_cast<size_t>(num_neighbours));
-  for (int64_t n = 0; n < num_nodes; ++n) {
+  for (int64_t n = range.begin; n < range.end; ++n) {
     Vec3<T> total[1] = {{T(0), T(0), T(0)}};
     const int32_t* row = idx + n * width;
     if (occupied(row, width, law.num_spheres)) {
@@ -292,6 +307,16 @@ void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, const int3
     }
     if constexpr (Visit::kForward) write_shares(share + 3 * n, total);
   }
+}
+
+// The springs (3, count, width) of the features in `range` copied from `from` to `to`, unless they are one
+// buffer (aliased by the caller).
+template <typename T>
+void copy_springs(const T* from, T* to, int64_t count, int64_t width, membrax::Range range) {
+  if (from == to) return;
+  for (int c = 0; c < 3; ++c)
+    std::copy(from + (c * count + range.begin) * width, from + (c * count + range.end) * width,
+              to + (c * count + range.begin) * width);
 }
 
 // Each node's rows of `share` listed in its incidence row, summed left to right: row(e) maps an entry to
@@ -334,10 +359,10 @@ ffi::Future face_contact_forces(
   }
   const T* scalar = scalars.typed_data();
   const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
-  Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
-             sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
-             num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
-             T(band), T(1.0 - band), sphere_force->typed_data(), sphere_torque->typed_data()};
+  const Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
+                   sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
+                   num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
+                   T(band), T(1.0 - band)};
   const int64_t num_faces = face_dims[0], face_width = face_dims[1];
   const int64_t num_edges = edge_dims[0], edge_width = edge_dims[1];
   const int64_t node_width = node_dims[1], num_neighbours = neighbour_dims[1];
@@ -350,28 +375,50 @@ ffi::Future face_contact_forces(
           *old_node = node_spring.typed_data();
   T *face_out = new_face_spring->typed_data(), *edge_out = new_edge_spring->typed_data(),
     *node_out = new_node_spring->typed_data();
-  T* on_node = node_force->typed_data();
+  T *on_node = node_force->typed_data(), *on_sphere = sphere_force->typed_data(),
+    *torque = sphere_torque->typed_data();
   const int64_t slots = num_faces * face_width + num_edges * edge_width + num_nodes * node_width;
-  return membrax::on_pool(pool, slots, [=]() {
-    std::fill(law.on_sphere, law.on_sphere + 3 * num_spheres, T(0));
-    std::fill(law.torque, law.torque + 3 * num_spheres, T(0));
-    // The springs are updated in their output buffers (aliased to the inputs by the caller, or copied
-    // here): each slot reads its own spring and then writes it.
-    if (face_out != old_face) std::copy(old_face, old_face + 3 * num_faces * face_width, face_out);
-    if (edge_out != old_edge) std::copy(old_edge, old_edge + 3 * num_edges * edge_width, edge_out);
-    if (node_out != old_node) std::copy(old_node, old_node + 3 * num_nodes * node_width, node_out);
-    thread_local std::vector<T> scratch;
-    // Each kind's share rows, a zero row after the faces' and the edges'.
-    scratch.resize(size_t(9 * num_faces + 6 * num_edges + 3 * num_nodes + 6));
-    T* face_share = scratch.data();
-    T* edge_share = face_share + 9 * num_faces + 3;
-    T* node_share = edge_share + 6 * num_edges + 3;
+  // What the two halves share with the tail: each kind's share rows (a zero row after the faces' and the
+  // edges'), and each kind's touching reactions, per half.
+  struct Scratch {
+    std::unique_ptr<T[]> share;
+    std::vector<Reaction<T>> reactions[3][2];
+  };
+  auto scratch = std::make_shared<Scratch>();
+  scratch->share.reset(new T[size_t(9 * num_faces + 6 * num_edges + 3 * num_nodes + 6)]);
+  T* face_share = scratch->share.get();
+  T* edge_share = face_share + 9 * num_faces + 3;
+  T* node_share = edge_share + 6 * num_edges + 3;
+  // Each half: its faces, its edges and its nodes (parallel.h, half_range), the springs, shares and
+  // reactions of its own slots. The springs are updated in their output buffers (aliased to the inputs by
+  // the caller, or copied here): each slot reads its own spring and then writes it.
+  auto half = [=](int h) {
+    const membrax::Range faces = membrax::half_range(h, num_faces), edges = membrax::half_range(h, num_edges),
+                         nodes = membrax::half_range(h, num_nodes);
+    copy_springs(old_face, face_out, num_faces, face_width, faces);
+    copy_springs(old_edge, edge_out, num_edges, edge_width, edges);
+    copy_springs(old_node, node_out, num_nodes, node_width, nodes);
+    ForwardVisit<T> face_visit{law, scratch->reactions[0][h]}, edge_visit{law, scratch->reactions[1][h]},
+        node_visit{law, scratch->reactions[2][h]};
+    face_slots(law, face_ids, num_faces, face_width, faces, triangle_nodes, face_out, face_share, face_visit);
+    edge_slots(law, edge_ids, num_edges, edge_width, edges, edge_corners, edge_out, edge_share, edge_visit);
+    node_slots(law, node_ids, node_width, nodes, around, num_neighbours, node_out, node_share, node_visit);
+  };
+  // After both halves: the spheres' sums over the reactions in slot order (faces, edges, nodes, each kind's
+  // halves in order: the order of one pass over the slots), and the nodes' sums.
+  auto tail = [=]() {
+    std::fill(on_sphere, on_sphere + 3 * num_spheres, T(0));
+    std::fill(torque, torque + 3 * num_spheres, T(0));
+    for (const auto& kind : scratch->reactions) {
+      for (const auto& reactions : kind) {
+        for (const Reaction<T>& reaction : reactions) {
+          membrax::add3(on_sphere, reaction.sphere, reaction.force);
+          membrax::add3(torque, reaction.sphere, reaction.torque);
+        }
+      }
+    }
     std::fill(face_share + 9 * num_faces, face_share + 9 * num_faces + 3, T(0));
     std::fill(edge_share + 6 * num_edges, edge_share + 6 * num_edges + 3, T(0));
-    ForwardVisit<T> visit{law};
-    face_slots(law, face_ids, num_faces, face_width, triangle_nodes, face_out, face_share, visit);
-    edge_slots(law, edge_ids, num_edges, edge_width, edge_corners, edge_out, edge_share, visit);
-    node_slots(law, node_ids, node_width, around, num_neighbours, node_out, node_share, visit);
     // Each node: its corners' face shares, its ends' edge shares, its own; in that order.
     for (int64_t n = 0; n < num_nodes; ++n) {
       // corner_index: e < F the triangles' first corners, then their second and third; padded with 3F.
@@ -388,7 +435,8 @@ ffi::Future face_contact_forces(
       on_node[3 * n + 1] = total.y;
       on_node[3 * n + 2] = total.z;
     }
-  });
+  };
+  return membrax::halves_on_pool(pool, slots, half, tail);
 }
 
 
@@ -497,15 +545,25 @@ Dual<T> slot_objective(const Dual<T>* in, const Vec3<T> (&bar)[kCount + 3]) {
   return total;
 }
 
-// The backward's visit of an occupied slot: where it touches, the cotangents of its inputs added to the
-// outputs (its spring's written), in slot order.
+// A touching slot's cotangents (gradient, its inputs' in seeding order, kInputs<count> of them) and where
+// they go: its feature's count nodes and its sphere.
+template <typename T>
+struct SlotCotangents {
+  int count;
+  int64_t sphere, node[3];
+  T gradient[kInputs<3>];
+};
+
+// The backward's visit of an occupied slot: where it touches, its spring's cotangent written and the
+// cotangents of its other inputs kept in `touching`, in slot order (add_cotangents adds them up).
 template <typename T>
 struct BackwardVisit {
   static constexpr bool kForward = false;
   const Law<T>& law;
   const T *node_force_bar, *sphere_force_bar, *torque_bar, *spring_bar;  // spring_bar: this kind's
   const T* spring_base;                                                  // this kind's carried springs
-  T *x_bar, *v_bar, *xs_bar, *vs_bar, *ws_bar, *radius_bar, *spring_out, *scalars_bar;
+  T* spring_out;
+  std::vector<SlotCotangents<T>>& touching;
 
   template <int kCount>
   Vec3<T> slot(int64_t sphere, Vec3<T> centre, const T (&weight)[kCount], const Vec3<T> (&corner)[kCount],
@@ -547,7 +605,10 @@ struct BackwardVisit {
     bar[kCount] = row3(sphere_force_bar, sphere);
     bar[kCount + 1] = row3(torque_bar, sphere);
     bar[kCount + 2] = {spring_bar[slot], spring_bar[stride + slot], spring_bar[2 * stride + slot]};
-    T gradient[n_in];
+    SlotCotangents<T>& record = touching.emplace_back();
+    record.count = kCount;
+    record.sphere = sphere;
+    T* gradient = record.gradient;
     Dual<T> in[n_in];
     for (int j = 0; j < n_in; ++j) in[j] = membrax::constant(values[j]);
     for (int j = 0; j < n_in; ++j) {
@@ -555,21 +616,31 @@ struct BackwardVisit {
       gradient[j] = slot_objective<T, kCount>(in, bar).d;
       in[j].d = T(0);
     }
-    for (int k = 0; k < kCount; ++k) {
-      membrax::add3(x_bar, node[k], Vec3<T>{gradient[3 * k], gradient[3 * k + 1], gradient[3 * k + 2]});
-      membrax::add3(v_bar, node[k],
-                    Vec3<T>{gradient[3 * kCount + 3 * k], gradient[3 * kCount + 3 * k + 1],
-                            gradient[3 * kCount + 3 * k + 2]});
-    }
-    membrax::add3(xs_bar, sphere, Vec3<T>{gradient[q], gradient[q + 1], gradient[q + 2]});
-    membrax::add3(vs_bar, sphere, Vec3<T>{gradient[q + 3], gradient[q + 4], gradient[q + 5]});
-    membrax::add3(ws_bar, sphere, Vec3<T>{gradient[q + 6], gradient[q + 7], gradient[q + 8]});
-    radius_bar[sphere] += gradient[q + 9];
+    for (int k = 0; k < kCount; ++k) record.node[k] = node[k];
     for (int c = 0; c < 3; ++c) spring_out[c * stride + slot] = gradient[q + 10 + c];
-    for (int c = 0; c < 5; ++c) scalars_bar[c] += gradient[q + 13 + c];
     return zero;
   }
 };
+
+// A touching slot's cotangents added to those of the nodes' positions and velocities, the spheres' position,
+// velocity, spin and radius, and the scalars (all but its spring's, which its visit wrote).
+template <typename T>
+void add_cotangents(const SlotCotangents<T>& slot, T* const* out, T* scalars_bar) {
+  const int count = slot.count, q = 6 * count;
+  const T* gradient = slot.gradient;
+  for (int k = 0; k < count; ++k) {
+    membrax::add3(out[0], slot.node[k], Vec3<T>{gradient[3 * k], gradient[3 * k + 1], gradient[3 * k + 2]});
+    membrax::add3(out[1], slot.node[k],
+                  Vec3<T>{gradient[3 * count + 3 * k], gradient[3 * count + 3 * k + 1],
+                          gradient[3 * count + 3 * k + 2]});
+  }
+  const int64_t sphere = slot.sphere;
+  membrax::add3(out[2], sphere, Vec3<T>{gradient[q], gradient[q + 1], gradient[q + 2]});
+  membrax::add3(out[3], sphere, Vec3<T>{gradient[q + 3], gradient[q + 4], gradient[q + 5]});
+  membrax::add3(out[4], sphere, Vec3<T>{gradient[q + 6], gradient[q + 7], gradient[q + 8]});
+  out[5][sphere] += gradient[q + 9];
+  for (int c = 0; c < 5; ++c) scalars_bar[c] += gradient[q + 13 + c];
+}
 
 // Inputs: those of face_contact_forces, then the cotangents of its outputs (node force (n, 3), sphere force
 // and torque (N, 3), the three springs). Outputs: the cotangents of its floating inputs: node position and
@@ -589,7 +660,7 @@ ffi::Error face_contact_backward(
     ffi::ResultBuffer<dtype> sphere_position_out, ffi::ResultBuffer<dtype> sphere_velocity_out,
     ffi::ResultBuffer<dtype> sphere_angular_out, ffi::ResultBuffer<dtype> radius_out,
     ffi::ResultBuffer<dtype> face_spring_out, ffi::ResultBuffer<dtype> edge_spring_out,
-    ffi::ResultBuffer<dtype> node_spring_out, ffi::ResultBuffer<dtype> scalars_out) {
+    ffi::ResultBuffer<dtype> node_spring_out, ffi::ResultBuffer<dtype> scalars_out, ffi::ThreadPool pool) {
   using T = ffi::NativeType<dtype>;
   const int64_t num_nodes = node_position.element_count() / 3;
   const int64_t num_spheres = sphere_radius.element_count();
@@ -616,7 +687,7 @@ ffi::Error face_contact_backward(
   const Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
                    sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
                    num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
-                   T(band), T(1.0 - band), nullptr, nullptr};
+                   T(band), T(1.0 - band)};
   T* outputs[6] = {node_position_out->typed_data(), node_velocity_out->typed_data(),
                    sphere_position_out->typed_data(), sphere_velocity_out->typed_data(),
                    sphere_angular_out->typed_data(), radius_out->typed_data()};
@@ -628,24 +699,40 @@ ffi::Error face_contact_backward(
   const size_t spring_sizes[3] = {face_spring.element_count(), edge_spring.element_count(),
                                   node_spring.element_count()};
   for (int k = 0; k < 3; ++k) std::fill(spring_outs[k], spring_outs[k] + spring_sizes[k], T(0));
-  auto visit_for = [&](const T* carried, const T* carried_bar, T* out) {
-    return BackwardVisit<T>{law, node_force_bar.typed_data(), sphere_force_bar.typed_data(),
-                            sphere_torque_bar.typed_data(), carried_bar, carried, outputs[0], outputs[1], outputs[2],
-                            outputs[3], outputs[4], outputs[5], out, scalars_out->typed_data()};
-  };
   // The loops only read the springs (the visit's kForward is false).
   T* face_carried = const_cast<T*>(face_spring.typed_data());
   T* edge_carried = const_cast<T*>(edge_spring.typed_data());
   T* node_carried = const_cast<T*>(node_spring.typed_data());
-  auto face_visit = visit_for(face_carried, face_spring_bar.typed_data(), spring_outs[0]);
-  face_slots(law, face_idx.typed_data(), face_dims[0], face_dims[1], triangles.typed_data(), face_carried,
-             static_cast<T*>(nullptr), face_visit);
-  auto edge_visit = visit_for(edge_carried, edge_spring_bar.typed_data(), spring_outs[1]);
-  edge_slots(law, edge_idx.typed_data(), edge_dims[0], edge_dims[1], edge_nodes.typed_data(), edge_carried,
-             static_cast<T*>(nullptr), edge_visit);
-  auto node_visit = visit_for(node_carried, node_spring_bar.typed_data(), spring_outs[2]);
-  node_slots(law, node_idx.typed_data(), node_dims[1], neighbours.typed_data(), neighbour_dims[1], node_carried,
-             static_cast<T*>(nullptr), node_visit);
+  // Each kind's features in two halves on two threads (parallel.h): a touching slot's spring cotangent is
+  // written by its half, its other cotangents kept in its half's list; the lists are then added up in slot
+  // order, the first half's then the second's, as one pass over the slots would.
+  std::vector<SlotCotangents<T>> touching[2];
+  auto in_halves = [&](int64_t count, const T* carried, const T* carried_bar, T* out, const auto& loop) {
+    touching[0].clear();
+    touching[1].clear();
+    membrax::two_halves(pool, count, [&](int half, int64_t begin, int64_t end) {
+      BackwardVisit<T> visit{law, node_force_bar.typed_data(), sphere_force_bar.typed_data(),
+                             sphere_torque_bar.typed_data(), carried_bar, carried, out, touching[half]};
+      loop(membrax::Range{begin, end}, visit);
+    });
+    for (const auto& list : touching)
+      for (const SlotCotangents<T>& slot : list) add_cotangents(slot, outputs, scalars_out->typed_data());
+  };
+  in_halves(face_dims[0], face_carried, face_spring_bar.typed_data(), spring_outs[0],
+            [&](membrax::Range range, BackwardVisit<T>& visit) {
+              face_slots(law, face_idx.typed_data(), face_dims[0], face_dims[1], range, triangles.typed_data(),
+                         face_carried, static_cast<T*>(nullptr), visit);
+            });
+  in_halves(edge_dims[0], edge_carried, edge_spring_bar.typed_data(), spring_outs[1],
+            [&](membrax::Range range, BackwardVisit<T>& visit) {
+              edge_slots(law, edge_idx.typed_data(), edge_dims[0], edge_dims[1], range, edge_nodes.typed_data(),
+                         edge_carried, static_cast<T*>(nullptr), visit);
+            });
+  in_halves(num_nodes, node_carried, node_spring_bar.typed_data(), spring_outs[2],
+            [&](membrax::Range range, BackwardVisit<T>& visit) {
+              node_slots(law, node_idx.typed_data(), node_dims[1], range, neighbours.typed_data(),
+                         neighbour_dims[1], node_carried, static_cast<T*>(nullptr), visit);
+            });
   return ffi::Error::Success();
 }
 

@@ -17,14 +17,16 @@
 // (FFI's contract allows all three). The halves are fixed index ranges, so a body that writes
 // per-index outputs and sums each half in order gives the same bits whichever thread ran which half;
 // below kMinParallelElements the caller runs the same two halves itself, so small and large inputs sum
-// alike.
+// alike. halves_on_pool (below) is the same split for a forward kernel, without a waiting thread.
 
 #ifndef MEMBRAX_PARALLEL_H_
 #define MEMBRAX_PARALLEL_H_
 
 #include <atomic>
 #include <cstdint>
+#include <cstdlib>
 #include <memory>
+#include <string_view>
 #include <thread>
 #include <utility>
 
@@ -35,10 +37,21 @@ namespace membrax {
 // Below this many elements a half is too short to pay for the hand-off (a few microseconds).
 inline constexpr int64_t kMinParallelElements = 4096;
 
+// Whether the kernels hand work to the pool: not where the environment sets MEMBRAX_NATIVE_THREADS=1 (read
+// once), and then every kernel runs its loops in the caller as below the thresholds, the same halves in
+// the same order: the serial path that the tests hold the threaded one to, bit for bit.
+inline bool pool_allowed() {
+  static const bool allowed = [] {
+    const char* threads = std::getenv("MEMBRAX_NATIVE_THREADS");
+    return threads == nullptr || std::string_view(threads) != "1";
+  }();
+  return allowed;
+}
+
 template <typename Body>
 void two_halves(xla::ffi::ThreadPool& pool, int64_t n, const Body& body) {
   const int64_t middle = n / 2;
-  if (n < kMinParallelElements) {
+  if (n < kMinParallelElements || !pool_allowed()) {
     body(0, int64_t(0), middle);
     body(1, middle, n);
     return;
@@ -76,7 +89,7 @@ template <typename Work>
 xla::ffi::Future on_pool(xla::ffi::ThreadPool& pool, int64_t elements, Work work) {
   xla::ffi::Promise promise;
   xla::ffi::Future future(promise);
-  if (elements < kMinAsyncElements) {
+  if (elements < kMinAsyncElements || !pool_allowed()) {
     work();
     promise.SetAvailable();
     return future;
@@ -85,6 +98,48 @@ xla::ffi::Future on_pool(xla::ffi::ThreadPool& pool, int64_t elements, Work work
     work();
     promise.SetAvailable();
   });
+  return future;
+}
+
+// The element range [begin, end) of half `half` (0 or 1) of n elements, as two_halves splits them.
+struct Range {
+  int64_t begin, end;
+};
+inline Range half_range(int half, int64_t n) { return half == 0 ? Range{0, n / 2} : Range{n / 2, n}; }
+
+// two_halves for a forward (asynchronous) kernel, whose loops run as pool tasks: half(0) and half(1) are
+// scheduled as two tasks and tail() runs once both are done, on the thread that finished last, which then
+// completes the returned future; no thread waits for another. Below kMinAsyncElements elements the caller
+// runs half(0), half(1) and tail() itself, in that order. Each half works on fixed ranges (half_range) and
+// writes its own outputs; tail() does the sums across them in a fixed order, so the bits do not depend on
+// which thread ran what. The rule of on_pool's work() holds for half, tail and what they capture.
+template <typename Half, typename Tail>
+xla::ffi::Future halves_on_pool(xla::ffi::ThreadPool& pool, int64_t elements, Half half, Tail tail) {
+  xla::ffi::Promise promise;
+  xla::ffi::Future future(promise);
+  if (elements < kMinAsyncElements || !pool_allowed()) {
+    half(0);
+    half(1);
+    tail();
+    promise.SetAvailable();
+    return future;
+  }
+  struct Shared {
+    Half half;
+    Tail tail;
+    xla::ffi::Promise promise;
+    std::atomic<int> finished{0};
+  };
+  std::shared_ptr<Shared> shared(new Shared{std::move(half), std::move(tail), promise});
+  for (int h = 0; h < 2; ++h) {
+    pool.Schedule([shared, h]() {
+      shared->half(h);
+      if (shared->finished.fetch_add(1, std::memory_order_acq_rel) == 1) {  // the other half is done
+        shared->tail();
+        shared->promise.SetAvailable();
+      }
+    });
+  }
   return future;
 }
 
