@@ -25,7 +25,8 @@ Each rigid and periodic run's records go to their own ``.npz`` under ``--out``; 
 interrupted script resumes where it stopped (delete a file to rerun that case).
 
 Run: ``python examples/boundary_split.py [--out results/boundary_split] [--states dense,loose,ballast]
-[--pressures 10,40,100] [--seeds 0,2] [--periodic-spheres 500] [--skip-rigid] [--skip-periodic] [--x64]``.
+[--pressures 10,40,100] [--seeds 0,2] [--periodic-spheres 500] [--skip-rigid] [--skip-periodic]
+[--keep calibrate/data/boundary_split.csv] [--x64]``.
 Cost, measured on 2 CPU cores shared with other jobs (load average 8–10), float32: the periodic dense
 compaction of 500 spheres 1,053 s per seed; a periodic case 150–489 s (10 kPa the slowest: the strain rate
 grows with √σc); a rigid case of the 150 × 375 mm mould (470 spheres) 73–320 s, of the loose 150 × 300 mm
@@ -71,6 +72,12 @@ def parse_args(argv=None):
     parser.add_argument("--pressures", default="10,40,100", help="σc, kPa")
     parser.add_argument("--seeds", default="0,2")
     parser.add_argument("--periodic-spheres", type=int, default=500)
+    parser.add_argument(
+        "--keep",
+        metavar="CSV",
+        help="a boundary_split.csv whose rows of the states not run here join the table (e.g. the shipped "
+        "calibrate/data/boundary_split.csv, to add one state to it)",
+    )
     parser.add_argument(
         "--rigid-groups",
         default=",".join(f"{k}={v}" for k, v in RIGID_GROUPS.items()),
@@ -492,6 +499,20 @@ def seed_means(rows):
     return pd.DataFrame(out)
 
 
+def kept_rows(path: Path, states, table):
+    """``table`` after the rows of ``path`` (a ``boundary_split.csv``) whose state was not run here."""
+    import pandas as pd
+
+    previous = pd.read_csv(path, dtype={"seeds": str})
+    missing = sorted(set(table.columns) ^ set(previous.columns))
+    if missing:
+        raise SystemExit(f"--keep {path}: its columns differ from this script's in {', '.join(missing)}")
+    kept = previous[~previous.state.isin(states)]
+    print(f"kept from {path}: {len(kept)} rows of {', '.join(sorted(set(kept.state))) or 'no state'}")
+    merged = pd.concat([kept, table[previous.columns]], ignore_index=True)
+    return merged.sort_values(list(KEYS), kind="stable", ignore_index=True)
+
+
 def split_table(table):
     """gap = external − periodic, membrane = external − internal, specimen = internal − periodic."""
     import pandas as pd
@@ -599,6 +620,8 @@ def main(argv=None) -> None:
     if not args.skip_rigid:
         rows += rigid_rows(args, lab, states, pressures, seeds, out, times)
     table = seed_means(rows)
+    if args.keep:
+        table = kept_rows(Path(args.keep), states, table)
     table.to_csv(out / "boundary_split.csv", index=False, float_format="%.4f")
     parts = split_table(table)
     parts.to_csv(out / "boundary_split_parts.csv", index=False, float_format="%.4f")

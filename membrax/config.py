@@ -218,6 +218,14 @@ def to_si(field: str, value):
     raise ValueError(f"{field!r} has no SI conversion; fields ending in {', '.join(SI_SCALE)} do.")
 
 
+def _in_si(field: str, doc: str) -> property:
+    """A read-only property of :class:`TriaxialConfig`: its field ``field`` in SI (:func:`to_si`).
+
+    ``doc`` is the property's docstring.
+    """
+    return property(lambda config: to_si(field, getattr(config, field)), doc=doc)
+
+
 #: Accepted values of ``packing``: the FCC lattice of ``particles_across`` × ``layers``, or a random packing
 #: compacted in a mould of ``specimen_diameter_mm`` × ``specimen_height_mm``.
 PACKINGS = ("fcc", "random")
@@ -572,20 +580,13 @@ class TriaxialConfig:
             raise ConfigError(errors)
         return self
 
-    @property
-    def particle_diameter(self) -> float:
-        """Sphere diameter, m."""
-        return to_si("particle_diameter_mm", self.particle_diameter_mm)
-
-    @property
-    def specimen_diameter(self) -> float:
-        """A random specimen's requested diameter, m."""
-        return to_si("specimen_diameter_mm", self.specimen_diameter_mm)
-
-    @property
-    def specimen_height(self) -> float:
-        """A random specimen's requested height, m."""
-        return to_si("specimen_height_mm", self.specimen_height_mm)
+    # The SI values the simulator uses, each a field in laboratory units converted once (:func:`to_si`).
+    particle_diameter = _in_si("particle_diameter_mm", "Sphere diameter, m.")
+    specimen_diameter = _in_si("specimen_diameter_mm", "A random specimen's requested diameter, m.")
+    specimen_height = _in_si("specimen_height_mm", "A random specimen's requested height, m.")
+    cell_pressure = _in_si("cell_pressure_kpa", "Cell pressure, Pa.")
+    membrane_thickness = _in_si("membrane_thickness_mm", "Membrane thickness, m.")
+    membrane_modulus = _in_si("membrane_modulus_kpa", "Membrane Young's modulus, Pa.")
 
     @property
     def particle_grading(self) -> Grading:
@@ -601,21 +602,6 @@ class TriaxialConfig:
     def particle_radius(self) -> float:
         """Sphere radius, m."""
         return 0.5 * self.particle_diameter
-
-    @property
-    def cell_pressure(self) -> float:
-        """Cell pressure, Pa."""
-        return to_si("cell_pressure_kpa", self.cell_pressure_kpa)
-
-    @property
-    def membrane_thickness(self) -> float:
-        """Membrane thickness, m."""
-        return to_si("membrane_thickness_mm", self.membrane_thickness_mm)
-
-    @property
-    def membrane_modulus(self) -> float:
-        """Membrane Young's modulus, Pa."""
-        return to_si("membrane_modulus_kpa", self.membrane_modulus_kpa)
 
     @property
     def stretching_model(self) -> str:

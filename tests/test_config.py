@@ -101,45 +101,45 @@ def test_toml_round_trip_defaults(tmp_path):
     assert load_config(_write(tmp_path, dump_config_toml(cfg))) == cfg
 
 
+#: The every-field round trip's values that test the TOML writer's edge cases (quotes, a non-ASCII letter and
+#: a comment sign in a string; a float with no short decimal form; exponents; a table of pairs), and a choice
+#: other than the default for each field that has choices; every other field takes :func:`_changed`.
+EDGE_CASES = dict(
+    name='run "A" ü #1 = x',
+    membrane_thickness_mm=10.0 / 3.0,
+    membrane_friction_angle_deg=1e-9,
+    consolidation_tolerance=1e-17,
+    grading=((9.5, 0.0), (12.5, 37.5), (19.0, 100.0)),
+    membrane_law="gent",
+    membrane_contact_model="faces",
+    packing="random",
+    damping_frame="absolute",
+    cell="periodic",
+)
+
+
+def _changed(default):
+    """A valid value other than ``default``: the other boolean, one more, or the float × 2/3 (0 gives 1e-3).
+
+    Two thirds keeps every bounded float within its range and has no short decimal form, so the floats
+    test the writer's shortest repr.
+    """
+    if isinstance(default, bool):
+        return not default
+    if isinstance(default, int):
+        return default + 1
+    return default * 2.0 / 3.0 if default else 1e-3
+
+
 @pytest.mark.parametrize("table", [False, True])
 def test_toml_round_trip_every_field_changed(tmp_path, table):
-    cfg = TriaxialConfig(
-        name='run "A" ü #1 = x',
-        particle_diameter_mm=12.7,
-        particles_across=6,
-        layers=8,
-        particle_density_kg_m3=2700.5,
-        friction_angle_deg=31.3,
-        particle_stiffness_n_m=3.3e6,
-        cell_pressure_kpa=0.1,
-        membrane_thickness_mm=10.0 / 3.0,
-        membrane_modulus_kpa=1e-3,
-        membrane_friction_angle_deg=1e-9,
-        membrane_edges_per_diameter=2.5,
-        membrane_bending_factor=0.5,
-        membrane_law="gent",
-        membrane_locking_jm=55.5,
-        target_axial_strain=0.15,
-        inertial_number=0.1,
-        consolidation_tolerance=1e-17,
-        consolidation_max_steps=7,
-        record_every_fine=3,
-        fine_until_strain=0.0,
-        record_every_coarse=33,
-        chunk_steps=100,
-        checkpoint_every_chunks=1,
-        vtk_every_steps=500,
-        float64=True,
-        dt_safety=1.0,
-        packing="random",
-        packing_seed=5,
-        specimen_diameter_mm=151.5,
-        specimen_height_mm=301.0,
-        grading=((9.5, 0.0), (12.5, 37.5), (19.0, 100.0)),
-        compaction_friction_deg=26.5,
-        damping_frame="absolute",
-        membrane_contact_model="faces",
-    )
+    defaults = TriaxialConfig()
+    changed = {}
+    for field in dataclasses.fields(TriaxialConfig):
+        default = getattr(defaults, field.name)
+        changed[field.name] = EDGE_CASES[field.name] if field.name in EDGE_CASES else _changed(default)
+    cfg = TriaxialConfig(**changed)
+    assert all(getattr(cfg, name) != getattr(defaults, name) for name in changed)
     text = dump_config_toml(cfg, table=table)
     assert text.count("[triaxial]") == int(table)
     loaded = load_config(_write(tmp_path, text))

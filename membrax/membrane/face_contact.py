@@ -368,6 +368,18 @@ def _slot_sum(values):
     return total
 
 
+def _slot_contact(branch, reach, active_slot, normal_stiffness):
+    """The law's normal part at each slot: (normal n_m, overlap δ, touching, normal force k_n δ).
+
+    δ = reach − |b| at an active slot (−1 at the others); a slot touches where δ > 0 and |b| > 0.
+    """
+    normal, distance = safe_normalize(branch)
+    overlap = jnp.where(active_slot, reach - distance, -1.0)
+    touching = (overlap > 0.0) & (distance > 0.0)
+    normal_force = jnp.where(touching, normal_stiffness * overlap, 0.0)
+    return normal, overlap, touching, normal_force
+
+
 def face_contact_energy(
     node_position,
     sphere_position,
@@ -452,10 +464,9 @@ def face_contact_forces(
         _, _, branch, reach, active_slot, _, _ = _slot_geometry(
             kind, nodes.position, sphere_table, mesh, slots, membrane_thickness, neighbours
         )
-        normal, distance = safe_normalize(branch)
-        overlap = jnp.where(active_slot, reach - distance, -1.0)
-        touching = (overlap > 0.0) & (distance > 0.0)
-        normal_force = jnp.where(touching, params.normal_stiffness * overlap, 0.0)
+        normal, overlap, touching, normal_force = _slot_contact(
+            branch, reach, active_slot, params.normal_stiffness
+        )
         on_membrane = select(touching, scale(normal_force, normal) + spring)
         normal_forces.append(normal_force)
         slot_forces.append(jnp.moveaxis(on_membrane, 0, -1).reshape(-1, 3))
@@ -520,10 +531,9 @@ def reference_face_contact_forces(
         weights, feature_nodes, branch, reach, active_slot, safe_ids, per_slot = _slot_geometry(
             kind, nodes.position, sphere_table, mesh, slots, membrane_thickness, neighbours
         )
-        normal, distance = safe_normalize(branch)
-        overlap = jnp.where(active_slot, reach - distance, -1.0)
-        touching = (overlap > 0.0) & (distance > 0.0)
-        normal_force = jnp.where(touching, params.normal_stiffness * overlap, 0.0)
+        normal, overlap, touching, normal_force = _slot_contact(
+            branch, reach, active_slot, params.normal_stiffness
+        )
         branch, normal, overlap, touching, normal_force = materialize(
             branch, normal, overlap, touching, normal_force
         )

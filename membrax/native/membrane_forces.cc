@@ -90,6 +90,25 @@ __attribute__((always_inline)) inline S gent_stiffening(S below, S past) {
   return T(1) / (T(1) - below) + past / (slack * slack);
 }
 
+// The neo-Hookean law's terms (energies.py): w = (E_m/6) bracket, bracket = (4 tr² + 8 tr det − 4 det)/det C
+// with det C = 1 + 2 tr + 4 det (Gent's s = (I₁ − 3)/J_m is bracket/J_m), and ∂w/∂E₁₁ = (E_m/6)(by_trace +
+// by_det E₂₂), ∂w/∂E₁₂ = −(E_m/6) 2 by_det E₁₂. Generic in the value type V so that the backward kernel
+// evaluates it on dual numbers, with the forward kernel's arithmetic.
+template <typename V>
+struct NeoHookeanTerms {
+  V bracket, by_trace, by_det;
+};
+
+template <typename T, typename V>
+__attribute__((always_inline)) inline NeoHookeanTerms<V> neo_hookean_terms(V e11, V e22, V e12, V trace) {
+  const V det = e11 * e22 - e12 * e12;
+  const V det_c = T(1) + T(2) * trace + T(4) * det;
+  const V bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
+  const V by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
+  const V by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
+  return {bracket, by_trace, by_det};
+}
+
 // Stretching and cell pressure of each triangle: corner forces, component-first (corner, component, t).
 template <typename T, int kLaw>
 void triangle_forces(const T* __restrict x, const int32_t* __restrict corner, const T* __restrict inverse,
@@ -120,13 +139,8 @@ void triangle_forces(const T* __restrict x, const int32_t* __restrict corner, co
     const T trace = e11 + e22;
     T d11, d22, d12;  // ∂w/∂E₁₁, ∂w/∂E₂₂, ∂w/∂E₁₂ of the energy density
     if constexpr (kLaw == kNeoHookean || kLaw == kGent) {
-      // w = (E_m/6)(4 tr² + 8 tr det − 4 det)/det C, det C = 1 + 2 tr + 4 det (energies.py); Gent's
-      // w = (E_m/6) J_m φ((I₁ − 3)/J_m) has the neo-Hookean derivative times φ'.
-      const T det = e11 * e22 - e12 * e12;
-      const T det_c = T(1) + T(2) * trace + T(4) * det;
-      const T bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
-      const T by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
-      const T by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
+      // Gent's w = (E_m/6) J_m φ((I₁ − 3)/J_m) has the neo-Hookean derivative times φ'.
+      const auto [bracket, by_trace, by_det] = neo_hookean_terms<T, T>(e11, e22, e12, trace);
       T k = modulus / T(6);
       if constexpr (kLaw == kGent) {
         const T ratio = bracket / locking;
@@ -435,11 +449,7 @@ TriangleSums<T> triangle_tangents(const T* __restrict x, const T* __restrict u, 
     T nu11 = T(0), nu22 = T(0), nu12 = T(0);
     T jm11 = T(0), jm22 = T(0), jm12 = T(0);
     if constexpr (kLaw == kNeoHookean || kLaw == kGent) {
-      const D det = e11 * e22 - e12 * e12;
-      const D det_c = T(1) + T(2) * trace + T(4) * det;
-      const D bracket = (T(4) * trace * trace + T(8) * trace * det - T(4) * det) / det_c;
-      const D by_trace = (T(8) * trace + T(8) * det - T(2) * bracket) / det_c;
-      const D by_det = (T(8) * trace - T(4) - T(4) * bracket) / det_c;
+      const auto [bracket, by_trace, by_det] = neo_hookean_terms<T, D>(e11, e22, e12, trace);
       u11 = (by_trace + by_det * e22) / T(6);
       u22 = (by_trace + by_det * e11) / T(6);
       u12 = (-T(2) * by_det * e12) / T(6);

@@ -61,7 +61,7 @@ from membrax.defaults import DAMPING_FRAME, DAMPING_FRAMES
 from membrax.errors import ErrorCode, describe, not_finite_bit
 from membrax.spheres import _kernels, contact
 from membrax.spheres.contact import ContactParams, PairSpheres, for_members, slot_law, slot_spheres
-from membrax.spheres.neighbors import PairNeighborFn, outside_box, remap_pair_history
+from membrax.spheres.neighbors import PairNeighborFn, outside_box, remap_pair_history_if
 from membrax.spheres.particles import moment_of_inertia, particle_mass
 from membrax.spheres.walls import (
     WallState,
@@ -84,6 +84,7 @@ __all__ = [
     "Forces",
     "Particles",
     "apply_damping",
+    "damped_velocities",
     "compute_forces",
     "describe_errors",
     "make_particles",
@@ -470,6 +471,33 @@ def apply_damping(force, velocity, mass, damping: DampingParams, member, referen
     return force - alpha * jnp.abs(force) * jnp.sign(relative) - gamma * mass[:, None] * relative
 
 
+def damped_velocities(
+    state, forces, particles: Particles, damping: DampingParams, dt, reference_velocity=None
+):
+    """The velocities after one step of the damped force and torque (semi-implicit Euler, module docstring).
+
+    Args:
+      state: the step's state (its ``velocity`` and ``angular_velocity``).
+      forces: the step's ``force`` and ``torque`` on each sphere.
+      particles: masses, moments of inertia and batch members.
+      damping: :func:`apply_damping`'s α and γ.
+      dt: time step, s.
+      reference_velocity: the force's damping frame, v_ref (:func:`apply_damping`); the torque's is absolute.
+
+    Returns:
+      (velocity, angular_velocity), (N, 3) each.
+    """
+    force = apply_damping(
+        forces.force, state.velocity, particles.mass, damping, particles.member, reference_velocity
+    )
+    torque = apply_damping(
+        forces.torque, state.angular_velocity, particles.inertia, damping, particles.member
+    )
+    velocity = state.velocity + dt * force / particles.mass[:, None]
+    angular_velocity = state.angular_velocity + dt * torque / particles.inertia[:, None]
+    return velocity, angular_velocity
+
+
 def sphere_dem(
     particles: Particles,
     neighbor_frame: PairNeighborFn,
@@ -524,11 +552,7 @@ def sphere_dem(
         """
         neighbors = neighbor_frame.update(state.position, state.neighbors)
         rebuilt = jnp.any(neighbors.reference_position != state.neighbors.reference_position)
-        pair_spring = jax.lax.cond(
-            rebuilt,
-            lambda: remap_pair_history(state.neighbors.idx, neighbors.idx, state.pair_spring, n),
-            lambda: state.pair_spring,
-        )
+        pair_spring = remap_pair_history_if(rebuilt, state.neighbors.idx, neighbors.idx, state.pair_spring, n)
         state = state.set(neighbors=neighbors, pair_spring=pair_spring)
         touching = particles if contact_radius is None else particles.set(radius=contact_radius)
         forces = compute_forces(state, touching, params, dt, wall_friction)
@@ -540,14 +564,9 @@ def sphere_dem(
         reference = None
         if params.damping.frame == "affine":
             reference = affine_velocity(state.position, state.walls, particles.member)
-        force = apply_damping(
-            forces.force, state.velocity, particles.mass, params.damping, particles.member, reference
+        velocity, angular_velocity = damped_velocities(
+            state, forces, particles, params.damping, dt, reference
         )
-        torque = apply_damping(
-            forces.torque, state.angular_velocity, particles.inertia, params.damping, particles.member
-        )
-        velocity = state.velocity + dt * force / particles.mass[:, None]
-        angular_velocity = state.angular_velocity + dt * torque / particles.inertia[:, None]
         position, compensation = compensated_add(state.position, state.position_compensation, dt * velocity)
 
         wall_force = forces.wall_total_force if wall_load is None else forces.wall_total_force + wall_load

@@ -78,6 +78,7 @@ __all__ = [
     "pair_neighbor_fn",
     "periodic_neighbor_fn",
     "remap_pair_history",
+    "remap_pair_history_if",
 ]
 
 # Keys i·N + j must fit in int32 when x64 is off.
@@ -337,3 +338,15 @@ def remap_pair_history(old_idx, new_idx, old_history, num_particles: int):
     gathered = old_history[order[slot]]
     found = found.reshape(found.shape + (1,) * (old_history.ndim - 1))
     return jnp.where(found, gathered, jnp.zeros_like(gathered))
+
+
+def remap_pair_history_if(rebuilt, old_idx, new_idx, old_history, num_particles: int):
+    """:func:`remap_pair_history` where the pair list was ``rebuilt`` (a traced bool), else ``old_history``.
+
+    A step's carry of its springs: the remap (a sort and a search) runs only in the steps that rebuilt.
+    """
+    return jax.lax.cond(
+        rebuilt,
+        lambda: remap_pair_history(old_idx, new_idx, old_history, num_particles),
+        lambda: old_history,
+    )

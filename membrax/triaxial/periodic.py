@@ -61,7 +61,6 @@ import dataclasses as pydataclasses
 import functools
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -70,8 +69,8 @@ from membrax.compensated import compensated_add
 from membrax.driver import ChunkRunner
 from membrax.errors import ErrorCode, not_finite_bit
 from membrax.spheres.contact import ContactParams
-from membrax.spheres.integrate import DampingParams, DEMParams, apply_damping, make_particles
-from membrax.spheres.neighbors import PeriodicNeighborFn, periodic_neighbor_fn, remap_pair_history
+from membrax.spheres.integrate import DampingParams, DEMParams, damped_velocities, make_particles
+from membrax.spheres.neighbors import PeriodicNeighborFn, periodic_neighbor_fn, remap_pair_history_if
 from membrax.spheres.particles import GRANITE_DENSITY
 from membrax.spheres.periodic import (
     RATTLER_CONTACTS,
@@ -254,11 +253,7 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
     def step_fn(state: PeriodicState, params: DEMParams) -> PeriodicState:
         length = state.box_length
         neighbors, rebuilt = frame.update(state.fraction, state.neighbors, length, state.list_length)
-        pair_spring = jax.lax.cond(
-            rebuilt,
-            lambda: remap_pair_history(state.neighbors.idx, neighbors.idx, state.pair_spring, n),
-            lambda: state.pair_spring,
-        )
+        pair_spring = remap_pair_history_if(rebuilt, state.neighbors.idx, neighbors.idx, state.pair_spring, n)
         state = state.set(
             neighbors=neighbors,
             pair_spring=pair_spring,
@@ -270,12 +265,7 @@ def periodic_cell(particles, frame: PeriodicNeighborFn, dt: float):
         strain_rate, integral = servo_strain_rate(
             jnp.diagonal(stress), stiffness, state.control, state.servo_integral, dt
         )
-        force = apply_damping(forces.force, state.velocity, particles.mass, params.damping, particles.member)
-        torque = apply_damping(
-            forces.torque, state.angular_velocity, particles.inertia, params.damping, particles.member
-        )
-        velocity = state.velocity + dt * force / particles.mass[:, None]
-        angular_velocity = state.angular_velocity + dt * torque / particles.inertia[:, None]
+        velocity, angular_velocity = damped_velocities(state, forces, particles, params.damping, dt)
         new_length, length_compensation = compensated_add(
             state.length, state.length_compensation, dt * strain_rate * length
         )
