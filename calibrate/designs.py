@@ -2,9 +2,9 @@
 
 Contract. :data:`DESIGNS` names the designs (one source for each): :data:`LAB_CALIBRATION` (the shipped
 correction's), :data:`LAB_HELD_OUT`, :data:`RANDOM_CALIBRATION` (the previous correction's),
-:data:`RANDOM_HELD_OUT`, :data:`PROTOCOL_CHECK`, and the FCC :data:`CALIBRATION` and :data:`HELD_OUT` of the
-first correction. Each maps a group name to ``(specimen, grid)``: the specimen's fields
-(:func:`specimen_fields`) and the ``membrax sweep`` grid of that specimen. Running them is
+:data:`RANDOM_HELD_OUT`, :data:`PROTOCOL_CHECK`, :data:`CONTACT_CHECK`, and the FCC :data:`CALIBRATION` and
+:data:`HELD_OUT` of the first correction. Each maps a group name to ``(specimen, grid)``: the specimen's
+fields (:func:`specimen_fields`) and the ``membrax sweep`` grid of that specimen. Running them is
 :mod:`calibrate.grid`'s.
 
 Random specimens. A laboratory specimen is a random packing, and corrections do not transfer between packings
@@ -35,6 +35,7 @@ from __future__ import annotations
 
 __all__ = [
     "CALIBRATION",
+    "CONTACT_CHECK",
     "DESIGNS",
     "HELD_OUT",
     "LAB_CALIBRATION",
@@ -43,6 +44,7 @@ __all__ = [
     "PROTOCOL_CHECK",
     "RANDOM_CALIBRATION",
     "RANDOM_HELD_OUT",
+    "THIN_MEMBRANE_FIELDS",
     "base_fields",
     "mould_aspect_ratios",
     "specimen_fields",
@@ -136,6 +138,13 @@ def _lab_group(mould, grid, seeds=LAB_SEEDS, **specimen):
     return {seed: ({"mould": mould, "protocol": "paper", "seed": seed, **specimen}, grid) for seed in seeds}
 
 
+#: The membrane law and contact of the thin soft members (1 mm of 700–1400 kPa): Gent's stiffening law
+#: (J_m the default, natural rubber's) and sphere–triangle contact, with which 1 mm of 1400 kPa at 100 kPa
+#: stays finite to 10 % strain where node contact let the sheet pass between its nodes through the spheres
+#: (docs/model.md). At the paper's membranes both give Tables 2–3 within 0.03° of the default law
+#: (docs/validation.md).
+THIN_MEMBRANE_FIELDS = {"membrane_law": "gent", "membrane_contact_model": "faces"}
+
 #: Two membranes per group and two moduli on the reference one: the Table 1 pressures.
 _LAB_GRID = _grid(_PRESSURES, (2.0, 5.0), (1400.0,))
 
@@ -162,6 +171,15 @@ LAB_CALIBRATION = {
         "e6": _lab_group((150.0, 300.0), _grid(_PRESSURES, (2.0, 3.0, 5.0), (1400.0, 2800.0))),
         "e10": _lab_group((250.0, 500.0), _LAB_GRID),
         "e12": _lab_group((300.0, 600.0), _LAB_GRID),
+        # The thin soft corner, E_m t_m/(σc D_s) 0.28–5.6, with the law and contact that hold it
+        # (:data:`THIN_MEMBRANE_FIELDS`); 1 mm of 700 kPa at 100 kPa is above even Gent's inflation limit
+        # (84.8 kPa, membrax.config.inflation_ratio) and is refused.
+        "e6_thin_soft": _lab_group(
+            (150.0, 300.0), _grid(_PRESSURES, (1.0,), (1400.0,)), fields=THIN_MEMBRANE_FIELDS
+        ),
+        "e6_thin_softest": _lab_group(
+            (150.0, 300.0), _grid((10.0, 40.0), (1.0,), (700.0,)), fields=THIN_MEMBRANE_FIELDS
+        ),
     }.items()
     for seed, item in groups.items()
 }
@@ -188,6 +206,16 @@ LAB_HELD_OUT = {
     ),
 }
 
+#: The thin members' law and contact against the default's, at a laboratory's geometry: the e6_thin_s0
+#: members (1 mm of 2800 kPa, within both laws' reach) run with :data:`THIN_MEMBRANE_FIELDS`, to set beside
+#: the same members in :data:`LAB_CALIBRATION` (neo-Hookean, node contact).
+CONTACT_CHECK = {
+    "e6_thin_faces_s0": (
+        {**LAB_CALIBRATION["e6_thin_s0"][0], "fields": THIN_MEMBRANE_FIELDS},
+        LAB_CALIBRATION["e6_thin_s0"][1],
+    ),
+}
+
 #: ``python -m calibrate.grid --design NAME``'s designs.
 DESIGNS = {
     "fcc": CALIBRATION,
@@ -197,6 +225,7 @@ DESIGNS = {
     "protocol_check": PROTOCOL_CHECK,
     "lab": LAB_CALIBRATION,
     "lab_held_out": LAB_HELD_OUT,
+    "contact_check": CONTACT_CHECK,
 }
 
 
@@ -221,7 +250,8 @@ def specimen_fields(specimen: dict) -> dict:
     group's: ``mould`` (diameter, height) mm, ``grading`` (``"equal"`` or ``"ballast"``, scaled to D_s/6 as
     :func:`membrax.reproduce.random_fields`), ``state`` (``"dense"``/``"loose"``,
     :data:`membrax.defaults.COMPACTION_FRICTION_DEG`), ``seed`` (the packing seed, default 0) and
-    ``protocol`` (``"small"``, the default, or ``"paper"``: :data:`membrax.reproduce.SIZES`).
+    ``protocol`` (``"small"``, the default, or ``"paper"``: :data:`membrax.reproduce.SIZES`), and ``fields``
+    (configuration fields set over those, e.g. the membrane law of :data:`THIN_MEMBRANE_FIELDS`).
     """
     if "mould" not in specimen:
         return {**base_fields(), **specimen}
@@ -233,7 +263,7 @@ def specimen_fields(specimen: dict) -> dict:
         specimen.get("state", "dense"),
         mould_mm=specimen["mould"],
     )
-    return {**fields, "packing_seed": specimen.get("seed", 0)}
+    return {**fields, "packing_seed": specimen.get("seed", 0), **specimen.get("fields", {})}
 
 
 def base_fields() -> dict:

@@ -178,7 +178,13 @@ def inflation_warning(config: TriaxialConfig) -> str | None:
         f"{config.name}: the cell pressure is {ratio:.2f} of the membrane's inflation limit over the windows "
         f"between the particles (membrax.config.inflation_ratio); FCC runs went non-finite from "
         f"{INFLATION_WARNING_RATIO:g}–1 of it, the membrane ballooning into the specimen. A thicker or "
-        "stiffer membrane or a lower cell pressure keeps away from it."
+        "stiffer membrane or a lower cell pressure keeps away from it; "
+        + (
+            "so does membrane_contact_model = 'faces' with membrane_law = 'gent', with which the sheet "
+            "cannot pass between its nodes through a sphere (docs/model.md)."
+            if config.membrane_contact_model == "nodes"
+            else "face contact keeps the run finite."
+        )
     )
 
 
