@@ -5,7 +5,7 @@ and modulus E_m spanning an opening of radius a holds at most p_max = 1.8353 (E_
 (:func:`membrax.theory.membrane_limit_pressure`); above it the sheet balloons through. Over the square
 windows between four touching 25 mm spheres (a = (√2 − 1) R = 5.18 mm), 1 mm of 700 kPa holds 82.7 kPa and
 1 mm of 1400 kPa 165 kPa. membrax refuses a configuration whose cell pressure exceeds that limit
-(:func:`membrax.config.inflation_ratio`) and warns from 0.55 of it.
+(:func:`membrax.config.inflation_ratio`) and warns from 0.33 of it.
 
 Default: runs the four cases 1 mm of 700 kPa and 1 mm of 1400 kPa at σc = 100 kPa on the 6-across (6 × 10)
 and 8-across (8 × 13) FCC specimens on the small preset of ``membrax reproduce`` (membrane edge D/3,

@@ -176,10 +176,10 @@ def inflation_warning(config: TriaxialConfig) -> str | None:
         return None
     return (
         f"{config.name}: the cell pressure is {ratio:.2f} of the membrane's inflation limit over the windows "
-        "between the particles (membrax.config.inflation_ratio); runs went non-finite in shearing from 0.59 "
-        "of it, the membrane drawn into the specimen (1 mm of 1400 kPa at 100 kPa on 25 mm spheres, with "
-        "node contact and with Gent's law and face contact alike; docs/model.md). A thicker or stiffer "
-        "membrane or a lower cell pressure keeps away from it."
+        f"between the particles (membrax.config.inflation_ratio). Every laboratory-grid run completed up to "
+        f"{INFLATION_WARNING_RATIO:g} of it; random specimens went non-finite from 0.47 of it, the membrane "
+        "drawn into their wider surface windows (with node contact and with Gent's law and face contact "
+        "alike; docs/model.md). A thicker or stiffer membrane or a lower cell pressure keeps away from it."
     )
 
 

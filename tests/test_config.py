@@ -473,7 +473,8 @@ def test_a_membrane_beyond_its_inflation_limit_is_refused_with_the_limit_and_the
         assert named in message
     assert "846 kPa·mm" in message  # E_m t_m × 100/82.7, the least that holds 100 kPa
     # 1 mm of 1400 kPa holds 165 kPa: 0.60 of it, where runs went non-finite in shearing, is warned; 1 mm of
-    # 2800 kPa (0.30 of its limit, the lab grid's e6_thin members, all completed) is quiet.
+    # 2800 kPa (0.30 of its limit, the lab grid's e6_thin members, all completed) is quiet: the warning starts
+    # at the largest ratio at which every lab-grid run completed.
     config = TriaxialConfig(cell_pressure_kpa=100.0, membrane_thickness_mm=1.0, membrane_modulus_kpa=1400.0)
     assert inflation_ratio(config_to_dict(config)) == pytest.approx(100.0 / 165.42, rel=1e-4)
     assert "0.60 of the membrane's inflation limit" in assemble.inflation_warning(config)
