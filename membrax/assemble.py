@@ -178,8 +178,8 @@ def inflation_warning(config: TriaxialConfig) -> str | None:
         f"{config.name}: the cell pressure is {ratio:.2f} of the membrane's inflation limit over the windows "
         f"between the particles (membrax.config.inflation_ratio). Every laboratory-grid run completed up to "
         f"{INFLATION_WARNING_RATIO:g} of it; random specimens went non-finite from 0.47 of it, the membrane "
-        "drawn into their wider surface windows (with node contact and with Gent's law and face contact "
-        "alike; docs/model.md). A thicker or stiffer membrane or a lower cell pressure keeps away from it."
+        "drawn into their wider surface windows, even with Gent's law and face contact (docs/model.md). A "
+        "thicker or stiffer membrane or a lower cell pressure keeps away from it."
     )
 
 
