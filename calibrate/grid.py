@@ -11,7 +11,7 @@ finished group as ``archive/<group>.nc.gz`` (:func:`membrax.io.write_compressed_
 ``sweep.nc``).
 
 Run: ``python -m calibrate.grid OUT [--design random|random_held_out|protocol_check|fcc|fcc_held_out|lab|
-lab_held_out|contact_check] [--groups NAME,NAME] [--archive data/sweeps/lab]``
+lab_held_out|lab_thin|contact_check] [--groups NAME,NAME] [--archive data/sweeps/lab]``
 (one JAX CPU device per core, as ``membrax sweep``), or ``python -m calibrate.grid OUT --scheduler
 local|ADDRESS`` to send every group's members to Dask workers at once (:mod:`membrax.campaign`). The lab
 design is meant to run so: it is resumable, group by group and member by member.
@@ -175,7 +175,8 @@ def main(argv=None) -> int:
         default="fcc",
         help="fcc: the FCC calibration grid (the first shipped correction's); random: the random-specimen "
         "grid the previous correction was fitted on; lab: random members at a laboratory's H/D and the "
-        "paper's protocol (the shipped correction's); *_held_out: their held-out members; protocol_check: "
+        "paper's protocol (the shipped correction's); *_held_out: their held-out members; lab_thin: the thin "
+        "soft corner at the laboratory's geometry; protocol_check: "
         "random members at the paper's rate and membrane resolution; contact_check: lab members with "
         "the thin membranes' law and face contact",
     )

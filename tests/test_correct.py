@@ -949,6 +949,27 @@ def test_the_laboratory_grid_has_the_laboratory_s_geometry_and_its_held_out_memb
         assert characteristic_size_mm(config) > 0.0
 
 
+def test_the_thin_soft_corner_runs_the_e6_specimens_with_gents_law_and_face_contact():
+    """LAB_THIN: the e6 groups' specimen fields with THIN_MEMBRANE_FIELDS over them; 1 mm of 700 and 1400 kPa,
+    E_m t_m/(σc D) from 1400·1/(100·25) = 0.56 to 1400·1/(10·25) = 5.6 by hand; the refused member (700 kPa at
+    100 kPa, above Gent's limit of 84.8 kPa) left out, every other accepted."""
+    from calibrate import designs
+    from membrax.config import TriaxialConfig, config_to_dict, inflation_ratio
+
+    stiffness = []
+    for specimen, design in designs.LAB_THIN.values():
+        fields = designs.specimen_fields(specimen)
+        base = designs.specimen_fields({key: value for key, value in specimen.items() if key != "fields"})
+        assert fields == {**base, **designs.THIN_MEMBRANE_FIELDS}
+        for pressure in design["cell_pressure_kpa"]:
+            for modulus in design["membrane_modulus_kpa"]:
+                config = TriaxialConfig(**fields, cell_pressure_kpa=pressure, membrane_modulus_kpa=modulus)
+                assert inflation_ratio(config_to_dict(config)) < 1.0
+                stiffness.append(modulus * 1.0 / (pressure * 25.0))
+    assert (min(stiffness), max(stiffness)) == pytest.approx((0.56, 5.6))
+    assert len(stiffness) == 10 and set(designs.LAB_THIN).isdisjoint(designs.LAB_CALIBRATION)
+
+
 def test_a_correction_with_an_alternate_reports_the_other_radial_target_beside_it(tmp_path):
     """The alternate's σ3 column against the alternate applied alone, and against a hand shift of r0."""
     record, specimen, _, _ = _example()
