@@ -177,9 +177,9 @@ def inflation_warning(config: TriaxialConfig) -> str | None:
     return (
         f"{config.name}: the cell pressure is {ratio:.2f} of the membrane's inflation limit over the windows "
         f"between the particles (membrax.config.inflation_ratio). Every laboratory-grid run completed up to "
-        f"{INFLATION_WARNING_RATIO:g} of it; random specimens went non-finite from 0.47 of it, the membrane "
-        "drawn into their wider surface windows, even with Gent's law and face contact (docs/model.md). A "
-        "thicker or stiffer membrane or a lower cell pressure keeps away from it."
+        f"{INFLATION_WARNING_RATIO:g} of it; above, runs went non-finite, the membrane drawn into the "
+        "specimen's surface windows (docs/model.md). A thicker or stiffer membrane or a lower cell pressure "
+        "keeps away from it."
     )
 
 
