@@ -329,6 +329,55 @@ inline Vec3<T> incidence_sum(const T* share, const int32_t* incidence, int64_t w
   return total;
 }
 
+// The inputs both handlers read alike, checked once: the three slot tables (rows, width), the mesh's
+// neighbour table (n rows), the triangles (F, 3) and interior edges (E, 4) of the slot tables' rows, the
+// springs (3, rows, width), the spheres (N, 3) and the five scalars.
+template <ffi::DataType dtype>
+bool shared_inputs_agree(int64_t num_nodes, int64_t num_spheres, const ffi::Buffer<dtype>& sphere_position,
+                         const ffi::Buffer<ffi::S32>& face_idx, const ffi::Buffer<ffi::S32>& edge_idx,
+                         const ffi::Buffer<ffi::S32>& node_idx, const ffi::Buffer<ffi::S32>& triangles,
+                         const ffi::Buffer<ffi::S32>& edge_nodes, const ffi::Buffer<ffi::S32>& neighbours,
+                         const ffi::Buffer<dtype>& face_spring, const ffi::Buffer<dtype>& edge_spring,
+                         const ffi::Buffer<dtype>& node_spring, const ffi::Buffer<dtype>& scalars) {
+  const auto face_dims = face_idx.dimensions(), edge_dims = edge_idx.dimensions(), node_dims = node_idx.dimensions();
+  const auto neighbour_dims = neighbours.dimensions();
+  return face_dims.size() == 2 && edge_dims.size() == 2 && node_dims.size() == 2 && neighbour_dims.size() == 2 &&
+         scalars.element_count() == 5 && node_dims[0] == num_nodes && neighbour_dims[0] == num_nodes &&
+         triangles.element_count() == size_t(3 * face_dims[0]) &&
+         edge_nodes.element_count() == size_t(4 * edge_dims[0]) &&
+         face_spring.element_count() == size_t(3 * face_dims[0] * face_dims[1]) &&
+         edge_spring.element_count() == size_t(3 * edge_dims[0] * edge_dims[1]) &&
+         node_spring.element_count() == size_t(3 * node_dims[0] * node_dims[1]) &&
+         sphere_position.element_count() == size_t(3 * num_spheres);
+}
+
+// The law's inputs: the node and sphere states, and the scalars Δt, k_n, k_t, μ, t_m (half of t_m kept: the
+// mid-surface's reach), with the region tests' tie band β = √ε of T rounded from double.
+template <ffi::DataType dtype>
+Law<ffi::NativeType<dtype>> law_of(const ffi::Buffer<dtype>& node_position, const ffi::Buffer<dtype>& node_velocity,
+                                   const ffi::Buffer<dtype>& sphere_position, const ffi::Buffer<dtype>& sphere_velocity,
+                                   const ffi::Buffer<dtype>& sphere_angular_velocity,
+                                   const ffi::Buffer<dtype>& sphere_radius, const ffi::Buffer<dtype>& scalars) {
+  using T = ffi::NativeType<dtype>;
+  const T* scalar = scalars.typed_data();
+  const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
+  return Law<T>{node_position.typed_data(),
+                node_velocity.typed_data(),
+                sphere_position.typed_data(),
+                sphere_velocity.typed_data(),
+                sphere_angular_velocity.typed_data(),
+                sphere_radius.typed_data(),
+                int64_t(node_position.element_count() / 3),
+                int64_t(sphere_radius.element_count()),
+                scalar[0],
+                scalar[1],
+                scalar[2],
+                scalar[3],
+                T(0.5) * scalar[4],
+                T(band),
+                T(1.0 - band)};
+}
+
 template <ffi::DataType dtype>
 ffi::Future face_contact_forces(
     ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,
@@ -346,23 +395,14 @@ ffi::Future face_contact_forces(
   const auto face_dims = face_idx.dimensions(), edge_dims = edge_idx.dimensions(), node_dims = node_idx.dimensions();
   const auto neighbour_dims = neighbours.dimensions(), corner_dims = corner_incidence.dimensions(),
              hinge_dims = hinge_incidence.dimensions();
-  if (face_dims.size() != 2 || edge_dims.size() != 2 || node_dims.size() != 2 || neighbour_dims.size() != 2 ||
-      corner_dims.size() != 2 || hinge_dims.size() != 2 || scalars.element_count() != 5 ||
-      node_dims[0] != num_nodes || neighbour_dims[0] != num_nodes || corner_dims[0] != num_nodes ||
-      hinge_dims[0] != num_nodes || triangles.element_count() != size_t(3 * face_dims[0]) ||
-      edge_nodes.element_count() != size_t(4 * edge_dims[0]) ||
-      face_spring.element_count() != size_t(3 * face_dims[0] * face_dims[1]) ||
-      edge_spring.element_count() != size_t(3 * edge_dims[0] * edge_dims[1]) ||
-      node_spring.element_count() != size_t(3 * node_dims[0] * node_dims[1]) ||
-      sphere_position.element_count() != size_t(3 * num_spheres)) {
+  if (!shared_inputs_agree(num_nodes, num_spheres, sphere_position, face_idx, edge_idx, node_idx, triangles,
+                           edge_nodes, neighbours, face_spring, edge_spring, node_spring, scalars) ||
+      corner_dims.size() != 2 || hinge_dims.size() != 2 || corner_dims[0] != num_nodes ||
+      hinge_dims[0] != num_nodes) {
     return membrax::failed(ffi::Error::InvalidArgument("face_contact_forces: inconsistent array sizes"));
   }
-  const T* scalar = scalars.typed_data();
-  const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
-  const Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
-                   sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
-                   num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
-                   T(band), T(1.0 - band)};
+  const Law<T> law = law_of(node_position, node_velocity, sphere_position, sphere_velocity,
+                            sphere_angular_velocity, sphere_radius, scalars);
   const int64_t num_faces = face_dims[0], face_width = face_dims[1];
   const int64_t num_edges = edge_dims[0], edge_width = edge_dims[1];
   const int64_t node_width = node_dims[1], num_neighbours = neighbour_dims[1];
@@ -666,28 +706,18 @@ ffi::Error face_contact_backward(
   const int64_t num_spheres = sphere_radius.element_count();
   const auto face_dims = face_idx.dimensions(), edge_dims = edge_idx.dimensions(), node_dims = node_idx.dimensions();
   const auto neighbour_dims = neighbours.dimensions();
-  if (face_dims.size() != 2 || edge_dims.size() != 2 || node_dims.size() != 2 || neighbour_dims.size() != 2 ||
-      scalars.element_count() != 5 || node_dims[0] != num_nodes || neighbour_dims[0] != num_nodes ||
-      triangles.element_count() != size_t(3 * face_dims[0]) ||
-      edge_nodes.element_count() != size_t(4 * edge_dims[0]) ||
-      face_spring.element_count() != size_t(3 * face_dims[0] * face_dims[1]) ||
-      edge_spring.element_count() != size_t(3 * edge_dims[0] * edge_dims[1]) ||
-      node_spring.element_count() != size_t(3 * node_dims[0] * node_dims[1]) ||
+  if (!shared_inputs_agree(num_nodes, num_spheres, sphere_position, face_idx, edge_idx, node_idx, triangles,
+                           edge_nodes, neighbours, face_spring, edge_spring, node_spring, scalars) ||
       face_spring_bar.element_count() != face_spring.element_count() ||
       edge_spring_bar.element_count() != edge_spring.element_count() ||
       node_spring_bar.element_count() != node_spring.element_count() ||
       node_force_bar.element_count() != size_t(3 * num_nodes) ||
       sphere_force_bar.element_count() != size_t(3 * num_spheres) ||
-      sphere_torque_bar.element_count() != size_t(3 * num_spheres) ||
-      sphere_position.element_count() != size_t(3 * num_spheres)) {
+      sphere_torque_bar.element_count() != size_t(3 * num_spheres)) {
     return ffi::Error::InvalidArgument("face_contact_backward: inconsistent array sizes");
   }
-  const T* scalar = scalars.typed_data();
-  const double band = std::sqrt(double(std::numeric_limits<T>::epsilon()));
-  const Law<T> law{node_position.typed_data(), node_velocity.typed_data(), sphere_position.typed_data(),
-                   sphere_velocity.typed_data(), sphere_angular_velocity.typed_data(), sphere_radius.typed_data(),
-                   num_nodes, num_spheres, scalar[0], scalar[1], scalar[2], scalar[3], T(0.5) * scalar[4],
-                   T(band), T(1.0 - band)};
+  const Law<T> law = law_of(node_position, node_velocity, sphere_position, sphere_velocity,
+                            sphere_angular_velocity, sphere_radius, scalars);
   T* outputs[6] = {node_position_out->typed_data(), node_velocity_out->typed_data(),
                    sphere_position_out->typed_data(), sphere_velocity_out->typed_data(),
                    sphere_angular_out->typed_data(), radius_out->typed_data()};
