@@ -376,10 +376,12 @@ def drive(
     Each pass launches one compiled chunk of up to ``chunk_steps`` steps (whole records of
     ``record_every`` steps) for every member that still has steps in its budget, then on the host:
 
-    1. reads the error bits; on a table overflow (:data:`membrax.errors.OVERFLOWS`) alone grows the tables
-       from the chunk's *starting* state (``grow``, :func:`grow_tables`) and reruns the chunk, so contacts
-       are never dropped; :data:`TABLE_GROWTHS` growths in a row, or an overflow beside another error (a
-       run-away chunk overflows too), go to ``fail``;
+    1. reads the error bits; on a table overflow (:data:`membrax.errors.OVERFLOWS`) grows the tables from
+       the chunk's *starting* state (``grow``, :func:`grow_tables`) and reruns the chunk, so contacts are
+       never dropped. An overflow beside another error is grown and rerun too, once: the steps run without
+       the dropped contacts can themselves run a member away (a membrane through a sphere it no longer
+       sees, measured on a thin Gent membrane with face contact); a rerun that runs away again has run away
+       (its tables overflow too) and goes to ``fail``, as do :data:`TABLE_GROWTHS` growths in a row;
     2. on any other error raises what ``fail`` builds (the state before the chunk is attached there), or,
        given ``isolate``, ends the budgets of the members in error and reruns the chunk for the others;
     3. accepts the chunk: ``accept`` stores its records, reports progress, writes checkpoints and names the
@@ -410,23 +412,27 @@ def drive(
     left = np.ceil(np.asarray(budgets, dtype=np.float64) / record_every).astype(np.int64) * record_every
     records_per_chunk = max(1, chunk_steps // record_every)
     growths = 0  # in a row, since the last accepted chunk
+    regrown_after_error = False  # this chunk already reran with grown tables after another error
     while left.max(initial=0) > 0:
         count = min(records_per_chunk, math.ceil(left.max() / record_every))
         new_state, new_left, records, valid = chunk(state, left, count)
         error = np.asarray(errors(new_state))
-        if isolate is not None and np.any(error & ~OVERFLOWS):
-            left = np.asarray(isolate(error & ~OVERFLOWS, new_state, left), dtype=np.int64).copy()
-            continue
-        # A chunk that also ran away (not finite, out of the box) overflows its tables too: growing them
-        # would only run it away again.
-        if np.any(error & OVERFLOWS) and not np.any(error & ~OVERFLOWS) and growths < TABLE_GROWTHS:
+        overflowed, other = np.any(error & OVERFLOWS), np.any(error & ~OVERFLOWS)
+        # An overflowing chunk ran its later steps without some contacts, and that alone can run a member
+        # away (a membrane passing through a sphere its table no longer holds, then flung off it): so it
+        # reruns with grown tables before any other error counts. A chunk that runs away again with them
+        # has run away (its tables overflow too): it is not grown a second time.
+        if overflowed and growths < TABLE_GROWTHS and not (other and regrown_after_error):
             grown = grow(state, error, new_state)
             if grown is not None:
-                state, growths = grown, growths + 1
+                state, growths, regrown_after_error = grown, growths + 1, bool(other)
                 continue
+        if isolate is not None and other:
+            left = np.asarray(isolate(error & ~OVERFLOWS, new_state, left), dtype=np.int64).copy()
+            continue
         if np.any(error):
             raise fail(error, new_state, state)
-        state, growths = new_state, 0
+        state, growths, regrown_after_error = new_state, 0, False
         left = np.asarray(new_left, dtype=np.int64).copy()
         for member in accept(state, records, valid, left):
             left[member] = 0

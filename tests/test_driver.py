@@ -1,7 +1,8 @@
 """The one host loop (membrax.driver.drive) and the one table growth (membrax.driver.grow_tables).
 
 The loop's contract is counted by hand on a scripted chunk: an overflow grows the tables from the chunk's
-*starting* state and reruns it, a run-away chunk is never grown, and growths in a row are bounded. The
+*starting* state and reruns it, also when the chunk ran away beside it (once: a rerun that runs away again
+fails), and growths in a row are bounded. The
 growth is checked on a real FCC block: every pair the brute force finds is in the grown list, and every
 tangential spring stays with its pair.
 """
@@ -61,14 +62,35 @@ def test_an_overflowing_chunk_is_run_again_from_its_start_with_grown_tables():
 
 
 @pytest.mark.parametrize("other", [ErrorCode.NOT_FINITE, ErrorCode.OUTSIDE_BOX])
-def test_a_chunk_that_ran_away_is_never_grown(other):
-    """Overflow and a non-finite state (or a sphere out of the box) together: SimulationError at once, the
-    state before the chunk attached; growing would only run it away again."""
+def test_a_chunk_that_overflowed_and_ran_away_is_rerun_once_with_grown_tables(other):
+    """Overflow and a non-finite state (or a sphere out of the box) together: the overflow may have caused
+    the rest (a membrane passing through a sphere its table dropped), so the chunk's start (0) is grown once
+    (→ 1000) and rerun; the rerun is clean and accepted: 4 launches, the records of 3 chunks."""
     script = _Script([ErrorCode.NEIGHBOR_OVERFLOW | other])
+    state, left, accepted = script.run(6)
+    assert script.grown_from == [(0, int(ErrorCode.NEIGHBOR_OVERFLOW | other), 2)]
+    assert script.calls == [0, 1000, 1002, 1004]
+    assert accepted == [[1002], [1004], [1006]] and state == 1006 and list(left) == [0]
+
+
+@pytest.mark.parametrize("other", [ErrorCode.NOT_FINITE, ErrorCode.OUTSIDE_BOX])
+def test_a_chunk_that_runs_away_again_with_grown_tables_fails(other):
+    """The rerun with grown tables runs away again (its tables overflow too): SimulationError after that
+    one growth, the state before the chunk (the grown one) attached; it is not grown a second time."""
+    bits = ErrorCode.NEIGHBOR_OVERFLOW | other
+    script = _Script([bits, bits])
     with pytest.raises(SimulationError) as raised:
         script.run(6)
-    assert script.grown_from == [] and raised.value.state == 0
-    assert str(raised.value) == f"bits {int(ErrorCode.NEIGHBOR_OVERFLOW | other)} at 2"
+    assert len(script.grown_from) == 1 and script.calls == [0, 1000] and raised.value.state == 1000
+    assert str(raised.value) == f"bits {int(bits)} at 1002"
+
+
+def test_a_chunk_that_runs_away_without_an_overflow_fails_at_once():
+    """Non-finite alone: nothing to grow, SimulationError after the one launch."""
+    script = _Script([ErrorCode.NOT_FINITE])
+    with pytest.raises(SimulationError) as raised:
+        script.run(6)
+    assert script.grown_from == [] and script.calls == [0] and raised.value.state == 0
 
 
 def test_growths_in_a_row_are_bounded():
