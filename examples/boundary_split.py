@@ -22,11 +22,17 @@ the split at each D_s/D (gap = external − periodic; membrane part = external �
 internal − periodic) to ``boundary_split_parts.csv`` and the console; and ``boundary_split.png``.
 
 Each rigid and periodic run's records go to their own ``.npz`` under ``--out``; a rerun reloads them, so an
-interrupted script resumes where it stopped (delete a file to rerun that case).
+interrupted script resumes where it stopped (delete a file to rerun that case). The periodic arm also
+checkpoints within a run (:class:`membrax.triaxial.stage_checkpoint.StageCheckpoint`), every
+``--checkpoint-seconds``: a compaction to ``periodic_<state>_s<seed>_packing.ckpt`` (its overload and
+unloading stages), a test to ``periodic_<state>_s<seed>_<σc>kpa.ckpt`` (its consolidation and shear);
+rerun, it resumes from there, losing only the minutes since the last checkpoint, and prints a line per
+checkpoint (stage, step). A checkpoint is deleted once its ``.npz`` is written; a checkpoint of other
+settings (another ``--periodic-spheres``, ``--x64``) is refused with its name: delete it to start afresh.
 
 Run: ``python examples/boundary_split.py [--out results/boundary_split] [--states dense,loose,ballast]
 [--pressures 10,40,100] [--seeds 0,2] [--periodic-spheres 500] [--skip-rigid] [--skip-periodic]
-[--keep calibrate/data/boundary_split.csv] [--x64]``.
+[--keep calibrate/data/boundary_split.csv] [--checkpoint-seconds 120] [--x64]``.
 Cost, measured on 2 CPU cores shared with other jobs (load average 8–10), float32: the periodic dense
 compaction of 500 spheres 1,053 s per seed; a periodic case 150–489 s (10 kPa the slowest: the strain rate
 grows with √σc); a rigid case of the 150 × 375 mm mould (470 spheres) 73–320 s, of the loose 150 × 300 mm
@@ -58,6 +64,9 @@ RIGID_GROUPS = {"dense": "e6_h25", "loose": "e6_loose", "ballast": "g6"}
 #: Axial strains at or above this fraction of the last count as "late" (the last fifth of 0–10 %).
 LATE_FRACTION = 0.8
 
+#: Seconds between the checkpoints of a periodic compaction or test (at most this much is lost to a kill).
+CHECKPOINT_SECONDS = 120.0
+
 
 def parse_args(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -87,6 +96,12 @@ def parse_args(argv=None):
     parser.add_argument("--skip-periodic", action="store_true")
     parser.add_argument(
         "--reload-only", action="store_true", help="run nothing: tabulate the runs already saved under --out"
+    )
+    parser.add_argument(
+        "--checkpoint-seconds",
+        type=float,
+        default=CHECKPOINT_SECONDS,
+        help="seconds between a periodic run's checkpoints (.ckpt beside its .npz), s",
     )
     parser.add_argument("--x64", action="store_true", help="run the DEM in float64 (default float32)")
     return parser.parse_args(argv)
@@ -331,8 +346,20 @@ def rigid_rows(args, lab, states, pressures, seeds, out: Path, times: list):
 # ---------------------------------------------------------------------------------------------- periodic
 
 
-def periodic_packing(config, spheres: int, seed: int, path: Path) -> dict:
-    """The (state, seed) packing compacted at the moulds' stress in a periodic cell, saved to ``path``."""
+def report_checkpoint(line: str) -> None:
+    """Print a checkpoint's line (stage, step), indented under its run's."""
+    print(f"  {line}", flush=True)
+
+
+def periodic_packing(
+    config, spheres: int, seed: int, path: Path, checkpoint_seconds: float = CHECKPOINT_SECONDS
+) -> dict:
+    """The (state, seed) packing compacted at the moulds' stress in a periodic cell, saved to ``path``.
+
+    The compaction checkpoints to ``path`` with the suffix ``.ckpt`` every ``checkpoint_seconds`` and
+    resumes from it (:func:`membrax.triaxial.periodic_packing.compact_periodic`); ``seconds`` counts this
+    session's time only.
+    """
     from membrax.assemble import damping_params
     from membrax.defaults import COMPACTION_STRESS
     from membrax.spheres.contact import ContactParams
@@ -357,6 +384,9 @@ def periodic_packing(config, spheres: int, seed: int, path: Path) -> dict:
         contact_params=contact,
         damping=damping_params(config),
         density=config.particle_density_kg_m3,
+        checkpoint_path=path.with_suffix(".ckpt"),
+        checkpoint_every_seconds=checkpoint_seconds,
+        report=report_checkpoint,
     )
     out = {
         "fraction": np.asarray(packed.fraction + packed.fraction_compensation, dtype=float),
@@ -380,14 +410,26 @@ def _time_row(label: str, data, spheres: int) -> tuple:
     )
 
 
-def run_periodic(config, packing: dict, pressure_kpa: float, path: Path) -> dict:
-    """One periodic element test of ``packing`` at σc; its records saved to ``path`` (.npz)."""
+def run_periodic(
+    config, packing: dict, pressure_kpa: float, path: Path, checkpoint_seconds: float = CHECKPOINT_SECONDS
+) -> dict:
+    """One periodic element test of ``packing`` at σc; its records saved to ``path`` (.npz).
+
+    Its consolidation and shear checkpoint to ``path`` with the suffix ``.ckpt`` every
+    ``checkpoint_seconds`` (:class:`membrax.triaxial.stage_checkpoint.StageCheckpoint`: the state, the
+    stage, the records so far), and a rerun resumes from there into the remaining steps, to the same
+    records as a run straight through; the checkpoint is deleted once ``path`` is written. The seconds
+    count every session's time up to its last checkpoint.
+    """
+    import hashlib
+
     import jax.numpy as jnp
 
     from membrax.assemble import damping_params
     from membrax.spheres.contact import ContactParams
     from membrax.theory import mobilised_friction_angle_deg
     from membrax.triaxial.periodic import periodic_test
+    from membrax.triaxial.stage_checkpoint import StageCheckpoint
 
     contact = ContactParams.paper(
         friction_angle_deg=config.friction_angle_deg,
@@ -403,14 +445,41 @@ def run_periodic(config, packing: dict, pressure_kpa: float, path: Path) -> dict
         damping=damping_params(config),
         density=config.particle_density_kg_m3,
     )
-    start = time.perf_counter()
-    consolidated, _ = test.consolidate(tolerance=config.consolidation_tolerance)
-    consolidation_seconds = time.perf_counter() - start
-    steps0 = int(consolidated.step)
-    _, records = test.shear(
-        consolidated, target_axial_strain=config.target_axial_strain, inertial_number=config.inertial_number
+    signature = {
+        "packing_sha256": hashlib.sha256(np.ascontiguousarray(packing["fraction"]).tobytes()).hexdigest(),
+        "num_spheres": int(packing["radius"].shape[0]),
+        "cell_pressure_kpa": float(pressure_kpa),
+        "consolidation_tolerance": float(config.consolidation_tolerance),
+        "target_axial_strain": float(config.target_axial_strain),
+        "inertial_number": float(config.inertial_number),
+        "dtype": str(test.initial_state.length.dtype),
+    }
+    checkpoint = StageCheckpoint(
+        path.with_suffix(".ckpt"),
+        test,
+        ("consolidation", "shear"),
+        signature,
+        every_seconds=checkpoint_seconds,
+        report=report_checkpoint,
     )
-    seconds = time.perf_counter() - start
+    if checkpoint.progress is not None:
+        progress = checkpoint.progress
+        print(f"  resuming {checkpoint.path.name}: stage {progress.stage}, step {int(progress.state.step)}")
+    consolidated, consolidation = checkpoint.consolidate(
+        "consolidation", test, tolerance=config.consolidation_tolerance
+    )
+    # The consolidated state's step (its last record's: consolidation stops on a record; ``consolidated``
+    # is the checkpoint's state where shearing resumes).
+    steps0 = int(np.asarray(consolidation.step)[-1])
+    _, records = checkpoint.shear(
+        "shear",
+        test,
+        consolidated,
+        target_axial_strain=config.target_axial_strain,
+        inertial_number=config.inertial_number,
+    )
+    consolidation_seconds = checkpoint.stage_seconds["consolidation"]
+    seconds = checkpoint.elapsed_seconds
     angle = np.asarray(mobilised_friction_angle_deg(records.axial_stress, records.lateral_stress))
     out = {
         "axial_strain": np.concatenate([[0.0], np.asarray(records.axial_strain)]),
@@ -422,6 +491,7 @@ def run_periodic(config, packing: dict, pressure_kpa: float, path: Path) -> dict
         "shear_steps": int(np.asarray(records.step)[-1]) - steps0,
     }
     np.savez(path, **out)
+    checkpoint.remove()
     return out
 
 
@@ -434,7 +504,11 @@ def periodic_rows(args, lab, states, pressures, seeds, out: Path, times: list):
             if args.reload_only and not (out / f"periodic_{state}_s{seed}_packing.npz").exists():
                 continue
             packing = periodic_packing(
-                config, args.periodic_spheres, seed, out / f"periodic_{state}_s{seed}_packing.npz"
+                config,
+                args.periodic_spheres,
+                seed,
+                out / f"periodic_{state}_s{seed}_packing.npz",
+                args.checkpoint_seconds,
             )
             for pressure in pressures:
                 path = out / f"periodic_{state}_s{seed}_{pressure:g}kpa.npz"
@@ -442,7 +516,7 @@ def periodic_rows(args, lab, states, pressures, seeds, out: Path, times: list):
                     if args.reload_only:
                         continue
                     print(f"periodic {state} seed {seed} {pressure:g} kPa ...", flush=True)
-                    run_periodic(config, packing, pressure, path)
+                    run_periodic(config, packing, pressure, path, args.checkpoint_seconds)
                 data = np.load(path)
                 times.append(
                     _time_row(

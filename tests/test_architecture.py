@@ -76,7 +76,6 @@ LAYERS = (
     # protocol: consolidation and shearing
     ("triaxial.protocol",),
     ("triaxial.rigid", "triaxial.periodic", "triaxial.membrane_cell"),
-    ("triaxial.periodic_packing",),
     # results
     (
         "triaxial.analysis",
@@ -91,6 +90,9 @@ LAYERS = (
         "paper.fig9",
         "paper",
     ),
+    # one cell's stages checkpointed as they go (io.checkpoint): a random packing made in the periodic cell
+    ("triaxial.stage_checkpoint",),
+    ("triaxial.periodic_packing",),
     # the configuration: laboratory units in, SI out; its fields read by assemble and run only
     ("config",),
     # runs: a configuration becomes a test, members become a batch, the stage loop every run and sweep

@@ -6,18 +6,26 @@ of its stages. The packing is made as the mould's are (:mod:`membrax.spheres.com
 random gas (:func:`membrax.spheres.periodic.random_gas`) compressed by the cell's stress servo with a
 compaction friction coefficient in place of the contact law's (0.5 gives a loose packing; 0 a dense one,
 compressed to 10 σc and unloaded), so the same spheres give the same states in both.
+
+Given a ``checkpoint_path``, its stages (the overload compression, the unloading) write their state and
+records to that file as they go (:class:`membrax.triaxial.stage_checkpoint.StageCheckpoint`), and a
+call with the same arguments resumes from it to the same state and records, to the bit, as an
+uninterrupted one; the file is deleted when the compaction is complete.
 """
 
 from __future__ import annotations
 
 import dataclasses as pydataclasses
+import hashlib
 
 import jax.numpy as jnp
+import numpy as np
 
 from membrax.driver import concatenate_records
 from membrax.spheres.contact import ContactParams
 from membrax.spheres.periodic import random_gas
 from membrax.triaxial.periodic import periodic_test
+from membrax.triaxial.stage_checkpoint import StageCheckpoint
 
 __all__ = ["compact_periodic"]
 
@@ -32,6 +40,10 @@ def compact_periodic(
     max_steps: int = 400_000,
     overload: float | None = None,
     dtype=None,
+    checkpoint_path=None,
+    checkpoint_every_chunks: int | None = None,
+    checkpoint_every_seconds: float | None = 120.0,
+    report=None,
     **options,
 ):
     """A random packing compressed isotropically to σc in a periodic cell.
@@ -69,6 +81,14 @@ def compact_periodic(
       overload: the first stage's target as a multiple of σc (default 10 without friction, else 1: no
         second stage).
       dtype: the simulation's float dtype (default JAX's).
+      checkpoint_path: a file to which the stages write their progress, and from which a call with the
+        same arguments resumes (None: no checkpoints); deleted once the compaction is complete. A
+        checkpoint of other diameters, σc, μ_c, seed, gas φ, tolerance, budget, overload or precision is
+        refused (ValueError naming it); the contact law and the other ``options`` are not checked.
+      checkpoint_every_chunks: write a checkpoint after this many chunks of 2,000 steps (None: by time).
+      checkpoint_every_seconds: write one once this many seconds have passed since the last (None: by
+        chunks); with both None, at the end of the first stage only.
+      report: ``report(line)`` called with a line (stage, step) after each checkpoint, e.g. ``print``.
       **options: further arguments of :func:`membrax.triaxial.periodic.periodic_test` (contact law's
         stiffnesses, damping, ...).
     """
@@ -82,8 +102,37 @@ def compact_periodic(
     if overload is None:
         overload = 10.0 if friction_coefficient == 0.0 else 1.0
     loaded = pydataclasses.replace(test, cell_pressure=overload * cell_pressure)
-    state, records = loaded.consolidate(tolerance=tolerance, max_steps=max_steps)
+    if checkpoint_path is None:
+        state, records = loaded.consolidate(tolerance=tolerance, max_steps=max_steps)
+        if overload != 1.0:
+            state, unloading = test.consolidate(state, tolerance=tolerance, max_steps=max_steps)
+            records = concatenate_records([records, unloading])
+        return test, state, records
+    stages = ("overload", "unloading") if overload != 1.0 else ("overload",)
+    signature = {
+        "num_spheres": int(np.size(diameters)),
+        "diameters_sha256": hashlib.sha256(np.asarray(diameters, np.float64).tobytes()).hexdigest(),
+        "cell_pressure": float(cell_pressure),
+        "friction_coefficient": float(friction_coefficient),
+        "seed": int(seed),
+        "gas_solid_fraction": float(gas_solid_fraction),
+        "tolerance": float(tolerance),
+        "max_steps": int(max_steps),
+        "overload": float(overload),
+        "dtype": str(test.initial_state.length.dtype),
+    }
+    checkpoint = StageCheckpoint(
+        checkpoint_path,
+        test,
+        stages,
+        signature,
+        every_chunks=checkpoint_every_chunks,
+        every_seconds=checkpoint_every_seconds,
+        report=report,
+    )
+    state, records = checkpoint.consolidate("overload", loaded, tolerance=tolerance, max_steps=max_steps)
     if overload != 1.0:
-        state, unloading = test.consolidate(state, tolerance=tolerance, max_steps=max_steps)
+        state, unloading = checkpoint.consolidate("unloading", test, state, tolerance, max_steps)
         records = concatenate_records([records, unloading])
+    checkpoint.remove()
     return test, state, records

@@ -24,6 +24,7 @@ resume and progress.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -247,11 +248,16 @@ class StagedTest:
         ramp_strain: float | None = None,
         coarse_inertial_number: float | None = None,
         symmetric: bool | None = None,
+        steps_done: int = 0,
     ):
         """Stage 2: strain-controlled drained shearing, recorded at two rates (module docstring).
 
         The shearing phases of :data:`PHASES`, each started by :meth:`start_phase` and run for its steps of
-        :meth:`phase_plan`.
+        :meth:`phase_plan`. A run resumed from a checkpoint taken during shearing
+        (:class:`membrax.triaxial.stage_checkpoint.StageCheckpoint`) passes the shearing steps its state
+        has taken (``steps_done``): the phases it had completed are skipped, the phase it was in is not
+        started again, and the rest runs in the chunks the uninterrupted run would have run (each phase runs
+        whole records, as the driver rounds its budget).
 
         Args:
           state: the consolidated state.
@@ -266,9 +272,13 @@ class StagedTest:
             which they change speed to ``coarse_inertial_number``'s.
           coarse_inertial_number: I after ``fine_until_strain`` (None: ``inertial_number`` throughout).
           symmetric: both platens move (True) or the top one alone (False); None: the cell's default.
+          steps_done: shearing steps ``state`` has already taken (0: ``state`` is the consolidated state).
 
         Returns:
-          (state, records) with the records of both recording rates joined.
+          (state, records) with the records of both recording rates joined (those of the steps not done).
+
+        Raises:
+          ValueError: ``steps_done`` negative or beyond the plan's steps.
         """
         loading = Loading(
             consolidation_max_steps=0,  # this stage runs the shearing phases only
@@ -282,9 +292,23 @@ class StagedTest:
             symmetric=symmetric,
         )
         plan = self.phase_plan(loading)
+        # The steps each phase runs: whole records, as the driver rounds a budget (membrax.driver.drive).
+        whole = {phase: math.ceil(plan[phase][0] / plan[phase][1]) * plan[phase][1] for phase in PHASES[1:]}
+        if not 0 <= steps_done <= sum(whole.values()):
+            raise ValueError(
+                f"steps_done = {steps_done}; shearing to this plan takes {sum(whole.values())} steps: give "
+                "the steps a resumed state has sheared (0 for a consolidated state)."
+            )
         parts = []
         for phase in PHASES[1:]:
-            state = self.start_phase(phase, state, loading)
-            state, part = run_phases(self.runner, state, self.params, [plan[phase]], chunk_steps, on_chunk)
+            steps, record_every = plan[phase]
+            if steps_done > 0 and steps_done >= whole[phase]:
+                steps_done -= whole[phase]  # the phase ran to its end before the checkpoint
+                continue
+            if steps_done == 0:
+                state = self.start_phase(phase, state, loading)
+            phases = [(steps - steps_done, record_every)]
+            state, part = run_phases(self.runner, state, self.params, phases, chunk_steps, on_chunk)
+            steps_done = 0
             parts.append(part)
         return state, concatenate_records([part for part in parts if part is not None])
