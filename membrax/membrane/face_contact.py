@@ -380,6 +380,33 @@ def _slot_contact(branch, reach, active_slot, normal_stiffness):
     return normal, overlap, touching, normal_force
 
 
+def _slot_rows(on_membrane, branch, overlap):
+    """One kind's per-slot fields in slot order: membrane force and branch as (slots, 3) rows, the overlap."""
+    return (
+        jnp.moveaxis(on_membrane, 0, -1).reshape(-1, 3),
+        jnp.moveaxis(branch, 0, -1).reshape(-1, 3),
+        overlap.reshape(-1),
+    )
+
+
+def _with_slot_fields(
+    node_force, sphere_force, sphere_torque, springs, normal_forces, slot_rows, slots
+) -> FaceContactForces:
+    """The :class:`FaceContactForces` of the summed outputs and each kind's :func:`_slot_rows`, in order."""
+    slot_force, branch, overlap = (jnp.concatenate(parts) for parts in zip(*slot_rows, strict=True))
+    return FaceContactForces(
+        node_force=node_force,
+        sphere_force=sphere_force,
+        sphere_torque=sphere_torque,
+        spring=tuple(springs),
+        normal_force=tuple(normal_forces),
+        slot_force=slot_force[None],
+        branch=branch[None],
+        overlap=overlap,
+        slots=slots,
+    )
+
+
 def face_contact_energy(
     node_position,
     sphere_position,
@@ -458,7 +485,7 @@ def face_contact_forces(
     neighbours = mesh_neighbours(mesh) if neighbours is None else neighbours
     args = (nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours)
     node_force, sphere_force, sphere_torque, *new_springs = _compiled_face_contact_forces(*args)
-    normal_forces, slot_forces, branches, overlaps = [], [], [], []
+    normal_forces, slot_rows = [], []
     sphere_table = jnp.concatenate([spheres.position, spheres.radius[:, None]], axis=1)
     for kind, spring in zip(FEATURE_KINDS, new_springs, strict=True):
         _, _, branch, reach, active_slot, _, _ = _slot_geometry(
@@ -469,19 +496,9 @@ def face_contact_forces(
         )
         on_membrane = select(touching, scale(normal_force, normal) + spring)
         normal_forces.append(normal_force)
-        slot_forces.append(jnp.moveaxis(on_membrane, 0, -1).reshape(-1, 3))
-        branches.append(jnp.moveaxis(branch, 0, -1).reshape(-1, 3))
-        overlaps.append(overlap.reshape(-1))
-    return FaceContactForces(
-        node_force=node_force,
-        sphere_force=sphere_force,
-        sphere_torque=sphere_torque,
-        spring=tuple(new_springs),
-        normal_force=tuple(normal_forces),
-        slot_force=jnp.concatenate(slot_forces)[None],
-        branch=jnp.concatenate(branches)[None],
-        overlap=jnp.concatenate(overlaps),
-        slots=slots,
+        slot_rows.append(_slot_rows(on_membrane, branch, overlap))
+    return _with_slot_fields(
+        node_force, sphere_force, sphere_torque, new_springs, normal_forces, slot_rows, slots
     )
 
 
@@ -507,22 +524,17 @@ _compiled_face_contact_forces = native.with_reference(
 
 
 def reference_face_contact_forces(
-    nodes: ContactNodes,
-    spheres: ContactSpheres,
-    mesh: MembraneMesh,
-    slots: FeatureSlots,
-    springs,
-    dt,
-    params: MembraneContactParams,
-    membrane_thickness,
-    neighbours: MeshNeighbours | None = None,
+    nodes, spheres, mesh, slots, springs, dt, params, membrane_thickness, neighbours=None
 ) -> FaceContactForces:
-    """:func:`face_contact_forces` in JAX: the definition of the law, and its derivatives (any backend)."""
+    """:func:`face_contact_forces` in JAX: the definition of the law, and its derivatives (any backend).
+
+    Its arguments are those of :func:`face_contact_forces`.
+    """
     num_nodes, num_spheres = nodes.position.shape[0], spheres.position.shape[0]
     dtype = nodes.position.dtype
     node_force = jnp.zeros((num_nodes, 3), dtype)
     sphere_load = jnp.zeros((num_spheres + 1, 6), dtype)  # force, then torque; a padding row last
-    new_springs, normal_forces, slot_forces, branches, overlaps = [], [], [], [], []
+    new_springs, normal_forces, slot_rows = [], [], []
     # What each slot reads of its sphere, gathered in one row: position, velocity, ω, radius.
     sphere_table = jnp.concatenate(
         [spheres.position, spheres.velocity, spheres.angular_velocity, spheres.radius[:, None]], axis=1
@@ -556,7 +568,6 @@ def reference_face_contact_forces(
         )
         spring = materialize(spring)
         on_membrane = materialize(select(touching, scale(normal_force, normal) + spring))  # (3, F, M)
-        rows = jnp.moveaxis(on_membrane, 0, -1)  # (F, M, 3)
         # Force and torque in one scatter (a serial loop over the slots on XLA-CPU, whose cost is per row).
         sphere_index = jnp.where(touching, safe_ids, num_spheres).reshape(-1)
         torque = cross(branch, -on_membrane)
@@ -568,19 +579,15 @@ def reference_face_contact_forces(
         node_force = node_force + _node_sums(kind, shares, mesh)
         new_springs.append(spring)
         normal_forces.append(normal_force)
-        slot_forces.append(rows.reshape(-1, 3))
-        branches.append(jnp.moveaxis(branch, 0, -1).reshape(-1, 3))
-        overlaps.append(overlap.reshape(-1))
-    return FaceContactForces(
-        node_force=node_force,
-        sphere_force=sphere_load[:num_spheres, :3],
-        sphere_torque=sphere_load[:num_spheres, 3:],
-        spring=tuple(new_springs),
-        normal_force=tuple(normal_forces),
-        slot_force=jnp.concatenate(slot_forces)[None],
-        branch=jnp.concatenate(branches)[None],
-        overlap=jnp.concatenate(overlaps),
-        slots=slots,
+        slot_rows.append(_slot_rows(on_membrane, branch, overlap))
+    return _with_slot_fields(
+        node_force,
+        sphere_load[:num_spheres, :3],
+        sphere_load[:num_spheres, 3:],
+        new_springs,
+        normal_forces,
+        slot_rows,
+        slots,
     )
 
 

@@ -190,123 +190,124 @@ inline void write_shares(T* share_row, const Vec3<T> (&total)[K]) {
   }
 }
 
+// The features of one kind in `range`, K nodes each, of `count` rows of `width` slots: on_row(i, row,
+// stride, total) adds the forces of feature i's slots on its K nodes to total (zero to start) when its row
+// holds a sphere; the springs of a row with none are cleared on the forward pass, which then writes each
+// feature's total as its K rows of share (count, K, 3).
+template <int K, typename Visit, typename T, typename OnRow>
+inline void feature_rows(const Law<T>& law, const int32_t* idx, int64_t count, int64_t width, membrax::Range range,
+                         T* spring, T* share, OnRow on_row) {
+  const int64_t stride = count * width;
+  for (int64_t i = range.begin; i < range.end; ++i) {
+    Vec3<T> total[K];
+    for (int k = 0; k < K; ++k) total[k] = Vec3<T>{T(0), T(0), T(0)};
+    const int32_t* row = idx + i * width;
+    if (occupied(row, width, law.num_spheres)) {
+      on_row(i, row, stride, total);
+    } else {
+      clear_row<Visit::kForward>(spring + i * width, width, stride);
+    }
+    if constexpr (Visit::kForward) write_shares(share + 3 * K * i, total);
+  }
+}
+
 // The faces in `range`: share (F, 3, 3), each triangle's force on its corners a, b, c summed over its slots.
 template <typename T, typename Visit>
 void face_slots(const Law<T>& law, const int32_t* idx, int64_t num_faces, int64_t width, membrax::Range range,
                 const int32_t* triangles, T* spring, T* share, Visit& visit) {
-  const int64_t stride = num_faces * width;
-  for (int64_t f = range.begin; f < range.end; ++f) {
-    Vec3<T> total[3] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
-    const int32_t* row = idx + f * width;
-    if (occupied(row, width, law.num_spheres)) {
-      const int64_t node[3] = {triangles[3 * f], triangles[3 * f + 1], triangles[3 * f + 2]};
-      const Vec3<T> a = row3(law.x, node[0]), b = row3(law.x, node[1]), c = row3(law.x, node[2]);
-      const Vec3<T> normal = cross(b - a, c - a);
-      const T area_sq = dot(normal, normal);
-      const T twice_area = area_sq == T(0) ? T(0) : std::sqrt(area_sq);
-      const T inverse_area = T(1) / (twice_area > T(0) ? twice_area : T(1));
-      const Vec3<T> unit = inverse_area * normal;
-      const Vec3<T> corner[3] = {a, b, c};
-      const Vec3<T> middle = T(1) / T(3) * ((a + b) + c);
-      const Vec3<T> da = a - middle, db = b - middle, dc = c - middle;
-      const T extent = std::sqrt(std::max(std::max(dot(da, da), dot(db, db)), dot(dc, dc)));
-      for_each_slot<Visit::kForward>(law, row, width, spring + f * width, stride, middle, extent,
-                                     [&](int64_t sphere, Vec3<T> centre, T* s) {
-        const Vec3<T> foot = centre - dot(centre - a, unit) * unit;
-        const T weight_a = dot(cross(c - b, foot - b), unit) * inverse_area;
-        const T weight_b = dot(cross(a - c, foot - c), unit) * inverse_area;
-        const T weight_c = (T(1) - weight_a) - weight_b;
-        const bool inside = (weight_a > law.band) & (weight_b > law.band) & (weight_c > law.band) &
-                            (twice_area > T(0));
-        const T weight[3] = {weight_a, weight_b, weight_c};
-        const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, inside, s, stride);
-        for (int k = 0; k < 3; ++k) total[k] = total[k] + weight[k] * force;
-      });
-    } else {
-      clear_row<Visit::kForward>(spring + f * width, width, stride);
-    }
-    if constexpr (Visit::kForward) write_shares(share + 9 * f, total);
-  }
+  feature_rows<3, Visit>(law, idx, num_faces, width, range, spring, share,
+                         [&](int64_t f, const int32_t* row, int64_t stride, Vec3<T>(&total)[3]) {
+    const int64_t node[3] = {triangles[3 * f], triangles[3 * f + 1], triangles[3 * f + 2]};
+    const Vec3<T> a = row3(law.x, node[0]), b = row3(law.x, node[1]), c = row3(law.x, node[2]);
+    const Vec3<T> normal = cross(b - a, c - a);
+    const T area_sq = dot(normal, normal);
+    const T twice_area = area_sq == T(0) ? T(0) : std::sqrt(area_sq);
+    const T inverse_area = T(1) / (twice_area > T(0) ? twice_area : T(1));
+    const Vec3<T> unit = inverse_area * normal;
+    const Vec3<T> corner[3] = {a, b, c};
+    const Vec3<T> middle = T(1) / T(3) * ((a + b) + c);
+    const Vec3<T> da = a - middle, db = b - middle, dc = c - middle;
+    const T extent = std::sqrt(std::max(std::max(dot(da, da), dot(db, db)), dot(dc, dc)));
+    for_each_slot<Visit::kForward>(law, row, width, spring + f * width, stride, middle, extent,
+                                   [&](int64_t sphere, Vec3<T> centre, T* s) {
+      const Vec3<T> foot = centre - dot(centre - a, unit) * unit;
+      const T weight_a = dot(cross(c - b, foot - b), unit) * inverse_area;
+      const T weight_b = dot(cross(a - c, foot - c), unit) * inverse_area;
+      const T weight_c = (T(1) - weight_a) - weight_b;
+      const bool inside = (weight_a > law.band) & (weight_b > law.band) & (weight_c > law.band) &
+                          (twice_area > T(0));
+      const T weight[3] = {weight_a, weight_b, weight_c};
+      const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, inside, s, stride);
+      for (int k = 0; k < 3; ++k) total[k] = total[k] + weight[k] * force;
+    });
+  });
 }
 
 // The interior edges in `range`: share (E, 2, 3), each edge's force on its ends u, v summed over its slots.
 template <typename T, typename Visit>
 void edge_slots(const Law<T>& law, const int32_t* idx, int64_t num_edges, int64_t width, membrax::Range range,
                 const int32_t* edge_nodes, T* spring, T* share, Visit& visit) {
-  const int64_t stride = num_edges * width;
-  for (int64_t e = range.begin; e < range.end; ++e) {
-    Vec3<T> total[2] = {{T(0), T(0), T(0)}, {T(0), T(0), T(0)}};
-    const int32_t* row = idx + e * width;
-    if (occupied(row, width, law.num_spheres)) {
-      const int32_t* ids = edge_nodes + 4 * e;
-      const int64_t node[2] = {ids[0], ids[1]};
-      const Vec3<T> u = row3(law.x, ids[0]), v = row3(law.x, ids[1]);
-      const Vec3<T> along = v - u;
-      const T length_sq = dot(along, along);
-      const T safe_length_sq = length_sq > T(0) ? length_sq : T(1);
-      Vec3<T> inward[2];
-      T safe_height_sq[2];
-      for (int k = 0; k < 2; ++k) {
-        const Vec3<T> out = row3(law.x, ids[2 + k]) - u;
-        inward[k] = out - (dot(out, along) / safe_length_sq) * along;
-        const T height_sq = dot(inward[k], inward[k]);
-        safe_height_sq[k] = height_sq > T(0) ? height_sq : T(1);
-      }
-      const Vec3<T> corner[2] = {u, v};
-      const Vec3<T> middle = T(0.5) * (u + v);
-      const T extent = T(0.5) * std::sqrt(length_sq);
-      for_each_slot<Visit::kForward>(law, row, width, spring + e * width, stride, middle, extent,
-                                     [&](int64_t sphere, Vec3<T> centre, T* s) {
-        const Vec3<T> from_u = centre - u;
-        const T fraction = dot(from_u, along) / safe_length_sq;
-        bool in_region = (fraction > law.band) & (fraction < law.upper_band) & (length_sq > T(0));
-        for (int k = 0; k < 2; ++k) in_region &= dot(from_u, inward[k]) / safe_height_sq[k] <= law.band;
-        const T weight[2] = {T(1) - fraction, fraction};
-        const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
-        for (int k = 0; k < 2; ++k) total[k] = total[k] + weight[k] * force;
-      });
-    } else {
-      clear_row<Visit::kForward>(spring + e * width, width, stride);
+  feature_rows<2, Visit>(law, idx, num_edges, width, range, spring, share,
+                         [&](int64_t e, const int32_t* row, int64_t stride, Vec3<T>(&total)[2]) {
+    const int32_t* ids = edge_nodes + 4 * e;
+    const int64_t node[2] = {ids[0], ids[1]};
+    const Vec3<T> u = row3(law.x, ids[0]), v = row3(law.x, ids[1]);
+    const Vec3<T> along = v - u;
+    const T length_sq = dot(along, along);
+    const T safe_length_sq = length_sq > T(0) ? length_sq : T(1);
+    Vec3<T> inward[2];
+    T safe_height_sq[2];
+    for (int k = 0; k < 2; ++k) {
+      const Vec3<T> out = row3(law.x, ids[2 + k]) - u;
+      inward[k] = out - (dot(out, along) / safe_length_sq) * along;
+      const T height_sq = dot(inward[k], inward[k]);
+      safe_height_sq[k] = height_sq > T(0) ? height_sq : T(1);
     }
-    if constexpr (Visit::kForward) write_shares(share + 6 * e, total);
-  }
+    const Vec3<T> corner[2] = {u, v};
+    const Vec3<T> middle = T(0.5) * (u + v);
+    const T extent = T(0.5) * std::sqrt(length_sq);
+    for_each_slot<Visit::kForward>(law, row, width, spring + e * width, stride, middle, extent,
+                                   [&](int64_t sphere, Vec3<T> centre, T* s) {
+      const Vec3<T> from_u = centre - u;
+      const T fraction = dot(from_u, along) / safe_length_sq;
+      bool in_region = (fraction > law.band) & (fraction < law.upper_band) & (length_sq > T(0));
+      for (int k = 0; k < 2; ++k) in_region &= dot(from_u, inward[k]) / safe_height_sq[k] <= law.band;
+      const T weight[2] = {T(1) - fraction, fraction};
+      const Vec3<T> force = visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
+      for (int k = 0; k < 2; ++k) total[k] = total[k] + weight[k] * force;
+    });
+  });
 }
 
 // The interior nodes in `range`: share (n, 3), each node's own force summed over its slots.
 template <typename T, typename Visit>
 void node_slots(const Law<T>& law, const int32_t* idx, int64_t width, membrax::Range range,
                 const int32_t* neighbours, int64_t num_neighbours, T* spring, T* share, Visit& visit) {
-  const int64_t num_nodes = law.num_nodes, stride = num_nodes * width;
+  const int64_t num_nodes = law.num_nodes;
   std::vector<Vec3<T>> spoke(static_cast<size_t>(num_neighbours));
   std::vector<T> safe_spoke_sq(static_cast<size_t>(num_neighbours));
-  for (int64_t n = range.begin; n < range.end; ++n) {
-    Vec3<T> total[1] = {{T(0), T(0), T(0)}};
-    const int32_t* row = idx + n * width;
-    if (occupied(row, width, law.num_spheres)) {
-      const Vec3<T> vertex = row3(law.x, n);
-      const int32_t* around = neighbours + n * num_neighbours;
-      for (int64_t h = 0; h < num_neighbours; ++h) {
-        const bool present = around[h] < num_nodes;
-        spoke[h] = (present ? row3(law.x, around[h]) : Vec3<T>{T(0), T(0), T(0)}) - vertex;
-        const T spoke_sq = dot(spoke[h], spoke[h]);
-        safe_spoke_sq[h] = spoke_sq > T(0) ? spoke_sq : T(1);
-      }
-      const Vec3<T> corner[1] = {vertex};
-      const int64_t node[1] = {n};
-      const T weight[1] = {T(1)};
-      for_each_slot<Visit::kForward>(law, row, width, spring + n * width, stride, vertex, T(0),
-                                     [&](int64_t sphere, Vec3<T> centre, T* s) {
-        const Vec3<T> from_vertex = centre - vertex;
-        bool in_region = true;
-        for (int64_t h = 0; h < num_neighbours; ++h)
-          in_region &= (dot(from_vertex, spoke[h]) / safe_spoke_sq[h] <= law.band) | (around[h] >= num_nodes);
-        total[0] = total[0] + visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
-      });
-    } else {
-      clear_row<Visit::kForward>(spring + n * width, width, stride);
+  feature_rows<1, Visit>(law, idx, num_nodes, width, range, spring, share,
+                         [&](int64_t n, const int32_t* row, int64_t stride, Vec3<T>(&total)[1]) {
+    const Vec3<T> vertex = row3(law.x, n);
+    const int32_t* around = neighbours + n * num_neighbours;
+    for (int64_t h = 0; h < num_neighbours; ++h) {
+      const bool present = around[h] < num_nodes;
+      spoke[h] = (present ? row3(law.x, around[h]) : Vec3<T>{T(0), T(0), T(0)}) - vertex;
+      const T spoke_sq = dot(spoke[h], spoke[h]);
+      safe_spoke_sq[h] = spoke_sq > T(0) ? spoke_sq : T(1);
     }
-    if constexpr (Visit::kForward) write_shares(share + 3 * n, total);
-  }
+    const Vec3<T> corner[1] = {vertex};
+    const int64_t node[1] = {n};
+    const T weight[1] = {T(1)};
+    for_each_slot<Visit::kForward>(law, row, width, spring + n * width, stride, vertex, T(0),
+                                   [&](int64_t sphere, Vec3<T> centre, T* s) {
+      const Vec3<T> from_vertex = centre - vertex;
+      bool in_region = true;
+      for (int64_t h = 0; h < num_neighbours; ++h)
+        in_region &= (dot(from_vertex, spoke[h]) / safe_spoke_sq[h] <= law.band) | (around[h] >= num_nodes);
+      total[0] = total[0] + visit.slot(sphere, centre, weight, corner, node, in_region, s, stride);
+    });
+  });
 }
 
 // The springs (3, count, width) of the features in `range` copied from `from` to `to`, unless they are one
@@ -378,14 +379,20 @@ Law<ffi::NativeType<dtype>> law_of(const ffi::Buffer<dtype>& node_position, cons
                 T(1.0 - band)};
 }
 
+// The inputs of both handlers, in order (file header): face_contact_backward takes those of
+// face_contact_forces, then the cotangents of its outputs.
+#define MEMBRAX_FACE_CONTACT_INPUTS(dtype)                                                                        \
+  ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,       \
+      ffi::Buffer<dtype> sphere_velocity, ffi::Buffer<dtype> sphere_angular_velocity,                           \
+      ffi::Buffer<dtype> sphere_radius, ffi::Buffer<ffi::S32> face_idx, ffi::Buffer<ffi::S32> edge_idx,         \
+      ffi::Buffer<ffi::S32> node_idx, ffi::Buffer<ffi::S32> triangles, ffi::Buffer<ffi::S32> edge_nodes,        \
+      ffi::Buffer<ffi::S32> neighbours, ffi::Buffer<ffi::S32> corner_incidence,                                 \
+      ffi::Buffer<ffi::S32> hinge_incidence, ffi::Buffer<dtype> face_spring, ffi::Buffer<dtype> edge_spring,    \
+      ffi::Buffer<dtype> node_spring, ffi::Buffer<dtype> scalars
+
 template <ffi::DataType dtype>
 ffi::Future face_contact_forces(
-    ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,
-    ffi::Buffer<dtype> sphere_velocity, ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
-    ffi::Buffer<ffi::S32> face_idx, ffi::Buffer<ffi::S32> edge_idx, ffi::Buffer<ffi::S32> node_idx,
-    ffi::Buffer<ffi::S32> triangles, ffi::Buffer<ffi::S32> edge_nodes, ffi::Buffer<ffi::S32> neighbours,
-    ffi::Buffer<ffi::S32> corner_incidence, ffi::Buffer<ffi::S32> hinge_incidence, ffi::Buffer<dtype> face_spring,
-    ffi::Buffer<dtype> edge_spring, ffi::Buffer<dtype> node_spring, ffi::Buffer<dtype> scalars,
+    MEMBRAX_FACE_CONTACT_INPUTS(dtype),
     ffi::ResultBuffer<dtype> node_force, ffi::ResultBuffer<dtype> sphere_force, ffi::ResultBuffer<dtype> sphere_torque,
     ffi::ResultBuffer<dtype> new_face_spring, ffi::ResultBuffer<dtype> new_edge_spring,
     ffi::ResultBuffer<dtype> new_node_spring, ffi::ThreadPool pool) {
@@ -688,12 +695,7 @@ void add_cotangents(const SlotCotangents<T>& slot, T* const* out, T* scalars_bar
 // (5,) = Δt, k_n, k_t, μ, t_m. Slots that do not touch have zero cotangents whatever their inputs.
 template <ffi::DataType dtype>
 ffi::Error face_contact_backward(
-    ffi::Buffer<dtype> node_position, ffi::Buffer<dtype> node_velocity, ffi::Buffer<dtype> sphere_position,
-    ffi::Buffer<dtype> sphere_velocity, ffi::Buffer<dtype> sphere_angular_velocity, ffi::Buffer<dtype> sphere_radius,
-    ffi::Buffer<ffi::S32> face_idx, ffi::Buffer<ffi::S32> edge_idx, ffi::Buffer<ffi::S32> node_idx,
-    ffi::Buffer<ffi::S32> triangles, ffi::Buffer<ffi::S32> edge_nodes, ffi::Buffer<ffi::S32> neighbours,
-    ffi::Buffer<ffi::S32> corner_incidence, ffi::Buffer<ffi::S32> hinge_incidence, ffi::Buffer<dtype> face_spring,
-    ffi::Buffer<dtype> edge_spring, ffi::Buffer<dtype> node_spring, ffi::Buffer<dtype> scalars,
+    MEMBRAX_FACE_CONTACT_INPUTS(dtype),
     ffi::Buffer<dtype> node_force_bar, ffi::Buffer<dtype> sphere_force_bar, ffi::Buffer<dtype> sphere_torque_bar,
     ffi::Buffer<dtype> face_spring_bar, ffi::Buffer<dtype> edge_spring_bar, ffi::Buffer<dtype> node_spring_bar,
     ffi::ResultBuffer<dtype> node_position_out, ffi::ResultBuffer<dtype> node_velocity_out,
@@ -765,6 +767,8 @@ ffi::Error face_contact_backward(
             });
   return ffi::Error::Success();
 }
+
+#undef MEMBRAX_FACE_CONTACT_INPUTS
 
 }  // namespace
 
