@@ -1,13 +1,18 @@
 """One member of the thin soft corner (:data:`calibrate.designs.LAB_THIN`) run alone, law by law and contact
-by contact: which of them makes it go non-finite at the start of consolidation.
+by contact: does any of them go non-finite at the start of consolidation?
 
 The member is rebuilt from its group's design at the Δt and mesh its sweep ran with (read from the archived
 sweep, ``data/sweeps/lab_thin/<group>.nc.gz``; a batch's members share both) and consolidated for
 ``--steps`` steps with Gent's law (J_m 97.2 and 1e8, where it is neo-Hookean to 1e-6) and the neo-Hookean
 law, each with face and with node contact. Prints one line per variant: finite, or the run's error.
 
+Gent at J_m 97.2 with face contact used to go non-finite here: its candidate table overflowed within a
+chunk, the chunk's later steps ran without the dropped contacts, the sheet ran away, and the chunk loop took
+an overflow beside a runaway for a runaway. It now grows the tables and reruns such a chunk once
+(:func:`membrax.driver.drive`), and every variant runs.
+
 Run: ``python examples/thin_corner_probe.py [--group e6_thin_soft_s2] [--pressure 40] [--steps 5000]``
-(about 4 min on 2 CPU cores).
+(about 6 min on 2 CPU cores).
 """
 
 import argparse
