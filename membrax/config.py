@@ -247,11 +247,11 @@ SMALLEST_RANDOM_SPECIMEN = 4.0
 #: :data:`INFLATION_WARNING_RATIO` of that limit a run is warned (:func:`inflation_ratio`): the largest ratio
 #: at which every run of the laboratory grid and its held-out set (node contact) completed (0.33: 1.5 mm of
 #: 1000 kPa at 50 kPa over the narrow grading's 25 mm windows). Above it runs failed: random 150 × 300 mm
-#: specimens at the paper's membrane resolution in shearing at 0.59 (1 mm of 1400 kPa at 100 kPa, Gent's law
-#: and face contact, ``calibrate.designs.LAB_THIN``), a random packing's surface windows being wider than the
-#: lattice's square one; FCC lattices in shearing at 0.60 (8 across, node contact) and in consolidation with
-#: the cell pressure ramped slowly from 0 at 0.97–1.03 (6 across) and 0.79–0.91 (8 across) of it
-#: (docs/model.md).
+#: specimens at the paper's membrane resolution stopped on Gent's lock in shearing at 0.47 (one seed of two)
+#: and 0.59 (both; 1 mm of 700 and 1400 kPa, Gent's law and face contact, ``calibrate.designs.LAB_THIN``), a
+#: random packing's surface windows being wider than the lattice's square one; FCC lattices in shearing at
+#: 0.60 (8 across, node contact) and in consolidation with the cell pressure ramped slowly from 0 at
+#: 0.97–1.03 (6 across) and 0.79–0.91 (8 across) of it (docs/model.md).
 INFLATION_WARNING_RATIO = 0.33
 
 #: The optional table that may hold every key of a TOML configuration file.
