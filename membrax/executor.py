@@ -51,6 +51,7 @@ from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
 from membrax.membrane.coupled import (
     CandidateCapacities,
     candidate_capacities,
+    common_candidate_tables,
     grow_candidates,
     grown_candidate_capacities,
 )
@@ -545,6 +546,10 @@ def build_batch(
     configs, tests = [configs[i] for i in order], [tests[i] for i in order]
     # The members start at the protocol's first phase; membrax.runner.run_group enters the others.
     states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]
+    # One grid, reach and capacities for the members' node tables (face contact's reach differs with t_m).
+    states = common_candidate_tables(
+        states, tests[0].particles, [t.params.membrane.contact_thickness for t in tests], tests[0].mesh
+    )
     lists = allocate_shared(tests[0].runner.neighbor_frame, [s.dem.position for s in states])
     states = [s.set(dem=s.dem.set(neighbors=nl)) for s, nl in zip(states, lists, strict=True)]
     num_padded = num_devices * math.ceil(len(tests) / num_devices)

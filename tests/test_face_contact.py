@@ -352,3 +352,54 @@ def test_widening_keeps_every_spring_and_a_grown_table_carries_them_by_sphere_id
         np.testing.assert_allclose(moved.sum(axis=(1, 2)), spring.sum(axis=(1, 2)), rtol=1e-12)
     with pytest.raises(ValueError, match="wide"):
         face_contact.widen(wide, 2, num_spheres)
+
+
+def test_members_of_two_thicknesses_share_one_node_table_and_lose_no_candidate():
+    """Under face contact a node table's reach adds its mesh's longest edge, and the mesh sits at t_m/2 off
+    the specimen, so the reach differs with t_m and members of 2.5 and 5 mm could not be stacked in one
+    batch (the paper's Table 1 with faces failed so). The batch rebuilds both tables with the larger
+    reach: one grid and reach, that reach the larger member's own longest edge, and (both tables rebuilt
+    at capacities that hold every candidate, on their own grids) each member's own candidate pairs
+    (node, sphere) all among its new ones."""
+    from membrax.config import TriaxialConfig
+    from membrax.executor import build_batch
+    from membrax.membrane.coupled import CandidateCapacities, grow_candidates
+    from membrax.membrane.face_contact import longest_edge
+
+    configs = [
+        TriaxialConfig(
+            name=f"t{thickness}",
+            particles_across=3,
+            layers=4,
+            membrane_contact_model="faces",
+            membrane_thickness_mm=thickness,
+            cell_pressure_kpa=40.0,
+        )
+        for thickness in (2.5, 5.0)
+    ]
+    batch = build_batch(configs, num_devices=1)
+    stacked = batch.initial_state.membrane.candidates
+    reaches = [float(longest_edge(test.mesh)) for test in batch.tests]
+    assert reaches[0] != reaches[1]  # the members' own reaches differ
+    assert {float(t.initial_state.membrane.candidates.extra_reach) for t in batch.tests} == set(reaches)
+    assert stacked.extra_reach == max(reaches)
+    particles = batch.tests[0].particles
+    # Every sphere a node's candidate, every node a sphere's: tables that cannot overflow.
+    num_nodes = batch.tests[0].mesh.num_nodes
+    ample = CandidateCapacities(particles.num_particles, num_nodes, particles.num_particles)
+    for test, member in zip(batch.tests, batch.unstack(batch.initial_state), strict=True):
+        assert member.membrane.candidates.grid == stacked.grid
+        thickness = test.params.membrane.contact_thickness
+        own = grow_candidates(test.initial_state, particles, ample, thickness, test.mesh).membrane.candidates
+        new = grow_candidates(member, particles, ample, thickness, test.mesh).membrane.candidates
+        assert not bool(own.did_overflow) and not bool(new.did_overflow)
+
+        def pairs(idx):
+            return {
+                (n, int(j))
+                for n, row in enumerate(np.asarray(idx))
+                for j in row
+                if j < particles.num_particles
+            }
+
+        assert pairs(own.idx) <= pairs(new.idx) and len(pairs(own.idx)) > 0
