@@ -358,7 +358,7 @@ def periodic_packing(
 
     The compaction checkpoints to ``path`` with the suffix ``.ckpt`` every ``checkpoint_seconds`` and
     resumes from it (:func:`membrax.triaxial.periodic_packing.compact_periodic`); ``seconds`` counts this
-    session's time only.
+    process's time only (a resumed compaction's earlier processes are not counted).
     """
     from membrax.assemble import damping_params
     from membrax.defaults import COMPACTION_STRESS
@@ -419,7 +419,7 @@ def run_periodic(
     ``checkpoint_seconds`` (:class:`membrax.triaxial.stage_checkpoint.StageCheckpoint`: the state, the
     stage, the records so far), and a rerun resumes from there into the remaining steps, to the same
     records as a run straight through; the checkpoint is deleted once ``path`` is written. The seconds
-    count every session's time up to its last checkpoint.
+    count every process's time up to its last checkpoint.
     """
     import hashlib
 

@@ -59,7 +59,7 @@ class StageProgress:
       stage_start_step: ``state.step`` at the start of that stage.
       state: the state after the last accepted chunk (or at the stage's start).
       records: the records of each stage run so far, by stage (the current one's up to ``state``).
-      elapsed_seconds: wall-clock seconds spent up to the checkpoint, in all the sessions of the run.
+      elapsed_seconds: wall-clock seconds spent up to the checkpoint, in all the processes that ran it.
       stage_seconds: ``elapsed_seconds`` at the end of each completed stage, by stage.
     """
 
@@ -125,9 +125,9 @@ class StageCheckpoint:
 
     @property
     def elapsed_seconds(self) -> float:
-        """Wall-clock seconds the run has taken: those kept by the checkpoint it resumed and this session's.
+        """Wall-clock seconds the run has taken: those kept by the checkpoint it resumed and this process's.
 
-        The time between an interrupted session's last checkpoint and its end is not counted.
+        The time between an interrupted process's last checkpoint and its end is not counted.
         """
         return self._elapsed_before + time.monotonic() - self._clock
 
