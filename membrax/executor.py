@@ -48,10 +48,10 @@ from membrax.batch import stack
 from membrax.config import TriaxialConfig
 from membrax.driver import advance, drive, grow_tables, record_blocks
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
+from membrax.membrane.candidates import cell_grid
 from membrax.membrane.coupled import (
     CandidateCapacities,
     candidate_capacities,
-    common_candidate_tables,
     grow_candidates,
     grown_candidate_capacities,
 )
@@ -511,6 +511,38 @@ def describe_failure(failure: dict) -> str:
     return f"{failure['error']} in {failure['phase']} (chunk ending at step {failure['step']})"
 
 
+def _common_candidate_tables(states, particles, thicknesses, mesh=None) -> list:
+    """The members' node candidate tables on one grid, one reach and one set of capacities, so they stack.
+
+    A table's grid and reach are static (they shape the compiled step), and under face contact each
+    member's reach adds its own mesh's longest edge, which differs with t_m (the mesh sits at t_m/2 off
+    the specimen): members of one batch then cannot be stacked. Every table is rebuilt with the largest
+    reach and capacities of them all, on the grid :func:`membrax.membrane.candidates.cell_grid` gives the
+    spheres for it (a longer reach only adds candidates, never drops one); states whose tables already
+    agree are returned as they are.
+
+    Args:
+      states: the members' states (their spheres on the same positions: one specimen).
+      particles: sphere properties.
+      thicknesses: each member's contact thickness f t_m, m.
+      mesh: the membrane's topology (for states with feature contacts).
+    """
+    states = list(states)
+    tables = [s.membrane.candidates for s in states]
+    if (
+        len({(t.grid, t.extra_reach) for t in tables}) <= 1
+        and len({candidate_capacities(t) for t in tables}) <= 1
+    ):
+        return states
+    reach = max(float(t.extra_reach) for t in tables)
+    capacities = CandidateCapacities(*(max(c) for c in zip(*map(candidate_capacities, tables), strict=True)))
+    grid = cell_grid(states[0].dem.position, particles.radius, float(tables[0].skin) + reach)
+    return [
+        grow_candidates(s, particles, capacities, thickness, mesh, grid=grid, extra_reach=reach)
+        for s, thickness in zip(states, thicknesses, strict=True)
+    ]
+
+
 def build_batch(
     configs: Sequence[TriaxialConfig],
     num_devices: int | None = None,
@@ -547,7 +579,7 @@ def build_batch(
     # The members start at the protocol's first phase; membrax.runner.run_group enters the others.
     states = [t.start_phase(PHASES[0], t.initial_state) for t in tests]
     # One grid, reach and capacities for the members' node tables (face contact's reach differs with t_m).
-    states = common_candidate_tables(
+    states = _common_candidate_tables(
         states, tests[0].particles, [t.params.membrane.contact_thickness for t in tests], tests[0].mesh
     )
     lists = allocate_shared(tests[0].runner.neighbor_frame, [s.dem.position for s in states])

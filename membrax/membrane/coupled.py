@@ -81,7 +81,6 @@ from membrax.membrane.candidates import (
     NodeCandidates,
     build_candidates,
     candidate_errors,
-    cell_grid,
     remap_node_history,
     update_candidates,
 )
@@ -122,7 +121,6 @@ __all__ = [
     "CoupledState",
     "MembraneParams",
     "MembraneState",
-    "common_candidate_tables",
     "grow_candidates",
     "grown_candidate_capacities",
     "membrane_dem",
@@ -666,8 +664,8 @@ def grow_candidates(
 ) -> CoupledState:
     """A copy of ``state`` with a node candidate table of the given capacities, springs carried by sphere id.
 
-    Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``, and by
-    :func:`common_candidate_tables`.
+    Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``, and by the batched executor
+    (one table for all its members, :func:`membrax.executor.build_batch`).
 
     Args:
       state: the state to change (its table is rebuilt at its positions, on the same grid).
@@ -704,40 +702,6 @@ def grow_candidates(
         feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
         feature_contact = refresh_feature_contact(feature_contact, mesh, new.idx, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
-
-
-def common_candidate_tables(
-    states, particles: Particles, thicknesses, mesh: MembraneMesh | None = None
-) -> list:
-    """The members' node candidate tables on one grid, one reach and one set of capacities, so they stack.
-
-    A table's grid and reach are static (they shape the compiled step), and under face contact each
-    member's reach adds its own mesh's longest edge, which differs with t_m (the mesh sits at t_m/2 off
-    the specimen): members of one batch then cannot be stacked. Every table is rebuilt with the largest
-    reach and capacities of them all, on the grid :func:`~membrax.membrane.candidates.cell_grid` gives the
-    spheres for it (a longer reach only adds candidates, never drops one); states whose tables already
-    agree are returned as they are.
-
-    Args:
-      states: the members' states (their spheres on the same positions: one specimen).
-      particles: sphere properties.
-      thicknesses: each member's contact thickness f t_m, m.
-      mesh: the membrane's topology (for states with feature contacts).
-    """
-    states = list(states)
-    tables = [s.membrane.candidates for s in states]
-    if len({(t.grid, t.extra_reach) for t in tables}) <= 1 and len(
-        {candidate_capacities(t) for t in tables}
-    ) <= 1:
-        return states
-    reach = max(float(t.extra_reach) for t in tables)
-    capacities = CandidateCapacities(*(max(c) for c in zip(*map(candidate_capacities, tables), strict=True)))
-    first = tables[0]
-    grid = cell_grid(states[0].dem.position, particles.radius, float(first.skin) + reach)
-    return [
-        grow_candidates(s, particles, capacities, thickness, mesh, grid=grid, extra_reach=reach)
-        for s, thickness in zip(states, thicknesses, strict=True)
-    ]
 
 
 def refresh_feature_contact(
