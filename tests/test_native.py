@@ -782,7 +782,7 @@ def test_rollout_gradient_is_the_same_through_whole_windows_loop_windows_and_the
         return np.asarray(program.compile()(theta)), program.as_text(), jaxpr.count("remat")
 
     with jax.enable_x64(True):
-        rollout = gradients.consolidation_rollout(config, wrt, steps=100, window=5)
+        rollout = gradients.consolidation_rollout(config, wrt, steps=40, window=5)
         kernels, kernel_program, kernel_checkpoints = gradient_and_program(rollout)
         whole_windows, whole_program, _ = gradient_and_program(rollout, unroll=5)
         with monkeypatch.context() as patch:
