@@ -52,6 +52,7 @@ from membrax.membrane.candidates import cell_grid
 from membrax.membrane.coupled import (
     CandidateCapacities,
     candidate_capacities,
+    fitted_candidate_capacities,
     grow_candidates,
     grown_candidate_capacities,
 )
@@ -381,6 +382,26 @@ class BatchedTest(StackedMembers):
         )
         self.reallocations += 1
         return stack(members)
+
+    def fitted(self, states):
+        """``states`` with node candidate rows no wider than the members' largest count + 2.
+
+        For a resumed batch, whose tables may have been grown for a passing need
+        (:func:`membrax.membrane.coupled.fitted_candidate_capacities`). The width changes no bit; the same
+        states where nothing is cut.
+        """
+        capacities = fitted_candidate_capacities(states.membrane.candidates)
+        if capacities == candidate_capacities(states.membrane.candidates):
+            return states
+        particles = self.tests[0].particles
+        thickness = np.asarray(self.params.membrane.contact_thickness)
+        members = _members(states, self.num_padded)
+        return stack(
+            [
+                grow_candidates(m, particles, capacities, thickness[b], self.tests[0].mesh)
+                for b, m in enumerate(members)
+            ]
+        )
 
 
 @pydataclasses.dataclass(kw_only=True)

@@ -538,8 +538,9 @@ def test_sphere_incidence_sums_equal_the_segment_sum_scatter():
 
 
 def test_grown_candidate_capacities_follow_the_rule_by_hand():
-    """K = min(max(largest count + 2, ⌈1.5 K_old⌉), N), M = max(largest sphere count + 8, M_old),
-    C = max(fullest cell + 2, C_old); stacked tables take the largest over members."""
+    """Only what ran out grows: K = min(max(largest count + 2, ⌈1.5 K_old⌉), N) if the count exceeds K_old,
+    M = largest sphere count + 8 if it exceeds M_old, C = fullest cell + 2 if it exceeds C_old; K by
+    ⌈1.5 K_old⌉ if none does; stacked tables take the largest over members."""
     import types
 
     from membrax.membrane.coupled import grown_candidate_capacities
@@ -556,9 +557,31 @@ def test_grown_candidate_capacities_follow_the_rule_by_hand():
         return tuple(grown_candidate_capacities(old, types.SimpleNamespace(**counts)))
 
     assert grown(9, 15, 1) == (11, 23, 5)
-    assert grown(3, 1, 7) == (6, 10, 9)
+    assert grown(3, 1, 7) == (4, 10, 9)  # a full cell widens no node's row
+    assert grown(4, 12, 5) == (4, 20, 5)  # full sphere slots neither
     assert grown(70, 1, 1) == (50, 10, 5)
     assert grown(np.array([3, 9]), np.array([15, 2]), np.array([8, 1])) == (11, 23, 10)
+    assert grown(2, 3, 1) == (6, 10, 5)  # nothing over its capacity: K grows, the rerun differs
+
+
+def test_a_table_keeps_its_largest_counts_through_smaller_rebuilds():
+    """After a rebuild with fewer candidates, the table still reports the largest counts since it was
+    allocated (by hand: the brute-force sets of both configurations), and stays flagged."""
+    config = _random_config(5, num_nodes=200, num_spheres=40, box=0.08)
+    skin = 0.003
+    crowded = max(len(s) for s in _brute_force_sets(config, skin))
+    table = build_candidates(*_candidate_args(config, skin), crowded - 1)
+    assert bool(table.did_overflow) and int(table.max_count) == crowded
+    # The nodes moved 1 m off the spheres (beyond skin/2): a rebuild that finds no candidate at all.
+    away = config["node_position"] + jnp.asarray([[1.0, 0.0, 0.0]])
+    spring = jnp.zeros((3, away.shape[0], table.capacity))
+    rebuilt, _, did = update_candidates(
+        table, spring, away, config["sphere_position"], config["sphere_radius"], THICKNESS, with_rebuilt=True
+    )
+    assert bool(did) and int(jnp.sum(rebuilt.idx < 40)) == 0
+    assert int(rebuilt.max_count) == crowded and bool(rebuilt.did_overflow)
+    assert int(rebuilt.max_sphere_count) == int(table.max_sphere_count) > 0
+    assert int(rebuilt.max_cell_count) == int(table.max_cell_count)
 
 
 @pytest.mark.parametrize("dtype", [jnp.float32, jnp.float64])

@@ -201,3 +201,51 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
     dense = (np.asarray(products).reshape(basis.shape[0], -1) * scale).T  # column j: M^-1/2 K M^-1/2 e_j
     largest = np.linalg.eigvalsh(0.5 * (dense + dense.T))[-1]
     assert first["mesh"] == pytest.approx(2.0 / np.sqrt(largest), rel=1e-3)
+
+
+@pytest.mark.parametrize("contact_model", ["nodes", "faces"])
+def test_a_wider_candidate_table_changes_no_bit(contact_model):
+    """A node table's capacity K only pads its rows: 300 consolidating steps (float64, the 4 × 4 × 5
+    specimen, no overflow) with K = 6, with K = 12, and with K = 12 cut back after 150 steps to the largest
+    count + 2 (:func:`membrax.membrane.coupled.fitted_candidate_capacities`, as a resumed batch is) end on
+    the same bits, so that growing one capacity of the table (or not growing another) cannot change a run.
+    The padded slots add exact zeros to every sum and a sphere's slots keep their order (flat ids
+    node · K + k increase with the node for any K)."""
+    from membrax.spheres import fcc
+
+    def run(capacity, fit=False):
+        test = membrane_test(
+            fcc.fcc_specimen(0.025, 4, 5),
+            cell_pressure=1e4,
+            membrane_thickness=5e-3,
+            candidate_capacity=capacity,
+            contact_model=contact_model,
+            edges_per_diameter=2.0,
+        )
+        steps = jax.jit(
+            lambda s, n: jax.lax.fori_loop(0, n, lambda _, x: test.runner.step_fn(x, test.params), s),
+            static_argnums=1,
+        )
+        state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
+        if fit:
+            state = steps(state, 150)
+            capacities = membrane_dem.fitted_candidate_capacities(state.membrane.candidates)
+            assert capacities.capacity < capacity  # it was cut
+            thickness = test.params.membrane.contact_thickness
+            state = membrane_dem.grow_candidates(state, test.particles, capacities, thickness, test.mesh)
+            return jax.device_get(steps(state, 150)), test.dt
+        return jax.device_get(steps(state, 300)), test.dt
+
+    with jax.enable_x64(True):
+        (narrow, dt_narrow), (wide, dt_wide), (fitted, _) = run(6), run(12), run(12, fit=True)
+    assert dt_narrow == dt_wide
+    assert int(narrow.dem.error) == int(wide.dem.error) == int(fitted.dem.error) == 0
+    assert int(narrow.membrane.candidates.max_count) >= 2  # nodes do see more than one sphere
+    assert fitted.membrane.candidates.capacity < 12
+    assert float(np.abs(narrow.membrane.velocity).max()) > 0.0  # it moved
+    assert float(np.abs(narrow.membrane.sphere_force).max()) > 0.0  # and the membrane pressed on spheres
+    for other in (wide, fitted):
+        for name in ("position", "velocity", "angular_velocity"):
+            np.testing.assert_array_equal(getattr(narrow.dem, name), getattr(other.dem, name))
+        for name in ("position", "velocity", "node_force", "sphere_force"):
+            np.testing.assert_array_equal(getattr(narrow.membrane, name), getattr(other.membrane, name))

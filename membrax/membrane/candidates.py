@@ -124,12 +124,13 @@ class NodeCandidates:
       skin: the extra distance, m (scalar); rebuild when anything moved more than skin/2.
       did_overflow: bool, sticky: some node had more than K candidates, some cell more than C spheres, or
         some sphere more than M slots, at a build.
-      max_count: int32, the largest number of candidates of one node at the last build.
+      max_count: int32, the largest number of candidates of one node at any build since the table was
+        allocated (:func:`build_candidates`; :func:`update_candidates` keeps the largest).
       sphere_slots: (N, M) int32, for each sphere the flat ids (into ``idx.reshape(-1)``) of the slots that
         hold it, padded with n_nodes·K: the incidence the sphere forces are summed over
         (:func:`sphere_slot_table`).
-      max_sphere_count: int32, the largest number of slots of one sphere at the last build.
-      max_cell_count: int32, the largest number of spheres in one cell at the last build.
+      max_sphere_count: int32, the largest number of slots of one sphere, likewise.
+      max_cell_count: int32, the largest number of spheres in one cell, likewise.
       grid: the cell list's :class:`CellGrid` (static).
       extra_reach: m (static, default 0): sphere i is a candidate of a node within R_i + t_m/2 +
         ``extra_reach`` + skin, so that a table for contacts anywhere on the node's triangles
@@ -434,7 +435,8 @@ def update_candidates(
       with_rebuilt: also return whether the table was rebuilt (static), for what is derived from it.
 
     Returns:
-      (candidates, spring): the possibly rebuilt table, with ``did_overflow`` kept sticky, and the springs
+      (candidates, spring): the possibly rebuilt table, with ``did_overflow`` kept sticky and the counts
+      the largest since allocation, and the springs
       remapped onto it by sphere id; with ``with_rebuilt``, (candidates, spring, rebuilt), rebuilt a bool.
     """
     num_spheres = sphere_position.shape[0]
@@ -451,7 +453,14 @@ def update_candidates(
             candidates.sphere_capacity,
             candidates.extra_reach,
         )
-        new = new.set(did_overflow=candidates.did_overflow | new.did_overflow)
+        # The counts are kept as the largest since the table was allocated, as the overflow flag is: a
+        # later, smaller build must not hide from the host which capacity ran out (it grows only that one).
+        new = new.set(
+            did_overflow=candidates.did_overflow | new.did_overflow,
+            max_count=jnp.maximum(candidates.max_count, new.max_count),
+            max_sphere_count=jnp.maximum(candidates.max_sphere_count, new.max_sphere_count),
+            max_cell_count=jnp.maximum(candidates.max_cell_count, new.max_cell_count),
+        )
         return new, remap_node_history(candidates.idx, new.idx, spring, num_spheres, components_first=True)
 
     def keep(_):

@@ -122,6 +122,7 @@ __all__ = [
     "MembraneParams",
     "MembraneState",
     "grow_candidates",
+    "fitted_candidate_capacities",
     "grown_candidate_capacities",
     "membrane_dem",
     "platen_heights",
@@ -640,17 +641,44 @@ def candidate_capacities(candidates) -> CandidateCapacities:
 def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
     """(K, M, C) after a candidate-table overflow: slots per node, per sphere and spheres per cell.
 
-    K = max(the overflowing chunk's largest count + 2, 1.5 × the old K), at most the number of spheres;
-    M = max(its largest per-sphere count + 8, the old M); C = max(its fullest cell + 2, the old C).
+    Only what ran out grows, so that an overflow of the sphere slots does not widen every node's row (under
+    face contact each triangle visits 3 K slots and each edge 2 K, every step):
+    K = max(the largest count + 2, ⌈1.5 K_old⌉) if that count exceeds K_old, at most the number of spheres;
+    M = the largest per-sphere count + 8 if it exceeds M_old; C = the fullest cell + 2 if it exceeds C_old;
+    each otherwise unchanged. The counts are the largest since the table was allocated
+    (:func:`membrax.membrane.candidates.update_candidates`). Should none exceed its capacity, K grows by
+    ⌈1.5 K_old⌉, so that a rerun never meets the same tables.
     ``old`` and ``overflowed`` are candidate tables (of one state, or stacked: the largest over the
     members).
     """
     num_spheres = int(np.shape(old.reference_sphere_position)[-2])
     current = candidate_capacities(old)
-    capacity = max(int(np.max(np.asarray(overflowed.max_count))) + 2, math.ceil(1.5 * current.capacity))
-    sphere_capacity = max(int(np.max(np.asarray(overflowed.max_sphere_count))) + 8, current.sphere_capacity)
-    cell_capacity = max(int(np.max(np.asarray(overflowed.max_cell_count))) + 2, current.cell_capacity)
+    count, sphere_count, cell_count = (
+        int(np.max(np.asarray(getattr(overflowed, name))))
+        for name in ("max_count", "max_sphere_count", "max_cell_count")
+    )
+    grow_nodes = count > current.capacity
+    grow_spheres = sphere_count > current.sphere_capacity
+    grow_cells = cell_count > current.cell_capacity
+    if not (grow_nodes or grow_spheres or grow_cells):
+        grow_nodes = True
+    capacity = max(count + 2, math.ceil(1.5 * current.capacity)) if grow_nodes else current.capacity
+    sphere_capacity = sphere_count + 8 if grow_spheres else current.sphere_capacity
+    cell_capacity = cell_count + 2 if grow_cells else current.cell_capacity
     return CandidateCapacities(min(capacity, num_spheres), sphere_capacity, cell_capacity)
+
+
+def fitted_candidate_capacities(table) -> CandidateCapacities:
+    """(K, M, C) of ``table`` with K cut back to its largest count + 2 where it is wider (M and C kept).
+
+    A table grown for a passing need keeps padding every node's row; under face contact each step visits
+    3 K slots per triangle and 2 K per edge, so a row three times too wide costs the face law about that
+    much. The width only pads the rows: it changes no bit of a run (``tests/test_membrane_dem.py``).
+    ``table`` is a candidate table (of one state, or stacked: the largest count over the members).
+    """
+    current = candidate_capacities(table)
+    needed = int(np.max(np.asarray(table.max_count))) + 2
+    return current._replace(capacity=min(current.capacity, needed))
 
 
 def grow_candidates(
@@ -665,7 +693,8 @@ def grow_candidates(
     """A copy of ``state`` with a node candidate table of the given capacities, springs carried by sphere id.
 
     Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``, and by the batched executor
-    (one table for all its members, :func:`membrax.executor.build_batch`).
+    (one table for all its members, :func:`membrax.executor.build_batch`; a resumed batch's tables fitted
+    again, :func:`fitted_candidate_capacities`). The capacities may be smaller than the table's.
 
     Args:
       state: the state to change (its table is rebuilt at its positions, on the same grid).
@@ -699,7 +728,8 @@ def grow_candidates(
     if feature_contact is not None:
         if mesh is None:
             raise ValueError("grow_candidates: a state with feature contacts needs the mesh (mesh=...).")
-        feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
+        if capacities.capacity >= old.capacity:  # narrower, the springs go onto the new slots by id directly
+            feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
         feature_contact = refresh_feature_contact(feature_contact, mesh, new.idx, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
 

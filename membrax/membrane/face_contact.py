@@ -616,7 +616,6 @@ def carry_springs(state: FeatureContactState, slots: FeatureSlots, num_spheres: 
     grown on overflow; carrying by id keeps a (feature, sphere) pair's spring through both. Between
     rebuilds the slots are the same and the springs pass as they are (the carry is skipped).
     """
-    same = jnp.all(jnp.stack([jnp.all(getattr(state.slots, k) == getattr(slots, k)) for k in FEATURE_KINDS]))
 
     def carry(springs):
         return tuple(
@@ -624,6 +623,9 @@ def carry_springs(state: FeatureContactState, slots: FeatureSlots, num_spheres: 
             for kind, spring in zip(FEATURE_KINDS, springs, strict=True)
         )
 
+    if any(getattr(state.slots, k).shape != getattr(slots, k).shape for k in FEATURE_KINDS):
+        return carry(tuple(state.spring))  # a table of another width (narrowed): the slots differ
+    same = jnp.all(jnp.stack([jnp.all(getattr(state.slots, k) == getattr(slots, k)) for k in FEATURE_KINDS]))
     return jax.lax.cond(same, lambda springs: springs, carry, tuple(state.spring))
 
 
