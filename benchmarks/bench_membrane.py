@@ -27,10 +27,11 @@ steps/s within 1.5× of the FCC row's).
 
 With ``--contact-model faces`` the coupled step's spheres meet the membrane's faces, edges and nodes
 (:mod:`membrax.membrane.face_contact`, its compiled CPU kernel ``face_contact.cc``) instead of its nodes; the
-other columns are the node law's.
+other columns are the node law's. ``--candidate-capacity K`` sets the coupled step's node table width (the
+test's default 3): face contact visits 3K slots per triangle and 2K per edge every step.
 
 Run: ``python benchmarks/bench_membrane.py [--edges-per-diameter 5] [--packing random] [--contact-model faces]
-[--dtypes float32]``;
+[--candidate-capacity 3] [--dtypes float32]``;
 with ``MEMBRAX_NATIVE=0`` the compiled CPU kernels (:mod:`membrax.native`) are off and every figure is
 XLA's alone.
 """
@@ -41,7 +42,12 @@ from harness import benchmark_parser, benchmark_report, best_of, time_coupled_st
 
 
 def measure(
-    dtype: str, edges_per_diameter: float, repeats: int, packing: str = "fcc", contact_model: str = "nodes"
+    dtype: str,
+    edges_per_diameter: float,
+    repeats: int,
+    packing: str = "fcc",
+    contact_model: str = "nodes",
+    candidate_capacity: int = 3,
 ) -> dict:
     import jax
 
@@ -71,6 +77,7 @@ def measure(
         membrane_thickness=thickness,
         edges_per_diameter=edges_per_diameter,
         contact_model=contact_model,
+        candidate_capacity=candidate_capacity,
     )
     mesh = test.mesh
     nodes = jnp.asarray(mesh.reference_position)
@@ -138,6 +145,7 @@ def measure(
         "spheres": int(spheres.shape[0]),
         "cell_capacity": grid.cell_capacity,
         "capacity": capacity,
+        "step_capacity": candidate_capacity,
         "max_candidates": int(candidates.max_count),
         "compile_s": first - one,
         "membrane_forces_per_s": membrane_rate,
@@ -164,13 +172,20 @@ def main():
         default="nodes",
         help="where the coupled step's spheres meet the membrane (the other columns: the node law's)",
     )
+    parser.add_argument(
+        "--candidate-capacity",
+        type=int,
+        default=3,
+        help="K of the coupled step's node table (default 3; face contact visits 3K slots a triangle)",
+    )
 
     def caption(args, first):
         return (
             f"membrane benchmark ({args.packing}, {args.contact_model} contact): {first['nodes']} nodes, "
             f"{first['triangles']} triangles, "
             f"{first['spheres']} spheres (cell list: {first['cell_capacity']} per cell), "
-            f"K = {first['capacity']} (max candidates found {first['max_candidates']}); "
+            f"K = {first['capacity']} (max candidates found {first['max_candidates']}), "
+            f"the coupled step's K = {first['step_capacity']}; "
             f"CPU kernels: {first['kernels']}"
         )
 
