@@ -206,9 +206,9 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
 @pytest.mark.parametrize("contact_model", ["nodes", "faces"])
 def test_a_wider_candidate_table_changes_no_bit(contact_model):
     """A node table's capacity K only pads its rows: 300 consolidating steps (float64, the 4 × 4 × 5
-    specimen, no overflow) with K = 6, with K = 12, and with K = 12 cut back after 150 steps to the largest
-    count + 2 (:func:`membrax.membrane.coupled.fitted_candidate_capacities`, as a resumed batch is) end on
-    the same bits, so that growing one capacity of the table (or not growing another) cannot change a run.
+    specimen, no overflow) with K = 12, and with K = 12 cut back after 150 steps to the largest count + 2
+    (:func:`membrax.membrane.coupled.fitted_candidate_capacities`, as a resumed batch is), end on the same
+    bits, so that growing one capacity of the table (or not growing another) cannot change a run.
     The padded slots add exact zeros to every sum and a sphere's slots keep their order (flat ids
     node · K + k increase with the node for any K)."""
     from membrax.spheres import fcc
@@ -237,15 +237,14 @@ def test_a_wider_candidate_table_changes_no_bit(contact_model):
         return jax.device_get(steps(state, 300)), test.dt
 
     with jax.enable_x64(True):
-        (narrow, dt_narrow), (wide, dt_wide), (fitted, _) = run(6), run(12), run(12, fit=True)
-    assert dt_narrow == dt_wide
-    assert int(narrow.dem.error) == int(wide.dem.error) == int(fitted.dem.error) == 0
-    assert int(narrow.membrane.candidates.max_count) >= 2  # nodes do see more than one sphere
+        (wide, dt_wide), (fitted, dt_fitted) = run(12), run(12, fit=True)
+    assert dt_wide == dt_fitted
+    assert int(wide.dem.error) == int(fitted.dem.error) == 0
+    assert int(fitted.membrane.candidates.max_count) >= 2  # nodes do see more than one sphere
     assert fitted.membrane.candidates.capacity < 12
-    assert float(np.abs(narrow.membrane.velocity).max()) > 0.0  # it moved
-    assert float(np.abs(narrow.membrane.sphere_force).max()) > 0.0  # and the membrane pressed on spheres
-    for other in (wide, fitted):
-        for name in ("position", "velocity", "angular_velocity"):
-            np.testing.assert_array_equal(getattr(narrow.dem, name), getattr(other.dem, name))
-        for name in ("position", "velocity", "node_force", "sphere_force"):
-            np.testing.assert_array_equal(getattr(narrow.membrane, name), getattr(other.membrane, name))
+    assert float(np.abs(wide.membrane.velocity).max()) > 0.0  # it moved
+    assert float(np.abs(wide.membrane.sphere_force).max()) > 0.0  # and the membrane pressed on spheres
+    for name in ("position", "velocity", "angular_velocity"):
+        np.testing.assert_array_equal(getattr(wide.dem, name), getattr(fitted.dem, name))
+    for name in ("position", "velocity", "node_force", "sphere_force"):
+        np.testing.assert_array_equal(getattr(wide.membrane, name), getattr(fitted.membrane, name))
