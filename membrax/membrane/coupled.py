@@ -728,7 +728,8 @@ def grow_candidates(
     if feature_contact is not None:
         if mesh is None:
             raise ValueError("grow_candidates: a state with feature contacts needs the mesh (mesh=...).")
-        if capacities.capacity >= old.capacity:  # narrower, the springs go onto the new slots by id directly
+        # Padded to the new width first; a narrower table's springs are carried onto its slots by id.
+        if capacities.capacity >= old.capacity:
             feature_contact = widen(feature_contact, capacities.capacity, particles.num_particles)
         feature_contact = refresh_feature_contact(feature_contact, mesh, new.idx, particles.num_particles)
     return state.set(membrane=nodes.set(candidates=new, spring=spring, feature_contact=feature_contact))
