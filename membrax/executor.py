@@ -361,15 +361,9 @@ class BatchedTest(StackedMembers):
         Returns:
           The grown stacked states.
         """
-        particles = self.tests[0].particles
-        thickness = np.asarray(self.params.membrane.contact_thickness)
 
         def grow_membrane(members, end):
-            capacities = grown_candidate_capacities(states.membrane.candidates, end)
-            return [
-                grow_candidates(m, particles, capacities, thickness[b], self.tests[0].mesh)
-                for b, m in enumerate(members)
-            ]
+            return self._with_capacities(members, grown_candidate_capacities(states.membrane.candidates, end))
 
         members = grow_tables(
             _members(states, self.num_padded),
@@ -393,15 +387,13 @@ class BatchedTest(StackedMembers):
         capacities = fitted_candidate_capacities(states.membrane.candidates)
         if capacities == candidate_capacities(states.membrane.candidates):
             return states
-        particles = self.tests[0].particles
+        return stack(self._with_capacities(_members(states, self.num_padded), capacities))
+
+    def _with_capacities(self, members, capacities) -> list:
+        """Each member's state (padded ones too) with a node candidate table of ``capacities``."""
+        particles, mesh = self.tests[0].particles, self.tests[0].mesh
         thickness = np.asarray(self.params.membrane.contact_thickness)
-        members = _members(states, self.num_padded)
-        return stack(
-            [
-                grow_candidates(m, particles, capacities, thickness[b], self.tests[0].mesh)
-                for b, m in enumerate(members)
-            ]
-        )
+        return [grow_candidates(m, particles, capacities, thickness[b], mesh) for b, m in enumerate(members)]
 
 
 @pydataclasses.dataclass(kw_only=True)

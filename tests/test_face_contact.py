@@ -403,3 +403,38 @@ def test_members_of_two_thicknesses_share_one_node_table_and_lose_no_candidate()
             }
 
         assert pairs(own.idx) <= pairs(new.idx) and len(pairs(own.idx)) > 0
+
+
+def test_a_resumed_batch_cuts_its_node_rows_back_to_the_largest_count_plus_two():
+    """``BatchedTest.fitted``: a batch whose tables were widened 6 beyond their need comes back at K =
+    (largest count over the members) + 2, by hand from the tables, with each member's (node, sphere)
+    candidates unchanged and its face slots 3 K wide; a batch already that narrow is returned as it is."""
+    from membrax.config import TriaxialConfig
+    from membrax.executor import build_batch
+    from membrax.membrane.coupled import candidate_capacities
+
+    configs = [
+        TriaxialConfig(
+            name=f"p{pressure}",
+            particles_across=3,
+            layers=4,
+            membrane_contact_model="faces",
+            cell_pressure_kpa=pressure,
+        )
+        for pressure in (10.0, 40.0)
+    ]
+    batch = build_batch(configs, num_devices=1)
+    start = batch.initial_state
+    needed = int(np.max(np.asarray(start.membrane.candidates.max_count))) + 2  # by hand from the tables
+    capacities = candidate_capacities(start.membrane.candidates)._replace(capacity=needed + 6)
+    wide = batch.restack(batch._with_capacities(batch.unstack(start), capacities))
+    assert wide.membrane.candidates.capacity == needed + 6
+    fitted = batch.fitted(wide)
+    assert fitted.membrane.candidates.capacity == needed
+    assert fitted.membrane.feature_contact.slots.face.shape[-1] == 3 * needed
+    num_spheres = batch.tests[0].particles.num_particles
+    tables = (np.asarray(wide.membrane.candidates.idx), np.asarray(fitted.membrane.candidates.idx))
+    for before, after in zip(*tables, strict=True):
+        for row_before, row_after in zip(before, after, strict=True):
+            assert set(row_before[row_before < num_spheres]) == set(row_after[row_after < num_spheres])
+    assert batch.fitted(fitted) is fitted
