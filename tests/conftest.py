@@ -25,6 +25,14 @@ if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
 # would compile again (a second process built the 4 × 4 × 5 specimen and ran 2,000 steps in 6.5 s from the
 # cache, 14 s without).
 os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+# XLA's backend at its lowest optimisation (``jax_disable_most_optimizations``): the suite's time is mostly
+# compilation of small specimens' programs, whose running is short and whose hot loops are membrax's own
+# compiled kernels (membrax/native), which this does not touch. Measured beside another job on 2 cores:
+# tests/test_dem.py 102 → 86 s, notebooks/02 (smoke) 61 → 43 s, the rollout-gradient test 126 → 84 s. It
+# changes no operation's meaning (no fast-math either way); a test that compares two paths compiles both
+# in this mode. Set MEMBRAX_TEST_XLA_OPTIMIZED=1 to run the suite as users' programs compile.
+if os.environ.get("MEMBRAX_TEST_XLA_OPTIMIZED") != "1":
+    os.environ.setdefault("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
 
 import jax
 
