@@ -6,7 +6,7 @@
 #       extension: .py
 #       format_name: percent
 #       format_version: '1.3'
-#       jupytext_version: 1.19.6
+#       jupytext_version: 1.19.7
 #   kernelspec:
 #     display_name: Python 3
 #     language: python
@@ -95,57 +95,73 @@ assert figures["peak_friction_angle_deg"] < rowe, "a random packing mobilises le
 #
 # `python examples/boundary_split.py` ran the periodic element beside the laboratory grid's membrane cells
 # (the same spheres, packing and σc; φμ = 25°, I = 1e-3, to 10 %) and a rigid-wall cell on the grid's
-# 150 mm packings. Peak φ' against D/D_s (0: the periodic element, the material's own), one panel per σc:
+# 150 mm packings. Peak φ' against D/D_s (0: the periodic element, the material's own), one panel per σc,
+# one row per state (equal spheres dense and loose, D their diameter; the ballast grading, D its largest
+# sieve):
 
 # %%
-rows = [row for row in boundary_split_rows() if row["state"] == "dense"]
+all_rows = boundary_split_rows()
+rows = [row for row in all_rows if row["state"] == "dense"]
+states = [s for s in ("dense", "loose", "ballast") if any(row["state"] == s for row in all_rows)]
 
 
 def value(row, key):
     return float(row[key]) if row.get(key) not in ("", None) else np.nan
 
 
-pressures = sorted({value(row, "pressure_kpa") for row in rows})
-fig, axes = plt.subplots(1, len(pressures), figsize=(4.2 * len(pressures), 3.8), sharey=True)
-for ax, pressure in zip(np.atleast_1d(axes), pressures, strict=True):
-    here = [row for row in rows if value(row, "pressure_kpa") == pressure]
-    element = [row for row in here if row["cell"] == "periodic"]
-    for row in element:
-        ax.axhline(value(row, "peak_lw"), color="0.3", linestyle="--", label="periodic element")
-    membrane = sorted(
-        (row for row in here if row["cell"] == "membrane"), key=lambda row: value(row, "d_over_ds")
-    )
-    for thickness, marker in ((2.0, "o"), (5.0, "s")):
-        mine = [row for row in membrane if value(row, "thickness_mm") == thickness]
-        ratio = [1.0 / value(row, "d_over_ds") for row in mine]
+pressures = sorted({value(row, "pressure_kpa") for row in all_rows})
+fig, axes = plt.subplots(
+    len(states),
+    len(pressures),
+    figsize=(4.2 * len(pressures), 3.4 * len(states)),
+    sharey="row",
+    squeeze=False,
+)
+for state, axes_of_state in zip(states, axes, strict=True):
+    for ax, pressure in zip(axes_of_state, pressures, strict=True):
+        here = [r for r in all_rows if r["state"] == state and value(r, "pressure_kpa") == pressure]
+        for row in (r for r in here if r["cell"] == "periodic"):
+            ax.axhline(value(row, "peak_lw"), color="0.3", linestyle="--", label="periodic element")
+        membrane = [r for r in here if r["cell"] == "membrane"]
+        thicknesses = sorted({value(r, "thickness_mm") for r in membrane})
+        # the thinnest and the thickest membrane of the state (dense also ran 3 mm at D_s/D 6)
+        for thickness, marker in zip((thicknesses[0], thicknesses[-1]), ("o", "s"), strict=True):
+            mine = sorted(
+                (r for r in membrane if value(r, "thickness_mm") == thickness),
+                key=lambda r: value(r, "d_over_ds"),
+            )
+            ratio = [1.0 / value(r, "d_over_ds") for r in mine]
+            ax.plot(
+                ratio,
+                [value(r, "peak_ext") for r in mine],
+                marker,
+                color="tab:blue",
+                label=f"external, {thickness:g} mm",
+            )
+            ax.plot(
+                ratio,
+                [value(r, "peak_int") for r in mine],
+                marker,
+                color="tab:red",
+                mfc="none",
+                label=f"internal, {thickness:g} mm",
+            )
+        rigid = [r for r in here if r["cell"] == "rigid"]
         ax.plot(
-            ratio,
-            [value(r, "peak_ext") for r in mine],
-            marker,
-            color="tab:blue",
-            label=f"external, {thickness:g} mm",
+            [1.0 / value(r, "d_over_ds") for r in rigid],
+            [value(r, "peak_ext") for r in rigid],
+            "^",
+            color="tab:green",
+            label="rigid walls",
         )
-        ax.plot(
-            ratio,
-            [value(r, "peak_int") for r in mine],
-            marker,
-            color="tab:red",
-            mfc="none",
-            label=f"internal, {thickness:g} mm",
-        )
-    rigid = [row for row in here if row["cell"] == "rigid"]
-    ax.plot(
-        [1.0 / value(r, "d_over_ds") for r in rigid],
-        [value(r, "peak_ext") for r in rigid],
-        "^",
-        color="tab:green",
-        label="rigid walls",
-    )
-    ax.set_title(f"σc = {pressure:g} kPa")
+        ax.set_title(f"{state}, σc = {pressure:g} kPa", fontsize=9)
+        ax.set_xlim(0.0, 0.18)  # 0: the periodic element; 1/6 the smallest moulds
+        ax.grid(True, linewidth=0.5, alpha=0.5)
+    axes_of_state[0].set_ylabel("Peak φ' (°)")
+for ax in axes[-1]:
     ax.set_xlabel("D/D_s")
-    ax.grid(True, linewidth=0.5, alpha=0.5)
-np.atleast_1d(axes)[0].set_ylabel("Peak φ' (°)")
-np.atleast_1d(axes)[-1].legend(fontsize=7)
+axes[0, -1].legend(fontsize=7)
+plt.tight_layout()
 plt.show()
 
 # %% [markdown]
