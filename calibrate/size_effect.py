@@ -9,8 +9,10 @@ the membrane cell (external, internal, Love–Weber) at D_s/D = 6–12 and of th
 state at the table's diameter ratios; :func:`size_effect_note` words it for a specimen of D_s/D (linear in
 D/D_s between the table's ratios, never extrapolated), the line ``membrax correct`` reports.
 
-D_s is the specimen's diameter, D the particle size (equal spheres: their diameter); the table is of equal
-25 mm spheres (states ``"dense"``, ``"loose"``) and the ballast grading (``"ballast"``, D its largest sieve).
+D_s is the specimen's diameter, D the particle size ``membrax correct`` takes
+(:func:`membrax.config.characteristic_size_mm`: equal spheres' diameter, a grading's d50); the table is of
+equal 25 mm spheres (states ``"dense"``, ``"loose"``) and the ballast grading (``"ballast"``: its 150 mm
+mould is 6 largest sieves across, D_s/d50 = 9.3).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 
 __all__ = [
     "BOUNDARY_SPLIT",
+    "NOMINAL_DIAMETER_TOLERANCE",
     "SizeEffect",
     "boundary_split_rows",
     "size_effect_lines",
@@ -34,6 +37,12 @@ __all__ = [
 
 #: The boundary split's table, shipped with the correction (``examples/boundary_split.py`` writes it).
 BOUNDARY_SPLIT = "boundary_split.csv"
+
+#: How far (relative) a specimen's D_s/D may lie outside the table's ratios and still take the nearest: the
+#: table's D_s are the moulds' nominal diameters (150–300 mm), and a laboratory gives the diameter after
+#: consolidation, which differs from its mould's by up to a few millimetres (the shipped example record:
+#: 150.5 mm in a 150 mm mould, +0.3 %).
+NOMINAL_DIAMETER_TOLERANCE = 0.02
 
 
 class SizeEffect(NamedTuple):
@@ -112,20 +121,25 @@ def size_effects(state: str = "dense", rows=None) -> list[SizeEffect]:
 def size_effect_note(diameter_ratio: float, state: str = "dense", rows=None) -> str:
     """A line on the size effect expected at D_s/D = ``diameter_ratio`` for ``state`` (module docstring).
 
-    Within the table's ratios: the specimen part's range over σc, linear in D/D_s between the two nearest
-    ratios at the σc they share; outside them: that the table has none there.
+    Within the table's ratios (widened by :data:`NOMINAL_DIAMETER_TOLERANCE` at each end): the specimen
+    part's range over σc, linear in D/D_s between the two nearest ratios at the σc they share; outside
+    them: that the table has none there.
     """
     effects = [e for e in size_effects(state, rows) if e.cell_pressures_kpa]
     if not effects:
         return f"size effect: the boundary split has no {state} rows (calibrate/data/{BOUNDARY_SPLIT})."
     ratios = [e.diameter_ratio for e in effects]
-    span = f"{min(ratios):g}" if min(ratios) == max(ratios) else f"{min(ratios):g}–{max(ratios):g}"
-    if not (min(ratios) <= diameter_ratio <= max(ratios)):
+    span = f"{min(ratios):.3g}" if min(ratios) == max(ratios) else f"{min(ratios):.3g}–{max(ratios):.3g}"
+    low_end = min(ratios) * (1.0 - NOMINAL_DIAMETER_TOLERANCE)
+    high_end = max(ratios) * (1.0 + NOMINAL_DIAMETER_TOLERANCE)
+    if not (low_end <= diameter_ratio <= high_end):
         return (
             f"size effect: none simulated at D_s/D = {diameter_ratio:.3g} ({state} specimens were run at "
             f"D_s/D = {span}, calibrate/data/{BOUNDARY_SPLIT}); how far the internal φ' stands from the "
             "material's own is not known there."
         )
+    quoted = diameter_ratio
+    diameter_ratio = min(max(diameter_ratio, min(ratios)), max(ratios))  # a nominal end counts as the end
     upper = min(k for k, r in enumerate(ratios) if r >= diameter_ratio)
     lower = max(k for k, r in enumerate(ratios) if r <= diameter_ratio)
     low, high = effects[lower], effects[upper]
@@ -144,7 +158,7 @@ def size_effect_note(diameter_ratio: float, state: str = "dense", rows=None) -> 
 
     peak, late = at("peak_deg"), at("late_deg")
     return (
-        f"size effect (simulated, {state}, calibrate/data/{BOUNDARY_SPLIT}): at D_s/D = {diameter_ratio:.3g} "
+        f"size effect (simulated, {state}, calibrate/data/{BOUNDARY_SPLIT}): at D_s/D = {quoted:.3g} "
         f"the internal φ' stood {min(peak):+.1f} to {max(peak):+.1f}° from the boundary-free element's at "
         f"the peak and {min(late):+.1f} to {max(late):+.1f}° late (σc {shared[0]:g}–{shared[-1]:g} kPa); "
         "the corrections correct to the internal φ', not to the material's own."

@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import time
 from pathlib import Path
 
@@ -51,7 +50,7 @@ import numpy as np
 
 from calibrate.grid import find_sweep
 
-#: Lab-grid groups of each state (D_s/D from the name: the mould diameter D_s over the largest sieve D).
+#: Lab-grid groups of each state (the number in a name: the mould diameter over the largest sieve).
 MEMBRANE_GROUPS = {
     "dense": ("e6", "e6_h25", "e8", "e10", "e12"),
     "loose": ("e6_loose",),
@@ -117,9 +116,17 @@ def summary(axial_strain, angle, volumetric_strain=None) -> dict:
     return out
 
 
-def size_ratio(group: str) -> int:
-    """D_s/D of a lab group (specimen over particle diameter), from its name (``e6_h25`` → 6)."""
-    return int(re.match(r"[a-z]+(\d+)", group).group(1))
+def size_ratio(config) -> float:
+    """D_s/D of a configuration (a mapping or a ``TriaxialConfig``).
+
+    D is the particle size ``membrax correct`` takes (:func:`membrax.config.characteristic_size_mm`: d50 of
+    a grading, else the diameter), so a user's D_s/D finds its row: the ballast group g6 is 6 largest sieves
+    across, D_s/d50 = 9.3.
+    """
+    from membrax.config import characteristic_size_mm, config_to_dict
+
+    values = config if isinstance(config, dict) else config_to_dict(config)
+    return float(values["specimen_diameter_mm"]) / characteristic_size_mm(values)
 
 
 def group_config(lab: Path, group: str):
@@ -172,7 +179,7 @@ def membrane_rows(lab: Path, states, pressures, seeds):
                                 "state": state,
                                 "cell": "membrane",
                                 "group": base,
-                                "d_over_ds": size_ratio(base),
+                                "d_over_ds": size_ratio(config),
                                 "h_over_d": config["specimen_height_mm"] / config["specimen_diameter_mm"],
                                 "thickness_mm": float(thickness),
                                 "pressure_kpa": float(pressure),
@@ -328,7 +335,7 @@ def rigid_rows(args, lab, states, pressures, seeds, out: Path, times: list):
                         "state": state,
                         "cell": "rigid",
                         "group": base,
-                        "d_over_ds": size_ratio(base),
+                        "d_over_ds": size_ratio(config),
                         "h_over_d": config.specimen_height_mm / config.specimen_diameter_mm,
                         "thickness_mm": np.nan,
                         "pressure_kpa": pressure,

@@ -81,3 +81,44 @@ def test_the_report_quotes_every_state_with_an_element_dense_first():
     loose = [{**row, "state": "loose"} for row in ROWS]
     both = size_effect_lines(8.0, ROWS + loose)
     assert [line.split(",")[1].strip() for line in both] == ["dense", "loose"]
+
+
+def test_the_shipped_ballast_rows_sit_at_the_ratio_membrax_correct_computes():
+    """The ballast group's D is its d50 (the particle size ``membrax correct`` takes), not its largest sieve.
+
+    By hand: the g6 mould is 150 mm and the grading's d50 is 16.14 mm (``characteristic_size_mm``), so
+    D_s/D = 9.295 (6 largest sieves of 25 mm across). The shipped example record (a g6 member: 150.5 mm
+    after consolidation, d50 16.14 mm, D_s/D = 9.325, 0.3 % above the mould's) is quoted the ballast rows'
+    own internal − element peak φ', averaged over the membranes, at each σc.
+    """
+    from calibrate.designs import LAB_CALIBRATION, specimen_fields
+    from membrax.config import TriaxialConfig, characteristic_size_mm, config_to_dict
+
+    g6 = config_to_dict(TriaxialConfig(**specimen_fields(LAB_CALIBRATION["g6_s0"][0])))
+    ratio = g6["specimen_diameter_mm"] / characteristic_size_mm(g6)
+    assert ratio == pytest.approx(150.0 / 16.1376, rel=1e-4)
+    rows = [r for r in boundary_split_rows() if r["state"] == "ballast"]
+    membrane = [r for r in rows if r["cell"] == "membrane"]
+    assert membrane and all(float(r["d_over_ds"]) == pytest.approx(ratio, abs=1e-4) for r in membrane)
+    element = {float(r["pressure_kpa"]): float(r["peak_lw"]) for r in rows if r["cell"] == "periodic"}
+    parts = []
+    for pressure, peak in element.items():
+        internal = [float(r["peak_int"]) for r in membrane if float(r["pressure_kpa"]) == pressure]
+        parts.append(sum(internal) / len(internal) - peak)
+    note = next(line for line in size_effect_lines(150.5 / 16.14) if "ballast" in line)
+    assert f"{min(parts):+.1f} to {max(parts):+.1f}° from the boundary-free element's at the peak" in note
+    assert "at D_s/D = 9.32" in note
+
+
+def test_a_ratio_within_the_nominal_tolerance_of_the_table_s_end_takes_the_end_and_beyond_it_none():
+    from calibrate.size_effect import NOMINAL_DIAMETER_TOLERANCE
+
+    inside = 12.0 * (1.0 + 0.9 * NOMINAL_DIAMETER_TOLERANCE)
+    assert "+1.0 to +2.0° from" in size_effect_note(inside, "dense", ROWS)  # the D_s/D = 12 rows
+    assert "none simulated" in size_effect_note(
+        12.0 * (1.0 + 1.1 * NOMINAL_DIAMETER_TOLERANCE), "dense", ROWS
+    )
+    assert "none simulated" in size_effect_note(6.0 * (1.0 - 1.1 * NOMINAL_DIAMETER_TOLERANCE), "dense", ROWS)
+    assert "+2.0 to +5.0° from" in size_effect_note(
+        6.0 * (1.0 - 0.9 * NOMINAL_DIAMETER_TOLERANCE), "dense", ROWS
+    )
