@@ -199,7 +199,8 @@ def rigid_wall_test(
         :data:`~membrax.spheres.walls.LATERAL_INTEGRAL_FRACTION` × α, the integral root real and slow; 0:
         YADE's proportional servo), which holds σ3 at σc while the specimen dilates
         (:mod:`membrax.spheres.walls`, "Why the lateral walls need more").
-      max_wall_speed: servo speed limit, m/s (default: 1 % of a diameter per 1000 steps).
+      max_wall_speed: servo speed limit, m/s (default: 1 % of a diameter per 1000 steps); shearing raises
+        the lateral walls' to at least :data:`LATERAL_SPEED_MARGIN` ε̇ R (:meth:`RigidWallTest.start_shear`).
       time_step: Δt in s, overriding ``dt_safety`` × Δt_crit (e.g. to run cases with one step).
     """
     check_range("cell_pressure", cell_pressure, lower=0.0, lower_open=True, hint="Pa; 10 kPa is 1e4.")
