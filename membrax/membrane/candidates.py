@@ -295,6 +295,13 @@ def _build(
     )
 
 
+#: :func:`_build` as one program. Called eagerly (a table's first build, on the host) its ~60 operations
+#: (K passes of the smallest id, the sorts and searches) each compiled on their own for every new table
+#: size; as one program they compile once. Inside a caller's ``jit`` it is inlined. Its outputs are ids and
+#: counts, and the positions and skin passed through, so the table is the same either way.
+_build_compiled = jax.jit(_build, static_argnums=(3, 6, 7, 8))
+
+
 def build_candidates(
     node_position,
     sphere_position,
@@ -341,7 +348,7 @@ def build_candidates(
             )
     skin = jnp.asarray(skin, dtype=node_position.dtype)
     arrays = (node_position, sphere_position, sphere_radius)
-    return _build(*arrays, grid, membrane_thickness, skin, capacity, sphere_capacity, extra_reach)
+    return _build_compiled(*arrays, grid, membrane_thickness, skin, capacity, sphere_capacity, extra_reach)
 
 
 def _max_displacement(position, reference):
