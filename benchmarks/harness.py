@@ -8,6 +8,8 @@ import subprocess
 import sys
 import time
 
+import numpy as np
+
 DTYPES = ("float32", "float64")
 
 
@@ -110,7 +112,13 @@ def time_one_by_one(tests, states, num_records: int, record_every: int) -> tuple
     for test, state in zip(tests, states, strict=True):
 
         def alone(s, test=test):
-            return test.runner._chunk(s, test.params, num_records=num_records, record_every=record_every)
+            return test.runner._chunk(
+                s,
+                test.params,
+                np.int32(num_records * record_every),
+                num_records=num_records,
+                record_every=record_every,
+            )
 
         _, compile_and_run = timed(alone, state)
         _, run = timed(alone, state)

@@ -40,6 +40,7 @@ import math
 from collections.abc import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from membrax import native
@@ -51,6 +52,7 @@ __all__ = [
     "TABLE_GROWTHS",
     "advance",
     "record_blocks",
+    "budgeted_blocks",
     "ChunkRunner",
     "drive",
     "grow_tables",
@@ -94,6 +96,30 @@ def record_blocks(block: Callable, carry, num_records: int):
       (the final carry, the records stacked along a leading axis of ``num_records``).
     """
     return jax.lax.scan(lambda current, _: block(current), carry, None, length=num_records)
+
+
+def budgeted_blocks(
+    step: Callable, record: Callable, state, params, left, num_records: int, record_every: int
+):
+    """``num_records`` blocks of ``record_every`` steps of ``step``, each recorded, within a step budget.
+
+    A block runs while the budget ``left`` is positive; past it the state is frozen: ``lax.cond`` skips the
+    block's steps (under ``vmap``, where ``left`` differs between members, both branches run and the frozen
+    state is selected), and ``record`` records the frozen state.
+
+    Returns:
+      (state, left, records, valid): ``valid`` marks the blocks that ran.
+    """
+
+    def block(carry):
+        s, budget = carry
+        active = budget > 0
+        s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
+        budget = jnp.where(active, budget - record_every, budget)
+        return (s, budget), (record(s, params), active)
+
+    (state, left), (records, valid) = record_blocks(block, (state, left), num_records)
+    return state, left, records, valid
 
 
 #: The factor by which a neighbour list's pair capacity grows on an overflow.
@@ -253,12 +279,15 @@ class ChunkRunner:
             compiler_options=native.compiler_options(),
         )
 
-    def _chunk_impl(self, state, params, num_records: int, record_every: int):
-        def block(s):
-            s = advance(self.step_fn, s, params, record_every)
-            return s, self.record_fn(s, params)
+    def _chunk_impl(self, state, params, left, num_records: int, record_every: int):
+        """(state, records): :func:`budgeted_blocks` within ``left`` steps.
 
-        return record_blocks(block, state, num_records)
+        The blocks past ``left`` recorded the frozen state; :meth:`run` drops them.
+        """
+        state, _, records, _ = budgeted_blocks(
+            self.step_fn, self.record_fn, state, params, left, num_records, record_every
+        )
+        return state, records
 
     def reallocate(self, state, capacity_growth: float | None = None):
         """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
@@ -336,8 +365,14 @@ class ChunkRunner:
         chunks = []
 
         def chunk(current, left, num_records):
-            new, records = self._chunk(current, params, num_records=num_records, record_every=record_every)
-            return new, left - num_records * record_every, records, None
+            # A whole chunk's program (drive's whole_chunks) within the budget: the stage's last chunk
+            # compiles nothing new; the frozen blocks' records are dropped here.
+            ran = min(num_records, math.ceil(int(left[0]) / record_every))
+            new, records = self._chunk(
+                current, params, np.int32(left[0]), num_records=num_records, record_every=record_every
+            )
+            records = jax.tree.map(lambda r: r[:ran], jax.device_get(records))
+            return new, left - ran * record_every, records, None
 
         def fail(error, new, current):
             return SimulationError(
@@ -364,12 +399,24 @@ class ChunkRunner:
             grow=self.grow,
             fail=fail,
             accept=accept,
+            whole_chunks=True,
         )
         return state, concatenate_records(chunks)
 
 
 def drive(
-    chunk, state, budgets, record_every: int, chunk_steps: int, *, errors, grow, fail, accept, isolate=None
+    chunk,
+    state,
+    budgets,
+    record_every: int,
+    chunk_steps: int,
+    *,
+    errors,
+    grow,
+    fail,
+    accept,
+    isolate=None,
+    whole_chunks: bool = False,
 ):
     """The chunk loop: every long run of membrax (a test's stage, a batch's phase) goes through it.
 
@@ -405,6 +452,11 @@ def drive(
         error ended (it reports them, and raises when none is left to go on); the chunk is then run again
         from its starting state, so the failed members stay at their last good state and records, before
         any table growth (a blown-up member's tables overflow too). None: ``fail``.
+      whole_chunks: every pass asks ``chunk`` for a whole chunk's records, also where the budgets end
+        sooner, so a stage's last, shorter chunk runs the program already compiled for the others instead
+        of compiling its own. Only for a ``chunk`` that runs no block past a member's budget (the state
+        unchanged there, :func:`budgeted_blocks`): :meth:`ChunkRunner.run`'s and the batched executor's
+        under ``lax.map``.
 
     Returns:
       (state, left): the final state and the steps each member had left (0 unless stopped by errors).
@@ -414,7 +466,11 @@ def drive(
     growths = 0  # in a row, since the last accepted chunk
     regrown_after_error = False  # this chunk already reran with grown tables after another error
     while left.max(initial=0) > 0:
-        count = min(records_per_chunk, math.ceil(left.max() / record_every))
+        count = (
+            records_per_chunk
+            if whole_chunks
+            else min(records_per_chunk, math.ceil(left.max() / record_every))
+        )
         new_state, new_left, records, valid = chunk(state, left, count)
         error = np.asarray(errors(new_state))
         overflowed, other = np.any(error & OVERFLOWS), np.any(error & ~OVERFLOWS)

@@ -46,7 +46,7 @@ from membrax import native
 from membrax.assemble import run_settings
 from membrax.batch import stack
 from membrax.config import TriaxialConfig
-from membrax.driver import advance, drive, grow_tables, record_blocks
+from membrax.driver import budgeted_blocks, drive, grow_tables
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
 from membrax.membrane.candidates import cell_grid
 from membrax.membrane.coupled import (
@@ -158,23 +158,6 @@ class StackedMembers:
     def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
         """One member's chunk: ``(state, left, records, valid)`` (a subclass's)."""
         raise NotImplementedError
-
-    def _budgeted_chunk(self, step, record, state, params, left, num_records: int, record_every: int):
-        """``num_records`` blocks of ``record_every`` steps of ``step``, each recorded, within a step budget.
-
-        A spent budget freezes the member: ``lax.cond`` skips its work under ``lax.map`` (under ``vmap`` both
-        branches run and the frozen one is selected).
-        """
-
-        def block(carry):
-            s, budget = carry
-            active = budget > 0
-            s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
-            budget = jnp.where(active, budget - record_every, budget)
-            return (s, budget), (record(s, params), active)
-
-        (state, left), (records, valid) = record_blocks(block, (state, left), num_records)
-        return state, left, records, valid
 
     def _chunk_impl(self, states, params, members, left, num_records: int, record_every: int):
         def one(state, param, member, budget):
@@ -321,6 +304,9 @@ class StackedMembers:
             fail=fail,
             accept=accept,
             isolate=None if on_failure is None else isolate,
+            # Under lax.map a spent budget's blocks are skipped by their cond (budgeted_blocks), so a stage's
+            # last chunk can be a whole one, with no program of its own; under vmap they would run.
+            whole_chunks=self.mode == "map",
         )
         return states, left[:num]
 
@@ -348,7 +334,7 @@ class BatchedTest(StackedMembers):
         # The Gent stiffening check at the strictest member's limit (each member's own Δt_crit, one Δt).
         step = template.make_step(mesh, min(t.tangent_limit for t in self.tests))
         record = template.make_record(mesh, member["initial_volume"])
-        return self._budgeted_chunk(step, record, state, params, left, num_records, record_every)
+        return budgeted_blocks(step, record, state, params, left, num_records, record_every)
 
     def grow(self, states, error, overflowed):
         """Every member's tables that overflowed grown to one larger capacity (:func:`grow_tables`).
@@ -418,7 +404,7 @@ class PeriodicBatch(StackedMembers):
     def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
         del member
         runner = self.tests[0].runner
-        return self._budgeted_chunk(
+        return budgeted_blocks(
             runner.step_fn, runner.record_fn, state, params, left, num_records, record_every
         )
 

@@ -510,7 +510,7 @@ def _on_chunk(group: _Group, phase: str, hooks: _Hooks, bar, on_failure, current
     left[stop] = 0
     group.budgets = left
     group.records[phase].append(chunk)
-    bar.update(chunk["valid"].shape[1] * group.plans[0][phase][1])
+    bar.update(int(chunk["valid"].any(axis=0).sum()) * group.plans[0][phase][1])  # the blocks that ran
     bar.set_postfix(**group.postfix(phase, current, chunk, left))
     if hooks.after_chunk is not None:
         hooks.after_chunk(current, phase)

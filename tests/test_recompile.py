@@ -82,3 +82,22 @@ def _rigid_wall_step_compiles_once(members):
     walls = set_control(state.walls, servo=True, velocity=0.0, target_stress=2.0 * test.cell_pressure)
     step(state.set(walls=walls), params)
     assert len(traces) == 1
+
+
+def test_a_stage_s_last_shorter_chunk_runs_the_program_of_the_whole_ones_with_the_same_bits():
+    """250 steps in chunks of 100 (records every 25) run as 100 + 100 + 50 steps, the last chunk the
+    same compiled program as the others with its last two blocks skipped (:func:`membrax.driver.drive`'s
+    ``whole_chunks``): one compilation, and the state and the 10 records of one 250-step chunk, to the bit
+    (the same steps in the same order; a skipped block changes nothing)."""
+    with jax.enable_x64(True):
+        test = rigid_wall_test(fcc.fcc_specimen(0.025, 3, 4), 40e3, time_step=1e-5)
+        state = test.start_consolidation(test.initial_state)
+        chunked, chunked_records = test.runner.run(state, test.params, 250, chunk_steps=100, record_every=25)
+        assert test.runner._chunk._cache_size() == 1
+        whole, whole_records = test.runner.run(state, test.params, 250, chunk_steps=250, record_every=25)
+    assert float(np.abs(np.asarray(chunked.velocity)).max()) > 0.0  # it moved
+    for a, b in zip(
+        jax.tree.leaves((chunked, chunked_records)), jax.tree.leaves((whole, whole_records)), strict=True
+    ):
+        np.testing.assert_array_equal(a, b)
+    assert jax.tree.leaves(chunked_records)[0].shape[0] == 10
