@@ -374,7 +374,7 @@ SUBCOMMAND_HELP = {
         "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
         "  membrax reproduce --size small --packing random       # 3 seeds per case, 5 min; beside the\n"
         "                                                        # FCC run in results_reproduce_small\n"
-        "  membrax reproduce --size paper --out paper_run        # about 20 min on 2 CPU cores\n"
+        "  membrax reproduce --size paper --out paper_run        # about 14 min on 2 CPU cores\n"
         "  membrax reproduce --size paper --scheduler tcp://head:8786 --out /shared/paper_run",
     ),
 }
@@ -435,8 +435,9 @@ def build_parser() -> argparse.ArgumentParser:
         default="small",
         help=(
             "small: 6 × 10 specimen, ≈ 3 min on 2 CPU cores; "
-            "paper: 10 × 25, ≈ 20 min on 2 CPU cores (19 min 58 s measured; 12 min 27 s with --set "
-            "coarse_inertial_number=5e-3, measured before the last speed-up); add --scheduler to share it"
+            "paper: 10 × 25, ≈ 14 min on 2 CPU cores (13 min 46 s measured; "
+            "--set coarse_inertial_number=5e-3 nearly halves it but moves φ' after 1 %%); "
+            "add --scheduler to share it"
         ),
     )
     reproduce.add_argument("--out", default=None, help="results folder (default: results_reproduce_<size>)")
