@@ -542,6 +542,7 @@ def main(argv: list[str] | None = None) -> int:
     vanished) in one line and exit status 1.
     """
     args = build_parser().parse_args(sys.argv[1:] if argv is None else argv)
+    use_compilation_cache()
     try:
         return args.func(args)
     except KeyboardInterrupt:
@@ -550,6 +551,34 @@ def main(argv: list[str] | None = None) -> int:
     except OSError as error:
         print(f"membrax: {_os_error_words(error)}", file=sys.stderr)
         return 1
+
+
+def use_compilation_cache() -> Path | None:
+    """Keep the command's longer compilations in JAX's persistent cache, so the next command loads them.
+
+    The folder is ``$JAX_COMPILATION_CACHE_DIR`` where set (JAX reads it itself), else ``jax/`` in membrax's
+    cache folder (:func:`membrax.native.cache_dir`, the folder a Dask campaign's workers share,
+    :func:`membrax.campaign.local_cluster`); ``MEMBRAX_COMPILATION_CACHE=0`` leaves JAX's cache off. JAX
+    keeps the programs that took ``jax_persistent_cache_min_compile_time_secs`` (1 s by default) or more to
+    compile: the chunks of a run and the membrane's stiffness product, not the small operations of building
+    a specimen. The command-line entry point sets this, not the library's import.
+
+    Returns:
+      The cache folder, or None where the cache stays off.
+    """
+    import os
+
+    if os.environ.get("MEMBRAX_COMPILATION_CACHE", "1") == "0":
+        return None
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+    import jax
+
+    from membrax import native
+
+    folder = native.cache_dir() / "jax"
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    return folder
 
 
 def _resume_words(folder) -> str:

@@ -47,3 +47,41 @@ def test_console_entry_point_runs_theory():
         [sys.executable, "-m", "membrax.cli", "theory"], capture_output=True, text=True, check=True
     )
     assert "43.85" in result.stdout and "43.79" in result.stdout
+
+
+_CACHED = """
+import json, jax, jax.numpy as jnp
+from membrax.cli import use_compilation_cache
+hits = []
+jax.monitoring.register_event_listener(lambda name, **_: hits.append(name))
+folder = use_compilation_cache()
+n = 1000
+total = jax.jit(lambda x: jnp.sum(x * x))(jnp.arange(1, n + 1, dtype=jnp.int32))
+print(json.dumps({"folder": str(folder), "sum": int(total),
+                  "hits": hits.count("/jax/compilation_cache/cache_hits")}))
+"""
+
+
+def test_the_command_line_keeps_its_programs_in_membrax_s_cache_folder_for_the_next_command(tmp_path):
+    """``membrax``'s entry point turns on JAX's persistent cache in membrax's cache folder (``jax/`` in
+    ``$MEMBRAX_CACHE_DIR``): a second process loads the program the first compiled (a cache hit) and gets
+    the same Σ k² = n(n + 1)(2n + 1)/6; ``MEMBRAX_COMPILATION_CACHE=0`` leaves it off (no folder)."""
+    import json
+    import os
+
+    env = {k: v for k, v in os.environ.items() if k != "JAX_COMPILATION_CACHE_DIR"}
+    env.update(MEMBRAX_CACHE_DIR=str(tmp_path), JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS="0")
+
+    def run(**extra):
+        done = subprocess.run(
+            [sys.executable, "-c", _CACHED], env={**env, **extra}, capture_output=True, text=True, check=True
+        )
+        return json.loads(done.stdout.strip().splitlines()[-1])
+
+    first, second = run(), run()
+    assert first["folder"] == second["folder"] == str(tmp_path / "jax")
+    assert first["sum"] == second["sum"] == 1000 * 1001 * 2001 // 6
+    assert first["hits"] == 0 and second["hits"] >= 1
+    assert any((tmp_path / "jax").iterdir())
+    off = run(MEMBRAX_COMPILATION_CACHE="0")
+    assert off["folder"] == "None" and off["hits"] == 0 and off["sum"] == first["sum"]
