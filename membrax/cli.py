@@ -34,6 +34,7 @@ it and this module are the one place membrax reaches :mod:`calibrate`.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -566,8 +567,6 @@ def use_compilation_cache() -> Path | None:
     Returns:
       The cache folder, or None where the cache stays off.
     """
-    import os
-
     if os.environ.get("MEMBRAX_COMPILATION_CACHE", "1") == "0":
         return None
     if os.environ.get("JAX_COMPILATION_CACHE_DIR"):

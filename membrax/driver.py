@@ -280,14 +280,11 @@ class ChunkRunner:
         )
 
     def _chunk_impl(self, state, params, left, num_records: int, record_every: int):
-        """(state, records): :func:`budgeted_blocks` within ``left`` steps.
+        """(state, left, records, valid): :func:`budgeted_blocks` within ``left`` steps.
 
-        The blocks past ``left`` recorded the frozen state; :meth:`run` drops them.
+        The blocks past ``left`` (``valid`` False) recorded the frozen state; :meth:`run` drops them.
         """
-        state, _, records, _ = budgeted_blocks(
-            self.step_fn, self.record_fn, state, params, left, num_records, record_every
-        )
-        return state, records
+        return budgeted_blocks(self.step_fn, self.record_fn, state, params, left, num_records, record_every)
 
     def reallocate(self, state, capacity_growth: float | None = None):
         """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
@@ -367,12 +364,12 @@ class ChunkRunner:
         def chunk(current, left, num_records):
             # A whole chunk's program (drive's whole_chunks) within the budget: the stage's last chunk
             # compiles nothing new; the frozen blocks' records are dropped here.
-            ran = min(num_records, math.ceil(int(left[0]) / record_every))
-            new, records = self._chunk(
+            new, new_left, records, valid = self._chunk(
                 current, params, np.int32(left[0]), num_records=num_records, record_every=record_every
             )
-            records = jax.tree.map(lambda r: r[:ran], jax.device_get(records))
-            return new, left - ran * record_every, records, None
+            valid = np.asarray(valid)
+            records = jax.tree.map(lambda r: r[valid], jax.device_get(records))
+            return new, np.asarray([int(new_left)], dtype=np.int64), records, None
 
         def fail(error, new, current):
             return SimulationError(
