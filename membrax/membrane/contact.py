@@ -224,9 +224,10 @@ def node_sphere_forces(
     s' = tangential_spring_update(s, n, Π_t[v_node − v_i − ω_i × b], Δt, k_t, μ, k_n δ, δ > 0).
 
     On the CPU, in float32 or float64, the forces, torques and springs come from a compiled kernel
-    (:mod:`membrax.native`, ``node_sphere.cc``) that finds the touching slots in one vectorised pass and
-    applies this law to those alone. The JAX law below (``_reference_node_sphere_forces``) is the
-    definition the tests hold the kernel to (agreement to round-off); reverse mode runs a compiled
+    (:mod:`membrax.native`, ``node_sphere.cc``) that runs over the slots once, skips the padded ones
+    before any gather and applies this law to the touching ones alone. The JAX law below
+    (``_reference_node_sphere_forces``) is the definition the tests hold the kernel to (agreement to
+    round-off); reverse mode runs a compiled
     backward kernel (``node_sphere_backward``, the law of each touching slot run backwards by hand) that
     gives the JAX law's derivatives to round-off.
 

@@ -39,9 +39,11 @@ its own elements in order, so the result does not depend on which thread ran it.
 Threads. The forward kernels of the membrane forces, the node–sphere law and the sphere pairs are
 asynchronous FFI handlers: each checks its arguments, runs its loop as a task on XLA's intra-op thread
 pool (from 8,192 elements on; smaller loops run in the caller) and returns a future, so XLA goes on with
-independent work meanwhile and the three kernels of a step run side by side (``parallel.h``,
-``on_pool``). The face contact law's forward kernel runs its loops as two such tasks, fixed halves of
-each kind of feature, and adds their sphere reactions up in slot order after both (``halves_on_pool``).
+independent work meanwhile and the membrane's two kernels of a step run side by side (``parallel.h``,
+``on_pool``). The sphere pairs' and the face contact law's forward kernels run their loops as two such
+tasks, fixed halves of the slots (of each kind of feature), and add the spheres' sums up in slot order
+after both (``halves_on_pool``): XLA launches the pairs after the node update, so both halves then have a
+thread each.
 Their arithmetic is the synchronous one's, bit for bit. A trace (``jax.profiler``) then shows only their
 launch under the kernel's name; the loop runs in an unnamed pool task. With ``MEMBRAX_NATIVE_THREADS=1``
 every kernel runs its loops in its caller, the same halves in the same order: the serial path the tests

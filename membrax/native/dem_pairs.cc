@@ -1,6 +1,6 @@
 // The DEM's sphere–sphere contacts over a neighbour list, summed per sphere, in one pass.
 //
-// An XLA FFI handler for the CPU (asynchronous: its loop runs as a task on XLA's thread pool,
+// An XLA FFI handler for the CPU (asynchronous: the law runs in two halves of the slots as tasks on XLA's thread pool,
 // parallel.h), compiled on first use by membrax/native/__init__.py. For each slot (i, j) =
 // idx[:, k] (padded with N) it gathers the two spheres (b = (x_j − x_i) + (c_j − c_i), positions with
 // their compensation), applies the Cundall–Strack law (contact_law.h, sphere_pair; the reference is
@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -33,11 +34,12 @@ template <typename T>
 void dem_pair_law(const T* __restrict position, const T* __restrict compensation, const T* __restrict velocity,
                   const T* __restrict angular, const T* __restrict radius, const int32_t* __restrict idx,
                   const T* __restrict spring, const T* __restrict kn, const T* __restrict kt,
-                  const T* __restrict mu, T dt, int64_t num_spheres, int64_t num_slots, T* __restrict pair_force,
-                  T* __restrict new_spring, T* __restrict torque_i, T* __restrict torque_j) {
+                  const T* __restrict mu, T dt, int64_t num_spheres, int64_t num_slots, int64_t begin, int64_t end,
+                  T* __restrict pair_force, T* __restrict new_spring, T* __restrict torque_i,
+                  T* __restrict torque_j) {
   using Vec3 = membrax::Vec3<T>;
 #pragma GCC ivdep
-  for (int64_t k = 0; k < num_slots; ++k) {
+  for (int64_t k = begin; k < end; ++k) {
     const int32_t i = idx[k], j = idx[num_slots + k];
     const bool valid = i < num_spheres;
     const int64_t gi = valid ? i : 0, gj = valid ? j : 0;
@@ -110,13 +112,18 @@ ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensati
   T* force = pair_force->typed_data();
   T* springs = new_spring->typed_data();
   T* total = totals->typed_data();
-  return membrax::on_pool(pool, slots, [=]() {
-    thread_local std::vector<T> scratch;
-    scratch.resize(size_t(6 * slots));
-    T* torque_i = scratch.data();
-    T* torque_j = torque_i + 3 * slots;
-    dem_pair_law<T>(in.x, in.xc, in.v, in.w, in.r, id, in.spring, in.kn, in.kt, in.mu, in.dt, n, slots, force,
-                    springs, torque_i, torque_j);
+  // The law in two halves of the slots (parallel.h, half_range), each writing its own slots' outputs and
+  // torques; then the per-sphere sums in slot order, once both are done: the bits of one pass.
+  std::shared_ptr<T[]> scratch(new T[size_t(6 * slots)]);
+  auto half = [=](int h) {
+    const membrax::Range range = membrax::half_range(h, slots);
+    T* torque_i = scratch.get();
+    dem_pair_law<T>(in.x, in.xc, in.v, in.w, in.r, id, in.spring, in.kn, in.kt, in.mu, in.dt, n, slots,
+                    range.begin, range.end, force, springs, torque_i, torque_i + 3 * slots);
+  };
+  auto tail = [=]() {
+    const T* torque_i = scratch.get();
+    const T* torque_j = torque_i + 3 * slots;
     std::fill(total, total + 6 * n, T(0));
     // As the reference's one segment sum: first every slot's share of j, then every slot's share of i.
     for (int64_t k = 0; k < slots; ++k) {
@@ -135,7 +142,8 @@ ffi::Future dem_pairs(ffi::Buffer<dtype> position, ffi::Buffer<dtype> compensati
         row[3 + c] += torque_i[3 * k + c];
       }
     }
-  });
+  };
+  return membrax::halves_on_pool(pool, slots, half, tail);
 }
 
 

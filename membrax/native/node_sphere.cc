@@ -8,8 +8,8 @@
 //   v_t = Π_t[v_n − (v_i + ω_i × b)],
 //   s' = Coulomb-capped (|s| Π_t(s)/max(|Π_t(s)|, |s|/2) − k_t v_t Δt), |s'| ≤ μ k_n δ, s' = 0 when δ ≤ 0,
 //   F = F_n + s' on the node, −F on the sphere, torque b × (−F) on the sphere.
-// A vectorised pass finds the touching slots (about one in ten at paper size); the law and the sums run
-// over those alone, in slot order.
+// One pass in slot order: a padded slot is skipped before any gather, and the law runs on the touching
+// slots alone (about one in ten at paper size).
 //
 // Inputs (T: float or double): node_position, node_velocity (n, 3); sphere_position, sphere_velocity,
 // sphere_angular_velocity (N, 3); sphere_radius (N,); idx (n, K) i32 padded with N; spring (3, n, K);
@@ -144,37 +144,48 @@ ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dty
   T* on_sphere = sphere_force->typed_data();
   T* torque = sphere_torque->typed_data();
   return membrax::on_pool(pool, in.m, [=]() {
-    std::fill(on_node, on_node + 3 * in.num_nodes, T(0));
     std::fill(on_sphere, on_sphere + 3 * in.num_spheres, T(0));
     std::fill(torque, torque + 3 * in.num_spheres, T(0));
-
-    thread_local std::vector<uint8_t> touching;
-    touching.resize(size_t(in.m));
-    touching_slots<T>(in.x, in.xs, in.radius, in.id, 0, in.num_nodes, in.capacity, in.num_spheres,
-                      in.half_thickness, touching.data());
-    // In slot order, so that each node's force is summed in the order of the JAX law.
+    // One pass in slot order (node by node, then candidate by candidate), so that each node's force and
+    // each sphere's sums are added in the order of the JAX law. A padded slot (i = N) is skipped before
+    // any gather, and a valid one's law runs only where δ > 0 (or δ is NaN, which the law then carries
+    // to the outputs as the JAX law does); every other slot gives zero force and a zero spring.
     // A slot's new spring is written after its old one is read, and no other slot's is read: so the
     // springs may be updated in place (input_output_aliases, node_sphere_kernel).
-    for (int64_t j = 0; j < in.m; ++j) {
-      if (!touching[j]) {
-        springs[j] = springs[in.m + j] = springs[2 * in.m + j] = T(0);
-        continue;
+    const int64_t capacity = in.capacity;
+    for (int64_t node = 0; node < in.num_nodes; ++node) {
+      Vec3<T> node_sum{T(0), T(0), T(0)};
+      for (int64_t j = node * capacity; j < (node + 1) * capacity; ++j) {
+        const int32_t sphere = in.id[j];
+        bool touching = sphere < in.num_spheres;
+        Vec3<T> b{};
+        T overlap = T(0);
+        if (touching) {
+          b = membrax::row3(in.x, node) - membrax::row3(in.xs, sphere);
+          overlap = in.radius[sphere] + in.half_thickness - std::sqrt(dot(b, b));
+          touching = !(overlap <= T(0));
+        }
+        if (!touching) {
+          springs[j] = springs[in.m + j] = springs[2 * in.m + j] = T(0);
+          continue;
+        }
+        const Vec3<T> w = membrax::row3(in.ws, sphere);
+        const Vec3<T> relative = membrax::row3(in.v, node) - (membrax::row3(in.vs, sphere) + cross(w, b));
+        const Vec3<T> s = membrax::column3(in.old_spring, 0, in.m, j);
+        Vec3<T> updated;
+        const Vec3<T> force = slot_law<T>(b, relative, s, overlap, in.dt, in.normal_stiffness,
+                                          in.tangential_stiffness, in.friction, &updated);
+        const Vec3<T> torque_on_sphere = cross(b, T(-1) * force);
+        springs[j] = updated.x;
+        springs[in.m + j] = updated.y;
+        springs[2 * in.m + j] = updated.z;
+        node_sum = node_sum + force;
+        membrax::add3(on_sphere, sphere, T(-1) * force);
+        membrax::add3(torque, sphere, torque_on_sphere);
       }
-      const int64_t node = j / in.capacity, sphere = in.id[j];
-      const SlotKinematics<T> kinematics = slot_kinematics(in.x, in.v, in.xs, in.vs, in.ws, node, sphere);
-      const Vec3<T> b = kinematics.branch, relative = kinematics.relative;
-      const Vec3<T> s = membrax::column3(in.old_spring, 0, in.m, j);
-      const T overlap = in.radius[sphere] + in.half_thickness - std::sqrt(dot(b, b));
-      Vec3<T> updated;
-      const Vec3<T> force = slot_law<T>(b, relative, s, overlap, in.dt, in.normal_stiffness,
-                                        in.tangential_stiffness, in.friction, &updated);
-      const Vec3<T> torque_on_sphere = cross(b, T(-1) * force);
-      springs[j] = updated.x;
-      springs[in.m + j] = updated.y;
-      springs[2 * in.m + j] = updated.z;
-      membrax::add3(on_node, node, force);
-      membrax::add3(on_sphere, sphere, T(-1) * force);
-      membrax::add3(torque, sphere, torque_on_sphere);
+      on_node[3 * node] = node_sum.x;
+      on_node[3 * node + 1] = node_sum.y;
+      on_node[3 * node + 2] = node_sum.z;
     }
   });
 }
