@@ -97,7 +97,8 @@ def test_the_integral_gain_above_the_critically_damped_bound_is_refused():
 def test_the_lateral_walls_hold_the_cell_pressure_while_a_dense_random_packing_dilates(cell_pressure):
     """~250 equal spheres (6 × 8 diameters) compacted without friction (dense: they dilate when sheared)
     in the rigid box at 10 and 100 kPa, sheared at I = 1e-3 to 3 % axial strain: the specimen dilates
-    (ε_v < −0.3 % at the end, compression positive) and the lateral walls' σ3 stays within 2 % of σc at every
+    over the last 1 % of strain (the slope dε_v/dε_a of a line through its records below −0.1, compression
+    positive; −0.36 to −0.44 measured) and the lateral walls' σ3 stays within 2 % of σc at every
     record past 0.2 % strain (the step start of the platen's stress wave). At 100 kPa the walls move out at
     up to ε̇ R ≈ 18 mm/s, the build's speed limit: shearing raises it (``LATERAL_SPEED_MARGIN``)."""
     config = TriaxialConfig(
@@ -114,6 +115,11 @@ def test_the_lateral_walls_hold_the_cell_pressure_while_a_dense_random_packing_d
         record_every_coarse=100,
     )
     strain = np.asarray(records.axial_strain)[:, 0]
-    assert float(np.asarray(records.volumetric_strain)[-1, 0]) < -0.003
+    # The rate, not the level: how far the packing first contracts (0.45–0.58 % by 0.5 % strain) moves
+    # with the machine's arithmetic, and the level at 3 % with it (−0.18 and −0.003 % on an AVX-512 CPU
+    # for the code that had passed ε_v < −0.3 % elsewhere), while the late rate stays dilative.
+    volumetric = np.asarray(records.volumetric_strain)[:, 0]
+    late = strain >= strain[-1] - 0.01
+    assert np.polyfit(strain[late], volumetric[late], 1)[0] < -0.1
     ratio = np.asarray(records.wall_radial_stress)[strain > 0.002, 0] / cell_pressure
     assert np.max(np.abs(ratio - 1.0)) <= 0.02, (ratio.min(), ratio.max())
