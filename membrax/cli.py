@@ -436,7 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="small",
         help=(
             "small: 6 × 10 specimen, ≈ 3 min on 2 CPU cores; "
-            "paper: 10 × 25, ≈ 14 min on 2 CPU cores (13 min 46 s measured; "
+            "paper: 10 × 25, 14–20 min on 2 CPU cores (13 min 46 s and 19 min 45 s measured on two machines; "
             "--set coarse_inertial_number=5e-3 nearly halves it but moves φ' after 1 %%); "
             "add --scheduler to share it"
         ),

@@ -98,9 +98,10 @@ def test_the_lateral_walls_hold_the_cell_pressure_while_a_dense_random_packing_d
     """~250 equal spheres (6 × 8 diameters) compacted without friction (dense: they dilate when sheared)
     in the rigid box at 10 and 100 kPa, sheared at I = 1e-3 to 3 % axial strain: the specimen dilates
     over the last 1 % of strain (the slope dε_v/dε_a of a line through its records below −0.1, compression
-    positive; −0.36 to −0.44 measured) and the lateral walls' σ3 stays within 2 % of σc at every
-    record past 0.2 % strain (the step start of the platen's stress wave). At 100 kPa the walls move out at
-    up to ε̇ R ≈ 18 mm/s, the build's speed limit: shearing raises it (``LATERAL_SPEED_MARGIN``)."""
+    positive; from 2 to 3 % it changed by −0.44 and −0.36 per unit strain) and the lateral walls' σ3 stays
+    within 2 % of σc at every record past 0.2 % strain (the step start of the platen's stress wave). At
+    100 kPa the walls move out at up to ε̇ R ≈ 18 mm/s, the build's speed limit: shearing raises it
+    (``LATERAL_SPEED_MARGIN``)."""
     config = TriaxialConfig(
         packing="random", specimen_diameter_mm=150.0, specimen_height_mm=200.0, float64=True
     )

@@ -227,9 +227,8 @@ def node_sphere_forces(
     (:mod:`membrax.native`, ``node_sphere.cc``) that runs over the slots once, skips the padded ones
     before any gather and applies this law to the touching ones alone. The JAX law below
     (``_reference_node_sphere_forces``) is the definition the tests hold the kernel to (agreement to
-    round-off); reverse mode runs a compiled
-    backward kernel (``node_sphere_backward``, the law of each touching slot run backwards by hand) that
-    gives the JAX law's derivatives to round-off.
+    round-off); reverse mode runs a compiled backward kernel (``node_sphere_backward``, the law of each
+    touching slot run backwards by hand) that gives the JAX law's derivatives to round-off.
 
     Args:
       nodes: the nodes' positions and velocities (:class:`ContactNodes`).

@@ -1,7 +1,7 @@
 // The DEM's sphere–sphere contacts over a neighbour list, summed per sphere, in one pass.
 //
-// An XLA FFI handler for the CPU (asynchronous: the law runs in two halves of the slots as tasks on XLA's thread pool,
-// parallel.h), compiled on first use by membrax/native/__init__.py. For each slot (i, j) =
+// An XLA FFI handler for the CPU (asynchronous: the law runs in two halves of the slots as tasks on XLA's
+// thread pool, parallel.h), compiled on first use by membrax/native/__init__.py. For each slot (i, j) =
 // idx[:, k] (padded with N) it gathers the two spheres (b = (x_j − x_i) + (c_j − c_i), positions with
 // their compensation), applies the Cundall–Strack law (contact_law.h, sphere_pair; the reference is
 // membrax.spheres.contact.pair_contact), zeroes the padded slots and sums per sphere: j receives (F, T_j), i

@@ -169,8 +169,7 @@ ffi::Future node_sphere_forces(ffi::Buffer<dtype> node_position, ffi::Buffer<dty
           springs[j] = springs[in.m + j] = springs[2 * in.m + j] = T(0);
           continue;
         }
-        const Vec3<T> w = membrax::row3(in.ws, sphere);
-        const Vec3<T> relative = membrax::row3(in.v, node) - (membrax::row3(in.vs, sphere) + cross(w, b));
+        const Vec3<T> relative = slot_kinematics(in.x, in.v, in.xs, in.vs, in.ws, node, sphere).relative;
         const Vec3<T> s = membrax::column3(in.old_spring, 0, in.m, j);
         Vec3<T> updated;
         const Vec3<T> force = slot_law<T>(b, relative, s, overlap, in.dt, in.normal_stiffness,
