@@ -11,14 +11,12 @@ level.
 Run: ``python benchmarks/bench_startup.py [--dtypes float32]`` (about 1 min on 2 cores).
 """
 
-import argparse
 import collections
-import json
 import tempfile
 import time
 import traceback
 
-from harness import print_table, run_child
+from harness import benchmark_parser, benchmark_report
 
 
 def measure(dtype: str) -> dict:
@@ -59,16 +57,11 @@ def measure(dtype: str) -> dict:
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dtypes", default="float32,float64")
-    parser.add_argument("--child", nargs=1, help=argparse.SUPPRESS)
-    args = parser.parse_args()
-    if args.child:
-        print(json.dumps(measure(args.child[0])))
-        return
-    rows = [run_child(__file__, [dtype], {}) for dtype in args.dtypes.split(",")]
-    print_table(
-        rows,
+    benchmark_report(
+        __file__,
+        benchmark_parser(__doc__),
+        measure,
+        lambda args, first: "smoke preset's specimen; a 3-member sweep to 0.4 % strain; no compilation cache",
         "build_test s|programs|sweep s|chunk programs|chunk compile s",
         "{build_s:>14.2f}{build_programs:>10d}{sweep_s:>9.1f}{chunk_programs:>16d}{chunk_compile_s:>17.2f}",
     )

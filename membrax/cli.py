@@ -375,7 +375,7 @@ SUBCOMMAND_HELP = {
         "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
         "  membrax reproduce --size small --packing random       # 3 seeds per case, 5 min; beside the\n"
         "                                                        # FCC run in results_reproduce_small\n"
-        "  membrax reproduce --size paper --out paper_run        # about 14 min on 2 CPU cores\n"
+        "  membrax reproduce --size paper --out paper_run        # 14–20 min on 2 CPU cores\n"
         "  membrax reproduce --size paper --scheduler tcp://head:8786 --out /shared/paper_run",
     ),
 }
