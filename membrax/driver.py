@@ -295,23 +295,20 @@ class ChunkRunner:
             rebuilds without growing, so the compiled chunk is reused.
         """
         growth = self.capacity_growth if capacity_growth is None else capacity_growth
-        (state,) = grow_tables(
-            [state],
-            ErrorCode.NEIGHBOR_OVERFLOW,
-            self.neighbor_frame,
-            dem_of=self.dem_of,
-            with_dem=self.with_dem,
-            overflowed=state,  # no chunk overflowed: the state's own list says how large
-            capacity_growth=growth,
-            allocate=self.allocate,
-        )
-        self.reallocations += 1
-        return state
+        # No chunk overflowed: the state's own list says how large.
+        return self._grown(state, ErrorCode.NEIGHBOR_OVERFLOW, state, growth)
 
     def grow(self, state, error, overflowed):
         """``state`` with the tables that overflowed (``error``) grown (:func:`grow_tables`), or None.
 
         ``overflowed`` is the overflowing chunk's end state; :func:`drive`'s ``grow``.
+        """
+        return self._grown(state, int(error[0]), overflowed, self.capacity_growth)
+
+    def _grown(self, state, error: int, overflowed, capacity_growth: float):
+        """``state`` with the tables ``error`` names grown through the runner's hooks, or None.
+
+        The one call of :func:`grow_tables` for :meth:`reallocate` and :meth:`grow`.
         """
         grow_membrane = None
         if self.grow_membrane is not None:
@@ -321,13 +318,13 @@ class ChunkRunner:
 
         grown = grow_tables(
             [state],
-            int(error[0]),
+            error,
             self.neighbor_frame,
             dem_of=self.dem_of,
             with_dem=self.with_dem,
             grow_membrane=grow_membrane,
             overflowed=overflowed,
-            capacity_growth=self.capacity_growth,
+            capacity_growth=capacity_growth,
             allocate=self.allocate,
         )
         if grown is None:
