@@ -48,14 +48,14 @@ from membrax.batch import stack
 from membrax.config import TriaxialConfig
 from membrax.driver import budgeted_blocks, drive, grow_tables
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
-from membrax.membrane.candidates import cell_grid
-from membrax.membrane.coupled import (
+from membrax.membrane.candidates import (
     CandidateCapacities,
     candidate_capacities,
+    cell_grid,
     fitted_candidate_capacities,
-    grow_candidates,
     grown_candidate_capacities,
 )
+from membrax.membrane.coupled import grow_candidates
 from membrax.planning import balanced_order, check_batch, checked_order, plan_members, plan_periodic_members
 from membrax.spheres.neighbors import allocate_shared
 from membrax.triaxial.protocol import PHASES
@@ -367,7 +367,7 @@ class BatchedTest(StackedMembers):
         """``states`` with node candidate rows no wider than the members' largest count + 2.
 
         For a resumed batch, whose tables may have been grown for a passing need
-        (:func:`membrax.membrane.coupled.fitted_candidate_capacities`). The width changes no bit; the same
+        (:func:`membrax.membrane.candidates.fitted_candidate_capacities`). The width changes no bit; the same
         states where nothing is cut.
         """
         capacities = fitted_candidate_capacities(states.membrane.candidates)

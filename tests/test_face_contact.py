@@ -363,7 +363,8 @@ def test_members_of_two_thicknesses_share_one_node_table_and_lose_no_candidate()
     (node, sphere) all among its new ones."""
     from membrax.config import TriaxialConfig
     from membrax.executor import build_batch
-    from membrax.membrane.coupled import CandidateCapacities, grow_candidates
+    from membrax.membrane.candidates import CandidateCapacities
+    from membrax.membrane.coupled import grow_candidates
     from membrax.membrane.face_contact import longest_edge
 
     configs = [
@@ -411,7 +412,7 @@ def test_a_resumed_batch_cuts_its_node_rows_back_to_the_largest_count_plus_two()
     candidates unchanged and its face slots 3 K wide; a batch already that narrow is returned as it is."""
     from membrax.config import TriaxialConfig
     from membrax.executor import build_batch
-    from membrax.membrane.coupled import candidate_capacities
+    from membrax.membrane.candidates import candidate_capacities
 
     configs = [
         TriaxialConfig(

@@ -543,7 +543,7 @@ def test_grown_candidate_capacities_follow_the_rule_by_hand():
     ⌈1.5 K_old⌉ if none does; stacked tables take the largest over members."""
     import types
 
-    from membrax.membrane.coupled import grown_candidate_capacities
+    from membrax.membrane.candidates import grown_candidate_capacities
 
     old = types.SimpleNamespace(
         reference_sphere_position=np.zeros((50, 3)),

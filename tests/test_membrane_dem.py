@@ -207,7 +207,7 @@ def test_the_membrane_critical_time_step_is_the_dense_eigenvalue_and_the_same_on
 def test_a_wider_candidate_table_changes_no_bit(contact_model):
     """A node table's capacity K only pads its rows: 300 consolidating steps (float64, the 4 × 4 × 5
     specimen, no overflow) with K = 12, and with K = 12 cut back after 150 steps to the largest count + 2
-    (:func:`membrax.membrane.coupled.fitted_candidate_capacities`, as a resumed batch is), end on the same
+    (:func:`membrax.membrane.candidates.fitted_candidate_capacities`, as a resumed batch is), end on the same
     bits, so that growing one capacity of the table (or not growing another) cannot change a run.
     The padded slots add exact zeros to every sum and a sphere's slots keep their order (flat ids
     node · K + k increase with the node for any K)."""

@@ -19,12 +19,15 @@ than K candidates, a cell with more than C spheres or a sphere held by more than
 host driver reallocates with larger capacities (``max_count``, ``max_cell_count`` and
 ``max_sphere_count`` say how large) and reruns: contacts are never silently dropped. The springs,
 (3, n_nodes, K), follow their sphere ids per node through rebuilds (:func:`remap_node_history`, the
-per-row analogue of :func:`membrax.spheres.neighbors.remap_pair_history`). Cost at paper size (17,220
+per-row analogue of :func:`membrax.spheres.neighbors.remap_pair_history`). A table's capacities (K, M, C)
+are :class:`CandidateCapacities`; after an overflow :func:`grown_candidate_capacities` says how large to
+rebuild it, :func:`fitted_candidate_capacities` how narrow a resumed one may be. Cost at paper size (17,220
 nodes, 1,816 spheres, K = 3, float32, 2 CPU cores): see ``benchmarks/bench_membrane.py``'s rebuild column.
 """
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -37,11 +40,15 @@ from membrax.vector import safe_norm
 
 __all__ = [
     "ERROR_MEMBRANE_CANDIDATE_OVERFLOW",
+    "CandidateCapacities",
     "CellGrid",
     "NodeCandidates",
     "build_candidates",
+    "candidate_capacities",
     "candidate_errors",
     "cell_grid",
+    "fitted_candidate_capacities",
+    "grown_candidate_capacities",
     "needs_rebuild",
     "remap_node_history",
     "sphere_slot_table",
@@ -481,3 +488,66 @@ def update_candidates(
 def candidate_errors(candidates: NodeCandidates):
     """int32 error bits for the state's bitmask: ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW`` on overflow."""
     return jnp.where(candidates.did_overflow, ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW, 0).astype(jnp.int32)
+
+
+class CandidateCapacities(NamedTuple):
+    """The static sizes of a node candidate table (:class:`~membrax.membrane.candidates.NodeCandidates`).
+
+    Attributes:
+      capacity: K, candidates per node.
+      sphere_capacity: M, slots per sphere.
+      cell_capacity: C, spheres per cell of the cell list.
+    """
+
+    capacity: int
+    sphere_capacity: int
+    cell_capacity: int
+
+
+def candidate_capacities(candidates) -> CandidateCapacities:
+    """(K, M, C) of a candidate table (of one state, or stacked)."""
+    capacity, sphere_capacity = np.shape(candidates.idx)[-1], np.shape(candidates.sphere_slots)[-1]
+    return CandidateCapacities(int(capacity), int(sphere_capacity), candidates.cell_capacity)
+
+
+def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
+    """(K, M, C) after a candidate-table overflow: slots per node, per sphere and spheres per cell.
+
+    Only what ran out grows, so that an overflow of the sphere slots does not widen every node's row (under
+    face contact each triangle visits 3 K slots and each edge 2 K, every step):
+    K = max(the largest count + 2, ⌈1.5 K_old⌉) if that count exceeds K_old, at most the number of spheres;
+    M = the largest per-sphere count + 8 if it exceeds M_old; C = the fullest cell + 2 if it exceeds C_old;
+    each otherwise unchanged. The counts are the largest since the table was allocated
+    (:func:`membrax.membrane.candidates.update_candidates`). Should none exceed its capacity, K grows by
+    ⌈1.5 K_old⌉, so that a rerun never meets the same tables.
+    ``old`` and ``overflowed`` are candidate tables (of one state, or stacked: the largest over the
+    members).
+    """
+    num_spheres = int(np.shape(old.reference_sphere_position)[-2])
+    current = candidate_capacities(old)
+    count, sphere_count, cell_count = (
+        int(np.max(np.asarray(getattr(overflowed, name))))
+        for name in ("max_count", "max_sphere_count", "max_cell_count")
+    )
+    grow_nodes = count > current.capacity
+    grow_spheres = sphere_count > current.sphere_capacity
+    grow_cells = cell_count > current.cell_capacity
+    if not (grow_nodes or grow_spheres or grow_cells):
+        grow_nodes = True
+    capacity = max(count + 2, math.ceil(1.5 * current.capacity)) if grow_nodes else current.capacity
+    sphere_capacity = sphere_count + 8 if grow_spheres else current.sphere_capacity
+    cell_capacity = cell_count + 2 if grow_cells else current.cell_capacity
+    return CandidateCapacities(min(capacity, num_spheres), sphere_capacity, cell_capacity)
+
+
+def fitted_candidate_capacities(table) -> CandidateCapacities:
+    """(K, M, C) of ``table`` with K cut back to its largest count + 2 where it is wider (M and C kept).
+
+    A table grown for a passing need keeps padding every node's row; under face contact each step visits
+    3 K slots per triangle and 2 K per edge, so a row three times too wide costs the face law about that
+    much. The width only pads the rows: it changes no bit of a run (``tests/test_membrane_dem.py``).
+    ``table`` is a candidate table (of one state, or stacked: the largest count over the members).
+    """
+    current = candidate_capacities(table)
+    needed = int(np.max(np.asarray(table.max_count))) + 2
+    return current._replace(capacity=min(current.capacity, needed))

@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -78,6 +77,7 @@ from membrax.defaults import GENT_LOCKING_JM, LATEX_DENSITY, MEMBRANE_CONTACT_MO
 from membrax.errors import not_finite_bit
 from membrax.membrane import energies
 from membrax.membrane.candidates import (
+    CandidateCapacities,
     NodeCandidates,
     build_candidates,
     candidate_errors,
@@ -114,16 +114,12 @@ CONTACT_MODELS = MEMBRANE_CONTACT_MODELS
 __all__ = [
     "CONTACT_MODELS",
     "LOCK_CHECK_EVERY",
-    "CandidateCapacities",
-    "candidate_capacities",
     "CoupledParams",
     "contact_forces",
     "CoupledState",
     "MembraneParams",
     "MembraneState",
     "grow_candidates",
-    "fitted_candidate_capacities",
-    "grown_candidate_capacities",
     "membrane_dem",
     "platen_heights",
     "platen_reaction",
@@ -618,69 +614,6 @@ def membrane_dem(
     return init_fn, step_fn
 
 
-class CandidateCapacities(NamedTuple):
-    """The static sizes of a node candidate table (:class:`~membrax.membrane.candidates.NodeCandidates`).
-
-    Attributes:
-      capacity: K, candidates per node.
-      sphere_capacity: M, slots per sphere.
-      cell_capacity: C, spheres per cell of the cell list.
-    """
-
-    capacity: int
-    sphere_capacity: int
-    cell_capacity: int
-
-
-def candidate_capacities(candidates) -> CandidateCapacities:
-    """(K, M, C) of a candidate table (of one state, or stacked)."""
-    capacity, sphere_capacity = np.shape(candidates.idx)[-1], np.shape(candidates.sphere_slots)[-1]
-    return CandidateCapacities(int(capacity), int(sphere_capacity), candidates.cell_capacity)
-
-
-def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
-    """(K, M, C) after a candidate-table overflow: slots per node, per sphere and spheres per cell.
-
-    Only what ran out grows, so that an overflow of the sphere slots does not widen every node's row (under
-    face contact each triangle visits 3 K slots and each edge 2 K, every step):
-    K = max(the largest count + 2, ⌈1.5 K_old⌉) if that count exceeds K_old, at most the number of spheres;
-    M = the largest per-sphere count + 8 if it exceeds M_old; C = the fullest cell + 2 if it exceeds C_old;
-    each otherwise unchanged. The counts are the largest since the table was allocated
-    (:func:`membrax.membrane.candidates.update_candidates`). Should none exceed its capacity, K grows by
-    ⌈1.5 K_old⌉, so that a rerun never meets the same tables.
-    ``old`` and ``overflowed`` are candidate tables (of one state, or stacked: the largest over the
-    members).
-    """
-    num_spheres = int(np.shape(old.reference_sphere_position)[-2])
-    current = candidate_capacities(old)
-    count, sphere_count, cell_count = (
-        int(np.max(np.asarray(getattr(overflowed, name))))
-        for name in ("max_count", "max_sphere_count", "max_cell_count")
-    )
-    grow_nodes = count > current.capacity
-    grow_spheres = sphere_count > current.sphere_capacity
-    grow_cells = cell_count > current.cell_capacity
-    if not (grow_nodes or grow_spheres or grow_cells):
-        grow_nodes = True
-    capacity = max(count + 2, math.ceil(1.5 * current.capacity)) if grow_nodes else current.capacity
-    sphere_capacity = sphere_count + 8 if grow_spheres else current.sphere_capacity
-    cell_capacity = cell_count + 2 if grow_cells else current.cell_capacity
-    return CandidateCapacities(min(capacity, num_spheres), sphere_capacity, cell_capacity)
-
-
-def fitted_candidate_capacities(table) -> CandidateCapacities:
-    """(K, M, C) of ``table`` with K cut back to its largest count + 2 where it is wider (M and C kept).
-
-    A table grown for a passing need keeps padding every node's row; under face contact each step visits
-    3 K slots per triangle and 2 K per edge, so a row three times too wide costs the face law about that
-    much. The width only pads the rows: it changes no bit of a run (``tests/test_membrane_dem.py``).
-    ``table`` is a candidate table (of one state, or stacked: the largest count over the members).
-    """
-    current = candidate_capacities(table)
-    needed = int(np.max(np.asarray(table.max_count))) + 2
-    return current._replace(capacity=min(current.capacity, needed))
-
-
 def grow_candidates(
     state: CoupledState,
     particles: Particles,
@@ -694,12 +627,14 @@ def grow_candidates(
 
     Used by the chunk driver after ``ErrorCode.MEMBRANE_CANDIDATE_OVERFLOW``, and by the batched executor
     (one table for all its members, :func:`membrax.executor.build_batch`; a resumed batch's tables fitted
-    again, :func:`fitted_candidate_capacities`). The capacities may be smaller than the table's.
+    again, :func:`~membrax.membrane.candidates.fitted_candidate_capacities`). The capacities may be smaller
+    than the table's.
 
     Args:
       state: the state to change (its table is rebuilt at its positions, on the same grid).
       particles: sphere properties.
-      capacities: the new :class:`CandidateCapacities` (e.g. :func:`grown_candidate_capacities`).
+      capacities: the new :class:`~membrax.membrane.candidates.CandidateCapacities` (e.g.
+        :func:`~membrax.membrane.candidates.grown_candidate_capacities`).
       thickness: the contact's thickness f t_m (:attr:`MembraneParams.contact_thickness`), m.
       mesh: the membrane (its topology: any member's mesh of a batch), needed for a state with feature
         contacts, whose slots are rebuilt from the new table (:func:`refresh_feature_contact`).

@@ -551,7 +551,9 @@ def sphere_dem(
         a compaction by radius expansion, :mod:`membrax.spheres.compaction`); masses stay the particles'.
         """
         neighbors = neighbor_frame.update(state.position, state.neighbors)
-        rebuilt = jnp.any(neighbors.reference_position != state.neighbors.reference_position)
+        # Flat: XLA-CPU runs the comparison over (N, 3) rows ~10× slower (membrax.compensated).
+        moved = neighbors.reference_position.reshape(-1) != state.neighbors.reference_position.reshape(-1)
+        rebuilt = jnp.any(moved)
         pair_spring = remap_pair_history_if(rebuilt, state.neighbors.idx, neighbors.idx, state.pair_spring, n)
         state = state.set(neighbors=neighbors, pair_spring=pair_spring)
         touching = particles if contact_radius is None else particles.set(radius=contact_radius)

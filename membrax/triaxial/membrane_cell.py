@@ -44,13 +44,13 @@ import numpy as np
 from membrax.defaults import GENT_LOCKING_JM, LATEX_DENSITY, MEMBRANE_MODULUS, SHEAR_RAMP_STRAIN
 from membrax.driver import ChunkRunner
 from membrax.errors import ErrorCode
+from membrax.membrane.candidates import grown_candidate_capacities
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.coupled import (
     CoupledParams,
     CoupledState,
     MembraneParams,
     grow_candidates,
-    grown_candidate_capacities,
     membrane_dem,
 )
 from membrax.membrane.energies import locking_ratio, stable_locking_ratio
