@@ -10,6 +10,7 @@ from helpers import clamped_cylinder_parts
 from membrax.defaults import LATEX_DENSITY
 from membrax.membrane import coupled as membrane_dem
 from membrax.membrane import energies, stability
+from membrax.membrane.candidates import fitted_candidate_capacities
 from membrax.membrane.contact import MembraneContactParams
 from membrax.membrane.mesh import cylinder_mesh, free_node_mask
 from membrax.spheres import fcc
@@ -229,7 +230,7 @@ def test_a_wider_candidate_table_changes_no_bit(contact_model):
         state = test.set_platens(test.initial_state, True, 0.0, test.cell_pressure)
         if fit:
             state = steps(state, 150)
-            capacities = membrane_dem.fitted_candidate_capacities(state.membrane.candidates)
+            capacities = fitted_candidate_capacities(state.membrane.candidates)
             assert capacities.capacity < capacity  # it was cut
             thickness = test.params.membrane.contact_thickness
             state = membrane_dem.grow_candidates(state, test.particles, capacities, thickness, test.mesh)
