@@ -491,7 +491,7 @@ def candidate_errors(candidates: NodeCandidates):
 
 
 class CandidateCapacities(NamedTuple):
-    """The static sizes of a node candidate table (:class:`~membrax.membrane.candidates.NodeCandidates`).
+    """The static sizes of a node candidate table (:class:`NodeCandidates`).
 
     Attributes:
       capacity: K, candidates per node.
@@ -518,7 +518,7 @@ def grown_candidate_capacities(old, overflowed) -> CandidateCapacities:
     K = max(the largest count + 2, ⌈1.5 K_old⌉) if that count exceeds K_old, at most the number of spheres;
     M = the largest per-sphere count + 8 if it exceeds M_old; C = the fullest cell + 2 if it exceeds C_old;
     each otherwise unchanged. The counts are the largest since the table was allocated
-    (:func:`membrax.membrane.candidates.update_candidates`). Should none exceed its capacity, K grows by
+    (:func:`update_candidates`). Should none exceed its capacity, K grows by
     ⌈1.5 K_old⌉, so that a rerun never meets the same tables.
     ``old`` and ``overflowed`` are candidate tables (of one state, or stacked: the largest over the
     members).
