@@ -375,7 +375,7 @@ SUBCOMMAND_HELP = {
         "  membrax reproduce --size small                        # about 3 min on 2 CPU cores\n"
         "  membrax reproduce --size small --packing random       # 3 seeds per case, 5 min; beside the\n"
         "                                                        # FCC run in results_reproduce_small\n"
-        "  membrax reproduce --size paper --out paper_run        # 14–20 min on 2 CPU cores\n"
+        "  membrax reproduce --size paper --out paper_run        # 14–18 min on 2 CPU cores\n"
         "  membrax reproduce --size paper --scheduler tcp://head:8786 --out /shared/paper_run",
     ),
 }
@@ -436,7 +436,7 @@ def build_parser() -> argparse.ArgumentParser:
         default="small",
         help=(
             "small: 6 × 10 specimen, ≈ 3 min on 2 CPU cores; "
-            "paper: 10 × 25, 14–20 min on 2 CPU cores (13 min 46 s and 19 min 45 s measured on two machines; "
+            "paper: 10 × 25, 14–18 min on 2 CPU cores (13 min 46 s and 18 min 13 s measured on two machines; "
             "--set coarse_inertial_number=5e-3 nearly halves it but moves φ' after 1 %%); "
             "add --scheduler to share it"
         ),

@@ -26,7 +26,7 @@
 #
 # Full size is the paper's specimen (`membrax.reproduce.SIZES["paper"]`: 10 × 25, a membrane of edge
 # D/5, inertial number 1e-3, float64, consolidation to an unbalanced-force ratio of 1e-3): **about
-# 14–20 min on 2 CPU cores** (13 min 46 s and 19 min 45 s measured for `membrax reproduce --size paper` on
+# 14–18 min on 2 CPU cores** (13 min 46 s and 18 min 13 s measured for `membrax reproduce --size paper` on
 # two machines, 2026-12-07). Set
 # `SIZE = "small"` below for the 6 × 10 specimen (2 min 52 s measured): a test of the pipeline, not of the
 # paper's numbers. Smoke mode (`MEMBRAX_SMOKE=1`, what CI sets) keeps the 3 × 3 grid on a 4 × 5-layer
