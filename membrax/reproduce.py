@@ -16,7 +16,7 @@ writes into ``folder``:
 Sizes (:data:`SIZES`). ``small``: 6 spheres across and 10 layers (~330 spheres, a membrane of edge D/3,
 I = 5e-3) — the demo's specimen, 2 min 52 s on 2 CPU cores for all nine cases;
 ``paper``: the paper's 10 × 25 specimen (1,816 spheres, edge D/5, I = 1e-3), a CPU command: 13 min 46 s
-and 19 min 45 s on two machines' 2 cores with the compiled kernels of :mod:`membrax.native` (float64,
+and 18 min 13 s on two machines' 2 cores with the compiled kernels of :mod:`membrax.native` (float64,
 2026-12-07; peak RSS 2.9–3.0 GB). A faster coarse phase (``overrides={"coarse_inertial_number": 5e-3}``)
 leaves Tables 2–3 bit-identical in about half the time but raises φ' after 1 % strain by 2.4–4.3° on
 average (docs/loading_rate.md), so it is not the preset.
