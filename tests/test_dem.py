@@ -407,6 +407,26 @@ def test_compensated_summation_keeps_subresolution_motion_in_float32():
     assert moved == pytest.approx(1000 * float(increment[0]), rel=1e-3)
 
 
+def test_compensated_sum_of_rows_is_fast2sum_exact_per_element_under_jit_vmap_and_grad():
+    """On (N, 3) rows, summed flat inside: each element's new value + compensation is its exact sum
+    (Fast2Sum: value + (increment + compensation), exact in float64 for float32 operands), the shape is
+    kept, a vmapped batch equals its members one by one, and d(value + compensation)/d increment = 1."""
+    rng = np.random.default_rng(3)
+    value = jnp.asarray(rng.uniform(0.05, 0.3, (2, 17, 3)), jnp.float32)
+    compensation = jnp.asarray(rng.normal(0.0, 1e-9, (2, 17, 3)), jnp.float32)
+    increment = jnp.asarray(rng.normal(0.0, 1e-6, (2, 17, 3)), jnp.float32)
+    batched = jax.jit(jax.vmap(compensated.compensated_add))(value, compensation, increment)
+    for b in range(2):
+        total, error = compensated.compensated_add(value[b], compensation[b], increment[b])
+        assert total.shape == error.shape == (17, 3)
+        assert np.array_equal(total, batched[0][b]) and np.array_equal(error, batched[1][b])
+        corrected = np.asarray(increment[b] + compensation[b], np.float64)  # the float32 sum Fast2Sum adds
+        exact = np.asarray(value[b], np.float64) + corrected
+        assert np.array_equal(np.asarray(total, np.float64) + np.asarray(error, np.float64), exact)
+    slope = jax.grad(lambda inc: jnp.sum(sum(compensated.compensated_add(value[0], compensation[0], inc))))
+    assert np.array_equal(slope(increment[0]), np.ones((17, 3), np.float32))
+
+
 # ------------------------------------------------------------------------------------------------------
 # Time step, batching, gradients
 # ------------------------------------------------------------------------------------------------------
