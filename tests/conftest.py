@@ -149,12 +149,13 @@ def _compile_small_programs_quickly(backend, computation, devices, compile_optio
     with XLA-CPU's LLVM IR emitters instead of its MLIR fusion emitters.
 
     Each eager operation on a new shape or dtype is a program of its own: test_native alone compiles
-    ~3,800, ~30 ms each, a third of its time. The older emitters compile one in 11-19 ms instead of 26-37
-    (``a + a`` on (k, 3) float64 rows). Larger programs (every jitted step, chunk and rollout) compile as
-    before: with the older emitters for all programs, a batched member's bits depended on the batch's size
-    (1-2 ulp in 5 of 22 stresses of test_sweep's failure isolation), which users' emitters keep equal. The
-    option is part of the program's key in JAX's persistent cache. JAX's private compile entry point is
-    wrapped here, in the tests only; if it moves, programs compile as users' do.
+    ~3,800 of them, 113 s of its 390 s in one process. The older emitters compile one in 11-19 ms instead
+    of 26-37 (``a + a`` on (k, 3) float64 rows). Larger programs (every jitted step, chunk and rollout)
+    compile as before: with the older emitters for all programs, a batched member's bits depended on the
+    batch's size (1-2 ulp in 5 of 22 stresses of test_sweep's failure isolation), which users' emitters
+    keep equal. The option is part of the program's key in JAX's persistent cache (``env_option_overrides``
+    are hashed). JAX's private compile entry point is wrapped in pytest's own processes only (notebook
+    kernels and subprocesses compile as users' programs do); if it moves, programs compile as users' do.
     """
     if _xla_optimized[0] is False and backend.platform == "cpu" and _is_small(computation):
         compile_options.env_option_overrides = [
