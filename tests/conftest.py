@@ -145,19 +145,21 @@ def _is_small(module) -> bool:
 
 
 def _compile_small_programs_quickly(backend, computation, devices, compile_options, *args, **kwargs):
-    """In the files compiled at XLA's lowest optimisation, a small program (an eager operation) is compiled
-    with XLA-CPU's LLVM IR emitters instead of its MLIR fusion emitters.
+    """A small program (an eager operation) is compiled with XLA-CPU's LLVM IR emitters instead of its MLIR
+    fusion emitters, at either optimisation level (:data:`XLA_OPTIMIZED`).
 
     Each eager operation on a new shape or dtype is a program of its own: test_native alone compiles
     ~3,800 of them, 113 s of its 390 s in one process. The older emitters compile one in 11-19 ms instead
     of 26-37 (``a + a`` on (k, 3) float64 rows). Larger programs (every jitted step, chunk and rollout)
     compile as before: with the older emitters for all programs, a batched member's bits depended on the
     batch's size (1-2 ulp in 5 of 22 stresses of test_sweep's failure isolation), which users' emitters
-    keep equal. The option is part of the program's key in JAX's persistent cache (``env_option_overrides``
-    are hashed). JAX's private compile entry point is wrapped in pytest's own processes only (notebook
-    kernels and subprocesses compile as users' programs do); if it moves, programs compile as users' do.
+    keep equal. The files at users' level lost 40 s of their 440 s of backend compiling this way (the eight
+    files alone, 2 workers). The option is part of the program's key in JAX's persistent cache
+    (``env_option_overrides`` are hashed). JAX's private compile entry point is wrapped in pytest's own
+    processes only (notebook kernels and subprocesses compile as users' programs do), and not at all with
+    ``MEMBRAX_TEST_XLA_OPTIMIZED=1``; if it moves, programs compile as users' do.
     """
-    if _xla_optimized[0] is False and backend.platform == "cpu" and _is_small(computation):
+    if backend.platform == "cpu" and _is_small(computation):
         compile_options.env_option_overrides = [
             *compile_options.env_option_overrides,
             ("xla_cpu_use_fusion_emitters", False),
@@ -165,7 +167,11 @@ def _compile_small_programs_quickly(backend, computation, devices, compile_optio
     return _compile_or_get_cached(backend, computation, devices, compile_options, *args, **kwargs)
 
 
-if compiler is not None and hasattr(compiler, "compile_or_get_cached"):
+if (
+    compiler is not None
+    and hasattr(compiler, "compile_or_get_cached")
+    and os.environ.get("MEMBRAX_TEST_XLA_OPTIMIZED") != "1"
+):
     _compile_or_get_cached = compiler.compile_or_get_cached
     compiler.compile_or_get_cached = _compile_small_programs_quickly
 
