@@ -138,9 +138,14 @@ def _fit_table(chosen, table, cross_validation: bool, provenance: dict):
         f"RMS residual {result.rms:.3g} σc; optax: {result.evaluations['adam']} Adam steps, "
         f"{result.evaluations['lbfgs']} L-BFGS loss evaluations",
     ]
+    if not result.converged:
+        lines.append(
+            "warning: L-BFGS stopped before the gradient tolerance; the parameters may move in their last "
+            "digits with the round-off of another machine (calibrate.fit.fit's lbfgs_steps)"
+        )
     rule = None
     if cross_validation and table.num_cases >= 3:
-        predictions = fit.cross_validated_predictions(chosen, table)
+        predictions = fit.cross_validated_predictions(chosen, table, progress=True)
         scores = fit.cross_validate(chosen, table, predictions)
         rule = abstention.fit_rule(table, *predictions)
         axial = np.array([s["axial"] for s in scores.values()])

@@ -39,11 +39,11 @@
 # Full size: the demo specimen (6 × 10, membrane edge D/3) for the implicit sensitivities, and the
 # 4 × 4 × 5 specimen with 4,000 steps of consolidation and 4,000 of shearing over Table 1's 3 × 3 grid.
 #
-# **Time** (2 CPU cores): smoke 4–5.5 min beside another pytest worker (less when the gradient tests
-# ran first: their programs come from the compilation cache); full size about 25 min
-# (estimated: the implicit sensitivities 2 min 26 s on the demo specimen; the 3 × 3 rollout Jacobian took
-# 2 min 35 s through 1,000 + 1,000 steps, so about 10 min at 4,000 + 4,000; the inverse problem 2 min at
-# 2,000 steps).
+# **Time** (2 CPU cores): smoke 2 min 13 s alone (the inverse problem 48 s of it), about 5 min beside
+# another pytest worker (less when the gradient tests ran first: their programs come from the compilation
+# cache); full size about 25 min (estimated: the implicit sensitivities 2 min 26 s on the demo specimen;
+# the 3 × 3 rollout Jacobian took 2 min 35 s through 1,000 + 1,000 steps, so about 10 min at 4,000 +
+# 4,000; the inverse problem about 2 min at 4,000 steps).
 
 # %%
 import dataclasses
