@@ -83,14 +83,15 @@ def _arrays(model, table, weights=None):
     return inputs, jnp.asarray(np.where(finite, targets, 0.0)), jnp.asarray(weight)
 
 
-def _residual_fn(model, inputs, targets, weight, unravel):
+def _weighted_residuals(predict, unravel, flat, inputs, targets, weight):
+    """√w_i (a(θ, x_i) − Δσ_a,i/σc) then √w_i (r(θ, x_i) − Δσ_r,i/σc), θ = unravel(flat) (2n,)."""
     root = jnp.sqrt(weight)
+    axial, radial = predict(unravel(flat), inputs)
+    return jnp.concatenate([root * (axial - targets[0]), root * (radial - targets[1])])
 
-    def residuals(flat):
-        axial, radial = model.predict(unravel(flat), inputs)
-        return jnp.concatenate([root * (axial - targets[0]), root * (radial - targets[1])])
 
-    return residuals
+def _residual_fn(model, inputs, targets, weight, unravel):
+    return lambda flat: _weighted_residuals(model.predict, unravel, flat, inputs, targets, weight)
 
 
 def strong_types(tree):
@@ -116,7 +117,7 @@ class _Steps(NamedTuple):
 
 
 @functools.lru_cache(maxsize=16)
-def _optimiser_steps(predict: Callable, input_names: tuple, template: tuple, learning_rate: float) -> _Steps:
+def _optimiser_steps(predict: Callable, template: tuple, learning_rate: float) -> _Steps:
     """The loss and the jitted Adam and L-BFGS steps of a model, compiled once per model and table size.
 
     The table (inputs, targets, weights and Σw) is an argument of the steps, not a constant in them, so
@@ -126,9 +127,7 @@ def _optimiser_steps(predict: Callable, input_names: tuple, template: tuple, lea
 
     def loss(x, data):
         inputs, targets, weight, total = data
-        root = jnp.sqrt(weight)
-        axial, radial = predict(unravel(x), {name: inputs[name] for name in input_names})
-        r = jnp.concatenate([root * (axial - targets[0]), root * (radial - targets[1])])
+        r = _weighted_residuals(predict, unravel, x, inputs, targets, weight)
         return jnp.sum(r * r) / total
 
     adam = optax.adam(learning_rate)
@@ -190,7 +189,7 @@ def fit(
         residuals = _residual_fn(model, inputs, targets, weight, unravel)
         total = jnp.sum(weight)
         data = (inputs, targets, weight, total)
-        steps = _optimiser_steps(model.predict, model.inputs, _template(start), learning_rate)
+        steps = _optimiser_steps(model.predict, _template(start), learning_rate)
         state = steps.adam_init(flat)
         for _ in range(adam_steps):
             flat, state, _ = steps.adam_step(flat, state, data)
