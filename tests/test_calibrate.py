@@ -100,6 +100,24 @@ def test_leave_one_case_out_error_is_the_noise_when_the_model_is_right():
         assert NOISE * 0.7 < score["radial"] < NOISE * 1.6
 
 
+def test_each_refit_of_a_cross_validation_is_the_normal_equations_without_its_case_and_compiles_nothing():
+    # a refit weighs its case's rows 0 and keeps the table's size: the same optimum as the table without
+    # them (normal equations by hand), from the programs the first fit compiled
+    table = _synthetic_table(cases=4, rows=41)  # a size no other test fits
+    steps = fit._optimiser_steps(models.PAPER.predict, fit._template(models.PAPER.initial_params), 0.05)
+    before = steps.adam_step._cache_size(), steps.lbfgs_step._cache_size()
+    axial, radial = fit.cross_validated_predictions(models.PAPER, table)
+    for case in range(4):
+        held = table.case == case
+        params, _ = _normal_equations(table.select(~held))
+        expected = fit.predict(models.PAPER, params, table.select(held))
+        np.testing.assert_allclose(axial[held], expected[0], rtol=1e-7, atol=1e-9)
+        np.testing.assert_allclose(radial[held], expected[1], rtol=1e-7, atol=1e-9)
+    # four refits, one new program each: optax's weak-typed initial L-BFGS state would make it two
+    # (fit.strong_types), a table of the left-in rows one per refit
+    assert (steps.adam_step._cache_size(), steps.lbfgs_step._cache_size()) == (before[0] + 1, before[1] + 1)
+
+
 def test_nelder_mead_reaches_the_same_optimum_with_more_loss_evaluations():
     table = _synthetic_table(cases=4, rows=40)
     result = fit.fit(models.PAPER, table)
