@@ -114,7 +114,7 @@ class InverseProblem:
         # rather than a copy of the rollout traced into the update: the rollout's forward and reverse
         # passes compile once (about 20 s on 2 cores at 4 × 4 × 5), not twice.
         def evaluated_on_host(x, start, observed):
-            value, gradient = self.value_and_grad(np.asarray(x), np.asarray(start), np.asarray(observed))
+            value, gradient = self.value_and_grad(x, start, observed)
             return np.asarray(value), np.asarray(gradient)
 
         def value_and_gradient(x, start, observed):

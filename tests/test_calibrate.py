@@ -100,7 +100,7 @@ def test_leave_one_case_out_error_is_the_noise_when_the_model_is_right():
         assert NOISE * 0.7 < score["radial"] < NOISE * 1.6
 
 
-def test_each_refit_of_a_cross_validation_is_the_normal_equations_without_its_case_and_compiles_nothing():
+def test_each_refit_of_a_cross_validation_is_the_normal_equations_without_its_case_on_shared_programs():
     # a refit weighs its case's rows 0 and keeps the table's size: the same optimum as the table without
     # them (normal equations by hand), from the programs the first fit compiled
     table = _synthetic_table(cases=4, rows=41)  # a size no other test fits

@@ -524,8 +524,8 @@ def test_the_shipped_correction_is_the_fit_of_the_shipped_calibration_table():
     shipped = correct.default_corrections()
     assert shipped.provenance["rows"] == table.num_rows and shipped.provenance["cases"] == table.num_cases
     # the rows in reverse order: the least-squares optimum does not depend on it, a fit stopped short of
-    # the optimum does (the shipped fit of 100 L-BFGS iterations moved by 3e-3 in k_r2 with the summation
-    # order; converged, by 2e-9)
+    # the optimum does on its round-off (the earlier shipped fit, stopped at 100 L-BFGS iterations, moved
+    # by 3e-3 in k_r2 when the table became an argument of the compiled loss; converged, by 2e-9)
     refit = fit.fit(shipped.model, table.select(np.arange(table.num_rows)[::-1]))
     assert refit.converged
     for name, value in shipped.params.items():
