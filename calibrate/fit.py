@@ -109,7 +109,6 @@ def _template(params: dict) -> tuple:
 
 
 class _Steps(NamedTuple):
-    loss: Callable
     adam_init: Callable
     adam_step: Callable
     lbfgs_init: Callable
@@ -118,7 +117,7 @@ class _Steps(NamedTuple):
 
 @functools.lru_cache(maxsize=16)
 def _optimiser_steps(predict: Callable, template: tuple, learning_rate: float) -> _Steps:
-    """The loss and the jitted Adam and L-BFGS steps of a model, compiled once per model and table size.
+    """The jitted Adam and L-BFGS steps of a model, compiled once per model and table size.
 
     The table (inputs, targets, weights and Σw) is an argument of the steps, not a constant in them, so
     that the refits of a cross-validation, which differ only in their weights, run the same programs.
@@ -148,7 +147,7 @@ def _optimiser_steps(predict: Callable, template: tuple, learning_rate: float) -
         updates, state = lbfgs.update(grad, state, x, value=value, grad=grad, value_fn=value_fn)
         return optax.apply_updates(x, updates), state, grad
 
-    return _Steps(loss, adam.init, adam_step, lbfgs.init, lbfgs_step)
+    return _Steps(adam.init, adam_step, lbfgs.init, lbfgs_step)
 
 
 def fit(
@@ -223,7 +222,7 @@ def fit(
             std,
             covariance,
             names,
-            float(steps.loss(flat, data)),
+            rss / float(total),  # L at the optimum, from the residuals already computed
             float(np.sqrt(rss / (2.0 * float(total)))),
             {"adam": adam_steps, "lbfgs": evaluations},
             converged,
