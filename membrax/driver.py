@@ -69,15 +69,16 @@ def advance(step: Callable, state, params, num_steps: int, unroll: int = 1):
       step: the time step, ``(state, params) → state``.
       state: the state to advance (any pytree).
       params: the step's parameters (any pytree; traced).
-      num_steps: steps (static).
-      unroll: steps per iteration of the ``lax.fori_loop``; ``num_steps`` or more: a Python loop, the steps
-        written out with no loop at all (what a checkpointed gradient window may want,
-        :func:`membrax.gradients.checkpoint_window`).
+      num_steps: steps: a Python int, or a traced integer (a loop whose trip count is an argument, so one
+        program serves every record interval; the steps and their bits are the same).
+      unroll: steps per iteration of the ``lax.fori_loop``; ``num_steps`` or more (static ``num_steps``): a
+        Python loop, the steps written out with no loop at all (what a checkpointed gradient window may
+        want, :func:`membrax.gradients.checkpoint_window`).
 
     Returns:
       The state after ``num_steps`` steps.
     """
-    if unroll >= num_steps:
+    if isinstance(num_steps, int) and unroll >= num_steps:
         for _ in range(num_steps):
             state = step(state, params)
         return state
@@ -99,7 +100,14 @@ def record_blocks(block: Callable, carry, num_records: int):
 
 
 def budgeted_blocks(
-    step: Callable, record: Callable, state, params, left, num_records: int, record_every: int
+    step: Callable,
+    record: Callable,
+    state,
+    params,
+    left,
+    num_records,
+    record_every,
+    slots: int | None = None,
 ):
     """``num_records`` blocks of ``record_every`` steps of ``step``, each recorded, within a step budget.
 
@@ -107,18 +115,47 @@ def budgeted_blocks(
     block's steps (under ``vmap``, where ``left`` differs between members, both branches run and the frozen
     state is selected), and ``record`` records the frozen state.
 
+    Given ``slots``, ``num_records`` and ``record_every`` may be traced: the chunk holds ``slots`` record
+    slots, runs and records the first ``num_records`` blocks and leaves the rest empty (zeros, ``valid``
+    False, no step and no record computed: the slot index is the same for every member, so the ``cond``
+    stays one under ``vmap``). One compiled program then serves every phase of a run, whatever its record
+    interval, where a static interval compiled one per phase (3.3 s each on the demo).
+
+    Args:
+      step: the time step, ``(state, params) → state``.
+      record: ``(state, params) → record``.
+      state: the starting state.
+      params: the step's parameters (traced).
+      left: the steps still to take (the budget; blocks past it are frozen).
+      num_records: blocks to run (static, or traced up to ``slots``).
+      record_every: steps per block (static, or traced).
+      slots: record slots of the chunk (static); None: ``num_records`` (then static).
+
     Returns:
-      (state, left, records, valid): ``valid`` marks the blocks that ran.
+      (state, left, records, valid): ``records`` has ``slots`` entries, ``valid`` marks the blocks that ran.
     """
+    if slots is None:
+        slots = num_records
 
     def block(carry):
-        s, budget = carry
-        active = budget > 0
+        s, budget, slot = carry
+        scheduled = slot < num_records
+        active = scheduled & (budget > 0)
         s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
         budget = jnp.where(active, budget - record_every, budget)
-        return (s, budget), (record(s, params), active)
+        if isinstance(num_records, int) and slots == num_records:
+            recorded = record(s, params)  # every slot scheduled: no empty branch to compile
+        else:
+            shapes = jax.eval_shape(record, s, params)
+            recorded = jax.lax.cond(
+                scheduled,
+                lambda x: record(x, params),
+                lambda _: jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes),
+                s,
+            )
+        return (s, budget, slot + 1), (recorded, active)
 
-    (state, left), (records, valid) = record_blocks(block, (state, left), num_records)
+    (state, left, _), (records, valid) = record_blocks(block, (state, left, jnp.int32(0)), slots)
     return state, left, records, valid
 
 
@@ -275,16 +312,19 @@ class ChunkRunner:
         self.reallocations = 0
         self._chunk = jax.jit(
             self._chunk_impl,
-            static_argnames=("num_records", "record_every"),
+            static_argnames=("slots",),
             compiler_options=native.compiler_options(),
         )
 
-    def _chunk_impl(self, state, params, left, num_records: int, record_every: int):
+    def _chunk_impl(self, state, params, left, num_records, record_every, slots: int):
         """(state, left, records, valid): :func:`budgeted_blocks` within ``left`` steps.
 
-        The blocks past ``left`` (``valid`` False) recorded the frozen state; :meth:`run` drops them.
+        ``num_records`` and ``record_every`` are traced: stages with other record intervals run the same
+        program. The blocks past ``left`` or ``num_records`` (``valid`` False) are dropped by :meth:`run`.
         """
-        return budgeted_blocks(self.step_fn, self.record_fn, state, params, left, num_records, record_every)
+        return budgeted_blocks(
+            self.step_fn, self.record_fn, state, params, left, num_records, record_every, slots
+        )
 
     def reallocate(self, state, capacity_growth: float | None = None):
         """A copy of ``state`` with a rebuilt neighbour list and its contact history carried over.
@@ -341,6 +381,7 @@ class ChunkRunner:
         record_every: int = 25,
         stop_fn: Callable | None = None,
         on_chunk: Callable | None = None,
+        slots: int = 0,
     ):
         """Advance ``state`` by up to ``num_steps`` steps (whole records), through :func:`drive`.
 
@@ -352,17 +393,20 @@ class ChunkRunner:
           record_every: steps between records.
           stop_fn: ``stop_fn(state, records_of_chunk) -> bool``, checked after each chunk.
           on_chunk: ``on_chunk(state, records_of_chunk)``, called after each accepted chunk.
+          slots: record slots of the compiled chunk, at least its records per chunk; stages that pass the
+            same run one program (:func:`run_phases`).
 
         Returns:
           (final state, records: pytree of numpy arrays with a leading time axis, or None).
         """
         chunks = []
+        slots = max(slots, chunk_steps // record_every, 1)
 
         def chunk(current, left, num_records):
             # A whole chunk's program (drive's whole_chunks) within the budget: the stage's last chunk
             # compiles nothing new; the frozen blocks' records are dropped here.
             new, new_left, records, valid = self._chunk(
-                current, params, np.int32(left[0]), num_records=num_records, record_every=record_every
+                current, params, np.int32(left[0]), np.int32(num_records), np.int32(record_every), slots=slots
             )
             valid = np.asarray(valid)
             records = jax.tree.map(lambda r: r[valid], jax.device_get(records))
@@ -526,8 +570,12 @@ def run_phases(runner: ChunkRunner, state, params, phases, chunk_steps: int, on_
       (state, records) with the records of all phases with steps > 0 concatenated.
     """
     parts = []
+    # Room for the most records per chunk of any phase: every phase runs the one compiled chunk.
+    slots = max((chunk_steps // record_every for _, record_every in phases), default=0)
     for steps, record_every in phases:
         if steps > 0:
-            state, records = runner.run(state, params, steps, chunk_steps, record_every, on_chunk=on_chunk)
+            state, records = runner.run(
+                state, params, steps, chunk_steps, record_every, on_chunk=on_chunk, slots=slots
+            )
             parts.append(records)
     return state, concatenate_records([part for part in parts if part is not None])

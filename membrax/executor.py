@@ -141,7 +141,7 @@ class StackedMembers:
     def __post_init__(self):
         self._chunk = jax.jit(
             self._chunk_impl,
-            static_argnames=("num_records", "record_every"),
+            static_argnames=("slots",),
             compiler_options=native.compiler_options(),
         )
 
@@ -155,32 +155,37 @@ class StackedMembers:
         """Members including the frozen padding copies."""
         return int(np.shape(self.member_steps(self.initial_state))[0])
 
-    def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
-        """One member's chunk: ``(state, left, records, valid)`` (a subclass's)."""
+    def _member_chunk(self, state, params, member, left, num_records, record_every, slots: int):
+        """One member's chunk: ``(state, left, records, valid)`` (a subclass's), :func:`budgeted_blocks`."""
         raise NotImplementedError
 
-    def _chunk_impl(self, states, params, members, left, num_records: int, record_every: int):
-        def one(state, param, member, budget):
-            return self._member_chunk(state, param, member, budget, num_records, record_every)
+    def _chunk_impl(self, states, params, members, left, num_records, record_every, slots: int):
+        """Every member's chunk: ``num_records`` blocks of ``record_every`` steps (both traced) in ``slots``.
 
-        if self.mode == "vmap":
-            batched = jax.vmap(one)
-        else:
+        The cadence is an argument, not a constant, so every phase of a run (consolidation, the fine and
+        the coarse shearing, each with its own record interval) runs the one compiled program.
+        """
 
-            def batched(*args):
-                return jax.lax.map(lambda xs: one(*xs), args)
+        def members_chunk(states, params, members, left, num_records, record_every):
+            def one(state, param, member, budget):
+                return self._member_chunk(state, param, member, budget, num_records, record_every, slots)
+
+            if self.mode == "vmap":
+                return jax.vmap(one)(states, params, members, left)
+            return jax.lax.map(lambda xs: one(*xs), (states, params, members, left))
 
         if self.num_devices > 1:
             devices = np.asarray(jax.local_devices()[: self.num_devices])
             spec = jax.sharding.PartitionSpec("members")
-            batched = jax.shard_map(
-                batched,
+            shared = jax.sharding.PartitionSpec()
+            members_chunk = jax.shard_map(
+                members_chunk,
                 mesh=jax.sharding.Mesh(devices, ("members",)),
-                in_specs=spec,
+                in_specs=(spec, spec, spec, spec, shared, shared),
                 out_specs=spec,
                 check_vma=False,
             )
-        return batched(states, params, members, left)
+        return members_chunk(states, params, members, left, num_records, record_every)
 
     def restack(self, states: list):
         """Stack per-member states (real members) back, padding with frozen copies of member 0."""
@@ -212,6 +217,7 @@ class StackedMembers:
         stop_fn: Callable | None = None,
         on_chunk: Callable | None = None,
         on_failure: Callable | None = None,
+        slots: int = 0,
     ):
         """Advance every member until its step budget is spent (or ``stop_fn`` ends it).
 
@@ -231,6 +237,8 @@ class StackedMembers:
             bits (other than an overflow) are set after a chunk (``step``: the chunk's end); its budget
             ends and the chunk is run again without it, so it stays at its state and records before that
             chunk, and the others go on. None: the first such member raises.
+          slots: record slots of the compiled chunk, at least this phase's records per chunk: the same
+            for every phase of a run (the most records per chunk of any), so they run one program.
 
         Returns:
           (states, budgets).
@@ -244,14 +252,17 @@ class StackedMembers:
         # Every error bit of the real members; only the overflows of the padding copies (they grow too).
         real_bits = np.where(np.arange(self.num_padded) < num, -1, int(OVERFLOWS))
 
+        slots = max(slots, chunk_steps // record_every, 1)
+
         def chunk(states, left, num_records):
             return self._chunk(
                 states,
                 self.params,
                 self.members,
                 jnp.asarray(left),
-                num_records=num_records,
-                record_every=record_every,
+                np.int32(num_records),
+                np.int32(record_every),
+                slots=slots,
             )
 
         def fail(error, new, states):
@@ -328,13 +339,13 @@ class BatchedTest(StackedMembers):
     configs: list
     nodes_around: int
 
-    def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
+    def _member_chunk(self, state, params, member, left, num_records, record_every, slots: int):
         template = self.tests[0]
         mesh = template.mesh.set(**{name: member[name] for name in GEOMETRY_FIELDS})
         # The Gent stiffening check at the strictest member's limit (each member's own Δt_crit, one Δt).
         step = template.make_step(mesh, min(t.tangent_limit for t in self.tests))
         record = template.make_record(mesh, member["initial_volume"])
-        return budgeted_blocks(step, record, state, params, left, num_records, record_every)
+        return budgeted_blocks(step, record, state, params, left, num_records, record_every, slots)
 
     def grow(self, states, error, overflowed):
         """Every member's tables that overflowed grown to one larger capacity (:func:`grow_tables`).
@@ -401,11 +412,11 @@ class PeriodicBatch(StackedMembers):
     stacked :class:`~membrax.triaxial.periodic.PeriodicState` at the start of consolidation.
     """
 
-    def _member_chunk(self, state, params, member, left, num_records: int, record_every: int):
+    def _member_chunk(self, state, params, member, left, num_records, record_every, slots: int):
         del member
         runner = self.tests[0].runner
         return budgeted_blocks(
-            runner.step_fn, runner.record_fn, state, params, left, num_records, record_every
+            runner.step_fn, runner.record_fn, state, params, left, num_records, record_every, slots
         )
 
     def member_steps(self, states):

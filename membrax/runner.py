@@ -489,6 +489,8 @@ def _advance_phase(group: _Group, phase: str, hooks: _Hooks) -> None:
             stop_fn=stop_fn,
             on_chunk=on_chunk,
             on_failure=on_failure if hooks.isolate_failures else None,
+            # Room for the most records per chunk of any phase: every phase runs the one compiled chunk.
+            slots=max(settings.chunk_steps // every for _, every in group.plans[0].values()),
         )
     except SimulationError as error:
         raise RunError(

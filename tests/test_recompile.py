@@ -101,3 +101,53 @@ def test_a_stage_s_last_shorter_chunk_runs_the_program_of_the_whole_ones_with_th
     ):
         np.testing.assert_array_equal(a, b)
     assert jax.tree.leaves(chunked_records)[0].shape[0] == 10
+
+
+def test_phases_with_other_record_intervals_run_one_compiled_chunk_with_the_same_bits():
+    """Two stages of 100 steps recorded every 25 and then every 50 steps (:func:`membrax.driver.run_phases`):
+    the record interval is an argument of the chunk, not a constant, so both run one compiled program, and
+    they take the same steps as one 200-step stage recorded every 25: the same final state and, in the
+    second stage, every other of its records, to the bit."""
+    from membrax.driver import run_phases
+
+    with jax.enable_x64(True):
+        test = rigid_wall_test(fcc.fcc_specimen(0.025, 3, 4), 40e3, time_step=1e-5)
+        state = test.start_consolidation(test.initial_state)
+        staged, staged_records = run_phases(test.runner, state, test.params, [(100, 25), (100, 50)], 100)
+        assert test.runner._chunk._cache_size() == 1
+        straight, straight_records = test.runner.run(
+            state, test.params, 200, chunk_steps=100, record_every=25
+        )
+    assert float(np.abs(np.asarray(staged.velocity)).max()) > 0.0  # it moved
+    for a, b in zip(jax.tree.leaves(staged), jax.tree.leaves(straight), strict=True):
+        np.testing.assert_array_equal(a, b)
+    # Records at steps 25, 50, 75, 100 (every 25), then 150, 200 (every 50).
+    np.testing.assert_array_equal(np.ravel(staged_records.step), [25, 50, 75, 100, 150, 200])
+    for a, b in zip(jax.tree.leaves(staged_records), jax.tree.leaves(straight_records), strict=True):
+        np.testing.assert_array_equal(a, np.asarray(b)[[0, 1, 2, 3, 5, 7]])
+
+
+def test_every_phase_of_a_batch_runs_one_compiled_chunk(tmp_path):
+    """A periodic element (the smoke element: 64 spheres) through :func:`membrax.runner.run_group`'s three
+    phases, each with its own record interval (consolidation, fine and coarse shearing), compiles its
+    chunk once; every phase's records are spaced by that phase's own interval."""
+    from helpers import SMALL_ELEMENT
+
+    from membrax.assemble import precision_scope
+    from membrax.config import TriaxialConfig
+    from membrax.executor import build_periodic_batch
+    from membrax.run_records import member_chunk_records
+    from membrax.runner import run_group
+
+    config = TriaxialConfig(name="one_chunk", **SMALL_ELEMENT)
+    with precision_scope(config):
+        batch = build_periodic_batch([config], num_devices=1)
+        records, _, _ = run_group(batch, tmp_path, progress=False)
+    plan = batch.tests[0].phase_plan(batch.settings[0].loading)
+    assert len({every for steps, every in plan.values() if steps > 0}) > 1  # other intervals to share
+    assert batch._chunk._cache_size() == 1
+    mine = member_chunk_records(records, 0)
+    for phase, (steps, every) in plan.items():
+        if steps > 0:
+            step = np.concatenate([np.asarray(chunk["step"]) for chunk in mine[phase]])
+            np.testing.assert_array_equal(np.diff(step), every)
