@@ -116,10 +116,11 @@ def budgeted_blocks(
     state is selected), and ``record`` records the frozen state.
 
     Given ``slots``, ``num_records`` and ``record_every`` may be traced: the chunk holds ``slots`` record
-    slots, runs and records the first ``num_records`` blocks and leaves the rest empty (zeros, ``valid``
-    False, no step and no record computed: the slot index is the same for every member, so the ``cond``
-    stays one under ``vmap``). One compiled program then serves every phase of a run, whatever its record
-    interval, where a static interval compiled one per phase (3.3 s each on the demo).
+    slots, runs and records its ``num_records`` blocks in the last ones and leaves the first empty (zeros,
+    ``valid`` False, no step and no record computed: the slot index is the same for every member, so the
+    ``cond`` stays one under ``vmap``), so the last slot records the chunk's end state, as without
+    ``slots``. One compiled program then serves every phase of a run, whatever its record interval, where
+    a static interval compiled one per phase (3.3 s each on the demo).
 
     Args:
       step: the time step, ``(state, params) → state``.
@@ -136,10 +137,12 @@ def budgeted_blocks(
     """
     if slots is None:
         slots = num_records
+    if not isinstance(record_every, int):  # traced: counted down from the budget in the budget's dtype
+        record_every = jnp.asarray(record_every, dtype=jnp.result_type(left))
 
     def block(carry):
         s, budget, slot = carry
-        scheduled = slot < num_records
+        scheduled = slot >= slots - num_records
         active = scheduled & (budget > 0)
         s = jax.lax.cond(active, lambda x: advance(step, x, params, record_every), lambda x: x, s)
         budget = jnp.where(active, budget - record_every, budget)

@@ -123,7 +123,7 @@ def test_the_batched_step_is_jit_of_vmap_of_the_cell_s_step():
         ends = {}
         for label, batch in (("map", mapped), ("vmap", vmapped)):
             ends[label] = batch._chunk(
-                batch.initial_state, batch.params, batch.members, left, num_records=3, record_every=100
+                batch.initial_state, batch.params, batch.members, left, 3, 100, slots=3
             )
         runner = mapped.tests[0].runner
 
