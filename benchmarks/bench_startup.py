@@ -4,7 +4,8 @@ For each dtype, in a fresh process with no compilation cache, prints: the second
 for the smoke preset's specimen (4 across, 5 layers, membrane edge D/3: the specimen the tests and the
 notebooks' smoke runs use most) and the XLA programs it compiles (each eager operation on a new shape is
 one); then, for a sweep of three cell pressures on it (the preset: to 0.4 % strain), the wall time, the
-chunk programs ``membrax.driver.drive`` compiled (one per record interval and chunk length) and their
+chunk programs ``membrax.driver.drive`` compiled (one per chunk length and record slots: the phases'
+record intervals are arguments, so a run's three phases share one) and their
 compile seconds. JAX's compile events are counted with ``jax.monitoring``; XLA at users' optimisation
 level.
 

@@ -78,7 +78,18 @@ def advance(step: Callable, state, params, num_steps: int, unroll: int = 1):
     Returns:
       The state after ``num_steps`` steps.
     """
-    if isinstance(num_steps, int) and unroll >= num_steps:
+    if not isinstance(num_steps, int):
+        # A while loop whose condition is this call's own closure: ``fori_loop``'s condition is one shared
+        # function, by which JAX looks the loop's trace up and then compares the state's tree structure
+        # with the cached ones, and jax-md keeps a jax array among a periodic list's static fields (its
+        # cell size), which compares to a tracer, not a bool, under a trace.
+        def body(carry):
+            taken, current = carry
+            return taken + 1, step(current, params)
+
+        start = jnp.zeros_like(num_steps)
+        return jax.lax.while_loop(lambda carry: carry[0] < num_steps, body, (start, state))[1]
+    if unroll >= num_steps:
         for _ in range(num_steps):
             state = step(state, params)
         return state
@@ -149,11 +160,11 @@ def budgeted_blocks(
         if isinstance(num_records, int) and slots == num_records:
             recorded = record(s, params)  # every slot scheduled: no empty branch to compile
         else:
-            shapes = jax.eval_shape(record, s, params)
+            # The empty branch's zeros take the record's shapes; XLA drops the record's unused arithmetic.
             recorded = jax.lax.cond(
                 scheduled,
                 lambda x: record(x, params),
-                lambda _: jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shapes),
+                lambda x: jax.tree.map(jnp.zeros_like, record(x, params)),
                 s,
             )
         return (s, budget, slot + 1), (recorded, active)

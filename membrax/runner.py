@@ -20,6 +20,8 @@ record intervals from :meth:`~membrax.triaxial.protocol.StagedTest.phase_plan` o
   rate of ``coarse_inertial_number`` where it is set (the speed changed linearly over
   ``shear_ramp_strain``).
 
+Every phase runs the one compiled chunk: its record interval and blocks per chunk are arguments, its record
+slots those of the phase with the most records per chunk (:func:`membrax.driver.budgeted_blocks`).
 The loop (:func:`membrax.driver.drive`) reallocates tables and checks error bits; :func:`run_group` adds
 what a long run needs: a progress bar per phase, a checkpoint (stacked state, records so far, budgets)
 every ``checkpoint_every_chunks`` chunks and at each phase's end, ``resume`` continuing to results

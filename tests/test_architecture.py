@@ -228,9 +228,10 @@ def test_membrax_never_imports_calibrate_except_the_command_line():
             )
 
 
-#: Where a loop over time steps may be written (``lax.fori_loop``, ``lax.scan``): the driver's one chunk
-#: body (:func:`membrax.driver.advance`, :func:`membrax.driver.record_blocks`).
-LOOP_HOMES = {"fori_loop": {"driver"}, "scan": {"driver"}, "while_loop": set()}
+#: Where a loop over time steps may be written (``lax.fori_loop``, ``lax.scan``, ``lax.while_loop`` for a
+#: traced step count): the driver's one chunk body (:func:`membrax.driver.advance`,
+#: :func:`membrax.driver.record_blocks`).
+LOOP_HOMES = {"fori_loop": {"driver"}, "scan": {"driver"}, "while_loop": {"driver"}}
 
 
 def _loop_calls(path: Path) -> set[str]:

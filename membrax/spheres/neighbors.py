@@ -228,14 +228,9 @@ class PeriodicNeighborFn(NamedTuple):
         shrinks makes them too small (jax-md's ``cell_size_too_small``; :meth:`needs_new_list`).
         """
         with _jax_md_promotion():
-            listing = self.neighbor_fn.allocate(
+            return self.neighbor_fn.allocate(
                 fraction, box=jnp.asarray(length, fraction.dtype), extra_capacity=extra_capacity
             )
-        # jax-md keeps the fractional cell size (cutoff / min L) as a jax array in the list's static
-        # fields; JAX compares static fields with ``==`` when it looks a traced loop up in its caches (a
-        # ``while_loop`` of a traced trip count, :func:`membrax.driver.advance`), and an array compared under
-        # a trace is a tracer, not a bool. A NumPy scalar of the same dtype compares to a bool, same bits.
-        return listing.set(cell_size=np.asarray(listing.cell_size)[()])
 
     def update(self, fraction, neighbors, length, reference_length):
         """Update under jit at box lengths ``length``: (list, rebuilt).
