@@ -28,10 +28,11 @@ hands it the allocation of its list (``allocate``: cells sized for a shrinking b
 own.
 
 The compiled chunk body is written once, here, and every loop over time steps in membrax is one of its
-two pieces: :func:`advance` (``num_steps`` steps, a ``lax.fori_loop``) and :func:`record_blocks`
-(``num_records`` blocks, each advancing and recording, a ``lax.scan``). The runners, the sensitivities'
-relaxation and the gradient rollouts differ in what they carry (a step budget, a checkpointed window),
-not in the loop.
+two pieces: :func:`advance` (``num_steps`` steps, a ``lax.fori_loop``, or a ``lax.while_loop`` where the
+count is traced) and :func:`record_blocks` (``num_records`` blocks, each advancing and recording, a
+``lax.scan``). The runners, the sensitivities' relaxation and the gradient rollouts differ in what they
+carry (a step budget, a checkpointed window), not in the loop. A run's chunk takes its record interval and
+its blocks as arguments (:func:`budgeted_blocks` with ``slots``), so its phases share one program.
 """
 
 from __future__ import annotations
