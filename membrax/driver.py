@@ -58,6 +58,7 @@ __all__ = [
     "drive",
     "grow_tables",
     "concatenate_records",
+    "record_slots",
     "run_phases",
     "two_rate_plan",
 ]
@@ -109,6 +110,15 @@ def record_blocks(block: Callable, carry, num_records: int):
       (the final carry, the records stacked along a leading axis of ``num_records``).
     """
     return jax.lax.scan(lambda current, _: block(current), carry, None, length=num_records)
+
+
+def record_slots(chunk_steps: int, intervals) -> int:
+    """Record slots of a chunk of ``chunk_steps`` steps for phases recorded every ``intervals`` steps.
+
+    The most records per chunk of any of them, at least one (:func:`drive`'s count): phases whose chunks
+    hold this many slots run one compiled program (:func:`budgeted_blocks`).
+    """
+    return max([1] + [chunk_steps // every for every in intervals])
 
 
 def budgeted_blocks(
@@ -415,7 +425,7 @@ class ChunkRunner:
           (final state, records: pytree of numpy arrays with a leading time axis, or None).
         """
         chunks = []
-        slots = max(slots, chunk_steps // record_every, 1)
+        slots = max(slots, record_slots(chunk_steps, [record_every]))
 
         def chunk(current, left, num_records):
             # A whole chunk's program (drive's whole_chunks) within the budget: the stage's last chunk
@@ -515,7 +525,7 @@ def drive(
       (state, left): the final state and the steps each member had left (0 unless stopped by errors).
     """
     left = np.ceil(np.asarray(budgets, dtype=np.float64) / record_every).astype(np.int64) * record_every
-    records_per_chunk = max(1, chunk_steps // record_every)
+    records_per_chunk = record_slots(chunk_steps, [record_every])
     growths = 0  # in a row, since the last accepted chunk
     regrown_after_error = False  # this chunk already reran with grown tables after another error
     while left.max(initial=0) > 0:
@@ -585,8 +595,7 @@ def run_phases(runner: ChunkRunner, state, params, phases, chunk_steps: int, on_
       (state, records) with the records of all phases with steps > 0 concatenated.
     """
     parts = []
-    # Room for the most records per chunk of any phase: every phase runs the one compiled chunk.
-    slots = max((chunk_steps // record_every for _, record_every in phases), default=0)
+    slots = record_slots(chunk_steps, [record_every for _, record_every in phases])
     for steps, record_every in phases:
         if steps > 0:
             state, records = runner.run(

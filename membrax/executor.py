@@ -46,7 +46,7 @@ from membrax import native
 from membrax.assemble import run_settings
 from membrax.batch import stack
 from membrax.config import TriaxialConfig
-from membrax.driver import budgeted_blocks, drive, grow_tables
+from membrax.driver import budgeted_blocks, drive, grow_tables, record_slots
 from membrax.errors import OVERFLOWS, ErrorCode, SimulationError, describe
 from membrax.membrane.candidates import (
     CandidateCapacities,
@@ -252,7 +252,7 @@ class StackedMembers:
         # Every error bit of the real members; only the overflows of the padding copies (they grow too).
         real_bits = np.where(np.arange(self.num_padded) < num, -1, int(OVERFLOWS))
 
-        slots = max(slots, chunk_steps // record_every, 1)
+        slots = max(slots, record_slots(chunk_steps, [record_every]))
 
         def chunk(states, left, num_records):
             return self._chunk(

@@ -45,6 +45,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from membrax.driver import record_slots
 from membrax.errors import RunError, SimulationError
 from membrax.executor import (
     PeriodicBatch,
@@ -492,7 +493,7 @@ def _advance_phase(group: _Group, phase: str, hooks: _Hooks) -> None:
             on_chunk=on_chunk,
             on_failure=on_failure if hooks.isolate_failures else None,
             # Room for the most records per chunk of any phase: every phase runs the one compiled chunk.
-            slots=max(settings.chunk_steps // every for _, every in group.plans[0].values()),
+            slots=record_slots(settings.chunk_steps, [every for _, every in group.plans[0].values()]),
         )
     except SimulationError as error:
         raise RunError(
