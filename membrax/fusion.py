@@ -3,7 +3,7 @@
 Contract. :func:`materialize` is the identity on a tuple of arrays, under ``jit``, ``vmap``, ``grad``
 and ``jvp`` alike (values and derivatives unchanged, bit for bit). On the CPU backend it also stops XLA
 from fusing the arrays' producers into their consumers, so each array is computed once and stored; on
-other backends it is a plain identity.
+other backends, and on concrete arrays outside any trace (nothing is fused there), it is a plain identity.
 
 Why. XLA-CPU fuses chains of cheap elementwise operations (adds, multiplies, selects) into each consumer
 and has no multi-output loop fusion, so a per-contact formula that feeds three vector components and two
@@ -72,7 +72,10 @@ def materialize(*arrays):
     if not arrays:
         raise ValueError("materialize needs at least one array.")
     arrays = tuple(jnp.asarray(a) for a in arrays)
-    if arrays[0].size == 0:
+    # Outside any trace (eager calls, as the tests make of the reference laws) each operation runs and is
+    # stored on its own: there is no fusion to stop, and the conditional would be one more program compiled
+    # per shape (about 1,000 in the test suite).
+    if arrays[0].size == 0 or not any(isinstance(a, jax.core.Tracer) for a in arrays):
         return arrays[0] if len(arrays) == 1 else arrays
     out = tuple(_identity(*arrays))
     return out[0] if len(out) == 1 else out

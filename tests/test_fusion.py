@@ -29,6 +29,16 @@ def test_values_pass_unchanged_bit_for_bit():
     assert isinstance(single, jax.Array) and single.shape == values.shape
 
 
+def test_outside_a_trace_the_arrays_come_back_as_they_are():
+    # Eagerly there is nothing to fuse: the same array objects, not a conditional's copies.
+    values, counts = jnp.asarray([0.3, -1.5, jnp.nan]), jnp.asarray([3, -7])
+    assert materialize(values) is values
+    returned = materialize(values, counts)
+    assert returned[0] is values and returned[1] is counts
+    # Traced, the conditional is there: the stored array is another one with the same bits.
+    assert "cond" in str(jax.make_jaxpr(materialize)(values))
+
+
 def test_gradient_and_tangent_are_the_identitys():
     x = jnp.linspace(-1.0, 1.0, 11)
     closed_form = 2.0 * jnp.sin(4.0 * x)
