@@ -53,7 +53,13 @@ def measure(dtype: str, members: int, particles: int, steps: int, mode: str, cpu
 
     def batched(states):
         return batch._chunk(
-            states, batch.params, batch.members, budgets, num_records=count, record_every=record_every
+            states,
+            batch.params,
+            batch.members,
+            budgets,
+            num_records=count,
+            record_every=record_every,
+            slots=count,
         )
 
     _, first = timed(batched, batch.initial_state)

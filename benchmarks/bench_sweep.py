@@ -59,7 +59,7 @@ def measure(
 
     def rate(chunk_of, states, left):
         def call(s):
-            return chunk_of(s, left, num_records=count, record_every=record_every)
+            return chunk_of(s, left, num_records=count, record_every=record_every, slots=count)
 
         _, first = timed(call, states)
         _, run = timed(call, states)

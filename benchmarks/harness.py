@@ -118,6 +118,7 @@ def time_one_by_one(tests, states, num_records: int, record_every: int) -> tuple
                 np.int32(num_records * record_every),
                 num_records=num_records,
                 record_every=record_every,
+                slots=num_records,
             )
 
         _, compile_and_run = timed(alone, state)

@@ -83,7 +83,7 @@ def advance(chunk, states, left, steps: int, record_every: int):
     if steps <= 0:
         return states
     num_records = -(-steps // record_every)
-    states, *_ = chunk(states, left, num_records=num_records, record_every=record_every)
+    states, *_ = chunk(states, left, num_records=num_records, record_every=record_every, slots=num_records)
     return jax.block_until_ready(states)
 
 
@@ -94,7 +94,7 @@ def profile(chunk, states, left, steps: int, record_every: int, top: int, trace_
     steps = num_records * record_every
 
     def call():
-        out = chunk(states, left, num_records=num_records, record_every=record_every)
+        out = chunk(states, left, num_records=num_records, record_every=record_every, slots=num_records)
         jax.block_until_ready(out)
         return out
 
@@ -189,6 +189,7 @@ def main() -> None:
         left,
         num_records=max(1, args.steps // consolidation_every),
         record_every=consolidation_every,
+        slots=max(1, args.steps // consolidation_every),
     ).compile()
     compile_s = time.perf_counter() - start
     conditionals = compiled.as_text().count(" conditional(")
