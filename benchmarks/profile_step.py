@@ -181,15 +181,16 @@ def main() -> None:
     def chunk(states, left, **kw):
         return batch._chunk(states, batch.params, batch.members, left, **kw)
 
+    records = max(1, args.steps // consolidation_every)
     start = time.perf_counter()
     compiled = batch._chunk.lower(
         batch.initial_state,
         batch.params,
         batch.members,
         left,
-        num_records=max(1, args.steps // consolidation_every),
+        num_records=records,
         record_every=consolidation_every,
-        slots=max(1, args.steps // consolidation_every),
+        slots=records,
     ).compile()
     compile_s = time.perf_counter() - start
     conditionals = compiled.as_text().count(" conditional(")
